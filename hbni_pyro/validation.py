@@ -1,0 +1,124 @@
+"""Checks and normalisation for classifier outputs at the public boundary.
+
+A classifier output is a point on the probability simplex: ``M >= 2`` entries, each
+``>= 0``, summing to 1. Classifiers emit exact zeros (float32 softmax underflow), and
+``log 0`` must never reach a sum, so entries are clamped to :data:`OUTPUT_FLOOR` and
+each row is renormalised. Anything else that is off the simplex is rejected with a
+``ValueError`` naming the first offending row.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+OUTPUT_FLOOR: float = 1e-6
+"""Smallest probability an output entry may take after clamping (before renormalising)."""
+
+SIMPLEX_ATOL: float = 1e-3
+"""Largest tolerated ``|sum(o) - 1|`` for an output row before it is rejected."""
+
+DTYPE = torch.float64
+"""All noise-model arithmetic runs in double precision."""
+
+
+def _row_name(flat_index: int, batch_shape: torch.Size) -> str:
+    if len(batch_shape) <= 1:
+        return f"row {flat_index}"
+    idx = []
+    for size in reversed(batch_shape):
+        idx.append(flat_index % size)
+        flat_index //= size
+    return "row " + str(tuple(reversed(idx)))
+
+
+def as_outputs(obs: Any, num_classes: int | None = None, *, name: str = "obs", min_dim: int = 1) -> Tensor:
+    """Validate classifier outputs and return them floored, renormalised, as float64.
+
+    Args:
+        obs: array-like of shape ``(..., M)``; each row a probability vector.
+        num_classes: expected ``M``; ``None`` accepts any ``M >= 2``.
+        name: argument name used in error messages.
+        min_dim: minimum number of dimensions (1 for one output, 2 for a batch of rows).
+
+    Returns:
+        float64 tensor of the same shape with every entry ``>= OUTPUT_FLOOR / (1 + M * OUTPUT_FLOOR)``
+        and every row summing to 1.
+
+    Raises:
+        TypeError: ``obs`` is not numeric.
+        ValueError: wrong shape or width, NaN/inf, negative entries, or a row sum off 1
+            by more than :data:`SIMPLEX_ATOL`; the message names the first bad row.
+    """
+    try:
+        x = torch.as_tensor(obs)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise TypeError(f"{name}: expected a numeric array of probability rows, got {type(obs).__name__}") from exc
+    if x.dtype == torch.bool or x.is_complex() or not (x.is_floating_point() or x.dtype in _INT_DTYPES):
+        raise TypeError(f"{name}: expected a real floating-point array, got dtype {x.dtype}")
+    x = x.to(DTYPE)
+    if x.dim() < min_dim:
+        raise ValueError(f"{name}: expected at least {min_dim} dimension(s) (..., M), got shape {tuple(x.shape)}")
+    if x.dim() == 0 or x.shape[-1] < 2:
+        raise ValueError(f"{name}: expected rows of M >= 2 class probabilities, got shape {tuple(x.shape)}")
+    if num_classes is not None and x.shape[-1] != num_classes:
+        raise ValueError(f"{name}: expected rows of width M = {num_classes}, got width {x.shape[-1]}")
+    if x.numel() == 0:
+        raise ValueError(f"{name}: expected at least one output row, got shape {tuple(x.shape)}")
+    rows = x.reshape(-1, x.shape[-1])
+    batch_shape = x.shape[:-1]
+    bad = ~torch.isfinite(rows).all(-1)
+    if bad.any():
+        raise ValueError(f"{name}: {_row_name(int(bad.nonzero()[0]), batch_shape)} contains NaN or inf")
+    bad = (rows < 0).any(-1)
+    if bad.any():
+        raise ValueError(f"{name}: {_row_name(int(bad.nonzero()[0]), batch_shape)} has a negative entry")
+    bad = (rows.sum(-1) - 1).abs() > SIMPLEX_ATOL
+    if bad.any():
+        i = int(bad.nonzero()[0])
+        raise ValueError(
+            f"{name}: {_row_name(i, batch_shape)} sums to {float(rows[i].sum()):.6g}, "
+            f"expected 1 within {SIMPLEX_ATOL} (a probability vector)"
+        )
+    rows = rows.clamp_min(OUTPUT_FLOOR)
+    rows = rows / rows.sum(-1, keepdim=True)
+    return rows.reshape(x.shape)
+
+
+_INT_DTYPES = (torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
+
+
+def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "labels") -> Tensor:
+    """Validate class labels: int64 tensor ``(N,)`` with entries in ``[0, M)`` or ``-1`` (unknown)."""
+    x = torch.as_tensor(labels)
+    if x.is_floating_point():
+        if not torch.equal(x, x.round()):
+            raise TypeError(f"{name}: expected integer class indices, got non-integer values")
+    elif x.dtype not in _INT_DTYPES:
+        raise TypeError(f"{name}: expected integer class indices, got dtype {x.dtype}")
+    x = x.to(torch.long)
+    if x.shape != (num_obs,):
+        raise ValueError(f"{name}: expected shape ({num_obs},) to match obs, got {tuple(x.shape)}")
+    bad = (x < -1) | (x >= num_classes)
+    if bad.any():
+        i = int(bad.nonzero()[0])
+        raise ValueError(
+            f"{name}: entry {i} is {int(x[i])}, expected a class in [0, {num_classes}) or -1 for unknown"
+        )
+    return x
+
+
+def as_class_prior(prior: Any, num_classes: int, *, name: str = "class_prior") -> Tensor:
+    """Validate a class prior ``p`` (``None`` means uniform); float64 ``(M,)`` summing to 1, all > 0."""
+    if prior is None:
+        return torch.full((num_classes,), 1.0 / num_classes, dtype=DTYPE)
+    p = torch.as_tensor(prior, dtype=DTYPE)
+    if p.shape != (num_classes,):
+        raise ValueError(f"{name}: expected shape ({num_classes},), got {tuple(p.shape)}")
+    if not torch.isfinite(p).all() or (p <= 0).any():
+        raise ValueError(f"{name}: expected strictly positive finite entries, got {p.tolist()}")
+    if abs(float(p.sum()) - 1) > SIMPLEX_ATOL:
+        raise ValueError(f"{name}: expected entries summing to 1, got sum {float(p.sum()):.6g}")
+    return p / p.sum()
