@@ -32,6 +32,18 @@ def sample_gamma(shape: Tensor, generator: torch.Generator) -> Tensor:
     return out
 
 
+def gamma_variates(shape: Tensor, scale: Tensor | float, generator: torch.Generator) -> Tensor:
+    """Draw ``Ga(shape, scale)`` (shape-scale) for every entry; any ``shape > 0``.
+
+    Shapes below 1 use the boost ``Ga(a) = Ga(a + 1) * U ** (1 / a)``.
+    """
+    shape = torch.as_tensor(shape, dtype=DTYPE)
+    small = shape < 1
+    x = sample_gamma(torch.where(small, shape + 1, shape), generator)
+    u = torch.rand(shape.shape, generator=generator, dtype=DTYPE)
+    return torch.where(small, x * u ** (1 / shape), x) * scale
+
+
 def sample_outputs(theta: Tensor, classes: Tensor, generator: torch.Generator) -> Tensor:
     """Draw one classifier output per entry of ``classes``.
 

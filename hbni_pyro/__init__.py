@@ -1,0 +1,26 @@
+"""Hierarchical Bayesian Noise Inference (HBNI) for streams of classifier outputs.
+
+Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class noise),
+:class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`.
+"""
+
+from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.fit import fit, fit_many
+from hbni_pyro.kernels import HBNIMetropolis
+from hbni_pyro.model import HyperPrior, hbni_model, log_joint
+from hbni_pyro.posterior import HBNIPosterior
+from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
+
+__all__ = [
+    "HBNIMetropolis",
+    "HBNIPosterior",
+    "HyperPrior",
+    "OUTPUT_FLOOR",
+    "as_outputs",
+    "fit",
+    "fit_many",
+    "gamma_log_prob",
+    "hbni_model",
+    "lifted_dirichlet_log_prob",
+    "log_joint",
+]
