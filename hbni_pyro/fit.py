@@ -175,7 +175,7 @@ def _fit_nuts(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p, ji
 
 def recover_label_probs(
     draws: dict[str, Tensor], obs: Tensor, labels: Tensor | None, class_prior: Tensor, hyperprior: HyperPrior,
-    max_draws: int = 200, seed: int = 0,
+    max_draws: int = 100, seed: int = 0,
 ) -> Tensor:
     """Posterior class probabilities ``(N, M)`` of the training outputs, by ``infer_discrete``.
 
