@@ -218,7 +218,7 @@ class HBNIFilter(_LogLinearFilter):
             raise TypeError(
                 f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}"
             )
-        theta = torch.as_tensor(draws(), dtype=DTYPE)
+        theta = torch.as_tensor(draws(), dtype=DTYPE).contiguous()  # torch's median misreads stride-0 views
         if theta.dim() != 2 or theta.shape[0] < 1 or theta.shape[1] < 2:
             raise ValueError(f"posterior: theta_draws() must have shape (S, M), got {tuple(theta.shape)}")
         if not torch.isfinite(theta).all() or (theta <= 0).any():

@@ -1,0 +1,309 @@
+"""Semantic macro-observations: run a filter until it is confident, then report (DESIGN.md §4).
+
+A :class:`MacroObservationProcess` feeds outputs to a streaming filter and stops at the first
+frame where ``max_m P(m) >= threshold``, or when ``max_frames`` outputs (or the stream) are
+spent, in which case it reports ``timed_out=True`` with the filter's decision at that point.
+
+:func:`characterize` simulates many streams per true class from a generative source and
+tabulates the joint distribution of ``(label, frames_used)`` given the true class: a
+:class:`MacroObservationModel`, which a Dec-POSMDP planner samples from.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from hbni_pyro.filters import StreamingFilter, decide
+from hbni_pyro.generative import sample_outputs
+from hbni_pyro.storage import load_tensors, save_tensors
+from hbni_pyro.validation import DTYPE
+
+_KIND = "MacroObservationModel"
+
+
+class MacroObservation(NamedTuple):
+    """One macro-observation: decided label, its posterior probability, outputs consumed, and
+    whether the process stopped without reaching the threshold."""
+
+    label: int
+    confidence: float
+    frames_used: int
+    timed_out: bool
+
+
+class MacroObservationBatch(NamedTuple):
+    """Macro-observations of ``B`` streams: ``label``, ``frames_used`` (LongTensor ``(B,)``),
+    ``confidence`` (float64 ``(B,)``), ``timed_out`` (bool ``(B,)``)."""
+
+    label: Tensor
+    confidence: Tensor
+    frames_used: Tensor
+    timed_out: Tensor
+
+
+def _positive_int(value: Any, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name}: expected a positive int, got {value!r}")
+    return value
+
+
+class MacroObservationProcess:
+    """Run ``filter`` on a stream until ``max_m P(m) >= threshold`` or ``max_frames`` outputs.
+
+    Args:
+        filter: any :class:`hbni_pyro.filters.StreamingFilter`.
+        threshold: confidence in ``(0, 1]`` at which to stop (default 0.95, as in the paper).
+        max_frames: frame budget; reaching it without the threshold gives ``timed_out=True``.
+    """
+
+    def __init__(self, filter: StreamingFilter, threshold: float = 0.95, max_frames: int = 100) -> None:
+        if not isinstance(filter, StreamingFilter):
+            raise TypeError(f"filter: expected a StreamingFilter, got {type(filter).__name__}")
+        if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0 < threshold <= 1:
+            raise ValueError(f"threshold: expected a probability in (0, 1], got {threshold!r}")
+        self.filter = filter
+        self.threshold = float(threshold)
+        self.max_frames = _positive_int(max_frames, "max_frames")
+
+    @property
+    def num_classes(self) -> int:
+        return self.filter.num_classes
+
+    def run(self, stream: Iterable[Any] | Tensor) -> MacroObservation:
+        """Consume outputs from ``stream`` (an iterable of ``(M,)`` rows or an ``(N, M)`` tensor)
+        lazily, and stop as soon as the decision is made; later rows are never read.
+
+        Raises:
+            ValueError: the stream is empty, or a row is not a probability vector of width M.
+        """
+        if isinstance(stream, Tensor) and stream.dim() != 2:
+            raise ValueError(f"stream: expected an (N, M) tensor of outputs, got shape {tuple(stream.shape)}")
+        self.filter.reset()
+        probs = None
+        for o in stream:
+            probs = self.filter.update(o)
+            confidence = float(probs.max())
+            if confidence >= self.threshold or self.filter.frames_seen == self.max_frames:
+                return MacroObservation(
+                    int(decide(probs)), confidence, self.filter.frames_seen, confidence < self.threshold
+                )
+        if probs is None:
+            raise ValueError("stream: expected at least one output, got an empty stream")
+        return MacroObservation(int(decide(probs)), float(probs.max()), self.filter.frames_seen, True)
+
+    __call__ = run
+
+    def run_batch(self, obs: Any) -> MacroObservationBatch:
+        """Batched :meth:`run` over ``obs (B, N, M)``: the same results as running each row.
+
+        Only the first ``min(N, max_frames)`` frames are used. The posterior is evaluated in
+        frame blocks of doubling length, and only for streams that have not stopped yet.
+        """
+        obs = torch.as_tensor(obs)
+        if obs.dim() != 3 or obs.shape[1] < 1:
+            raise ValueError(f"obs: expected shape (B, N, M) with N >= 1, got {tuple(obs.shape)}")
+        stats, counts = self.filter.statistics(obs[:, : self.max_frames])
+        num_streams, horizon = stats.shape[:2]
+        label = torch.zeros(num_streams, dtype=torch.long)
+        confidence = torch.zeros(num_streams, dtype=DTYPE)
+        frames = torch.full((num_streams,), horizon, dtype=torch.long)
+        timed_out = torch.ones(num_streams, dtype=torch.bool)
+        active = torch.arange(num_streams)
+        start, width = 0, 1
+        while start < horizon and active.numel():
+            end = min(horizon, start + width)
+            block = stats[active, start:end]
+            probs = self.filter.posterior(block, counts[start:end].expand(block.shape[:-1]))  # (A, k, M)
+            conf = probs.max(-1).values
+            crossed = conf >= self.threshold
+            if end == horizon:
+                crossed[:, -1] = True  # the budget is spent: stop at the last frame
+            stopped = crossed.any(-1)
+            step = crossed.to(torch.int8).argmax(-1)[stopped]  # first crossing in the block
+            rows = active[stopped]
+            label[rows] = decide(probs[stopped, step])
+            confidence[rows] = conf[stopped, step]
+            frames[rows] = start + step + 1
+            timed_out[rows] = confidence[rows] < self.threshold
+            active = active[~stopped]
+            start, width = end, 2 * width
+        return MacroObservationBatch(label, confidence, frames, timed_out)
+
+    def __repr__(self) -> str:
+        return f"MacroObservationProcess({self.filter!r}, threshold={self.threshold}, max_frames={self.max_frames})"
+
+
+class MacroObservationModel:
+    """Empirical law of a macro-observation process: ``P(label, frames_used | true class)``.
+
+    Args:
+        joint: ``(M, M, F)`` with ``joint[c, l, f] = P(label = l, frames_used = f + 1 | true = c)``;
+            each ``joint[c]`` must sum to 1.
+        timed_out: ``(M,)`` probability that the process ran out of frames, per true class.
+        info: JSON-serialisable description (threshold, filter, number of simulated streams, ...).
+    """
+
+    def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None) -> None:
+        joint = torch.as_tensor(joint, dtype=DTYPE)
+        if joint.dim() != 3 or joint.shape[0] != joint.shape[1] or joint.shape[0] < 2 or joint.shape[2] < 1:
+            raise ValueError(f"joint: expected shape (M, M, max_frames) with M >= 2, got {tuple(joint.shape)}")
+        if not torch.isfinite(joint).all() or (joint < 0).any():
+            raise ValueError("joint: expected finite, non-negative probabilities")
+        totals = joint.sum((1, 2))
+        if ((totals - 1).abs() > 1e-9).any():
+            raise ValueError(f"joint: each true class's table must sum to 1, got sums {totals.tolist()}")
+        timed_out = torch.as_tensor(timed_out, dtype=DTYPE)
+        if timed_out.shape != joint.shape[:1] or not ((timed_out >= 0) & (timed_out <= 1)).all():
+            raise ValueError(f"timed_out: expected ({joint.shape[0]},) probabilities, got {timed_out.tolist()}")
+        self.joint = joint / totals[:, None, None]
+        self.timed_out = timed_out
+        self.info = dict(info or {})
+        self._flat = self.joint.reshape(self.num_classes, -1)
+
+    @property
+    def num_classes(self) -> int:
+        return self.joint.shape[0]
+
+    @property
+    def max_frames(self) -> int:
+        return self.joint.shape[2]
+
+    @property
+    def confusion(self) -> Tensor:
+        """``(M, M)`` ``P(label | true class)``; rows sum to 1."""
+        return self.joint.sum(2)
+
+    @property
+    def frames_pmf(self) -> Tensor:
+        """``(M, max_frames)`` ``P(frames_used = f + 1 | true class)``; rows sum to 1."""
+        return self.joint.sum(1)
+
+    @property
+    def mean_frames(self) -> Tensor:
+        """``(M,)`` expected frames used per true class."""
+        support = torch.arange(1, self.max_frames + 1, dtype=DTYPE)
+        return self.frames_pmf @ support
+
+    @property
+    def accuracy(self) -> Tensor:
+        """``(M,)`` probability of the right label per true class (the confusion diagonal)."""
+        return self.confusion.diagonal()
+
+    def sample(self, true_class: Any, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Draw ``(label, frames_used)`` jointly for each entry of ``true_class``.
+
+        Args:
+            true_class: integer tensor of true classes in ``[0, M)``, any shape ``S``.
+            generator: the source of randomness (same state, same draws).
+
+        Returns:
+            ``label`` and ``frames_used`` LongTensors of shape ``S`` (frames in ``1..max_frames``).
+        """
+        if not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator: expected a torch.Generator, got {type(generator).__name__}")
+        true_class = torch.as_tensor(true_class)
+        if true_class.is_floating_point() or true_class.dtype == torch.bool or true_class.is_complex():
+            raise TypeError(f"true_class: expected an integer tensor, got dtype {true_class.dtype}")
+        true_class = true_class.long()
+        bad = (true_class < 0) | (true_class >= self.num_classes)
+        if bad.any():
+            raise ValueError(
+                f"true_class: expected classes in [0, {self.num_classes}), got {int(true_class[bad].flatten()[0])}"
+            )
+        flat = true_class.reshape(-1)
+        cell = torch.empty_like(flat)
+        for c in range(self.num_classes):
+            rows = (flat == c).nonzero().squeeze(-1)
+            if rows.numel():
+                cell[rows] = torch.multinomial(self._flat[c], rows.numel(), replacement=True, generator=generator)
+        label = (cell // self.max_frames).reshape(true_class.shape)
+        frames = (cell % self.max_frames + 1).reshape(true_class.shape)
+        return label, frames
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the tables and ``info`` to one safetensors file, atomically."""
+        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out}, {"version": 1, "info": self.info})
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "MacroObservationModel":
+        """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
+        tensors, meta = load_tensors(path, _KIND)
+        try:
+            return cls(tensors["joint"], tensors["timed_out"], meta.get("info", {}))
+        except KeyError as exc:
+            raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
+
+    def __repr__(self) -> str:
+        acc = ", ".join(f"{float(a):.3f}" for a in self.accuracy)
+        mean = ", ".join(f"{float(f):.2f}" for f in self.mean_frames)
+        return f"MacroObservationModel(M={self.num_classes}, accuracy=[{acc}], mean frames=[{mean}])"
+
+
+def characterize(
+    process: MacroObservationProcess,
+    generative: Any,
+    num_streams: int,
+    seed: int,
+    *,
+    progress: bool = False,
+) -> MacroObservationModel:
+    """Tabulate a process's ``P(label, frames_used | true class)`` by simulation.
+
+    Args:
+        process: the macro-observation process to characterise.
+        generative: where streams come from: an :class:`hbni_pyro.HBNIPosterior` (each stream
+            draws one theta from the posterior draws, then ``max_frames`` outputs given it: the
+            posterior predictive of a new object) or a true theta tensor ``(M,)``.
+        num_streams: streams simulated per true class.
+        seed: same seed, same table.
+        progress: show a progress bar over classes.
+    """
+    if not isinstance(process, MacroObservationProcess):
+        raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
+    num_streams = _positive_int(num_streams, "num_streams")
+    theta_draws, source = _generative_theta(generative, process.num_classes)
+    M, T = process.num_classes, process.max_frames
+    g = torch.Generator().manual_seed(seed)
+    counts = torch.zeros(M, M * T, dtype=DTYPE)
+    timed_out = torch.zeros(M, dtype=DTYPE)
+    for c in tqdm(range(M), desc="characterize", disable=not progress):
+        theta = theta_draws[torch.randint(theta_draws.shape[0], (num_streams,), generator=g)].unsqueeze(1)
+        classes = torch.full((num_streams, T), c, dtype=torch.long)
+        result = process.run_batch(sample_outputs(theta, classes, g))
+        counts[c].index_add_(0, result.label * T + result.frames_used - 1, torch.ones(num_streams, dtype=DTYPE))
+        timed_out[c] = result.timed_out.to(DTYPE).mean()
+    info = {
+        "threshold": process.threshold,
+        "max_frames": T,
+        "num_streams": num_streams,
+        "seed": seed,
+        "filter": repr(process.filter),
+        "generative": source,
+    }
+    return MacroObservationModel((counts / num_streams).reshape(M, M, T), timed_out, info)
+
+
+def _generative_theta(generative: Any, num_classes: int) -> tuple[Tensor, str]:
+    if callable(getattr(generative, "theta_draws", None)):
+        theta = torch.as_tensor(generative.theta_draws(), dtype=DTYPE)
+        source = "posterior predictive"
+    elif isinstance(generative, (Tensor, list, tuple)):
+        theta = torch.as_tensor(generative, dtype=DTYPE)
+        if theta.dim() != 1:
+            raise ValueError(f"generative: expected a true theta of shape (M,), got {tuple(theta.shape)}")
+        theta = theta.unsqueeze(0)
+        source = f"true theta {theta[0].tolist()}"
+    else:
+        raise TypeError(f"generative: expected an HBNIPosterior or a theta tensor (M,), got {type(generative).__name__}")
+    if theta.shape[-1] != num_classes:
+        raise ValueError(f"generative: expected theta for {num_classes} classes, got {theta.shape[-1]}")
+    if not torch.isfinite(theta).all() or (theta <= 0).any():
+        raise ValueError("generative: theta must be finite and > 0")
+    return theta, source
