@@ -1,0 +1,77 @@
+"""Atomic, pickle-free storage for decpomdp objects: safetensors tensors + JSON metadata.
+
+``decpomdp`` must not import ``hbni_pyro``, so it carries these few lines of its own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from safetensors import SafetensorError
+from safetensors.torch import load as _st_load
+from safetensors.torch import save as _st_save
+from torch import Tensor
+
+_KIND_KEY = "decpomdp.kind"
+_META_KEY = "decpomdp.metadata"
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file in the same directory and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def save_tensors(path: str | os.PathLike, kind: str, tensors: dict[str, Tensor], metadata: dict[str, Any]) -> Path:
+    """Atomically save named tensors and JSON-serialisable ``metadata`` tagged with ``kind``."""
+    header = {_KIND_KEY: kind, _META_KEY: json.dumps(metadata)}
+    data = _st_save({k: v.detach().contiguous().cpu() for k, v in tensors.items()}, metadata=header)
+    return atomic_write_bytes(path, data)
+
+
+def load_tensors(path: str | os.PathLike, kind: str) -> tuple[dict[str, Tensor], dict[str, Any]]:
+    """Load a file written by :func:`save_tensors`; raise ``ValueError`` unless it holds a ``kind`` object."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no such file {str(path)!r}")
+    raw = path.read_bytes()
+    try:
+        tensors = _st_load(raw)
+        header = _read_header(raw)
+    except (SafetensorError, ValueError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"path: {str(path)!r} is not a valid decpomdp file ({exc})") from None
+    if header.get(_KIND_KEY) != kind:
+        raise ValueError(f"path: {str(path)!r} holds {header.get(_KIND_KEY)!r}, expected a {kind!r} file")
+    try:
+        metadata = json.loads(header[_META_KEY])
+    except (KeyError, json.JSONDecodeError) as exc:
+        raise ValueError(f"path: {str(path)!r} has unreadable metadata ({exc})") from None
+    return tensors, metadata
+
+
+def _read_header(raw: bytes) -> dict[str, str]:
+    if len(raw) < 8:
+        raise ValueError("file too short")
+    n = int.from_bytes(raw[:8], "little")
+    if n <= 0 or 8 + n > len(raw):
+        raise ValueError("bad header length")
+    header = json.loads(raw[8 : 8 + n].decode("utf-8"))
+    if not isinstance(header, dict):
+        raise ValueError("header is not a JSON object")
+    meta = header.get("__metadata__", {})
+    return meta if isinstance(meta, dict) else {}

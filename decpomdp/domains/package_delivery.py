@@ -1,0 +1,324 @@
+"""Package delivery, the reference Dec-POSMDP of the G-DICE paper (Omidshafiei et al., ICRA 2016).
+
+Two robots move between five belief nodes, Base1, Base2, Rendezvous, Dest1 and Dest2. A package
+always waits at each base; small packages are carried by one robot, large ones need a joint
+pick-up and a joint put-down by both robots at the same place.
+
+Constants taken from the reference simulator (the MATLAB ``Domain`` class that accompanies the
+paper, after Amato et al., ICRA 2015):
+
+* mean durations ``MEAN_DURATION[ma, start node]`` (NaN: the MA cannot start there); joint MAs
+  last 1.5 times their solo counterparts; duration noise ``tau * (1 + 0.3 N(0, 1))``;
+* package arrival: a package always waits at each base and is replaced the moment it is picked
+  up; its destination is uniform over {Dest1, Dest2, Rendezvous}; packages bound for the
+  Rendezvous are small, the others small or large with probability 1/2 each;
+* rewards 1 (small) and 3 (large) for a package put down at its destination, the large-package
+  reward credited to *each* robot of the joint put-down (the reference adds it once per robot, so
+  a large package is worth 6 to the team; ``large_reward_per_robot=False`` credits it once);
+* 13 macro-observations: ``none`` away from the bases, otherwise (size, destination, partner
+  present) of the package waiting at the base, or of the package just picked up;
+* both robots start at Base1; gamma = 0.99 per time unit; horizon 50.
+
+Choices where the paper and reference are silent or differ (documented constants):
+
+* time is continuous: durations are not rounded, and the noise factor is clamped at
+  ``MIN_NOISE_FACTOR`` so durations stay positive; ``wait`` lasts exactly 1;
+* an MA whose preconditions fail (wrong place, wrong load, solo pick-up of a large package, a
+  joint MA without the partner, ...) does nothing and lasts ``FAIL_DURATION`` (the reference makes
+  a failed MA end at the next time step);
+* a joint MA is a rendezvous: the first robot to start it waits at its node up to ``joint_wait``
+  time units; when the partner starts the same joint MA at the same node (carrying the same load)
+  both run it together with one sampled duration and finish at the same instant; otherwise it
+  fails when the wait runs out. The reference instead forced the partner into the joint MA when
+  both decided in the same step and let one robot run a joint MA alone;
+* preconditions: go-to MAs need a defined mean duration from the current node and no large load;
+  joint go-to MAs need a large load; pick-up needs an empty robot at a base holding a small
+  package (joint pick-up: a large one); put-down needs a small load at Dest1/Dest2 (joint
+  put-down: a large load); place on truck needs a small load at the Rendezvous;
+* truck semantics: a small package bound for the Rendezvous and placed on the truck there counts
+  as delivered right and earns ``truck_reward`` (default 1, the small-package reward; the
+  reference awards 0);
+* a package put down (or placed on the truck) at the wrong destination earns nothing, is gone,
+  and increments the ``wrong`` counter;
+* MAs started at the same instant see the state as it was before any of them started, except
+  that two robots cannot take one package: when both start a pick-up at the same base at once,
+  robot 0 takes the package and robot 1's pick-up fails; both starting the same joint MA at once
+  start it together;
+* the partner is "present" at a base when it is located there and not travelling away;
+* the first MA is chosen in controller node 0 before any observation.
+
+State (batch first): ``loc`` (B, 2) node of each robot (updated when a go-to MA completes);
+``load`` (B, 2) carried package (0: none, else ``1 + package code``); ``base`` (B, 2) package code
+waiting at Base1/Base2; ``ma``, ``ok``, ``waiting`` (B, 2) each robot's current MA, whether its
+preconditions held, and whether it still waits for its partner. Package codes (``PACKAGES``):
+0 small->Dest1, 1 small->Dest2, 2 small->Rendezvous, 3 large->Dest1, 4 large->Dest2.
+Per-rollout counters: ``delivered`` (packages delivered right), ``delivered_large`` and ``wrong``
+(wrong deliveries), all long (B,).
+
+The rules are compiled into lookup tables over (location, load, package at the base, MA) so that
+a batch step is a handful of gathers and elementwise ops.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from decpomdp.core import DecPOSMDP
+
+NODE_NAMES = ["Base1", "Base2", "Rendezvous", "Dest1", "Dest2"]
+BASE1, BASE2, RENDEZVOUS, DEST1, DEST2 = range(5)
+ACTION_NAMES = [
+    "go_base1",
+    "go_base2",
+    "go_rendezvous",
+    "go_dest1",
+    "go_dest2",
+    "joint_go_dest1",
+    "joint_go_dest2",
+    "pick_up",
+    "joint_pick_up",
+    "put_down",
+    "joint_put_down",
+    "place_on_truck",
+    "wait",
+]
+(GO_B1, GO_B2, GO_R, GO_D1, GO_D2, JGO_D1, JGO_D2, PICK, JPICK, PUT, JPUT, TRUCK, WAIT) = range(13)
+SMALL, LARGE = 1, 2
+_DEST_ORDER = (DEST1, DEST2, RENDEZVOUS)  # destination order inside the observation index
+_SIZES, _DESTS = ("small", "large"), ("dest1", "dest2", "rendezvous")
+OBS_NAMES = ["none"] + [
+    f"{size}_{dest}_{who}" for who in ("alone", "partner") for size in _SIZES for dest in _DESTS
+]
+
+_nan = math.nan
+#: mean duration of each MA (rows, ACTION_NAMES order) from each start node (columns, NODE_NAMES order)
+MEAN_DURATION = torch.tensor(
+    [
+        [_nan, 2, 4, 3, 2],
+        [2, _nan, 4, 2, 4],
+        [3, 4, _nan, _nan, _nan],
+        [3, 2, _nan, _nan, _nan],
+        [2, 4, _nan, _nan, _nan],
+        [4.5, 3, _nan, _nan, _nan],
+        [3, 6, _nan, _nan, _nan],
+        [1, 1, _nan, _nan, _nan],
+        [1.5, 1.5, _nan, _nan, _nan],
+        [_nan, _nan, _nan, 1, 1],
+        [_nan, _nan, _nan, 1.5, 1.5],
+        [_nan, _nan, 1, _nan, _nan],
+        [1, 1, 1, 1, 1],
+    ],
+    dtype=torch.float64,
+)
+#: node each go-to MA ends at (-1: the MA does not move the robot)
+TARGET_NODE = [BASE1, BASE2, RENDEZVOUS, DEST1, DEST2, DEST1, DEST2, -1, -1, -1, -1, -1, -1]
+#: (size, destination node) of each package code
+PACKAGES = [(SMALL, DEST1), (SMALL, DEST2), (SMALL, RENDEZVOUS), (LARGE, DEST1), (LARGE, DEST2)]
+#: package codes drawn uniformly from this list: destination uniform, Rendezvous-bound ones small,
+#: the others small or large with probability 1/2
+_ARRIVAL = torch.tensor([0, 1, 2, 2, 3, 4])
+DURATION_NOISE = 0.3
+MIN_NOISE_FACTOR = 0.1
+FAIL_DURATION = 1.0
+JOINT_MAS = (JGO_D1, JGO_D2, JPICK, JPUT)
+DROP_MAS = (PUT, JPUT, TRUCK)
+_N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
+
+
+def preconditions_hold(loc: int, load: int, here: int, ma: int) -> bool:
+    """Whether a robot at ``loc`` with ``load``, seeing package ``here`` at its base, may start ``ma``.
+
+    Only the robot's own state is checked; a joint MA also needs its partner (see the module doc).
+    """
+    if ma == WAIT:
+        return True
+    if math.isnan(float(MEAN_DURATION[ma, loc])):
+        return False
+    size = PACKAGES[load - 1][0] if load else 0
+    if ma <= GO_D2:
+        return size != LARGE
+    if ma in (JGO_D1, JGO_D2, JPUT):
+        return size == LARGE
+    if ma in (PICK, JPICK):
+        return size == 0 and PACKAGES[here][0] == (SMALL if ma == PICK else LARGE)
+    return size == SMALL  # put down, place on truck
+
+
+def _start_tables() -> dict[str, Tensor]:
+    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma``."""
+    n = _N_LOC * _N_LOAD * _N_PKG * _N_MA
+    ok, mean, noisy = torch.zeros(n, dtype=torch.bool), torch.zeros(n, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
+    i = 0
+    for loc in range(_N_LOC):
+        for load in range(_N_LOAD):
+            for here in range(_N_PKG):
+                for ma in range(_N_MA):
+                    ok[i] = preconditions_hold(loc, load, here, ma)
+                    mean[i] = float(MEAN_DURATION[ma, loc]) if ok[i] else FAIL_DURATION
+                    noisy[i] = float(bool(ok[i]) and ma != WAIT)
+                    i += 1
+    return {"ok": ok, "mean": mean, "noisy": noisy}
+
+
+_START = _start_tables()
+_IS_JOINT = torch.zeros(_N_MA, dtype=torch.bool)
+_IS_JOINT[list(JOINT_MAS)] = True
+_IS_PICK = torch.zeros(_N_MA, dtype=torch.bool)
+_IS_PICK[[PICK, JPICK]] = True
+_IS_GO = torch.tensor([t >= 0 for t in TARGET_NODE])
+
+
+class PackageDelivery(DecPOSMDP):
+    """The package-delivery Dec-POSMDP (2 robots, 13 MAs, 13 macro-observations).
+
+    Args:
+        gamma: discount per time unit.
+        horizon: simulation length in time units.
+        joint_wait: how long a robot that starts a joint MA waits for its partner (time units > 0).
+        small_reward, large_reward, truck_reward: rewards for a package delivered right.
+        large_reward_per_robot: credit ``large_reward`` to each robot of the joint put-down
+            (the reference's accounting) instead of once per package.
+    """
+
+    num_agents = 2
+    num_actions = len(ACTION_NAMES)
+    num_obs = len(OBS_NAMES)
+
+    def __init__(
+        self,
+        gamma: float = 0.99,
+        horizon: float = 50.0,
+        joint_wait: float = 4.0,
+        small_reward: float = 1.0,
+        large_reward: float = 3.0,
+        truck_reward: float = 1.0,
+        large_reward_per_robot: bool = True,
+    ) -> None:
+        if not 0.0 < float(gamma) <= 1.0:
+            raise ValueError(f"gamma: expected a float in (0, 1], got {gamma!r}")
+        for name, value in (("horizon", horizon), ("joint_wait", joint_wait)):
+            if not (math.isfinite(float(value)) and float(value) > 0.0):
+                raise ValueError(f"{name}: expected a finite float > 0, got {value!r}")
+        for name, value in (("small_reward", small_reward), ("large_reward", large_reward), ("truck_reward", truck_reward)):
+            if not math.isfinite(float(value)):
+                raise ValueError(f"{name}: expected a finite float, got {value!r}")
+        self.gamma, self.horizon, self.joint_wait = float(gamma), float(horizon), float(joint_wait)
+        self.small_reward, self.large_reward, self.truck_reward = float(small_reward), float(large_reward), float(truck_reward)
+        self.large_reward_per_robot = bool(large_reward_per_robot)
+        self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
+        self._complete_tables = self._build_complete_tables()
+
+    def __repr__(self) -> str:
+        return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
+                f"large_reward_per_robot={self.large_reward_per_robot})")
+
+    def drop_reward(self, ma: int, load: int, loc: int) -> tuple[float, bool]:
+        """(reward credited to one robot, delivered right?) when ``ma`` in ``DROP_MAS`` completes at ``loc``."""
+        size, dest = PACKAGES[load - 1]
+        right = dest == loc
+        if not right:
+            return 0.0, False
+        if ma == JPUT:
+            return (self.large_reward if self.large_reward_per_robot else self.large_reward / 2), True
+        return (self.truck_reward if ma == TRUCK else self.small_reward), True
+
+    def _build_complete_tables(self) -> dict[str, Tensor]:
+        """Tables over ``(ma * 5 + loc) * 6 + load`` for an effective (successful) MA completing."""
+        n = _N_MA * _N_LOC * _N_LOAD
+        loc_t, load_t = torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.long)
+        reward = torch.zeros(n, dtype=torch.float64)
+        right2, wrong2, large2 = (torch.zeros(n, dtype=torch.long) for _ in range(3))
+        i = 0
+        for ma in range(_N_MA):
+            for loc in range(_N_LOC):
+                for load in range(_N_LOAD):
+                    loc_t[i] = TARGET_NODE[ma] if TARGET_NODE[ma] >= 0 else loc
+                    load_t[i] = load
+                    if ma in DROP_MAS and load and preconditions_hold(loc, load, 0, ma):
+                        r, right = self.drop_reward(ma, load, loc)
+                        reward[i], load_t[i] = r, 0
+                        weight = 1 if ma == JPUT else 2  # both robots complete a joint put-down
+                        right2[i], wrong2[i] = weight * right, weight * (not right)
+                        large2[i] = weight * (right and ma == JPUT)
+                    i += 1
+        return {"loc": loc_t, "load": load_t, "reward": reward, "right2": right2, "wrong2": wrong2, "large2": large2}
+
+    @staticmethod
+    def sample_packages(count: int, generator: torch.Generator) -> Tensor:
+        """long (count,) new package codes (see ``PACKAGES``)."""
+        return _ARRIVAL[torch.randint(0, len(_ARRIVAL), (count,), generator=generator)]
+
+    def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
+        zeros = torch.zeros(batch, 2, dtype=torch.long)
+        return {
+            "loc": torch.full((batch, 2), BASE1, dtype=torch.long),
+            "load": zeros.clone(),
+            "base": self.sample_packages(2 * batch, generator).view(batch, 2),
+            "ma": torch.full((batch, 2), WAIT, dtype=torch.long),
+            "ok": torch.zeros(batch, 2, dtype=torch.bool),
+            "waiting": torch.zeros(batch, 2, dtype=torch.bool),
+            "delivered": torch.zeros(batch, dtype=torch.long),
+            "delivered_large": torch.zeros(batch, dtype=torch.long),
+            "wrong": torch.zeros(batch, dtype=torch.long),
+        }
+
+    @staticmethod
+    def _here(state: dict[str, Tensor]) -> Tensor:
+        """long (B, 2) package code waiting at each robot's base (meaningless away from the bases)."""
+        return state["base"].gather(1, state["loc"].clamp(max=BASE2))
+
+    def start(self, state, agents, actions, t, end_time, generator):
+        loc, load, here = state["loc"], state["load"], self._here(state)
+        index = ((loc * _N_LOAD + load) * _N_PKG + here) * _N_MA + actions
+        ok = _START["ok"][index] & agents
+        same_place = loc[:, 0] == loc[:, 1]
+        ok[:, 1] &= ~(ok[:, 0] & (actions[:, 0] == PICK) & (actions[:, 1] == PICK) & same_place)  # robot 0 takes it
+        noise = torch.randn(actions.shape, generator=generator, dtype=torch.float32).to(torch.float64)
+        factor = 1.0 + _START["noisy"][index] * ok * (noise * DURATION_NOISE).clamp(min=MIN_NOISE_FACTOR - 1.0)
+        finish = t[:, None] + torch.where(ok, _START["mean"][index], FAIL_DURATION) * factor
+        joint = ok & _IS_JOINT[actions]
+        same = same_place & (load[:, 0] == load[:, 1])
+        # a robot joins a partner already waiting in the same joint MA at the same place with the same load
+        joins = joint & state["waiting"].flip(1) & (state["ma"].flip(1) == actions) & same[:, None]
+        # both start the same joint MA at once: they start it together on robot 0's duration
+        together = joint[:, 0] & joint[:, 1] & (actions[:, 0] == actions[:, 1]) & same
+        finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
+        waits = joint & ~joins & ~together[:, None]
+        finish = torch.where(waits, t[:, None] + self.joint_wait, finish)
+        end = torch.where(agents, finish, end_time)
+        end = torch.where(joins.flip(1), finish.flip(1), end)
+        state["ma"] = torch.where(agents, actions, state["ma"])
+        state["ok"] = (state["ok"] & ~agents) | ok
+        state["waiting"] = (state["waiting"] & ~agents & ~joins.flip(1)) | waits
+        paired = joins | joins.flip(1) | together[:, None]
+        take = (ok & (actions == PICK)) | (paired & (state["ma"] == JPICK))
+        if bool(take.any()):
+            state["load"] = torch.where(take, here + 1, load)
+            emptied = take.clone()
+            emptied[:, 1] &= ~(take[:, 0] & same_place)  # a joint pick-up empties one base
+            row, col = emptied.nonzero(as_tuple=True)
+            state["base"][row, loc[row, col]] = self.sample_packages(int(row.numel()), generator)
+        return end
+
+    def complete(self, state, agents, actions, t, generator):
+        ma, loc, load = state["ma"], state["loc"], state["load"]
+        effective = agents & state["ok"] & ~state["waiting"]
+        travelling = _IS_GO[ma] & state["ok"] & ~state["waiting"] & ~agents
+        state["waiting"] = state["waiting"] & ~agents  # a wait that runs out is a failed joint MA
+        table = self._complete_tables
+        index = (ma * _N_LOC + loc) * _N_LOAD + load
+        loc = state["loc"] = torch.where(effective, table["loc"][index], loc)
+        picked = effective & _IS_PICK[ma]
+        reward = (table["reward"][index] * effective).sum(dim=1)
+        eff = effective.long()
+        state["delivered"] += (table["right2"][index] * eff).sum(dim=1) // 2
+        state["delivered_large"] += (table["large2"][index] * eff).sum(dim=1) // 2
+        state["wrong"] += (table["wrong2"][index] * eff).sum(dim=1) // 2
+        load = state["load"] = torch.where(effective, table["load"][index], load)
+        package = torch.where(picked, load - 1, self._here(state))
+        partner = (loc.flip(1) == loc) & ~travelling.flip(1)
+        obs = torch.where(loc <= BASE2, 1 + 6 * partner.long() + package, 0)
+        return reward, obs

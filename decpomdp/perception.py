@@ -1,0 +1,75 @@
+"""How a domain sees perception: sample a class label and the frames it took, given the true class.
+
+A Dec-POSMDP domain with an "infer object class" macro-action asks a
+:class:`MacroObservationModel` for the label the robot reports and the number of camera frames the
+inference used; the domain turns frames into MA duration. Any object with ``num_classes`` and a
+matching ``sample`` plugs in (a tabulated HBNI or SSBF characterisation, or
+:class:`PerfectPerception`); this module never imports the perception packages.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import torch
+from torch import Tensor
+
+
+@runtime_checkable
+class MacroObservationModel(Protocol):
+    """A perception process seen by the planner.
+
+    Attributes:
+        num_classes: C, the number of object classes (labels lie in ``[0, C)``).
+    """
+
+    num_classes: int
+
+    def sample(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Labels and frame counts for a batch of objects.
+
+        Args:
+            true_class: long (B,), each object's class in ``[0, C)``.
+            generator: the only source of randomness.
+
+        Returns:
+            label long (B,) in ``[0, C)``, frames long (B,) >= 1.
+        """
+        ...
+
+
+def check_true_class(true_class: Tensor, num_classes: int) -> None:
+    """Raise ``TypeError``/``ValueError`` unless ``true_class`` is a long (B,) tensor in ``[0, num_classes)``."""
+    if not isinstance(true_class, Tensor) or true_class.dtype != torch.long:
+        got = type(true_class).__name__ if not isinstance(true_class, Tensor) else f"tensor of {true_class.dtype}"
+        raise TypeError(f"true_class: expected a torch.long tensor, got {got}")
+    if true_class.dim() != 1:
+        raise ValueError(f"true_class: expected shape (B,), got {tuple(true_class.shape)}")
+    if true_class.numel() and (int(true_class.min()) < 0 or int(true_class.max()) >= num_classes):
+        raise ValueError(f"true_class: entries must lie in [0, {num_classes})")
+
+
+class PerfectPerception:
+    """Always reports the true class, after a fixed number of frames.
+
+    Args:
+        num_classes: C >= 1.
+        frames: frames each inference takes (int >= 1).
+    """
+
+    def __init__(self, num_classes: int, frames: int = 1) -> None:
+        for name, value in (("num_classes", num_classes), ("frames", frames)):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
+            if value < 1:
+                raise ValueError(f"{name}: expected an int >= 1, got {value}")
+        self.num_classes = num_classes
+        self.frames = frames
+
+    def sample(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Return ``(true_class, frames)``; the generator is not consumed."""
+        check_true_class(true_class, self.num_classes)
+        return true_class.clone(), torch.full_like(true_class, self.frames)
+
+    def __repr__(self) -> str:
+        return f"PerfectPerception(num_classes={self.num_classes}, frames={self.frames})"
