@@ -156,10 +156,10 @@ def _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p) -> l
 def _fit_nuts(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
     pyro.set_rng_seed(seed)
     kernel = NUTS(hbni_model, max_plate_nesting=1, jit_compile=jit, ignore_jit_warnings=True)
-    mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, num_chains=chains, disable_progbar=not progress)
     start = time.perf_counter()
     with warnings.catch_warnings(), single_thread():
         warnings.filterwarnings("ignore", message="num_chains=.*more than available_cpu")
+        mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, num_chains=chains, disable_progbar=not progress)
         mcmc.run(x, y, p, hp)
     seconds = time.perf_counter() - start
     draws = mcmc.get_samples(group_by_chain=True)
