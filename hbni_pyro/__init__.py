@@ -1,22 +1,35 @@
 """Hierarchical Bayesian Noise Inference (HBNI) for streams of classifier outputs.
 
 Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class noise),
-:class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`.
+:class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
+the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
+:class:`MaxOfMeanFilter`) and macro-observations (:class:`MacroObservationProcess`,
+:func:`characterize`, :class:`MacroObservationModel`).
 """
 
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import HBNIMetropolis
+from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 
 __all__ = [
+    "HBNIFilter",
     "HBNIMetropolis",
     "HBNIPosterior",
     "HyperPrior",
+    "MacroObservationModel",
+    "MacroObservationProcess",
+    "MaxOfMeanFilter",
     "OUTPUT_FLOOR",
+    "SSBF",
+    "VotingFilter",
     "as_outputs",
+    "characterize",
+    "decide",
     "fit",
     "fit_many",
     "gamma_log_prob",
