@@ -1,0 +1,101 @@
+"""A tabular Dec-POMDP as a Dec-POSMDP whose every primitive action is a unit-duration MA.
+
+Time convention (see :mod:`decpomdp.core`): the step-``k`` joint action starts at ``k`` and completes
+at ``k + 1``; ``horizon = h`` runs ``h`` steps. ``complete`` samples ``s' ~ T(.|s, ja)``,
+``jo ~ O(.|ja, s')`` and returns ``R(s, ja, s', jo) / gamma``, so with the simulator's ``gamma ** (k+1)``
+step ``k``'s reward is discounted by ``gamma ** k`` as in the Dec-POMDP literature.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from decpomdp.core import DecPOSMDP
+from decpomdp.dpomdp.parser import DPOMDPModel, load_dpomdp
+
+
+def _sample(cum: Tensor, generator: torch.Generator) -> Tensor:
+    """One index per row of cumulative probabilities ``cum`` (B, n)."""
+    u = torch.rand(cum.shape[0], 1, generator=generator, dtype=cum.dtype) * cum[:, -1:]
+    return torch.searchsorted(cum, u, right=True).squeeze(1).clamp_(max=cum.shape[1] - 1)
+
+
+class TabularDecPOSMDP(DecPOSMDP):
+    """A ``.dpomdp`` model with unit-duration MAs.
+
+    Args:
+        model: a parsed :class:`~decpomdp.dpomdp.parser.DPOMDPModel` (every agent with the same numbers
+            of actions and observations).
+        gamma: discount in (0, 1]; defaults to the file's.
+        horizon: number of steps ``h`` (``math.inf`` for an infinite-horizon problem, which
+            :func:`~decpomdp.dpomdp.exact.exact_value` evaluates but :func:`~decpomdp.simulate` cannot).
+    """
+
+    def __init__(self, model: DPOMDPModel, gamma: float | None = None, horizon: float = math.inf) -> None:
+        if not isinstance(model, DPOMDPModel):
+            raise TypeError(f"model: expected a DPOMDPModel, got {type(model).__name__}")
+        n_act = {len(a) for a in model.action_names}
+        n_obs = {len(o) for o in model.obs_names}
+        if len(n_act) != 1 or len(n_obs) != 1:
+            raise ValueError("model: every agent must have the same numbers of actions and of observations")
+        gamma = model.discount if gamma is None else float(gamma)
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"gamma: expected a discount in (0, 1], got {gamma}")
+        if not (horizon == math.inf or (float(horizon).is_integer() and horizon >= 1)):
+            raise ValueError(f"horizon: expected a whole number of steps >= 1 or math.inf, got {horizon}")
+        if horizon == math.inf and gamma == 1.0:
+            raise ValueError("horizon: an infinite horizon needs gamma < 1")
+        self.model = model
+        self.num_agents = model.num_agents
+        self.num_actions, self.num_obs = n_act.pop(), n_obs.pop()
+        self.num_states = model.num_states
+        self.gamma, self.horizon = gamma, float(horizon)
+        self.action_names = list(model.action_names[0])
+        self.obs_names = list(model.obs_names[0])
+        f64 = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
+        self.start_dist = f64(model.start)
+        self.transition = f64(model.transition)  # (JA, S, S')
+        self.observation = f64(model.observation)  # (JA, S', JO)
+        self.reward = f64(model.reward)  # (JA, S, S', JO)
+        self.expected_reward = f64(model.expected_reward())  # (JA, S)
+        self._start_cum = self.start_dist.cumsum(0)
+        self._t_cum = self.transition.cumsum(-1)
+        self._o_cum = self.observation.cumsum(-1)
+        a = self.num_agents
+        self.action_strides = torch.tensor([self.num_actions ** (a - 1 - i) for i in range(a)])
+        self.obs_strides = torch.tensor([self.num_obs ** (a - 1 - i) for i in range(a)])
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
+        """Load a ``.dpomdp`` file."""
+        return cls(load_dpomdp(path), gamma, horizon)
+
+    def joint_action(self, actions: Tensor) -> Tensor:
+        """(..., A) individual actions -> (...) joint index (first agent most significant)."""
+        return (actions * self.action_strides).sum(-1)
+
+    def split_obs(self, jo: Tensor) -> Tensor:
+        """(...) joint observation -> (..., A) individual observations."""
+        return (jo[..., None] // self.obs_strides) % self.num_obs
+
+    def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
+        u = torch.rand(batch, generator=generator, dtype=torch.float64) * self._start_cum[-1]
+        return {"s": torch.searchsorted(self._start_cum, u, right=True).clamp_(max=self.num_states - 1)}
+
+    def start(self, state, agents, actions, t, end_time, generator) -> Tensor:
+        return torch.where(agents, t[:, None] + 1.0, end_time)
+
+    def complete(self, state, agents, actions, t, generator) -> tuple[Tensor, Tensor]:
+        act = agents.any(dim=1)
+        s = state["s"]
+        ja = self.joint_action(actions)
+        s2 = _sample(self._t_cum[ja, s], generator)
+        jo = _sample(self._o_cum[ja, s2], generator)
+        reward = torch.where(act, self.reward[ja, s, s2, jo] / self.gamma, 0.0)
+        state["s"] = torch.where(act, s2, s)
+        return reward, self.split_obs(jo)
