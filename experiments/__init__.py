@@ -1,1 +1,6 @@
-"""Hydra entry points. ``python -m experiments.run experiment=<name>`` runs one study."""
+"""Hydra entry points. ``python -m experiments.run experiment=<name>`` runs one study;
+``experiments.load_run(run_dir)`` loads a finished run's config, metrics and fitted objects."""
+
+from experiments.artifacts import Run, load_run
+
+__all__ = ["Run", "load_run"]

@@ -16,6 +16,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 import hbni_pyro
+from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from hbni_pyro.density import gamma_log_prob
 from hbni_pyro.generative import sample_outputs
@@ -32,8 +33,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     confident = hbni_pyro.fit(
         obs, **fit_kw, hyperprior=instantiate(cfg.toy.near_perfect_hyperprior), seed=int(cfg.seed) + 1, progress=cfg.progress
     )
-    posterior.save(run_dir / "posterior.safetensors")
-    confident.save(run_dir / "posterior_near_perfect.safetensors")
+    save_artifact(run_dir, "posterior", posterior)
+    save_artifact(run_dir, "posterior_near_perfect", confident)
     save_figure(_theta_figure(posterior, theta_true), run_dir / "theta_posterior.png")
     save_figure(_hyper_figure(confident), run_dir / "hyperparameters.png")
     summary = posterior.summary()

@@ -1,0 +1,121 @@
+"""Saved artefacts of a run and loading a whole run back: ``load_run(run_dir)``.
+
+An experiment saves each fitted object with :func:`save_artifact`, which writes the object's
+own file and records it in ``run_dir/artifacts.json`` (name -> kind and relative path).
+:func:`load_run` reads ``.hydra/config.yaml``, ``metrics.json`` and every recorded artefact.
+Each artefact also loads on its own with its class's ``load(path)``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from experiments.common import write_json
+
+MANIFEST = "artifacts.json"
+
+_SUFFIX = {
+    "HBNIPosterior": ".safetensors",
+    "MacroObservationModel": ".safetensors",
+    "JointController": ".safetensors",
+    "FrameClassifier": ".safetensors",
+}
+
+
+def _loader(kind: str):
+    if kind == "HBNIPosterior":
+        from hbni_pyro import HBNIPosterior
+
+        return HBNIPosterior.load
+    if kind == "MacroObservationModel":
+        from hbni_pyro import MacroObservationModel
+
+        return MacroObservationModel.load
+    if kind == "JointController":
+        from decpomdp import JointController
+
+        return JointController.load
+    if kind == "FrameClassifier":
+        from classifiers import FrameClassifier
+
+        return FrameClassifier.load
+    raise ValueError(f"{MANIFEST}: unknown artefact kind {kind!r}, expected one of {sorted(_SUFFIX)}")
+
+
+def save_artifact(run_dir: str | os.PathLike, name: str, obj: Any) -> Path:
+    """Save ``obj`` (anything with ``save(path)`` whose class is a known kind) as ``run_dir/<name>.<ext>``
+    and record it in the run's manifest. Returns the written path."""
+    kind = type(obj).__name__
+    if kind not in _SUFFIX:
+        raise TypeError(f"obj: expected one of {sorted(_SUFFIX)}, got {kind}")
+    run_dir = Path(run_dir)
+    rel = f"{name}{_SUFFIX[kind]}"
+    path = obj.save(run_dir / rel)
+    manifest = _read_manifest(run_dir) if (run_dir / MANIFEST).is_file() else {}
+    manifest[name] = {"kind": kind, "path": rel}
+    write_json(run_dir / MANIFEST, manifest)
+    return Path(path)
+
+
+def _read_manifest(run_dir: Path) -> dict[str, dict[str, str]]:
+    try:
+        manifest = json.loads((run_dir / MANIFEST).read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{run_dir / MANIFEST}: corrupt manifest ({exc})") from None
+    if not isinstance(manifest, dict):
+        raise ValueError(f"{run_dir / MANIFEST}: expected a JSON object of artefacts")
+    return manifest
+
+
+@dataclass
+class Run:
+    """A finished run: its composed config, metrics and fitted artefacts (also as attributes)."""
+
+    run_dir: Path
+    cfg: DictConfig
+    metrics: dict[str, Any]
+    artifacts: dict[str, Any] = field(default_factory=dict)
+
+    def __getattr__(self, name: str) -> Any:
+        artifacts = self.__dict__.get("artifacts", {})
+        if name in artifacts:
+            return artifacts[name]
+        raise AttributeError(f"run has no artefact or attribute {name!r}; artefacts: {sorted(artifacts)}")
+
+    def __dir__(self) -> list[str]:
+        return sorted(set(super().__dir__()) | set(self.artifacts))
+
+
+def load_run(run_dir: str | os.PathLike) -> Run:
+    """Load a run directory written by ``python -m experiments.run``.
+
+    Returns a :class:`Run` whose artefacts are ready to use, e.g. ``run.posterior.summary()``
+    or ``run.classifier.predict_proba(images)``.
+
+    Raises:
+        FileNotFoundError: the directory, its ``.hydra/config.yaml``, or a recorded artefact is missing.
+        ValueError: a file is corrupt or not what the manifest says.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run_dir: no such run directory {str(run_dir)!r}")
+    cfg_path = run_dir / ".hydra" / "config.yaml"
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"run_dir: {str(run_dir)!r} is not a Hydra run directory (no .hydra/config.yaml)")
+    cfg = OmegaConf.load(cfg_path)
+    metrics_path = run_dir / "metrics.json"
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
+    artifacts: dict[str, Any] = {}
+    if (run_dir / MANIFEST).is_file():
+        for name, entry in _read_manifest(run_dir).items():
+            path = run_dir / entry["path"]
+            if not path.is_file():
+                raise FileNotFoundError(f"run_dir: artefact {name!r} ({entry['kind']}) is missing: {str(path)!r}")
+            artifacts[name] = _loader(entry["kind"])(path)
+    return Run(run_dir, cfg, metrics, artifacts)
