@@ -125,6 +125,8 @@ MIN_NOISE_FACTOR = 0.1
 FAIL_DURATION = 1.0
 JOINT_MAS = (JGO_D1, JGO_D2, JPICK, JPUT)
 DROP_MAS = (PUT, JPUT, TRUCK)
+#: per-rollout counters kept in the state, long (B,)
+COUNTERS = ("delivered", "delivered_large", "wrong")
 _N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
 
 
@@ -164,11 +166,22 @@ def _start_tables() -> dict[str, Tensor]:
 
 
 _START = _start_tables()
-_IS_JOINT = torch.zeros(_N_MA, dtype=torch.bool)
-_IS_JOINT[list(JOINT_MAS)] = True
-_IS_PICK = torch.zeros(_N_MA, dtype=torch.bool)
-_IS_PICK[[PICK, JPICK]] = True
-_IS_GO = torch.tensor([t >= 0 for t in TARGET_NODE])
+
+
+def _flags(mas) -> Tensor:
+    flags = torch.zeros(_N_MA, dtype=torch.bool)
+    flags[list(mas)] = True
+    return flags
+
+
+_IS_JOINT, _IS_SOLO_PICK, _IS_PICK, _IS_DROP = _flags(JOINT_MAS), _flags([PICK]), _flags([PICK, JPICK]), _flags(DROP_MAS)
+_IS_GO = _flags(m for m, node in enumerate(TARGET_NODE) if node >= 0)
+_TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE])
+
+
+def _lookup(table: Tensor, index: Tensor) -> Tensor:
+    """``table[index]`` for a 1-D table (a flat ``index_select``, the fastest gather on CPU)."""
+    return table.index_select(0, index.reshape(-1)).view(index.shape)
 
 
 class PackageDelivery(DecPOSMDP):
@@ -226,25 +239,23 @@ class PackageDelivery(DecPOSMDP):
         return (self.truck_reward if ma == TRUCK else self.small_reward), True
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
-        """Tables over ``(ma * 5 + loc) * 6 + load`` for an effective (successful) MA completing."""
+        """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
+
+        ``counts[i]`` adds to (delivered, delivered_large, wrong); a joint put-down completes for
+        both robots at once and is counted on robot 0 only.
+        """
         n = _N_MA * _N_LOC * _N_LOAD
-        loc_t, load_t = torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.long)
         reward = torch.zeros(n, dtype=torch.float64)
-        right2, wrong2, large2 = (torch.zeros(n, dtype=torch.long) for _ in range(3))
+        counts = torch.zeros(n, 3, dtype=torch.long)
         i = 0
         for ma in range(_N_MA):
             for loc in range(_N_LOC):
                 for load in range(_N_LOAD):
-                    loc_t[i] = TARGET_NODE[ma] if TARGET_NODE[ma] >= 0 else loc
-                    load_t[i] = load
                     if ma in DROP_MAS and load and preconditions_hold(loc, load, 0, ma):
-                        r, right = self.drop_reward(ma, load, loc)
-                        reward[i], load_t[i] = r, 0
-                        weight = 1 if ma == JPUT else 2  # both robots complete a joint put-down
-                        right2[i], wrong2[i] = weight * right, weight * (not right)
-                        large2[i] = weight * (right and ma == JPUT)
+                        reward[i], right = self.drop_reward(ma, load, loc)
+                        counts[i] = torch.tensor([right, right and ma == JPUT, not right])
                     i += 1
-        return {"loc": loc_t, "load": load_t, "reward": reward, "right2": right2, "wrong2": wrong2, "large2": large2}
+        return {"reward": reward, "counts": counts}
 
     @staticmethod
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:
@@ -260,65 +271,81 @@ class PackageDelivery(DecPOSMDP):
             "ma": torch.full((batch, 2), WAIT, dtype=torch.long),
             "ok": torch.zeros(batch, 2, dtype=torch.bool),
             "waiting": torch.zeros(batch, 2, dtype=torch.bool),
-            "delivered": torch.zeros(batch, dtype=torch.long),
-            "delivered_large": torch.zeros(batch, dtype=torch.long),
-            "wrong": torch.zeros(batch, dtype=torch.long),
+            **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
         }
 
-    @staticmethod
-    def _here(state: dict[str, Tensor]) -> Tensor:
-        """long (B, 2) package code waiting at each robot's base (meaningless away from the bases)."""
-        return state["base"].gather(1, state["loc"].clamp(max=BASE2))
-
     def start(self, state, agents, actions, t, end_time, generator):
-        loc, load, here = state["loc"], state["load"], self._here(state)
+        loc, load = state["loc"], state["load"]
+        here = state["base"].gather(1, loc.clamp(max=BASE2))
         index = ((loc * _N_LOAD + load) * _N_PKG + here) * _N_MA + actions
-        ok = _START["ok"][index] & agents
-        same_place = loc[:, 0] == loc[:, 1]
-        ok[:, 1] &= ~(ok[:, 0] & (actions[:, 0] == PICK) & (actions[:, 1] == PICK) & same_place)  # robot 0 takes it
-        noise = torch.randn(actions.shape, generator=generator, dtype=torch.float32).to(torch.float64)
-        factor = 1.0 + _START["noisy"][index] * ok * (noise * DURATION_NOISE).clamp(min=MIN_NOISE_FACTOR - 1.0)
-        finish = t[:, None] + torch.where(ok, _START["mean"][index], FAIL_DURATION) * factor
-        joint = ok & _IS_JOINT[actions]
-        same = same_place & (load[:, 0] == load[:, 1])
-        # a robot joins a partner already waiting in the same joint MA at the same place with the same load
-        joins = joint & state["waiting"].flip(1) & (state["ma"].flip(1) == actions) & same[:, None]
-        # both start the same joint MA at once: they start it together on robot 0's duration
-        together = joint[:, 0] & joint[:, 1] & (actions[:, 0] == actions[:, 1]) & same
-        finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
-        waits = joint & ~joins & ~together[:, None]
-        finish = torch.where(waits, t[:, None] + self.joint_wait, finish)
+        ok = _lookup(_START["ok"], index) & agents
+        noise = (DURATION_NOISE * torch.randn(actions.shape, generator=generator)).clamp(min=MIN_NOISE_FACTOR - 1.0)
+        mean = _lookup(_START["mean"], index)
+        finish = t[:, None] + mean * (1.0 + _lookup(_START["noisy"], index) * noise.to(torch.float64))
+        solo_pick = ok & _lookup(_IS_SOLO_PICK, actions)
+        clash = solo_pick[:, 0] & solo_pick[:, 1] & (loc[:, 0] == loc[:, 1])
+        if bool(clash.any()):  # both pick up at one base at once: robot 0 takes the package
+            ok[:, 1] &= ~clash
+            solo_pick[:, 1] &= ~clash
+            finish[:, 1] = torch.where(clash, t + FAIL_DURATION, finish[:, 1])
         end = torch.where(agents, finish, end_time)
-        end = torch.where(joins.flip(1), finish.flip(1), end)
         state["ma"] = torch.where(agents, actions, state["ma"])
         state["ok"] = (state["ok"] & ~agents) | ok
-        state["waiting"] = (state["waiting"] & ~agents & ~joins.flip(1)) | waits
-        paired = joins | joins.flip(1) | together[:, None]
-        take = (ok & (actions == PICK)) | (paired & (state["ma"] == JPICK))
-        if bool(take.any()):
-            state["load"] = torch.where(take, here + 1, load)
-            emptied = take.clone()
-            emptied[:, 1] &= ~(take[:, 0] & same_place)  # a joint pick-up empties one base
-            row, col = emptied.nonzero(as_tuple=True)
-            state["base"][row, loc[row, col]] = self.sample_packages(int(row.numel()), generator)
+        if bool(solo_pick.any()):
+            row, col = solo_pick.nonzero(as_tuple=True)
+            self._take(state, row, col, here[row, col], generator)
+        joint = ok & _lookup(_IS_JOINT, actions)
+        if bool(joint.any()):
+            self._start_joint(state, joint.any(dim=1).nonzero().squeeze(1), joint, here, t, finish, end, generator)
         return end
 
+    def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
+        """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
+        state["load"][row, col] = package + 1
+        state["base"][row, state["loc"][row, col]] = self.sample_packages(int(row.numel()), generator)
+
+    def _start_joint(self, state, rows, joint, here, t, finish, end, generator) -> None:
+        """Joint-MA synchronisation on the rollouts ``rows`` where some robot starts a joint MA."""
+        joint, ma, loc, load = joint[rows], state["ma"][rows], state["loc"][rows], state["load"][rows]
+        waiting, finish = state["waiting"][rows], finish[rows]
+        same = (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
+        # a robot joins a partner already waiting in the same joint MA at the same place with the same load
+        joins = joint & waiting.roll(1, 1) & (ma.roll(1, 1) == ma) & same[:, None]
+        # both start the same joint MA at once: they run it together on robot 0's duration
+        together = joint[:, 0] & joint[:, 1] & (ma[:, 0] == ma[:, 1]) & same
+        finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
+        waits = joint & ~joins & ~together[:, None]
+        finish = torch.where(waits, t[rows, None] + self.joint_wait, finish)
+        ends = torch.where(joint, finish, end[rows])
+        end[rows] = torch.where(joins.roll(1, 1), finish.roll(1, 1), ends)
+        state["waiting"][rows] = (waiting & ~joins.roll(1, 1)) | waits
+        lift = (joins[:, 0] | joins[:, 1] | together) & (ma[:, 0] == JPICK)
+        if bool(lift.any()):
+            row = rows[lift]
+            package = here[row, 0]
+            state["load"][row] = (package + 1)[:, None].expand(-1, 2)
+            state["base"][row, state["loc"][row, 0]] = self.sample_packages(int(row.numel()), generator)
+
     def complete(self, state, agents, actions, t, generator):
-        ma, loc, load = state["ma"], state["loc"], state["load"]
-        effective = agents & state["ok"] & ~state["waiting"]
-        travelling = _IS_GO[ma] & state["ok"] & ~state["waiting"] & ~agents
-        state["waiting"] = state["waiting"] & ~agents  # a wait that runs out is a failed joint MA
-        table = self._complete_tables
-        index = (ma * _N_LOC + loc) * _N_LOAD + load
-        loc = state["loc"] = torch.where(effective, table["loc"][index], loc)
-        picked = effective & _IS_PICK[ma]
-        reward = (table["reward"][index] * effective).sum(dim=1)
-        eff = effective.long()
-        state["delivered"] += (table["right2"][index] * eff).sum(dim=1) // 2
-        state["delivered_large"] += (table["large2"][index] * eff).sum(dim=1) // 2
-        state["wrong"] += (table["wrong2"][index] * eff).sum(dim=1) // 2
-        load = state["load"] = torch.where(effective, table["load"][index], load)
-        package = torch.where(picked, load - 1, self._here(state))
-        partner = (loc.flip(1) == loc) & ~travelling.flip(1)
+        ma, okay, waiting = state["ma"], state["ok"], state["waiting"]
+        effective = agents & okay & ~waiting
+        travelling = _lookup(_IS_GO, ma) & okay & ~waiting & ~agents
+        state["waiting"] = waiting & ~agents  # a wait that runs out is a failed joint MA
+        loc = state["loc"] = torch.where(effective & _lookup(_IS_GO, ma), _lookup(_TARGET, ma), state["loc"])
+        load = state["load"]
+        reward = torch.zeros(agents.shape[0], dtype=torch.float64)
+        dropped = effective & _lookup(_IS_DROP, ma)
+        if bool(dropped.any()):
+            row, col = dropped.nonzero(as_tuple=True)
+            index = (ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]
+            table = self._complete_tables
+            reward.index_add_(0, row, table["reward"][index])
+            counts = table["counts"][index] * ((ma[row, col] != JPUT) | (col == 0))[:, None]
+            for k, key in enumerate(COUNTERS):
+                state[key].index_add_(0, row, counts[:, k])
+            load[row, col] = 0
+        here = state["base"].gather(1, loc.clamp(max=BASE2))
+        package = torch.where(effective & _lookup(_IS_PICK, ma), load - 1, here)
+        partner = (loc == loc.roll(1, 1)) & ~travelling.roll(1, 1)
         obs = torch.where(loc <= BASE2, 1 + 6 * partner.long() + package, 0)
         return reward, obs
