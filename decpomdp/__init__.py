@@ -4,16 +4,28 @@ Perception enters only through :class:`MacroObservationModel`; this package neve
 ``classifiers`` or ``hbni_pyro``.
 """
 
+from decpomdp.baselines import SearchResult, monte_carlo_search, random_controllers
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.evaluate import Evaluator, MonteCarloEvaluator, evaluate
+from decpomdp.gdice import GDICEConfig, GDICEResult, gdice, sample_controllers
+from decpomdp.perception import MacroObservationModel, PerfectPerception
 from decpomdp.simulate import simulate
 
 __all__ = [
     "DecPOSMDP",
     "Evaluator",
+    "GDICEConfig",
+    "GDICEResult",
     "JointController",
+    "MacroObservationModel",
     "MonteCarloEvaluator",
+    "PerfectPerception",
+    "SearchResult",
     "evaluate",
+    "gdice",
+    "monte_carlo_search",
+    "random_controllers",
+    "sample_controllers",
     "simulate",
 ]

@@ -1,0 +1,272 @@
+"""Graph-based direct cross-entropy policy search (G-DICE; Omidshafiei et al., ICRA 2016, Alg. 1).
+
+Each agent's controller graph has ``num_nodes`` nodes. G-DICE keeps categorical distributions over
+every node's MA, ``action_probs`` (A, Nn, |MA|), and every (node, observation)'s next node,
+``next_probs`` (A, Nn, O, Nn), uniform at the start. Each iteration it
+
+1. samples ``samples`` (N_s) joint controllers and scores them with a pluggable evaluator
+   (Monte Carlo rollouts in one batched simulation, or exact values for tabular problems);
+2. keeps the samples whose value is >= the previous iteration's worst elite value and takes the
+   best ``elites`` (N_b) of them (ties broken by sample order);
+3. sets each distribution to ``alpha * frequency in the elites + (1 - alpha) * old`` (no change
+   when nothing was kept);
+4. optionally injects entropy: every categorical row whose normalised entropy fell below
+   ``injection_threshold`` during the first ``injection_until`` fraction of iterations is mixed
+   with ``injection_weight`` of the uniform distribution;
+5. tracks the best controller ever sampled.
+
+The best controller can finally be re-evaluated by an independent evaluator (e.g. 1000 fresh
+rollouts), since the best sampled score is a biased maximum. Checkpoints (atomic safetensors +
+JSON, with the generator state) let an interrupted run resume to exactly the same result.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from decpomdp._storage import load_tensors, save_tensors
+from decpomdp.controller import JointController
+from decpomdp.evaluate import Evaluator
+
+_KIND = "decpomdp.GDICECheckpoint"
+_VERSION = 1
+
+
+@dataclass(frozen=True)
+class GDICEConfig:
+    """G-DICE settings (defaults: the paper's package-delivery settings).
+
+    Attributes:
+        num_nodes: Nn, nodes per agent controller.
+        iterations: N_k.
+        samples: N_s joint controllers sampled per iteration.
+        elites: N_b best samples used for the update.
+        alpha: learning rate of the smoothed frequency update, in (0, 1].
+        injection_weight: weight of uniform mixed into collapsed rows (0 disables entropy injection).
+        injection_threshold: normalised entropy (entropy / log(categories)) below which a row counts
+            as collapsed.
+        injection_until: injection happens only in the first this-fraction of iterations.
+    """
+
+    num_nodes: int = 13
+    iterations: int = 100
+    samples: int = 100
+    elites: int = 10
+    alpha: float = 0.1
+    injection_weight: float = 0.0
+    injection_threshold: float = 0.05
+    injection_until: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("num_nodes", "iterations", "samples", "elites"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+        if self.elites > self.samples:
+            raise ValueError(f"elites: expected <= samples ({self.samples}), got {self.elites}")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha: expected a learning rate in (0, 1], got {self.alpha}")
+        if not 0.0 <= self.injection_weight <= 1.0:
+            raise ValueError(f"injection_weight: expected a weight in [0, 1], got {self.injection_weight}")
+        if not 0.0 <= self.injection_threshold <= 1.0:
+            raise ValueError(f"injection_threshold: expected a value in [0, 1], got {self.injection_threshold}")
+        if not 0.0 <= self.injection_until <= 1.0:
+            raise ValueError(f"injection_until: expected a fraction in [0, 1], got {self.injection_until}")
+
+
+@dataclass
+class GDICEResult:
+    """Outcome of a G-DICE run.
+
+    Attributes:
+        best: the best joint controller sampled (K = 1).
+        best_value: its score when it was sampled (a biased maximum under Monte Carlo evaluation).
+        value, stderr: its re-evaluated value and standard error (None without a re-evaluator).
+        history: per iteration, ``best`` (best ever so far), ``iteration_best``, ``iteration_mean``,
+            ``threshold`` (worst elite used as the next threshold), ``kept`` (number of elites used)
+            and ``entropy`` (mean normalised entropy of the distributions after the update).
+        action_probs, next_probs: the final distributions.
+    """
+
+    best: JointController
+    best_value: float
+    value: float | None
+    stderr: float | None
+    history: dict[str, list[float]]
+    action_probs: Tensor
+    next_probs: Tensor
+    config: GDICEConfig = field(default_factory=GDICEConfig)
+
+
+def sample_controllers(action_probs: Tensor, next_probs: Tensor, count: int, generator: torch.Generator) -> JointController:
+    """Draw ``count`` joint controllers from the node distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
+    a, nn, m = action_probs.shape
+    o = next_probs.shape[2]
+    act = torch.multinomial(action_probs.reshape(-1, m), count, replacement=True, generator=generator)
+    nxt = torch.multinomial(next_probs.reshape(-1, nn), count, replacement=True, generator=generator)
+    return JointController(act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous())
+
+
+def _frequencies(values: Tensor, categories: int) -> Tensor:
+    """values (N, ...) -> (..., categories) empirical frequencies over the N samples."""
+    return torch.nn.functional.one_hot(values, categories).to(torch.float64).mean(0)
+
+
+def _normalised_entropy(p: Tensor) -> Tensor:
+    h = -(p * torch.log(p.clamp_min(1e-300))).sum(-1)
+    return h / math.log(p.shape[-1]) if p.shape[-1] > 1 else torch.ones_like(h)
+
+
+def _inject(p: Tensor, cfg: GDICEConfig) -> Tensor:
+    collapsed = (_normalised_entropy(p) < cfg.injection_threshold)[..., None]
+    mixed = (1 - cfg.injection_weight) * p + cfg.injection_weight / p.shape[-1]
+    return torch.where(collapsed, mixed, p)
+
+
+class _State:
+    """Everything a G-DICE run carries between iterations (what a checkpoint stores)."""
+
+    def __init__(self, a: int, m: int, o: int, cfg: GDICEConfig) -> None:
+        nn = cfg.num_nodes
+        self.iteration = 0
+        self.action_probs = torch.full((a, nn, m), 1.0 / m, dtype=torch.float64)
+        self.next_probs = torch.full((a, nn, o, nn), 1.0 / nn, dtype=torch.float64)
+        self.threshold = -math.inf
+        self.best = JointController(torch.zeros(1, a, nn, dtype=torch.long), torch.zeros(1, a, nn, o, dtype=torch.long))
+        self.best_value = -math.inf
+        self.history: dict[str, list[float]] = {
+            k: [] for k in ("best", "iteration_best", "iteration_mean", "threshold", "kept", "entropy")
+        }
+
+    def save(self, path: Path, cfg: GDICEConfig, generator: torch.Generator) -> None:
+        tensors = {
+            "action_probs": self.action_probs,
+            "next_probs": self.next_probs,
+            "best_action": self.best.action,
+            "best_next_node": self.best.next_node,
+            "generator_state": generator.get_state(),
+        }
+        meta = {
+            "version": _VERSION,
+            "config": asdict(cfg),
+            "iteration": self.iteration,
+            "threshold": None if self.threshold == -math.inf else self.threshold,
+            "best_value": None if self.best_value == -math.inf else self.best_value,
+            "history": self.history,
+        }
+        save_tensors(path, _KIND, tensors, meta)
+
+    @classmethod
+    def load(cls, path: Path, cfg: GDICEConfig, shape: tuple[int, int, int], generator: torch.Generator) -> _State:
+        tensors, meta = load_tensors(path, _KIND)
+        if meta.get("version") != _VERSION:
+            raise ValueError(f"checkpoint: {str(path)!r} is not a version-{_VERSION} G-DICE checkpoint")
+        if meta.get("config") != asdict(cfg):
+            raise ValueError(f"checkpoint: {str(path)!r} was written with another configuration: {meta.get('config')}")
+        state = cls(*shape, cfg)
+        try:
+            if state.action_probs.shape != tensors["action_probs"].shape:
+                raise ValueError("distribution shapes differ from this problem's")
+            state.action_probs, state.next_probs = tensors["action_probs"], tensors["next_probs"]
+            state.best = JointController(tensors["best_action"], tensors["best_next_node"])
+            state.iteration = int(meta["iteration"])
+            state.threshold = -math.inf if meta["threshold"] is None else float(meta["threshold"])
+            state.best_value = -math.inf if meta["best_value"] is None else float(meta["best_value"])
+            state.history = {k: list(v) for k, v in meta["history"].items()}
+            generator.set_state(tensors["generator_state"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ValueError(f"checkpoint: {str(path)!r} is inconsistent ({exc})") from None
+        return state
+
+
+def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torch.Generator) -> None:
+    """One G-DICE iteration (Alg. 1, lines 4-17), updating ``state`` in place."""
+    a, nn, m = state.action_probs.shape
+    o = state.next_probs.shape[2]
+    ctrl = sample_controllers(state.action_probs, state.next_probs, cfg.samples, generator)
+    values, _ = evaluator(ctrl, generator)
+    values = values.to(torch.float64)
+    top = int(values.argmax())
+    if float(values[top]) > state.best_value:
+        state.best_value, state.best = float(values[top]), ctrl[top]
+    order = torch.sort(values, descending=True, stable=True).indices
+    order = order[values[order] >= state.threshold][: cfg.elites]
+    if order.numel() > 0:
+        state.threshold = float(values[order[-1]])
+        elite = ctrl[order]
+        state.action_probs = cfg.alpha * _frequencies(elite.action, m) + (1 - cfg.alpha) * state.action_probs
+        state.next_probs = cfg.alpha * _frequencies(elite.next_node, nn) + (1 - cfg.alpha) * state.next_probs
+    if cfg.injection_weight > 0 and state.iteration < cfg.injection_until * cfg.iterations:
+        state.action_probs = _inject(state.action_probs, cfg)
+        state.next_probs = _inject(state.next_probs, cfg)
+    entropy = torch.cat([_normalised_entropy(state.action_probs).ravel(), _normalised_entropy(state.next_probs).ravel()])
+    h = state.history
+    h["best"].append(state.best_value)
+    h["iteration_best"].append(float(values[top]))
+    h["iteration_mean"].append(float(values.mean()))
+    h["threshold"].append(state.threshold)
+    h["kept"].append(float(order.numel()))
+    h["entropy"].append(float(entropy.mean()))
+    state.iteration += 1
+
+
+def gdice(
+    evaluator: Evaluator,
+    num_agents: int,
+    num_actions: int,
+    num_obs: int,
+    config: GDICEConfig | None = None,
+    seed: int = 0,
+    reevaluator: Evaluator | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: int = 10,
+    progress: bool = False,
+) -> GDICEResult:
+    """Run G-DICE.
+
+    Args:
+        evaluator: scores K joint controllers, ``evaluator(controller, generator) -> (mean (K,), stderr (K,))``
+            (e.g. :class:`~decpomdp.evaluate.MonteCarloEvaluator`, :class:`~decpomdp.dpomdp.ExactEvaluator`).
+        num_agents, num_actions, num_obs: the problem's A, |MA| and O.
+        config: the settings (default :class:`GDICEConfig`).
+        seed: seeds the one generator used for sampling and evaluation.
+        reevaluator: if given, scores the final best controller independently (value +- stderr).
+        checkpoint: file to write every ``checkpoint_every`` iterations and at the end; if it exists, the
+            run resumes from it (same config required) and reaches exactly the uninterrupted result.
+        progress: show a tqdm progress bar.
+    """
+    cfg = GDICEConfig() if config is None else config
+    if not isinstance(cfg, GDICEConfig):
+        raise TypeError(f"config: expected a GDICEConfig, got {type(cfg).__name__}")
+    for name, value in (("num_agents", num_agents), ("num_actions", num_actions), ("num_obs", num_obs)):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+    if not callable(evaluator):
+        raise TypeError(f"evaluator: expected a callable (controller, generator) -> (mean, stderr), got {evaluator!r}")
+    if not isinstance(checkpoint_every, int) or checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every: expected an int >= 1, got {checkpoint_every!r}")
+    generator = torch.Generator().manual_seed(int(seed))
+    shape = (num_agents, num_actions, num_obs)
+    path = None if checkpoint is None else Path(checkpoint)
+    state = _State.load(path, cfg, shape, generator) if path is not None and path.exists() else _State(*shape, cfg)
+    bar = tqdm(total=cfg.iterations, initial=state.iteration, disable=not progress, desc="G-DICE")
+    while state.iteration < cfg.iterations:
+        _step(state, evaluator, cfg, generator)
+        bar.update(1)
+        bar.set_postfix(best=f"{state.best_value:.4g}", kept=int(state.history["kept"][-1]))
+        if path is not None and (state.iteration % checkpoint_every == 0 or state.iteration == cfg.iterations):
+            state.save(path, cfg, generator)
+    bar.close()
+    value = stderr = None
+    if reevaluator is not None:
+        mean, se = reevaluator(state.best, generator)
+        value, stderr = float(mean[0]), float(se[0])
+    return GDICEResult(state.best, state.best_value, value, stderr, state.history, state.action_probs,
+                       state.next_probs, cfg)
