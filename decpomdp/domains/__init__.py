@@ -1,5 +1,7 @@
 """Mission domains: package delivery (G-DICE paper) and health-aware disaster relief (ICRA 2017)."""
 
+from decpomdp.domains.disaster_relief import DisasterRelief
 from decpomdp.domains.package_delivery import PackageDelivery
+from decpomdp.domains.rollouts import rollout_counters
 
-__all__ = ["PackageDelivery"]
+__all__ = ["DisasterRelief", "PackageDelivery", "rollout_counters"]

@@ -119,7 +119,7 @@ TARGET_NODE = [BASE1, BASE2, RENDEZVOUS, DEST1, DEST2, DEST1, DEST2, -1, -1, -1,
 PACKAGES = [(SMALL, DEST1), (SMALL, DEST2), (SMALL, RENDEZVOUS), (LARGE, DEST1), (LARGE, DEST2)]
 #: package codes drawn uniformly from this list: destination uniform, Rendezvous-bound ones small,
 #: the others small or large with probability 1/2
-_ARRIVAL = torch.tensor([0, 1, 2, 2, 3, 4])
+_ARRIVAL = torch.tensor([0, 1, 2, 2, 3, 4], dtype=torch.int32)
 DURATION_NOISE = 0.3
 MIN_NOISE_FACTOR = 0.1
 FAIL_DURATION = 1.0
@@ -176,7 +176,7 @@ def _flags(mas) -> Tensor:
 
 _IS_JOINT, _IS_SOLO_PICK, _IS_PICK, _IS_DROP = _flags(JOINT_MAS), _flags([PICK]), _flags([PICK, JPICK]), _flags(DROP_MAS)
 _IS_GO = _flags(m for m, node in enumerate(TARGET_NODE) if node >= 0)
-_TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE])
+_TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32)
 
 
 def _lookup(table: Tensor, index: Tensor) -> Tensor:
@@ -259,25 +259,24 @@ class PackageDelivery(DecPOSMDP):
 
     @staticmethod
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:
-        """long (count,) new package codes (see ``PACKAGES``)."""
+        """int32 (count,) new package codes (see ``PACKAGES``)."""
         return _ARRIVAL[torch.randint(0, len(_ARRIVAL), (count,), generator=generator)]
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
-        zeros = torch.zeros(batch, 2, dtype=torch.long)
         return {
-            "loc": torch.full((batch, 2), BASE1, dtype=torch.long),
-            "load": zeros.clone(),
+            "loc": torch.full((batch, 2), BASE1, dtype=torch.int32),
+            "load": torch.zeros(batch, 2, dtype=torch.int32),
             "base": self.sample_packages(2 * batch, generator).view(batch, 2),
-            "ma": torch.full((batch, 2), WAIT, dtype=torch.long),
+            "ma": torch.full((batch, 2), WAIT, dtype=torch.int32),
             "ok": torch.zeros(batch, 2, dtype=torch.bool),
             "waiting": torch.zeros(batch, 2, dtype=torch.bool),
             **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
         }
 
     def start(self, state, agents, actions, t, end_time, generator):
-        loc, load = state["loc"], state["load"]
-        here = state["base"].gather(1, loc.clamp(max=BASE2))
-        index = ((loc * _N_LOAD + load) * _N_PKG + here) * _N_MA + actions
+        loc, load, actions = state["loc"], state["load"], actions.to(torch.int32)
+        here = self._here(state)
+        index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
         ok = _lookup(_START["ok"], index) & agents
         noise = (DURATION_NOISE * torch.randn(actions.shape, generator=generator)).clamp(min=MIN_NOISE_FACTOR - 1.0)
         mean = _lookup(_START["mean"], index)
@@ -302,7 +301,13 @@ class PackageDelivery(DecPOSMDP):
     def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
         """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
         state["load"][row, col] = package + 1
-        state["base"][row, state["loc"][row, col]] = self.sample_packages(int(row.numel()), generator)
+        state["base"][row, state["loc"][row, col].long()] = self.sample_packages(int(row.numel()), generator)
+
+    @staticmethod
+    def _here(state: dict[str, Tensor]) -> Tensor:
+        """int32 (B, 2): the package waiting at each robot's base (Base1's away from the bases)."""
+        base = state["base"]
+        return torch.where(state["loc"] == BASE2, base[:, 1:], base[:, :1])
 
     def _start_joint(self, state, rows, joint, here, t, finish, end, generator) -> None:
         """Joint-MA synchronisation on the rollouts ``rows`` where some robot starts a joint MA."""
@@ -324,28 +329,28 @@ class PackageDelivery(DecPOSMDP):
             row = rows[lift]
             package = here[row, 0]
             state["load"][row] = (package + 1)[:, None].expand(-1, 2)
-            state["base"][row, state["loc"][row, 0]] = self.sample_packages(int(row.numel()), generator)
+            state["base"][row, state["loc"][row, 0].long()] = self.sample_packages(int(row.numel()), generator)
 
     def complete(self, state, agents, actions, t, generator):
         ma, okay, waiting = state["ma"], state["ok"], state["waiting"]
         effective = agents & okay & ~waiting
-        travelling = _lookup(_IS_GO, ma) & okay & ~waiting & ~agents
+        go = _lookup(_IS_GO, ma)
+        travelling = go & okay & ~waiting & ~agents
         state["waiting"] = waiting & ~agents  # a wait that runs out is a failed joint MA
-        loc = state["loc"] = torch.where(effective & _lookup(_IS_GO, ma), _lookup(_TARGET, ma), state["loc"])
+        loc = state["loc"] = torch.where(effective & go, _lookup(_TARGET, ma), state["loc"])
         load = state["load"]
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
         dropped = effective & _lookup(_IS_DROP, ma)
         if bool(dropped.any()):
             row, col = dropped.nonzero(as_tuple=True)
-            index = (ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]
+            index = ((ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]).long()
             table = self._complete_tables
             reward.index_add_(0, row, table["reward"][index])
             counts = table["counts"][index] * ((ma[row, col] != JPUT) | (col == 0))[:, None]
             for k, key in enumerate(COUNTERS):
                 state[key].index_add_(0, row, counts[:, k])
             load[row, col] = 0
-        here = state["base"].gather(1, loc.clamp(max=BASE2))
-        package = torch.where(effective & _lookup(_IS_PICK, ma), load - 1, here)
+        package = torch.where(effective & _lookup(_IS_PICK, ma), load - 1, self._here(state))
         partner = (loc == loc.roll(1, 1)) & ~travelling.roll(1, 1)
-        obs = torch.where(loc <= BASE2, 1 + 6 * partner.long() + package, 0)
-        return reward, obs
+        obs = torch.where(loc <= BASE2, 1 + 6 * partner.to(torch.int32) + package, 0)
+        return reward, obs.long()
