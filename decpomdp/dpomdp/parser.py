@@ -290,8 +290,8 @@ def parse_dpomdp(text: str, check_probabilities: bool = True) -> DPOMDPModel:
         else:
             _entry_r(lines, lineno, fields, ja, states, obs, reward)
     if check_probabilities:
-        _check_rows(trans, t_line, "T", "transition")
-        _check_rows(obs_p, o_line, "O", "observation")
+        _check_rows(trans, t_line, "T", "transition", lines.last)
+        _check_rows(obs_p, o_line, "O", "observation", lines.last)
         trans /= trans.sum(-1, keepdims=True)
         obs_p /= obs_p.sum(-1, keepdims=True)
     return DPOMDPModel(
@@ -378,7 +378,7 @@ def _probs(values: np.ndarray, lineno: int) -> np.ndarray:
     return values
 
 
-def _check_rows(table: np.ndarray, line_of: np.ndarray, kind: str, what: str) -> None:
+def _check_rows(table: np.ndarray, line_of: np.ndarray, kind: str, what: str, end_line: int) -> None:
     sums = table.sum(-1)
     bad = np.argwhere(np.abs(sums - 1.0) > _PROB_TOL)
     if len(bad):
@@ -386,7 +386,7 @@ def _check_rows(table: np.ndarray, line_of: np.ndarray, kind: str, what: str) ->
         where = int(line_of[ja, s])
         detail = "never specified" if where == 0 else f"sums to {sums[ja, s]:.6g}"
         raise DPOMDPSyntaxError(
-            where or 0, f"{kind}: {what} probabilities for joint action {ja}, state {s} {detail} (must sum to 1)"
+            where or end_line, f"{kind}: {what} probabilities for joint action {ja}, state {s} {detail} (must sum to 1)"
         )
 
 
