@@ -80,18 +80,18 @@ TRAINING = Conditions(
 
 MISSION = Conditions(
     name="mission",
-    scale=(0.45, 0.9),
-    yaw=(-55.0, 55.0),
-    pitch=(-35.0, 35.0),
-    roll=(-20.0, 20.0),
-    offset=(-0.12, 0.12),
-    gain=(0.22, 0.5),
-    drift=0.35,
-    cast=0.25,
-    shading=0.5,
+    scale=(0.5, 0.9),
+    yaw=(-45.0, 45.0),
+    pitch=(-25.0, 25.0),
+    roll=(-15.0, 15.0),
+    offset=(-0.1, 0.1),
+    gain=(0.3, 0.6),
+    drift=0.3,
+    cast=0.15,
+    shading=0.4,
     background="textured",
-    blur=(3.0, 17.0),
-    noise=(8.0, 16.0),
+    blur=(2.0, 10.0),
+    noise=(5.0, 12.0),
 )
 
 _PRESETS = {"training": TRAINING, "mission": MISSION}

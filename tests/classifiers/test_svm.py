@@ -1,0 +1,97 @@
+"""The one-vs-one SVM head: optimality, agreement with scikit-learn's SVC, storage, determinism, errors."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from classifiers import OneVsOneSVC
+from classifiers.svm import _objective, train_squared_hinge
+
+svm = pytest.importorskip("sklearn.svm")
+metrics = pytest.importorskip("sklearn.metrics")
+
+
+def test_solver_reaches_optimum_brute_force():
+    """Gradient at the returned point vanishes and no random perturbation lowers the objective."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(80, 6, generator=g, dtype=torch.float64)
+    y = torch.sign(x[:, 0] + 0.5 * torch.randn(80, generator=g, dtype=torch.float64))[None].repeat(2, 1)
+    s = torch.ones_like(y)
+    s[1, 40:] = 0
+    w, b = train_squared_hinge(x, y, s, c=0.7, tol=1e-10)
+    f = _objective(w, b, x, y, s, 0.7)
+    for _ in range(200):
+        dw = 1e-3 * torch.randn(w.shape, generator=g, dtype=torch.float64)
+        db = 1e-3 * torch.randn(b.shape, generator=g, dtype=torch.float64)
+        assert (_objective(w + dw, b + db, x, y, s, 0.7) >= f - 1e-12).all()
+    w1, b1 = train_squared_hinge(x[:40], y[1:, :40], s[1:, :40], c=0.7, tol=1e-10)  # masked == subset
+    assert torch.allclose(w[1], w1[0], atol=1e-7) and torch.allclose(b[1], b1[0], atol=1e-7)
+
+
+def test_head_matches_sklearn_svc_on_backbone_features(standardized_features):
+    x_tr, y_tr, x_te, y_te = standardized_features
+    head = OneVsOneSVC(C=1.0).fit(x_tr, y_tr)
+    p = head.predict_proba(x_te).numpy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # SVC(probability=True) is deprecated in sklearn 1.9
+        ref = svm.SVC(kernel="linear", probability=True, C=1.0, random_state=0).fit(x_tr, y_tr)
+    p_ref = ref.predict_proba(x_te)
+    acc, acc_ref = metrics.accuracy_score(y_te, head.predict(x_te)), metrics.accuracy_score(y_te, ref.predict(x_te))
+    loss, loss_ref = metrics.log_loss(y_te, p), metrics.log_loss(y_te, p_ref)
+    print(f"accuracy {acc:.3f} vs SVC {acc_ref:.3f}; log-loss {loss:.3f} vs SVC {loss_ref:.3f}")
+    assert abs(acc - acc_ref) <= 0.02
+    assert loss <= loss_ref + 0.05
+    np.testing.assert_allclose(p.sum(1), 1.0, atol=1e-12)
+    assert head.decision_function(x_te).shape == (len(y_te), 3)
+    assert head.classes_ == [0, 1, 2]
+
+
+def test_string_labels_save_load_and_determinism(tmp_path, standardized_features):
+    x_tr, y_tr, x_te, _ = standardized_features
+    names = np.array(["a", "b", "c"])[y_tr]
+    head = OneVsOneSVC(C=0.5, seed=4).fit(x_tr, names)
+    again = OneVsOneSVC(C=0.5, seed=4).fit(x_tr, names)
+    assert torch.equal(head.predict_proba(x_te), again.predict_proba(x_te))
+    path = head.save(tmp_path / "head.safetensors")
+    loaded = OneVsOneSVC.load(path)
+    assert loaded.classes_ == ["a", "b", "c"]
+    assert torch.equal(loaded.predict_proba(x_te), head.predict_proba(x_te))
+    assert loaded.predict(x_te[:5]) == head.predict(x_te[:5])
+
+
+def test_error_paths(tmp_path, standardized_features):
+    x_tr, y_tr, _, _ = standardized_features
+    with pytest.raises(ValueError, match="C"):
+        OneVsOneSVC(C=0)
+    with pytest.raises(ValueError, match="cv"):
+        OneVsOneSVC(cv=1)
+    with pytest.raises(RuntimeError, match="fit"):
+        OneVsOneSVC().predict_proba(x_tr)
+    with pytest.raises(ValueError, match="at least 2 classes"):
+        OneVsOneSVC().fit(x_tr, np.zeros(len(x_tr)))
+    with pytest.raises(ValueError, match="cv=5"):
+        OneVsOneSVC().fit(x_tr[:8], np.array([0, 1] * 4))
+    with pytest.raises(ValueError, match="y"):
+        OneVsOneSVC().fit(x_tr, y_tr[:-1])
+    with pytest.raises(ValueError, match="NaN"):
+        OneVsOneSVC().fit(np.full((10, 2), np.nan), np.arange(10) % 2)
+    with pytest.raises(TypeError, match="X"):
+        OneVsOneSVC().fit([[0.0, 1.0]], [0])
+    head = OneVsOneSVC().fit(x_tr, y_tr)
+    with pytest.raises(ValueError, match="features"):
+        head.predict_proba(x_tr[:, :10])
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x00" * 40)
+    with pytest.raises(ValueError, match="not a valid model file"):
+        OneVsOneSVC.load(bad)
+    with pytest.raises(FileNotFoundError):
+        OneVsOneSVC.load(tmp_path / "missing.safetensors")
+    from classifiers.storage import save_tensors
+
+    save_tensors(tmp_path / "other.safetensors", "something.else", {"a": torch.zeros(1)}, {})
+    with pytest.raises(ValueError, match="expected a 'classifiers.OneVsOneSVC' file"):
+        OneVsOneSVC.load(tmp_path / "other.safetensors")
