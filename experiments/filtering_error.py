@@ -1,0 +1,241 @@
+"""Classification error against the number of outputs N (the paper's simulated study).
+
+True model: theta = ``study.true_theta``. Each trial draws a uniform true class and
+``max_len`` outputs; the error at N uses each trial's first N outputs, so every N is
+scored on ``num_trials`` trials. For each training size, ``num_training_sets`` unlabelled
+training sets (balanced over the classes, drawn apart from the trials) are fitted at once
+by :func:`hbni_pyro.fit_many`; training set ``d`` serves the ``d``-th block of trials, so
+each HBNI curve pools all the fits. The same trials serve every method and size (common
+random numbers), so differences between curves are not trial noise.
+
+Writes ``metrics.json`` (error, 95 % Wilson interval, crossing N per method and size, and
+the acceptance checks), ``error_curves.png``, ``crossing_vs_training_size.png`` and one
+example posterior per training size.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+from torch import Tensor
+from tqdm.auto import tqdm
+
+import hbni_pyro
+from experiments.common import save_figure
+from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
+from hbni_pyro.generative import sample_outputs
+from hbni_pyro.validation import DTYPE
+
+BASELINES = ("voting", "max_of_mean", "ssbf")
+METHODS = (*BASELINES, "hbni", "hbni_oracle")
+LABELS = {
+    "voting": "voting",
+    "max_of_mean": "max of mean",
+    "ssbf": "SSBF",
+    "hbni": "HBNI",
+    "hbni_oracle": "HBNI, true θ (oracle)",
+}
+COLORS = {"voting": "tab:gray", "max_of_mean": "tab:orange", "ssbf": "tab:green", "hbni": "tab:blue", "hbni_oracle": "k"}
+Z95 = 1.959963984540054
+
+
+class _TrueTheta:
+    """The oracle's 'posterior': one draw at the true theta."""
+
+    def __init__(self, theta: Tensor) -> None:
+        self.theta, self.num_classes = theta, theta.shape[0]
+        self.class_prior = torch.full((self.num_classes,), 1.0 / self.num_classes, dtype=DTYPE)
+
+    def theta_draws(self) -> Tensor:
+        return self.theta.unsqueeze(0)
+
+
+def wilson_interval(errors: Tensor, trials: int) -> tuple[Tensor, Tensor]:
+    """95 % Wilson score interval for ``errors`` out of ``trials`` (elementwise)."""
+    k, n, z2 = errors.to(DTYPE), float(trials), Z95**2
+    centre = (k + z2 / 2) / (n + z2)
+    half = Z95 / (n + z2) * torch.sqrt(k * (n - k) / n + z2 / 4)
+    lo = torch.where(k == 0, 0.0, (centre - half).clamp_min(0))
+    hi = torch.where(k == n, 1.0, (centre + half).clamp_max(1))
+    return lo, hi
+
+
+def first_crossing(error: Tensor, target: float) -> int | None:
+    """Smallest N (1-based) with ``error[N-1] <= target``, or ``None`` if never."""
+    hit = (error <= target).nonzero()
+    return int(hit[0]) + 1 if hit.numel() else None
+
+
+def _settings(cfg: DictConfig) -> dict[str, Any]:
+    s = cfg.study
+    theta = torch.tensor(list(s.true_theta), dtype=DTYPE)
+    sizes = [int(n) for n in s.training_sizes]
+    sets, trials = int(s.num_training_sets), int(s.num_trials)
+    if trials % sets:
+        raise ValueError(f"study.num_trials ({trials}) must be a multiple of study.num_training_sets ({sets})")
+    bad = [n for n in sizes if n % len(theta) or n < len(theta)]
+    if bad:
+        raise ValueError(f"study.training_sizes: {bad} are not positive multiples of M = {len(theta)} (balanced sets)")
+    return {
+        "theta": theta, "sizes": sizes, "sets": sets, "trials": trials, "max_len": int(s.max_len),
+        "draws": int(s.filter_draws), "targets": [float(t) for t in s.targets], "mode": str(cfg.hbni.filter.mode),
+    }
+
+
+def _fit_sets(train: Tensor, cfg: DictConfig, seed: int) -> list[hbni_pyro.HBNIPosterior]:
+    fit = dict(cfg.hbni.fit)
+    method = fit.pop("method")
+    hyperprior = instantiate(cfg.hbni.hyperprior)
+    if method == "mh":
+        return hbni_pyro.fit_many(train, **fit, seed=seed, progress=False, hyperprior=hyperprior)
+    return [hbni_pyro.fit(x, method=method, **fit, seed=seed + d, progress=False, hyperprior=hyperprior)
+            for d, x in enumerate(train)]
+
+
+def run(cfg: DictConfig, run_dir: Path) -> dict:
+    s = _settings(cfg)
+    theta, M, T, trials, sets = s["theta"], len(s["theta"]), s["max_len"], s["trials"], s["sets"]
+    g = torch.Generator().manual_seed(int(cfg.seed))
+    truth = torch.randint(M, (trials,), generator=g)
+    obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
+
+    def wrong_counts(probs: Tensor, rows: slice = slice(None)) -> Tensor:
+        return (decide(probs) != truth[rows].unsqueeze(1)).sum(0)
+
+    fixed = {
+        "voting": wrong_counts(VotingFilter(M).run(obs)),
+        "max_of_mean": wrong_counts(MaxOfMeanFilter(M).run(obs)),
+        "ssbf": wrong_counts(SSBF(M).run(obs)),
+        "hbni_oracle": wrong_counts(HBNIFilter(_TrueTheta(theta), s["mode"]).run(obs)),
+    }
+    per_set = trials // sets
+    wrong: dict[int, dict[str, Tensor]] = {}
+    fits: dict[int, dict[str, Any]] = {}
+    for k, size in enumerate(tqdm(s["sizes"], desc="training sizes", disable=not cfg.progress)):
+        classes = torch.arange(M).repeat_interleave(size // M).expand(sets, size)
+        posteriors = _fit_sets(sample_outputs(theta, classes, g), cfg, seed=int(cfg.seed) + 1000 * (k + 1))
+        posteriors[0].save(run_dir / f"posterior_train{size}_set0.safetensors")
+        hbni = torch.zeros(T, dtype=torch.long)
+        for d, post in enumerate(posteriors):
+            rows = slice(d * per_set, (d + 1) * per_set)
+            hbni += wrong_counts(HBNIFilter(post, s["mode"], num_draws=s["draws"]).run(obs[rows]), rows)
+        wrong[size] = {**fixed, "hbni": hbni}
+        theta_means = torch.stack([p.theta_draws().mean(0) for p in posteriors])
+        fits[size] = {
+            "theta_posterior_mean_median_over_sets": theta_means.median(0).values,
+            "theta_posterior_mean_range_over_sets": [theta_means.min(0).values, theta_means.max(0).values],
+            "seconds": posteriors[0].info.get("seconds"),
+        }
+    metrics = _metrics(wrong, s)
+    metrics["fits"] = fits
+    save_figure(_curves_figure(metrics, s), run_dir / "error_curves.png")
+    save_figure(_crossing_figure(metrics, s), run_dir / "crossing_vs_training_size.png")
+    return metrics
+
+
+def _metrics(wrong: dict[int, dict[str, Tensor]], s: dict[str, Any]) -> dict[str, Any]:
+    trials, targets = s["trials"], s["targets"]
+    error, crossing = {}, {}
+    for size, counts in wrong.items():
+        error[size], crossing[size] = {}, {}
+        for method in METHODS:
+            lo, hi = wilson_interval(counts[method], trials)
+            error[size][method] = {"error": counts[method].to(DTYPE) / trials, "lo": lo, "hi": hi, "wrong": counts[method]}
+            crossing[size][method] = {f"{t:g}": first_crossing(counts[method].to(DTYPE) / trials, t) for t in targets}
+    return {
+        "settings": {
+            "true_theta": s["theta"], "training_sizes": s["sizes"], "num_training_sets": s["sets"],
+            "num_trials": trials, "max_len": s["max_len"], "hbni_filter_mode": s["mode"],
+            "hbni_filter_draws": s["draws"], "interval": "95% Wilson score",
+        },
+        "N": list(range(1, s["max_len"] + 1)),
+        "error": error,
+        "crossing_n": crossing,
+        "comparison": {size: _compare(error[size], crossing[size]) for size in wrong},
+    }
+
+
+def _ratio(a: int | None, b: int | None) -> float | None:
+    return None if a is None or b is None else a / b
+
+
+def _compare(error: dict[str, dict[str, Tensor]], crossing: dict[str, dict[str, int | None]]) -> dict[str, Any]:
+    """HBNI against each baseline and the oracle at one training size (the issue's acceptance terms)."""
+    h = error["hbni"]
+    out: dict[str, Any] = {}
+    for b in BASELINES:
+        e = error[b]
+        above = (h["error"] > e["error"]).nonzero().squeeze(-1) + 1
+        hard = e["error"] > 0.01
+        overlap = (hard & (h["hi"] >= e["lo"])).nonzero().squeeze(-1) + 1
+        out[b] = {
+            "hbni_at_or_below_every_n": not above.numel(),
+            "n_where_hbni_above": above,
+            "n_where_baseline_above_1pct": int(hard.sum()),
+            "intervals_separated_wherever_baseline_above_1pct": not overlap.numel(),
+            "n_where_intervals_overlap_and_baseline_above_1pct": overlap,
+            "crossing_ratio_hbni_over_baseline": {t: _ratio(crossing["hbni"][t], crossing[b][t]) for t in crossing[b]},
+        }
+    out["hbni_oracle"] = {
+        "crossing_ratio_hbni_over_oracle": {
+            t: _ratio(crossing["hbni"][t], crossing["hbni_oracle"][t]) for t in crossing["hbni_oracle"]
+        }
+    }
+    return out
+
+
+def _curves_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
+    sizes, N = s["sizes"], np.array(metrics["N"])
+    fig, axes = plt.subplots(1, len(sizes), figsize=(4.2 * len(sizes), 3.8), sharey=True, squeeze=False)
+    floor = 0.5 / s["trials"]
+    for ax, size in zip(axes[0], sizes):
+        for method in METHODS:
+            e = metrics["error"][size][method]
+            err = e["error"].numpy()
+            style = "--" if method == "hbni_oracle" else "-"
+            ax.plot(N, np.where(err > 0, err, np.nan), style, color=COLORS[method], label=LABELS[method], lw=1.6)
+            ax.fill_between(N, np.maximum(e["lo"].numpy(), floor), e["hi"].numpy(), color=COLORS[method], alpha=0.15, lw=0)
+        for t in s["targets"]:
+            ax.axhline(t, color="k", lw=0.5, ls=":")
+        ax.set_yscale("log")
+        ax.set_ylim(floor, 1)
+        ax.set_xlim(1, s["max_len"])
+        ax.set_xlabel("number of outputs N")
+        ax.set_title(f"{size} training outputs ({s['sets']} sets)")
+        ax.grid(True, which="major", alpha=0.3)
+    axes[0][0].set_ylabel(f"classification error ({s['trials']} trials per N)")
+    axes[0][-1].legend(fontsize=8, loc="upper right")
+    fig.suptitle(f"Error vs N, true θ = {s['theta'].tolist()}, HBNI mode {s['mode']}, 95% Wilson bands", y=1.02)
+    return fig
+
+
+def _crossing_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
+    target = f"{min(s['targets']):g}"
+    sizes = np.array(s["sizes"])
+    ceiling = s["max_len"] + 3
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for method in METHODS:
+        n = np.array([metrics["crossing_n"][size][method][target] or np.nan for size in s["sizes"]], dtype=float)
+        style = "--" if method == "hbni_oracle" else "-"
+        ax.plot(sizes, np.where(np.isnan(n), ceiling, n), style + "o", color=COLORS[method], label=LABELS[method])
+        missing = np.isnan(n)
+        if missing.any():
+            ax.plot(sizes[missing], np.full(missing.sum(), ceiling), "^", color=COLORS[method], ms=9)
+    ax.axhline(s["max_len"], color="k", lw=0.5, ls=":")
+    ax.text(sizes[0], s["max_len"] + 0.7, f"▲ = not reached by N = {s['max_len']}", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xticks(sizes, [str(x) for x in sizes])
+    ax.minorticks_off()
+    ax.set_ylim(0, ceiling + 3)
+    ax.set_xlabel("unlabelled training outputs")
+    ax.set_ylabel(f"smallest N with error ≤ {float(target) * 100:g}%")
+    ax.set_title("Outputs needed vs training size")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
