@@ -53,6 +53,9 @@ class GDICEConfig:
         injection_threshold: normalised entropy (entropy / log(categories)) below which a row counts
             as collapsed.
         injection_until: injection happens only in the first this-fraction of iterations.
+        layer_width: None for a free graph; else W makes a layered graph for finite horizons: node 0
+            is layer 0, then layers of W nodes (``num_nodes = 1 + W * (layers - 1)``); a node may only
+            move to the next layer, and the last layer moves within itself.
     """
 
     num_nodes: int = 13
@@ -63,6 +66,7 @@ class GDICEConfig:
     injection_weight: float = 0.0
     injection_threshold: float = 0.05
     injection_until: float = 0.5
+    layer_width: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("num_nodes", "iterations", "samples", "elites"):
@@ -79,6 +83,19 @@ class GDICEConfig:
             raise ValueError(f"injection_threshold: expected a value in [0, 1], got {self.injection_threshold}")
         if not 0.0 <= self.injection_until <= 1.0:
             raise ValueError(f"injection_until: expected a fraction in [0, 1], got {self.injection_until}")
+        w = self.layer_width
+        if w is not None and (not isinstance(w, int) or w < 1 or self.num_nodes < 1 + w or (self.num_nodes - 1) % w):
+            raise ValueError(f"layer_width: expected an int W >= 1 with num_nodes = 1 + W * k (k >= 1), got {w!r}")
+
+    def transition_mask(self) -> Tensor:
+        """bool (Nn, Nn): which next nodes each node may move to."""
+        nn, w = self.num_nodes, self.layer_width
+        if w is None:
+            return torch.ones(nn, nn, dtype=torch.bool)
+        layer = torch.cat([torch.zeros(1, dtype=torch.long), torch.arange(nn - 1) // w + 1])
+        last = int(layer[-1])
+        target = torch.clamp(layer + 1, max=last)
+        return layer[None, :] == target[:, None]
 
 
 @dataclass
@@ -124,10 +141,12 @@ def _normalised_entropy(p: Tensor) -> Tensor:
     return h / math.log(p.shape[-1]) if p.shape[-1] > 1 else torch.ones_like(h)
 
 
-def _inject(p: Tensor, cfg: GDICEConfig) -> Tensor:
-    collapsed = (_normalised_entropy(p) < cfg.injection_threshold)[..., None]
-    mixed = (1 - cfg.injection_weight) * p + cfg.injection_weight / p.shape[-1]
-    return torch.where(collapsed, mixed, p)
+def _inject(p: Tensor, uniform: Tensor, cfg: GDICEConfig) -> Tensor:
+    """Mix ``injection_weight`` of ``uniform`` into the rows of ``p`` whose entropy has collapsed."""
+    allowed = (uniform > 0).sum(-1)
+    h = -(p * torch.log(p.clamp_min(1e-300))).sum(-1) / torch.log(allowed.clamp_min(2).to(p.dtype))
+    collapsed = ((h < cfg.injection_threshold) & (allowed > 1))[..., None]
+    return torch.where(collapsed, (1 - cfg.injection_weight) * p + cfg.injection_weight * uniform, p)
 
 
 class _State:
@@ -137,7 +156,10 @@ class _State:
         nn = cfg.num_nodes
         self.iteration = 0
         self.action_probs = torch.full((a, nn, m), 1.0 / m, dtype=torch.float64)
-        self.next_probs = torch.full((a, nn, o, nn), 1.0 / nn, dtype=torch.float64)
+        mask = cfg.transition_mask().to(torch.float64)
+        self.next_uniform = (mask / mask.sum(-1, keepdim=True))[None, :, None, :].expand(a, nn, o, nn)
+        self.action_uniform = torch.full((a, nn, m), 1.0 / m, dtype=torch.float64)
+        self.next_probs = self.next_uniform.clone()
         self.threshold = -math.inf
         self.best = JointController(torch.zeros(1, a, nn, dtype=torch.long), torch.zeros(1, a, nn, o, dtype=torch.long))
         self.best_value = -math.inf
@@ -204,8 +226,8 @@ def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torc
         state.action_probs = cfg.alpha * _frequencies(elite.action, m) + (1 - cfg.alpha) * state.action_probs
         state.next_probs = cfg.alpha * _frequencies(elite.next_node, nn) + (1 - cfg.alpha) * state.next_probs
     if cfg.injection_weight > 0 and state.iteration < cfg.injection_until * cfg.iterations:
-        state.action_probs = _inject(state.action_probs, cfg)
-        state.next_probs = _inject(state.next_probs, cfg)
+        state.action_probs = _inject(state.action_probs, state.action_uniform, cfg)
+        state.next_probs = _inject(state.next_probs, state.next_uniform, cfg)
     entropy = torch.cat([_normalised_entropy(state.action_probs).ravel(), _normalised_entropy(state.next_probs).ravel()])
     h = state.history
     h["best"].append(state.best_value)

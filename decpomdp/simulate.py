@@ -53,15 +53,16 @@ def simulate(
         raise ValueError(f"rollouts_per_controller: expected an int >= 1, got {rollouts_per_controller!r}")
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
-    agent_idx = torch.arange(a_count)
-    # Per-row controller tables: act[b, a, n], nxt[b, a, n, o] are views indexed by rollout's controller.
-    ctrl = torch.arange(k_count).repeat_interleave(rollouts_per_controller)
+    n_nodes, n_obs = controller.num_nodes, controller.num_obs
+    act_table, next_table = controller.action.reshape(-1), controller.next_node.reshape(-1)
+    # flat offset of (controller k, agent a) in the (K, A, Nn) tables, per live row: (B, A)
+    base = (torch.arange(k_count).repeat_interleave(rollouts_per_controller)[:, None] * a_count + torch.arange(a_count)) * n_nodes
     values = torch.zeros(batch, dtype=torch.float64)
     rows = torch.arange(batch)  # original index of each live row
 
     state = env.reset(batch, generator)
     node = torch.zeros(batch, a_count, dtype=torch.long)
-    actions = controller.action[ctrl[:, None], agent_idx, node]
+    actions = act_table[base]
     t = torch.zeros(batch, dtype=torch.float64)
     all_agents = torch.ones(batch, a_count, dtype=torch.bool)
     end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64), generator)
@@ -76,8 +77,8 @@ def simulate(
             values[rows[~live]] = value[~live]
             if int(live.sum()) * 4 <= rows.numel() * 3:
                 keep = live.nonzero().squeeze(1)
-                rows, ctrl, value, node, actions, end_time, t_next, live = (
-                    x[keep] for x in (rows, ctrl, value, node, actions, end_time, t_next, live)
+                rows, base, value, node, actions, end_time, t_next, live = (
+                    x[keep] for x in (rows, base, value, node, actions, end_time, t_next, live)
                 )
                 state = {key: v[keep] for key, v in state.items()}
                 if rows.numel() == 0:
@@ -85,11 +86,11 @@ def simulate(
         completing = (end_time == t_next[:, None]) & live[:, None]
         reward, obs = env.complete(state, completing, actions, t_next, generator)
         value = value + torch.where(live, reward.to(torch.float64) * gamma**t_next, 0.0)
-        stepped = controller.next_node[ctrl[:, None], agent_idx, node, obs.clamp(0, controller.num_obs - 1)]
+        stepped = next_table[(base + node) * n_obs + obs.clamp(0, n_obs - 1)]
         node = torch.where(completing, stepped, node)
-        actions = torch.where(completing, controller.action[ctrl[:, None], agent_idx, node], actions)
+        actions = torch.where(completing, act_table[base + node], actions)
         new_end = env.start(state, completing, actions, t_next, end_time, generator)
-        if bool((new_end[completing] <= t_next[:, None].expand_as(completing)[completing]).any()):
+        if bool(((new_end <= t_next[:, None]) & completing).any()):
             raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
         end_time = torch.where(live[:, None], new_end, end_time)
         # Rows that stopped but were not compacted stay frozen: they never complete again.

@@ -1,0 +1,126 @@
+"""G-DICE: improvement over random search, seeded determinism, checkpoint/resume, options and errors."""
+
+import math
+
+import pytest
+import torch
+
+from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, sample_controllers
+from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value
+
+from test_dpomdp_parser import BENCH
+
+
+@pytest.fixture(scope="module")
+def recycling():
+    return TabularDecPOSMDP.from_file(BENCH / "recycling.dpomdp", gamma=0.9)
+
+
+def run(env, cfg, **kw):
+    return gdice(ExactEvaluator(env), env.num_agents, env.num_actions, env.num_obs, cfg, **kw)
+
+
+def test_improves_over_random(recycling):
+    cfg = GDICEConfig(num_nodes=2, iterations=15, samples=60, elites=6, alpha=0.2)
+    res = run(recycling, cfg, seed=0, reevaluator=ExactEvaluator(recycling))
+    mcs = monte_carlo_search(ExactEvaluator(recycling), 2, 3, 2, num_nodes=2, budget=15 * 60, seed=0)
+    # exact values: deterministic, no Monte Carlo error
+    assert res.value == pytest.approx(exact_value(recycling, res.best).item()) == pytest.approx(res.best_value)
+    assert res.best_value > mcs.values.mean().item() + 5.0
+    assert res.best_value >= mcs.best_value
+    assert res.history["best"] == sorted(res.history["best"])  # best ever is monotone
+    assert len(res.history["iteration_mean"]) == 15 and res.stderr == 0.0
+    # the mean sampled value rises as the distributions concentrate
+    assert res.history["iteration_mean"][-1] > res.history["iteration_mean"][0]
+
+
+def test_seeded_determinism(recycling):
+    cfg = GDICEConfig(num_nodes=3, iterations=4, samples=20, elites=4)
+    a, b = run(recycling, cfg, seed=5), run(recycling, cfg, seed=5)
+    assert torch.equal(a.best.action, b.best.action) and a.history == b.history
+    assert a.history != run(recycling, cfg, seed=6).history
+
+
+def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env):
+    env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0)
+    cfg = GDICEConfig(num_nodes=3, iterations=6, samples=12, elites=3, alpha=0.2, injection_weight=0.1,
+                      injection_threshold=0.9)
+    evaluator = MonteCarloEvaluator(env, 8)
+    full = gdice(evaluator, 2, 3, 2, cfg, seed=3)
+    ckpt = tmp_path / "gdice.safetensors"
+    # interrupt the run in its 5th iteration; the last checkpoint holds iteration 4 and the generator state
+    calls = {"n": 0}
+
+    def flaky(ctrl, gen):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return evaluator(ctrl, gen)
+
+    with pytest.raises(KeyboardInterrupt):
+        gdice(flaky, 2, 3, 2, cfg, seed=3, checkpoint=ckpt, checkpoint_every=2)
+    assert ckpt.exists()
+    resumed = gdice(evaluator, 2, 3, 2, cfg, seed=999, checkpoint=ckpt, checkpoint_every=2)  # seed comes from the file
+    assert resumed.history == full.history
+    assert torch.equal(resumed.best.next_node, full.best.next_node) and resumed.best_value == full.best_value
+    torch.testing.assert_close(resumed.next_probs, full.next_probs, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="another configuration"):
+        gdice(evaluator, 2, 3, 2, GDICEConfig(num_nodes=3, iterations=4, samples=12, elites=3), checkpoint=ckpt)
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a valid decpomdp file"):
+        gdice(evaluator, 2, 3, 2, cfg, checkpoint=bad)
+
+
+def test_monte_carlo_evaluation_and_reevaluation(toy_env):
+    env = toy_env(gamma=0.9, horizon=10.0, exponential=(0, 1, 2), rate=1.0)
+    cfg = GDICEConfig(num_nodes=2, iterations=3, samples=10, elites=2)
+    res = gdice(MonteCarloEvaluator(env, 16), 2, 3, 2, cfg, seed=0, reevaluator=MonteCarloEvaluator(env, 500))
+    assert res.stderr > 0 and math.isfinite(res.value)
+    assert res.best.num_controllers == 1
+
+
+def test_layered_graph_and_injection():
+    cfg = GDICEConfig(num_nodes=7, layer_width=3, injection_weight=0.5, injection_threshold=1.0, injection_until=1.0)
+    mask = cfg.transition_mask()
+    assert mask[0].tolist() == [False, True, True, True, False, False, False]
+    assert mask[1:4, 4:].all() and not mask[1:4, :4].any() and mask[4:, 4:].all() and not mask[4:, :4].any()
+    g = torch.Generator().manual_seed(0)
+    probs = torch.zeros(2, 7, 2, 7, dtype=torch.float64)
+    probs[..., :] = mask.to(torch.float64)[None, :, None, :] / mask.sum(-1)[None, :, None, None]
+    ctrl = sample_controllers(torch.full((2, 7, 3), 1 / 3, dtype=torch.float64), probs, 200, g)
+    rows = torch.arange(7)[None, None, :, None].expand_as(ctrl.next_node)
+    assert mask[rows, ctrl.next_node].all()
+    env = TabularDecPOSMDP.from_file(BENCH / "dectiger.dpomdp", gamma=1.0, horizon=3)
+    res = run(env, GDICEConfig(num_nodes=7, iterations=3, samples=50, elites=5, layer_width=3,
+                               injection_weight=0.5, injection_threshold=1.0, injection_until=1.0), seed=0)
+    assert mask[torch.arange(7)[None, :, None].expand(2, 7, 2), res.best.next_node[0]].all()
+    assert ((res.next_probs > 0) == mask[None, :, None, :]).all()  # injection stays inside the layers
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"num_nodes": 0}, "num_nodes"),
+        ({"elites": 11, "samples": 10}, "elites"),
+        ({"alpha": 0.0}, "alpha"),
+        ({"injection_weight": 1.5}, "injection_weight"),
+        ({"num_nodes": 6, "layer_width": 2}, "layer_width"),
+    ],
+)
+def test_config_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        GDICEConfig(**kwargs)
+
+
+def test_argument_errors(recycling):
+    ev = ExactEvaluator(recycling)
+    with pytest.raises(TypeError, match="config"):
+        gdice(ev, 2, 3, 2, config={"num_nodes": 2})
+    with pytest.raises(ValueError, match="num_actions"):
+        gdice(ev, 2, 0, 2)
+    with pytest.raises(TypeError, match="evaluator"):
+        gdice(None, 2, 3, 2)
+    with pytest.raises(ValueError, match="budget"):
+        monte_carlo_search(ev, 2, 3, 2, num_nodes=2, budget=0)
+    assert isinstance(run(recycling, GDICEConfig(num_nodes=1, iterations=1, samples=2, elites=1)).best, JointController)
