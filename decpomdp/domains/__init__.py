@@ -2,6 +2,6 @@
 
 from decpomdp.domains.disaster_relief import DisasterRelief
 from decpomdp.domains.package_delivery import PackageDelivery
-from decpomdp.domains.rollouts import rollout_counters
+from decpomdp.domains.rollouts import SharedControllerEvaluator, rollout_counters, shared
 
-__all__ = ["DisasterRelief", "PackageDelivery", "rollout_counters"]
+__all__ = ["DisasterRelief", "PackageDelivery", "SharedControllerEvaluator", "rollout_counters", "shared"]

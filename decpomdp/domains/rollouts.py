@@ -1,4 +1,4 @@
-"""Run :func:`decpomdp.simulate` and also return each rollout's final per-rollout counters."""
+"""Running controllers on the domains: final per-rollout counters, and one controller shared by a team."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
+from decpomdp.evaluate import evaluate
 from decpomdp.simulate import simulate
 
 _ROW = "_rollout_row"
@@ -57,3 +58,35 @@ def rollout_counters(
     returns = simulate(recorder, controller, rollouts, generator)
     shape = returns.shape
     return returns, {key: value.view(shape) for key, value in recorder.final.items()}
+
+
+def shared(controller: JointController, num_agents: int) -> JointController:
+    """Give every agent the FSC of agent 0: a (K, 1, Nn) controller becomes (K, num_agents, Nn)."""
+    if not isinstance(controller, JointController):
+        raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
+    if isinstance(num_agents, bool) or not isinstance(num_agents, int) or num_agents < 1:
+        raise ValueError(f"num_agents: expected an int >= 1, got {num_agents!r}")
+    k, _, n = controller.action.shape
+    o = controller.num_obs
+    return JointController(
+        controller.action[:, :1].expand(k, num_agents, n).contiguous(),
+        controller.next_node[:, :1].expand(k, num_agents, n, o).contiguous(),
+    )
+
+
+class SharedControllerEvaluator:
+    """An evaluator of one-agent controllers run by every robot of a homogeneous team.
+
+    The reference package-delivery study searched one controller for both robots; G-DICE does the
+    same when given this evaluator and ``num_agents=1``.
+    """
+
+    def __init__(self, env: DecPOSMDP, rollouts: int, max_batch: int = 200_000) -> None:
+        if not isinstance(env, DecPOSMDP):
+            raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
+        if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 2:
+            raise ValueError(f"rollouts: expected an int >= 2, got {rollouts!r}")
+        self.env, self.rollouts, self.max_batch = env, rollouts, max_batch
+
+    def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        return evaluate(self.env, shared(controller, self.env.num_agents), self.rollouts, generator, self.max_batch)
