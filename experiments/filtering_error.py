@@ -200,7 +200,8 @@ def _curves_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
             err = e["error"].numpy()
             style = "--" if method == "hbni_oracle" else "-"
             ax.plot(N, np.where(err > 0, err, np.nan), style, color=COLORS[method], label=LABELS[method], lw=1.6)
-            ax.fill_between(N, np.maximum(e["lo"].numpy(), floor), e["hi"].numpy(), color=COLORS[method], alpha=0.15, lw=0)
+            ax.fill_between(N, np.maximum(e["lo"].numpy(), floor), e["hi"].numpy(), where=err > 0,
+                            color=COLORS[method], alpha=0.15, lw=0)
         for t in s["targets"]:
             ax.axhline(t, color="k", lw=0.5, ls=":")
         ax.set_yscale("log")
@@ -211,28 +212,31 @@ def _curves_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
         ax.grid(True, which="major", alpha=0.3)
     axes[0][0].set_ylabel(f"classification error ({s['trials']} trials per N)")
     axes[0][-1].legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"Error vs N, true θ = {s['theta'].tolist()}, HBNI mode {s['mode']}, 95% Wilson bands", y=1.02)
+    fig.suptitle(f"Error vs N, true θ = {s['theta'].tolist()}, HBNI mode {s['mode']}, 95% Wilson bands "
+                 "(zero-error points not drawn)", y=1.02)
     return fig
 
 
 def _crossing_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
     target = f"{min(s['targets']):g}"
     sizes = np.array(s["sizes"])
-    ceiling = s["max_len"] + 3
+    found = [n for size in s["sizes"] for c in metrics["crossing_n"][size].values() if (n := c[target]) is not None]
+    missing_any = len(found) < len(s["sizes"]) * len(METHODS)
+    ceiling = s["max_len"] + 3 if missing_any else max(found, default=1)
     fig, ax = plt.subplots(figsize=(6, 4))
     for method in METHODS:
         n = np.array([metrics["crossing_n"][size][method][target] or np.nan for size in s["sizes"]], dtype=float)
-        style = "--" if method == "hbni_oracle" else "-"
-        ax.plot(sizes, np.where(np.isnan(n), ceiling, n), style + "o", color=COLORS[method], label=LABELS[method])
         missing = np.isnan(n)
+        style = "--" if method == "hbni_oracle" else "-"
+        ax.plot(sizes, np.where(missing, ceiling, n), style + "o", color=COLORS[method], label=LABELS[method])
         if missing.any():
             ax.plot(sizes[missing], np.full(missing.sum(), ceiling), "^", color=COLORS[method], ms=9)
-    ax.axhline(s["max_len"], color="k", lw=0.5, ls=":")
-    ax.text(sizes[0], s["max_len"] + 0.7, f"▲ = not reached by N = {s['max_len']}", fontsize=8)
+    if missing_any:
+        ax.text(sizes[0], ceiling + 0.7, f"▲ = not reached by N = {s['max_len']}", fontsize=8)
     ax.set_xscale("log")
     ax.set_xticks(sizes, [str(x) for x in sizes])
     ax.minorticks_off()
-    ax.set_ylim(0, ceiling + 3)
+    ax.set_ylim(0, ceiling * 1.15 + 1)
     ax.set_xlabel("unlabelled training outputs")
     ax.set_ylabel(f"smallest N with error ≤ {float(target) * 100:g}%")
     ax.set_title("Outputs needed vs training size")

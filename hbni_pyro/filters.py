@@ -35,7 +35,7 @@ from torch import Tensor
 
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
 
-_CHUNK_ELEMENTS = 1 << 18
+_CHUNK_ELEMENTS = 1 << 16
 """Largest number of (prefix, draw) log-likelihood terms the marginal HBNI filter builds at once."""
 
 
@@ -58,7 +58,9 @@ def _logsumexp_in_order(x: Tensor) -> Tensor:
     sizes; ``cumsum`` always adds in order, so one stream and a batch of streams agree exactly.
     """
     top = x.amax(-1, keepdim=True)
-    return top.squeeze(-1) + (x - top).exp_().cumsum(-1)[..., -1].log()
+    # Terms below exp(-700) cannot change a sum that is >= 1; clamping them keeps exp and the
+    # sum off the slow subnormal path.
+    return top.squeeze(-1) + (x - top).clamp_min_(-700.0).exp_().cumsum(-1)[..., -1].log()
 
 
 class StreamingFilter:
@@ -233,13 +235,16 @@ class HBNIFilter(_LogLinearFilter):
             theta = theta[torch.linspace(0, theta.shape[0] - 1, num_draws, dtype=DTYPE).round().long()]
         self.theta = theta
         """``(S, M)`` noise parameters used (``S = 1`` in plugin mode)."""
-        self._offset = torch.lgamma(self.num_classes + theta) - torch.lgamma(1 + theta)
+        offset = torch.lgamma(self.num_classes + theta) - torch.lgamma(1 + theta)
+        # (M, 1, S), contiguous over draws so every (M, k, S) term tensor reduces over its inner dim
+        self._offset = offset.T.contiguous().unsqueeze(1)
+        self._theta = theta.T.contiguous().unsqueeze(1)
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
         batch = stats.shape[:-1]
-        stats = stats.reshape(-1, self.num_classes).T.unsqueeze(-1)  # (M, K, 1)
+        stats = stats.reshape(-1, self.num_classes).T.contiguous().unsqueeze(-1)  # (M, K, 1)
         counts = counts.expand(batch).reshape(1, -1, 1)  # (1, K, 1)
-        offset, theta = self._offset.T.unsqueeze(1), self.theta.T.unsqueeze(1)  # (M, 1, S)
+        offset, theta = self._offset, self._theta
         num_draws = theta.shape[-1]
         chunk = max(1, _CHUNK_ELEMENTS // (num_draws * self.num_classes))
         out = torch.empty(self.num_classes, stats.shape[1], dtype=DTYPE)
