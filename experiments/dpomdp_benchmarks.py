@@ -100,8 +100,8 @@ def _plot(curves: dict, table: dict, path: Path) -> None:
             ax.axhline(row["optimum"], color="k", ls="--", lw=1, label="optimum / best known")
         if row["target"] is not None:
             ax.axhline(row["target"], color="C3", ls=":", lw=1, label="target")
-        ax.axhline(row["random_controller_mean"], color="C7", ls="-.", lw=1, label="random controller mean")
-        ax.set_title(f"{name} (gamma {row['gamma']}, h {row['horizon']})", fontsize=9)
+        ax.set_title(f"{name} (gamma {row['gamma']}, h {row['horizon']})\n"
+                     f"random controllers: {row['random_controller_mean']:.3g} on average", fontsize=9)
         ax.set_xlabel("iteration")
         ax.set_ylabel("value")
         lo = min(curve[0], row["target"] if row["target"] is not None else curve[0])
