@@ -52,8 +52,17 @@ class ReferencePackageDelivery:
 
     def _start(self, s: dict, agents: list[int], acts: list[int], t: float, rng: random.Random) -> None:
         """Agents in ``agents`` start ``acts[a]`` at ``t``, all seeing the state before any of them started."""
-        ok = {a: self._ok(s, a, acts[a]) for a in agents}
         same_place = s["pos"][0] == s["pos"][1]
+        acts = list(acts)
+        if same_place and s["load"][0] == s["load"][1]:  # drafting into joint MAs
+            for a in agents:
+                if s["waiting"][1 - a]:
+                    acts[a] = s["ma"][1 - a]
+            if len(agents) == 2:
+                lead = [a for a in (0, 1) if acts[a] in _JOINT and self._ok(s, a, acts[a])]
+                if lead:
+                    acts[1 - lead[0]] = acts[lead[0]]
+        ok = {a: self._ok(s, a, acts[a]) for a in agents}
         if len(agents) == 2 and ok[0] and ok[1] and acts[0] == acts[1] == pd.PICK and same_place:
             ok[1] = False  # robot 0 takes the package
         together = (

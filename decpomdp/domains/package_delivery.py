@@ -26,11 +26,13 @@ Choices where the paper and reference are silent or differ (documented constants
 * an MA whose preconditions fail (wrong place, wrong load, solo pick-up of a large package, a
   joint MA without the partner, ...) does nothing and lasts ``FAIL_DURATION`` (the reference makes
   a failed MA end at the next time step);
-* a joint MA is a rendezvous: the first robot to start it waits at its node up to ``joint_wait``
-  time units; when the partner starts the same joint MA at the same node (carrying the same load)
-  both run it together with one sampled duration and finish at the same instant; otherwise it
-  fails when the wait runs out. The reference instead forced the partner into the joint MA when
-  both decided in the same step and let one robot run a joint MA alone;
+* a joint MA needs both robots at the same node with the same load (both empty for a joint
+  pick-up, the same large package otherwise). A robot starting one drafts its partner, as the
+  reference's "forced partner" rule does: a partner starting an MA at the same instant, or
+  finishing its MA there while the first robot waits (up to ``joint_wait`` time units), runs the
+  joint MA instead of its own choice (robot 0 leads when both start joint MAs at once); the two
+  run it with one sampled duration and finish at the same instant. A joint MA whose wait runs
+  out fails. The reference also let a single robot run a joint MA alone; here it cannot;
 * preconditions: go-to MAs need a defined mean duration from the current node and no large load;
   joint go-to MAs need a large load; pick-up needs an empty robot at a base holding a small
   package (joint pick-up: a large one); put-down needs a small load at Dest1/Dest2 (joint
@@ -42,8 +44,7 @@ Choices where the paper and reference are silent or differ (documented constants
   and increments the ``wrong`` counter;
 * MAs started at the same instant see the state as it was before any of them started, except
   that two robots cannot take one package: when both start a pick-up at the same base at once,
-  robot 0 takes the package and robot 1's pick-up fails; both starting the same joint MA at once
-  start it together;
+  robot 0 takes the package and robot 1's pick-up fails;
 * the partner is "present" at a base when it is located there and not travelling away;
 * the first MA is chosen in controller node 0 before any observation.
 
@@ -278,6 +279,11 @@ class PackageDelivery(DecPOSMDP):
         here = self._here(state)
         index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
         ok = _lookup(_START["ok"], index) & agents
+        drafted = self._draft(state, agents, actions, ok & _lookup(_IS_JOINT, actions))
+        if drafted is not None:
+            actions = drafted
+            index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
+            ok = _lookup(_START["ok"], index) & agents
         noise = (DURATION_NOISE * torch.randn(actions.shape, generator=generator)).clamp(min=MIN_NOISE_FACTOR - 1.0)
         mean = _lookup(_START["mean"], index)
         finish = t[:, None] + mean * (1.0 + _lookup(_START["noisy"], index) * noise.to(torch.float64))
@@ -298,6 +304,21 @@ class PackageDelivery(DecPOSMDP):
             self._start_joint(state, joint.any(dim=1).nonzero().squeeze(1), joint, here, t, finish, end, generator)
         return end
 
+    @staticmethod
+    def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
+        """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody is drafted."""
+        same = (state["loc"][:, 0] == state["loc"][:, 1]) & (state["load"][:, 0] == state["load"][:, 1])
+        joins = agents & state["waiting"].roll(1, 1) & same[:, None]  # the partner waits in a joint MA here
+        both = agents[:, 0] & agents[:, 1] & same
+        lead0 = both & joint_ok[:, 0]
+        lead1 = both & joint_ok[:, 1] & ~joint_ok[:, 0]
+        if not bool((joins.any(dim=1) | lead0 | lead1).any()):
+            return None
+        actions = torch.where(joins, state["ma"].roll(1, 1), actions)
+        follow0 = torch.where(lead1, actions[:, 1], actions[:, 0])
+        follow1 = torch.where(lead0, actions[:, 0], actions[:, 1])
+        return torch.stack([follow0, follow1], dim=1)
+
     def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
         """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
         state["load"][row, col] = package + 1
@@ -314,9 +335,9 @@ class PackageDelivery(DecPOSMDP):
         joint, ma, loc, load = joint[rows], state["ma"][rows], state["loc"][rows], state["load"][rows]
         waiting, finish = state["waiting"][rows], finish[rows]
         same = (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
-        # a robot joins a partner already waiting in the same joint MA at the same place with the same load
+        # a (drafted) robot joins a partner waiting in the same joint MA at the same place with the same load
         joins = joint & waiting.roll(1, 1) & (ma.roll(1, 1) == ma) & same[:, None]
-        # both start the same joint MA at once: they run it together on robot 0's duration
+        # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & (ma[:, 0] == ma[:, 1]) & same
         finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
         waits = joint & ~joins & ~together[:, None]

@@ -93,7 +93,12 @@ def test_large_package_needs_both_robots(exact, per_robot, reward):
     returns, counters = rollout_counters(env, cycle(seq, seq), 1, g())
     assert returns.item() == pytest.approx(discounted(range(6, 51, 8), reward))
     assert counters["delivered"].item() == counters["delivered_large"].item() == 6
-    alone, counters = rollout_counters(env, cycle(seq, [pd.WAIT]), 1, g())
+    # a partner at the same place is drafted into the joint MAs whatever it chose itself; after the
+    # first delivery it waits at Dest2 while robot 0 returns alone, so there is one delivery only
+    drafted = simulate(env, cycle(seq, [pd.WAIT]), 1, g())
+    assert drafted.item() == pytest.approx(reward * 0.99**6)
+    # a partner elsewhere (Base2) cannot help: the joint pick-up waits, then fails
+    alone, counters = rollout_counters(env, cycle([pd.WAIT, *seq], [pd.GO_B2, pd.WAIT]), 1, g())
     assert alone.item() == 0.0 and counters["delivered"].item() == 0
     solo = simulate(env, cycle([pd.PICK, pd.GO_D2, pd.PUT, pd.GO_B1], [pd.WAIT]), 1, g())
     assert solo.item() == 0.0  # a large package cannot be picked up alone
@@ -104,13 +109,16 @@ def test_joint_rendezvous_partner_arrives_later(exact):
     env = PackageDelivery(joint_wait=4.0)
     state = env.reset(1, g())
     both = torch.tensor([[True, True]])
-    # robot 0 starts the joint pick-up at t = 0 and waits; robot 1 waits 1 time unit first
-    end = env.start(state, both, torch.tensor([[pd.JPICK, pd.WAIT]]), torch.zeros(1), torch.zeros(1, 2, dtype=torch.float64), g())
+    # robot 0 starts the joint pick-up at t = 0 and waits; robot 1 is busy until t = 1
+    end = env.start(state, torch.tensor([[True, False]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.zeros(1),
+                    torch.tensor([[0.0, 1.0]], dtype=torch.float64), g())
     assert end.tolist() == [[4.0, 1.0]] and state["waiting"].tolist() == [[True, False]]
     reward, obs = env.complete(state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.ones(1), g())
     assert pd.OBS_NAMES[obs[0, 1]] == "large_dest2_partner"  # the waiting robot counts as present
-    end = env.start(state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.JPICK]]), torch.ones(1), end, g())
+    # robot 1 chooses to go to Base2 but is drafted into the joint pick-up
+    end = env.start(state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.ones(1), end, g())
     assert end.tolist() == [[2.5, 2.5]]  # both finish together, 1.5 after the partner joined
+    assert state["ma"].tolist() == [[pd.JPICK, pd.JPICK]]
     assert state["load"].tolist() == [[5, 5]] and not state["waiting"].any()
     reward, obs = env.complete(state, both, torch.tensor([[pd.JPICK, pd.JPICK]]), torch.full((1,), 2.5), g())
     assert [pd.OBS_NAMES[o] for o in obs[0]] == ["large_dest2_partner"] * 2 and reward.item() == 0.0
@@ -120,12 +128,17 @@ def test_joint_wait_runs_out(exact):
     exact(4)
     env = PackageDelivery(joint_wait=2.5)
     state = env.reset(1, g())
-    end = env.start(state, torch.tensor([[True, True]]), torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.zeros(1),
-                    torch.zeros(1, 2, dtype=torch.float64), g())
-    assert end.tolist() == [[2.5, 2.0]]
-    reward, obs = env.complete(state, torch.tensor([[True, False]]), torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.full((1,), 2.5), g())
+    zero = torch.zeros(1, 2, dtype=torch.float64)
+    r0, r1 = torch.tensor([[True, False]]), torch.tensor([[False, True]])
+    end = env.start(state, r1, torch.tensor([[pd.WAIT, pd.GO_B2]]), torch.zeros(1), zero, g())  # robot 1 leaves
+    end = env.start(state, r0, torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.full((1,), 0.5), end, g())
+    assert end.tolist() == [[3.0, 2.0]] and state["waiting"].tolist() == [[True, False]]
+    env.complete(state, r1, torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.full((1,), 2.0), g())
+    end = env.start(state, r1, torch.tensor([[pd.JPICK, pd.WAIT]]), torch.full((1,), 2.0), end, g())
+    assert end.tolist() == [[3.0, 3.0]] and state["ma"][0, 1] == pd.WAIT  # at Base2: not drafted
+    _, obs = env.complete(state, torch.tensor([[True, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.full((1,), 3.0), g())
     assert state["load"].tolist() == [[0, 0]] and not state["waiting"].any()
-    assert pd.OBS_NAMES[obs[0, 0]] == "large_dest2_alone"  # partner went to Base2
+    assert pd.OBS_NAMES[obs[0, 0]] == "large_dest2_alone"
 
 
 def test_simultaneous_pick_up_clash(exact):
