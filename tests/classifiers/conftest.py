@@ -23,16 +23,17 @@ def frame_classifier(backbone) -> FrameClassifier:
 
 @pytest.fixture(scope="session")
 def vehicle_features(frame_classifier):
-    """Backbone features of rendered mission-condition snapshots of the three vehicles.
+    """Backbone features of rendered snapshots of the three vehicles, as in the perception study.
 
-    Returns ``(x_train (120, 1000), y_train, x_test (180, 1000), y_test)``: 40 training and 60 test
-    snapshots per class, drawn with disjoint seeds.
+    Returns ``(x_train (120, 1000), y_train, x_test (180, 1000), y_test)``: 40 training-condition
+    snapshots per class to train on and 60 mission-condition snapshots per class to test on (dim,
+    blurred, noisy, cluttered: a hard test, so accuracies are far from 100 % and comparable).
     """
     out = []
-    for seed, n in ((0, 40), (1, 60)):
+    for seed, n, conditions in ((0, 40, "training"), (1, 60, "mission")):
         images, labels = [], []
         for k, name in enumerate(VEHICLES):
-            images += list(render_images(name, n, "mission", seed=seed))
+            images += list(render_images(name, n, conditions, seed=seed))
             labels += [k] * n
         out += [frame_classifier.features(images), np.array(labels)]
     return tuple(out)
