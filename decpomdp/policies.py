@@ -57,36 +57,39 @@ def package_delivery_greedy() -> JointController:
 
 
 def disaster_relief_greedy(num_agents: int = 2) -> JointController:
-    """A 10-node greedy controller for :class:`decpomdp.domains.DisasterRelief`.
+    """An 8-node reactive greedy controller for :class:`decpomdp.domains.DisasterRelief`.
 
-    Each robot infers the class of the object at its home base (Base1 for even robots, Base2 for
-    odd ones), picks it up, carries it to the inferred destination, puts it down and goes home;
-    after a put-down it goes to the repair station first when its health sensor reads low. It
-    never plans ahead: no repair before a reading of low, no use of the nearer base.
+    Each robot infers the class of the object at its base, picks it up, carries it to the
+    inferred destination, puts it down and goes back to its home base (Base1 for even robots,
+    Base2 for odd ones); after a put-down it goes to the repair station first when its health
+    sensor reads low. It never plans ahead: no repair before a reading of low, always the same
+    home base whatever the nearer one.
     """
     from decpomdp.domains import disaster_relief as dr
 
-    names = ["infer", "pick_hospital", "pick_airport", "pick_crate", "go_hospital", "go_airport", "go_crate",
-             "put", "home", "repair"]
+    names = ["infer", "pick", "go_hospital", "go_airport", "go_crate_zone", "put", "home", "repair"]
     node = {name: i for i, name in enumerate(names)}
-    dests = ("hospital", "airport", "crate")
 
-    def after_infer(obs: str) -> str:
-        context = obs.rsplit("_", 1)[0]
-        for dest in dests:
-            if context.startswith(dest):
-                return f"pick_{dest}"
-        return "home"  # nothing inferred (not at a base)
+    def react(obs: str) -> str:
+        context, reading = obs.rsplit("_", 1)
+        if context == "at_base":
+            return "infer"
+        if context.startswith("saw_"):
+            return "pick"
+        if context.startswith("loaded_"):
+            site = context.removeprefix("loaded_")
+            return f"go_{site}" if site != "unknown" else "go_hospital"
+        if context == "at_site_loaded":
+            return "put"
+        return "repair" if reading == "low" else "home"  # away, empty-handed
 
-    rule = {"infer": after_infer, "put": lambda o: "repair" if o.endswith("_low") else "home",
-            "home": lambda o: "infer", "repair": lambda o: "home"}
-    for dest in dests:
-        rule[f"pick_{dest}"] = lambda o, d=dest: f"go_{d}"
-        rule[f"go_{dest}"] = lambda o: "put"
-    next_node = [[node[rule[name](obs)] for obs in dr.OBS_NAMES] for name in names]
-    act = torch.tensor(next_node, dtype=torch.long)
+    def after_repair(obs: str) -> str:
+        return "home" if obs.startswith("away_") else react(obs)
+
+    next_node = [[node[(after_repair if name == "repair" else react)(obs)] for obs in dr.OBS_NAMES] for name in names]
     actions = []
     for a in range(num_agents):
         home = dr.GO_B1 if a % 2 == 0 else dr.GO_B2
-        actions.append([dr.INFER, dr.PICK, dr.PICK, dr.PICK, dr.GO_HOSPITAL, dr.GO_AIRPORT, dr.GO_CRATE, dr.PUT, home, dr.REPAIR_MA])
-    return JointController(torch.tensor([actions], dtype=torch.long), act.expand(1, num_agents, -1, -1).clone())
+        actions.append([dr.INFER, dr.PICK, dr.GO_HOSPITAL, dr.GO_AIRPORT, dr.GO_CRATE, dr.PUT, home, dr.REPAIR_MA])
+    nxt = torch.tensor(next_node, dtype=torch.long)
+    return JointController(torch.tensor([actions], dtype=torch.long), nxt.expand(1, num_agents, -1, -1).clone())

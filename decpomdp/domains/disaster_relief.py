@@ -16,8 +16,14 @@ probability ``degrade_prob``; moving, picking up and putting down take ``SLOWDOW
 longer; the repair MA restores it to high. The robot reads its health through a sensor that is
 right with probability ``sensor_accuracy`` and otherwise reports one of the two other levels.
 
-Macro-observations (12): (what the robot learned, health reading), with what it learned one of
-``none`` or the destination of the label an ``infer`` just produced: ``obs = 3 * context + reading``.
+Macro-observations (30): (context, health reading), ``obs = 3 * context + reading``, where the
+context (``CONTEXTS``) is what the robot knows after its MA: ``away`` (empty-handed, not at a base),
+``at_base`` (empty-handed at a base), ``saw_<destination>`` (an ``infer`` just reported a label with
+that destination), ``loaded_<destination>`` (carrying, at a base, an object whose class the robot
+inferred there before picking it up; ``loaded_unknown`` if it did not), ``at_site_loaded``
+(carrying, away from the bases). An inference stays "fresh" until the robot picks up or leaves;
+an object picked up under a fresh inference is believed to have the inferred destination (wrong if
+the label was wrong, or if the partner took the inferred object first).
 
 Constants chosen here (the paper gives no numbers): mean travel times ``TRAVEL`` (symmetric, time
 units), pick-up and put-down 1, repair 1 plus the trip, duration noise ``tau * (1 + 0.3 N(0, 1))``
@@ -32,7 +38,8 @@ and lasts 1. Two robots picking up at one base at the same instant: the lower in
 waiting object, the next takes its replacement.
 
 State (batch first): ``loc``, ``carry`` (class or -1), ``health``, ``ma``, ``ok``, ``label``,
-``frames`` (B, A); ``objects`` (B, 2) classes waiting at the bases; counters ``delivered``,
+``frames``, ``fresh`` (an unused inference of the object at the robot's base), ``belief`` (believed
+destination index of the carried object, -1 unknown) (B, A); ``objects`` (B, 2) classes waiting at the bases; counters ``delivered``,
 ``wrong``, ``inference_frames`` (frames of completed inferences), ``inferences`` and ``repairs``,
 long (B,).
 """
@@ -55,7 +62,9 @@ DESTINATION = torch.tensor([HOSPITAL, AIRPORT, HOSPITAL, AIRPORT, CRATE_ZONE, CR
 ACTION_NAMES = ["go_base1", "go_base2", "go_hospital", "go_airport", "go_crate_zone", "go_repair", "infer", "pick_up", "put_down"]
 GO_B1, GO_B2, GO_HOSPITAL, GO_AIRPORT, GO_CRATE, REPAIR_MA, INFER, PICK, PUT = range(9)
 HEALTH = ["high", "medium", "low"]
-CONTEXTS = ["none", "hospital", "airport", "crate_zone"]
+_SITES = ["hospital", "airport", "crate_zone"]
+CONTEXTS = ["away", "at_base", *(f"saw_{d}" for d in _SITES), *(f"loaded_{d}" for d in _SITES), "loaded_unknown", "at_site_loaded"]
+AWAY, AT_BASE, SAW, LOADED, LOADED_UNKNOWN, AT_SITE_LOADED = 0, 1, 2, 5, 8, 9
 OBS_NAMES = [f"{context}_{reading}" for context in CONTEXTS for reading in HEALTH]
 #: mean travel time between locations (rows: from, columns: to)
 TRAVEL = torch.tensor(
@@ -142,6 +151,8 @@ class DisasterRelief(DecPOSMDP):
             "ok": torch.zeros(shape, dtype=torch.bool),
             "label": torch.zeros(shape, dtype=torch.long),
             "frames": torch.zeros(shape, dtype=torch.long),
+            "fresh": torch.zeros(shape, dtype=torch.bool),
+            "belief": torch.full(shape, -1, dtype=torch.long),
             "objects": torch.randint(0, len(CLASSES), (batch, 2), generator=generator),
             **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
         }
@@ -184,6 +195,8 @@ class DisasterRelief(DecPOSMDP):
             state["frames"][row, col] = frames.long()
             duration[row, col] = frames.to(torch.float64) * self.frame_period
         pick = ok & (actions == PICK)
+        state["belief"] = torch.where(pick, torch.where(state["fresh"], DESTINATION[state["label"]] - HOSPITAL, -1), state["belief"])
+        state["fresh"] = state["fresh"] & ~(agents & ((actions <= REPAIR_MA) | pick))  # leaving or picking uses it up
         for a in range(self.num_agents):  # robots in index order: each takes what waits when it starts
             row = pick[:, a].nonzero().squeeze(1)
             if row.numel():
@@ -216,5 +229,12 @@ class DisasterRelief(DecPOSMDP):
         health = state["health"] = torch.where(repaired, 0, (state["health"] + degrade.long()).clamp(max=2))
         shift = 1 + (u[..., 2] < 0.5).long()  # a wrong reading is one of the two other levels
         reading = torch.where(u[..., 1] < self.sensor_accuracy, health, (health + shift) % 3)
-        context = torch.where(inferred, 1 + (DESTINATION[state["label"]] - HOSPITAL), 0)
+        state["fresh"] = state["fresh"] | inferred
+        at_base, carrying = loc <= BASE2, state["carry"] >= 0
+        loaded = torch.where(state["belief"] >= 0, LOADED + state["belief"], LOADED_UNKNOWN)
+        context = torch.where(
+            carrying,
+            torch.where(at_base, loaded, AT_SITE_LOADED),
+            torch.where(inferred, SAW + DESTINATION[state["label"]] - HOSPITAL, torch.where(at_base, AT_BASE, AWAY)),
+        )
         return reward, 3 * context + reading

@@ -74,7 +74,7 @@ def test_infer_uses_the_plugged_model(no_noise):
     assert torch.equal(model.asked[0], objects[0])  # robot a infers the object at base a
     reward, obs = env.complete(state, torch.ones(1, 2, dtype=torch.bool), torch.full((1, 2), dr.INFER), torch.full((1,), 1.75), g())
     contexts = [dr.OBS_NAMES[o].rsplit("_", 1)[0] for o in obs[0]]
-    expected = [dr.LOCATIONS[int(dr.DESTINATION[ShiftedPerception.WRONG[c]])].lower() for c in objects[0]]
+    expected = ["saw_" + dr.LOCATIONS[int(dr.DESTINATION[ShiftedPerception.WRONG[c]])].lower() for c in objects[0]]
     assert contexts == expected
     assert state["inference_frames"].tolist() == [14] and state["inferences"].tolist() == [2]
 
@@ -111,12 +111,28 @@ def test_health_degrades_and_repair_restores(no_noise):
         end = start(env, state, [ma], t=0.0)
         _, obs = env.complete(state, one, torch.tensor([[ma]]), end[0], g())
         readings.append(dr.OBS_NAMES[obs[0, 0]])
-    assert readings == ["none_medium", "none_low", "none_low"] and state["health"].item() == 2
+    assert readings == ["at_base_medium", "at_base_low", "at_base_low"] and state["health"].item() == 2
     end = start(env, state, [dr.REPAIR_MA])
     assert end.item() == 2 * 2.5 + dr.REPAIR_TIME  # Base2 -> repair at low health, plus the repair
     _, obs = env.complete(state, one, torch.tensor([[dr.REPAIR_MA]]), end[0], g())
-    assert dr.OBS_NAMES[obs[0, 0]] == "none_high" and state["loc"].item() == dr.REPAIR
+    assert dr.OBS_NAMES[obs[0, 0]] == "away_high" and state["loc"].item() == dr.REPAIR
     assert state["repairs"].item() == 1
+
+
+def test_contexts_follow_a_delivery(no_noise):
+    env = DisasterRelief(num_agents=1, degrade_prob=0.0, sensor_accuracy=1.0)
+    state = env.reset(1, g(6))
+    one = torch.ones(1, 1, dtype=torch.bool)
+    site = dr.LOCATIONS[int(dr.DESTINATION[state["objects"][0, 0]])].lower()
+    go = {"hospital": dr.GO_HOSPITAL, "airport": dr.GO_AIRPORT, "crate_zone": dr.GO_CRATE}[site]
+    seen, t = [], 0.0
+    for ma in [dr.INFER, dr.PICK, go, dr.PUT, dr.GO_B1, dr.PICK, dr.GO_B2]:
+        end = start(env, state, [ma], t=t)
+        t = end.item()
+        _, obs = env.complete(state, one, torch.tensor([[ma]]), end[0], g())
+        seen.append(dr.OBS_NAMES[obs[0, 0]].rsplit("_", 1)[0])
+    assert seen == ["saw_" + site, "loaded_" + site, "at_site_loaded", "away", "at_base", "loaded_unknown", "loaded_unknown"]
+    assert state["delivered"].item() == 1 and state["loc"].item() == dr.BASE2
 
 
 def test_degradation_and_sensor_rates():
