@@ -94,6 +94,9 @@ class ReferencePackageDelivery:
                 s["waiting"][p] = False
                 if act == pd.JPICK:
                     takers.append((a, p))
+            elif self.env.solo_joint:  # the reference's rule: run it alone
+                if act == pd.JPICK:
+                    takers.append((a,))
             else:
                 s["end"][a] = t + self.env.joint_wait
                 s["waiting"][a] = True
@@ -113,7 +116,8 @@ class ReferencePackageDelivery:
             elif act in (pd.PICK, pd.JPICK):
                 picked.add(a)
             elif act in _DROPS:
-                reward += env.drop_reward(act, s["load"][a], s["pos"][a])[0]
+                robots = sum(s["ma"][b] == pd.JPUT for b in effective) if act == pd.JPUT else 1
+                reward += env.drop_reward(act, s["load"][a], s["pos"][a], robots)[0]
                 s["load"][a] = 0
         obs = [0, 0]
         for a in agents:

@@ -32,7 +32,10 @@ Choices where the paper and reference are silent or differ (documented constants
   finishing its MA there while the first robot waits (up to ``joint_wait`` time units), runs the
   joint MA instead of its own choice (robot 0 leads when both start joint MAs at once); the two
   run it with one sampled duration and finish at the same instant. A joint MA whose wait runs
-  out fails. The reference also let a single robot run a joint MA alone; here it cannot;
+  out fails. The reference also let a single robot run a joint MA alone (and forced the partner
+  only when both decided in the same step); ``solo_joint=True`` restores the first rule: a joint
+  MA without its partner then runs at once with the robot alone (it still drafts a partner that
+  is there);
 * preconditions: go-to MAs need a defined mean duration from the current node and no large load;
   joint go-to MAs need a large load; pick-up needs an empty robot at a base holding a small
   package (joint pick-up: a large one); put-down needs a small load at Dest1/Dest2 (joint
@@ -195,6 +198,8 @@ class PackageDelivery(DecPOSMDP):
         small_reward, large_reward, truck_reward: rewards for a package delivered right.
         large_reward_per_robot: credit ``large_reward`` to each robot of the joint put-down
             (the reference's accounting) instead of once per package.
+        solo_joint: let one robot run a joint MA alone when its partner is not there (the
+            reference's rule; off by default: large packages need both robots).
     """
 
     num_agents = 2
@@ -210,6 +215,7 @@ class PackageDelivery(DecPOSMDP):
         large_reward: float = 3.0,
         truck_reward: float = 1.0,
         large_reward_per_robot: bool = True,
+        solo_joint: bool = False,
     ) -> None:
         if not 0.0 < float(gamma) <= 1.0:
             raise ValueError(f"gamma: expected a float in (0, 1], got {gamma!r}")
@@ -221,22 +227,23 @@ class PackageDelivery(DecPOSMDP):
                 raise ValueError(f"{name}: expected a finite float, got {value!r}")
         self.gamma, self.horizon, self.joint_wait = float(gamma), float(horizon), float(joint_wait)
         self.small_reward, self.large_reward, self.truck_reward = float(small_reward), float(large_reward), float(truck_reward)
-        self.large_reward_per_robot = bool(large_reward_per_robot)
+        self.large_reward_per_robot, self.solo_joint = bool(large_reward_per_robot), bool(solo_joint)
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
 
     def __repr__(self) -> str:
         return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
-                f"large_reward_per_robot={self.large_reward_per_robot})")
+                f"large_reward_per_robot={self.large_reward_per_robot}, solo_joint={self.solo_joint})")
 
-    def drop_reward(self, ma: int, load: int, loc: int) -> tuple[float, bool]:
-        """(reward credited to one robot, delivered right?) when ``ma`` in ``DROP_MAS`` completes at ``loc``."""
+    def drop_reward(self, ma: int, load: int, loc: int, robots: int = 2) -> tuple[float, bool]:
+        """(reward credited to one robot, delivered right?) when ``ma`` in ``DROP_MAS`` completes at
+        ``loc``; ``robots`` run a joint put-down together (1 only with ``solo_joint``)."""
         size, dest = PACKAGES[load - 1]
         right = dest == loc
         if not right:
             return 0.0, False
         if ma == JPUT:
-            return (self.large_reward if self.large_reward_per_robot else self.large_reward / 2), True
+            return (self.large_reward if self.large_reward_per_robot else self.large_reward / robots), True
         return (self.truck_reward if ma == TRUCK else self.small_reward), True
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
@@ -340,7 +347,8 @@ class PackageDelivery(DecPOSMDP):
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & (ma[:, 0] == ma[:, 1]) & same
         finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
-        waits = joint & ~joins & ~together[:, None]
+        alone = joint & ~joins & ~together[:, None]
+        waits = alone & ~torch.tensor(self.solo_joint)
         finish = torch.where(waits, t[rows, None] + self.joint_wait, finish)
         ends = torch.where(joint, finish, end[rows])
         end[rows] = torch.where(joins.roll(1, 1), finish.roll(1, 1), ends)
@@ -351,6 +359,10 @@ class PackageDelivery(DecPOSMDP):
             package = here[row, 0]
             state["load"][row] = (package + 1)[:, None].expand(-1, 2)
             state["base"][row, state["loc"][row, 0].long()] = self.sample_packages(int(row.numel()), generator)
+        solo = alone & (ma == JPICK) & torch.tensor(self.solo_joint)
+        if bool(solo.any()):
+            row, col = solo.nonzero(as_tuple=True)
+            self._take(state, rows[row], col, here[rows[row], col], generator)
 
     def complete(self, state, agents, actions, t, generator):
         ma, okay, waiting = state["ma"], state["ok"], state["waiting"]
@@ -366,8 +378,13 @@ class PackageDelivery(DecPOSMDP):
             row, col = dropped.nonzero(as_tuple=True)
             index = ((ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]).long()
             table = self._complete_tables
-            reward.index_add_(0, row, table["reward"][index])
-            counts = table["counts"][index] * ((ma[row, col] != JPUT) | (col == 0))[:, None]
+            jput = ma[row, col] == JPUT
+            paired = (dropped & (ma == JPUT)).all(dim=1)[row]  # a joint put-down by both robots
+            credit = table["reward"][index]
+            if not self.large_reward_per_robot:
+                credit = torch.where(jput & ~paired, 2 * credit, credit)  # a solo joint put-down gets it all
+            reward.index_add_(0, row, credit)
+            counts = table["counts"][index] * (~jput | ~paired | (col == 0))[:, None]
             for k, key in enumerate(COUNTERS):
                 state[key].index_add_(0, row, counts[:, k])
             load[row, col] = 0

@@ -104,6 +104,18 @@ def test_large_package_needs_both_robots(exact, per_robot, reward):
     assert solo.item() == 0.0  # a large package cannot be picked up alone
 
 
+@pytest.mark.parametrize("per_robot", [True, False])
+def test_solo_joint_reference_rule(exact, per_robot):
+    # with solo_joint a robot runs the joint MAs alone when its partner is away (at Base2 here)
+    exact(4)
+    env = PackageDelivery(solo_joint=True, large_reward_per_robot=per_robot)
+    ctrl = cycle([pd.WAIT, pd.JPICK, pd.JGO_D2, pd.JPUT, pd.GO_B1], [pd.GO_B2, pd.WAIT])
+    returns, counters = rollout_counters(env, ctrl, 1, g())
+    assert returns.item() == pytest.approx(discounted(range(7, 51, 9), 3.0))  # 1 + 1.5 + 3 + 1.5 = 7, then every 9
+    assert counters["delivered_large"].item() == 5 and counters["delivered"].item() == 5
+    assert "solo_joint=True" in repr(env)
+
+
 def test_joint_rendezvous_partner_arrives_later(exact):
     exact(4)
     env = PackageDelivery(joint_wait=4.0)
@@ -198,12 +210,17 @@ def test_matches_independent_per_rollout_simulator():
     spec = importlib.util.spec_from_file_location("bench_simulator", ROOT / "benchmarks" / "bench_simulator.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    env, n = PackageDelivery(), 1500
+    n = 1500
     controllers = bench.controller_family(4, 3, seed=5)
+    for env in (PackageDelivery(), PackageDelivery(solo_joint=True, large_reward_per_robot=False)):
+        compare(bench, env, controllers, n)
+
+
+def compare(bench, env, controllers, n):
     mean, se = evaluate(env, controllers, n, g(3))
     ref = bench.ReferencePackageDelivery(env)
     rng = random.Random(4)
-    for k in range(4):
+    for k in range(controllers.num_controllers):
         values = torch.tensor([ref.rollout(controllers.action[k].tolist(), controllers.next_node[k].tolist(), rng)[0]
                                for _ in range(n)], dtype=torch.float64)
         combined = math.sqrt(se[k].item() ** 2 + (values.std().item() / math.sqrt(n)) ** 2)
