@@ -14,6 +14,7 @@ import yaml
 from hydra import compose, initialize_config_dir
 
 from experiments.filtering_error import first_crossing, wilson_interval
+from experiments.filtering_error import run as run_filtering
 from hbni_pyro import HBNIPosterior
 from hbni_pyro.macro import MacroObservationModel
 
@@ -90,3 +91,17 @@ def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
     assert modes == {"marginal", "plugin"}
     launcher = yaml.safe_load((tmp_path / "multirun.yaml").read_text())["hydra"]["launcher"]
     assert launcher["_target_"].endswith("JoblibLauncher") and launcher["n_jobs"] == 2
+
+
+def test_filtering_error_is_a_function_of_the_seed(tmp_path):
+    def metrics(seed, sub):
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING])
+        (tmp_path / sub).mkdir()
+        return run_filtering(cfg, tmp_path / sub)
+
+    a, b, c = metrics(3, "a"), metrics(3, "b"), metrics(4, "c")
+    for size in (15, 30):
+        for method in ("ssbf", "hbni"):
+            assert torch.equal(a["error"][size][method]["wrong"], b["error"][size][method]["wrong"])
+    assert any(not torch.equal(a["error"][15][m]["wrong"], c["error"][15][m]["wrong"]) for m in ("ssbf", "hbni"))
