@@ -158,7 +158,25 @@ def _metrics(wrong: dict[int, dict[str, Tensor]], s: dict[str, Any]) -> dict[str
         "error": error,
         "crossing_n": crossing,
         "comparison": {size: _compare(error[size], crossing[size]) for size in wrong},
+        "acceptance": _acceptance(error, crossing),
     }
+
+
+def _acceptance(error: dict, crossing: dict) -> dict[str, bool | None]:
+    """The issue's acceptance checks (``None`` when the study did not include that training size)."""
+    out: dict[str, bool | None] = {}
+    if 15 in error:
+        c = _compare(error[15], crossing[15])
+        out["train15_hbni_at_or_below_every_baseline_at_every_n"] = all(c[b]["hbni_at_or_below_every_n"] for b in BASELINES)
+        out["train15_intervals_separated_wherever_baseline_above_1pct"] = all(
+            c[b]["intervals_separated_wherever_baseline_above_1pct"] for b in BASELINES
+        )
+        ratios = [c[b]["crossing_ratio_hbni_over_baseline"].get("0.01") for b in BASELINES]
+        out["train15_1pct_n_at_most_half_of_each_baseline"] = all(r is not None and r <= 0.5 for r in ratios)
+    if 150 in error:
+        r = _ratio(crossing[150]["hbni"].get("0.005"), crossing[150]["ssbf"].get("0.005"))
+        out["train150_half_pct_n_at_most_third_of_ssbf"] = r is not None and r <= 1 / 3
+    return out
 
 
 def _ratio(a: int | None, b: int | None) -> float | None:

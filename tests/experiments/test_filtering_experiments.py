@@ -63,6 +63,11 @@ def test_filtering_error_smoke(tmp_path, repo_root):
             assert len(e["error"]) == 8 and all(lo <= x <= hi for lo, x, hi in zip(e["lo"], e["error"], e["hi"]))
             assert set(m["crossing_n"][size][method]) == {"0.05", "0.01", "0.005"}
         assert "crossing_ratio_hbni_over_baseline" in m["comparison"][size]["ssbf"]
+    assert set(m["acceptance"]) == {
+        "train15_hbni_at_or_below_every_baseline_at_every_n",
+        "train15_intervals_separated_wherever_baseline_above_1pct",
+        "train15_1pct_n_at_most_half_of_each_baseline",
+    }
     # baselines do not depend on training: the same trials give the same curves at every size
     assert m["error"]["15"]["ssbf"] == m["error"]["30"]["ssbf"]
     for png in ("error_curves.png", "crossing_vs_training_size.png"):
