@@ -40,6 +40,7 @@ class FrameClassifier:
         C: SVM penalty. cv: Platt cross-validation folds. padding: crop padding fraction.
         seed: seed of the augmentation and of the Platt split.
         batch_size: images per backbone call.
+        threads: torch intra-op threads for the backbone (``None``: torch's global setting).
 
     Raises:
         FileNotFoundError: ``weights_path`` does not exist.
@@ -54,6 +55,7 @@ class FrameClassifier:
         padding: float = 0.1,
         seed: int = 0,
         batch_size: int = 8,
+        threads: int | None = 1,
     ):
         if padding < 0:
             raise ValueError(f"padding: expected >= 0, got {padding}")
@@ -64,6 +66,9 @@ class FrameClassifier:
         self.padding = float(padding)
         self.seed = int(seed)
         self.batch_size = int(batch_size)
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads: expected >= 1 or None, got {threads}")
+        self.threads = threads
         self.head = OneVsOneSVC(C=C, cv=cv, seed=seed)
         self.mean_: Tensor | None = None
         self.scale_: Tensor | None = None
@@ -78,7 +83,8 @@ class FrameClassifier:
         bar = tqdm(total=len(crops), desc="backbone", unit="img", disable=not progress, leave=False)
         for i in range(0, len(crops), self.batch_size):
             chunk = crops[i : i + self.batch_size]
-            out.append(self.backbone(normalize(chunk, self.backbone.mean, self.backbone.std), self.batch_size))
+            x = normalize(chunk, self.backbone.mean, self.backbone.std)
+            out.append(self.backbone(x, self.batch_size, self.threads))
             bar.update(len(chunk))
         bar.close()
         return torch.cat(out)
@@ -146,7 +152,8 @@ class FrameClassifier:
         tensors, head_meta = self.head.state()
         tensors = {f"head.{k}": v for k, v in tensors.items()} | {"mean": self.mean_, "scale": self.scale_}
         meta = {"head": head_meta, "backbone": self.backbone.name, "weights_path": self.weights_path,
-                "padding": self.padding, "seed": self.seed, "batch_size": self.batch_size}
+                "padding": self.padding, "seed": self.seed, "batch_size": self.batch_size,
+                "threads": self.threads}
         return save_tensors(path, _KIND, tensors, meta)
 
     @classmethod
@@ -163,6 +170,7 @@ class FrameClassifier:
             model = cls(
                 backbone=meta["backbone"], weights_path=weights_path or meta["weights_path"], C=head_meta["C"],
                 cv=head_meta["cv"], padding=meta["padding"], seed=meta["seed"], batch_size=meta["batch_size"],
+                threads=meta["threads"],
             )
             model.mean_, model.scale_ = tensors["mean"].double(), tensors["scale"].double()
         except (KeyError, TypeError) as exc:

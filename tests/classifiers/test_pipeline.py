@@ -66,6 +66,8 @@ def test_error_paths(tmp_path, fitted_classifier, frames):
         FrameClassifier().fit_features(torch.zeros(4, 10), [0, 0, 1, 1])
     with pytest.raises(ValueError, match="padding"):
         FrameClassifier(padding=-1)
+    with pytest.raises(ValueError, match="threads"):
+        FrameClassifier(threads=0)
     with pytest.raises(ValueError, match="copies"):
         fitted_classifier.augmented_features(frames, -1)
     corrupt = tmp_path / "corrupt.safetensors"
