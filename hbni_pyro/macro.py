@@ -271,23 +271,49 @@ def characterize(
     theta_draws, source = _generative_theta(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
     g = torch.Generator().manual_seed(seed)
-    counts = torch.zeros(M, M * T, dtype=DTYPE)
-    timed_out = torch.zeros(M, dtype=DTYPE)
+    results = []
     for c in tqdm(range(M), desc="characterize", disable=not progress):
         theta = theta_draws[torch.randint(theta_draws.shape[0], (num_streams,), generator=g)].unsqueeze(1)
         classes = torch.full((num_streams, T), c, dtype=torch.long)
-        result = process.run_batch(sample_outputs(theta, classes, g))
-        counts[c].index_add_(0, result.label * T + result.frames_used - 1, torch.ones(num_streams, dtype=DTYPE))
-        timed_out[c] = result.timed_out.to(DTYPE).mean()
-    info = {
-        "threshold": process.threshold,
-        "max_frames": T,
-        "num_streams": num_streams,
-        "seed": seed,
-        "filter": repr(process.filter),
-        "generative": source,
-    }
-    return MacroObservationModel((counts / num_streams).reshape(M, M, T), timed_out, info)
+        results.append(process.run_batch(sample_outputs(theta, classes, g)))
+    truth = torch.arange(M).repeat_interleave(num_streams)
+    batch = MacroObservationBatch(*(torch.cat(parts) for parts in zip(*results)))
+    info = {"num_streams": num_streams, "seed": seed, "generative": source}
+    return _table(process, batch, truth, info)
+
+
+def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) -> MacroObservationModel:
+    """Tabulate a process's ``P(label, frames_used | true class)`` from recorded output streams.
+
+    Args:
+        process: the macro-observation process to characterise.
+        streams: ``(B, N, M)`` recorded classifier outputs with ``N >= process.max_frames``
+            (e.g. real classifier outputs on held-out sequences).
+        true_class: ``(B,)`` true class of each stream; every class must appear at least once.
+    """
+    if not isinstance(process, MacroObservationProcess):
+        raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
+    truth = torch.as_tensor(true_class)
+    if truth.is_floating_point() or truth.dim() != 1:
+        raise TypeError(f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape {tuple(truth.shape)}")
+    batch = process.run_batch(streams)
+    if truth.shape[0] != batch.label.shape[0]:
+        raise ValueError(f"true_class: expected {batch.label.shape[0]} entries to match streams, got {truth.shape[0]}")
+    missing = sorted(set(range(process.num_classes)) - set(truth.tolist()))
+    if missing or ((truth < 0) | (truth >= process.num_classes)).any():
+        raise ValueError(f"true_class: expected every class in [0, {process.num_classes}) at least once; missing {missing}")
+    return _table(process, batch, truth.long(), {"num_streams": int(truth.numel()), "generative": "recorded streams"})
+
+
+def _table(process: MacroObservationProcess, batch: MacroObservationBatch, truth: Tensor, info: dict) -> MacroObservationModel:
+    """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class."""
+    M, T = process.num_classes, process.max_frames
+    counts = torch.zeros(M, M * T, dtype=DTYPE)
+    counts.index_put_((truth, batch.label * T + batch.frames_used - 1), torch.ones(truth.shape[0], dtype=DTYPE), accumulate=True)
+    per_class = counts.sum(-1, keepdim=True)
+    timed_out = torch.zeros(M, dtype=DTYPE).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
+    info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
+    return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info)
 
 
 def _generative_theta(generative: Any, num_classes: int) -> tuple[Tensor, str]:
