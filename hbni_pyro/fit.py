@@ -7,10 +7,8 @@ dozens of training sets stays fast.
 
 from __future__ import annotations
 
-import contextlib
 import time
 import warnings
-from collections.abc import Iterator
 from typing import Any
 
 import pyro
@@ -22,6 +20,7 @@ from torch import Tensor
 from hbni_pyro.kernels import HBNIMetropolis
 from hbni_pyro.model import HyperPrior, hbni_model
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_draws
+from hbni_pyro.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs
 
 METHODS = ("mh", "nuts")
@@ -112,18 +111,6 @@ def _check_settings(method, num_chains, num_samples, warmup_steps, hyperprior, c
     if not isinstance(hp, HyperPrior):
         raise TypeError(f"hyperprior: expected a HyperPrior, got {type(hyperprior).__name__}")
     return hp, as_class_prior(class_prior, num_classes), chains
-
-
-@contextlib.contextmanager
-def single_thread() -> Iterator[None]:
-    """Run torch on one intra-op thread: the sampler's tensors are small, and on a loaded
-    machine thread hand-offs cost far more than they save."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:

@@ -54,6 +54,8 @@ def as_outputs(obs: Any, num_classes: int | None = None, *, name: str = "obs", m
     """
     try:
         x = torch.as_tensor(obs)
+        if isinstance(obs, (list, tuple)) and x.is_floating_point():
+            x = torch.as_tensor(obs, dtype=DTYPE)  # read Python floats straight into float64
     except (TypeError, ValueError, RuntimeError) as exc:
         raise TypeError(f"{name}: expected a numeric array of probability rows, got {type(obs).__name__}") from exc
     if x.dtype == torch.bool or x.is_complex() or not (x.is_floating_point() or x.dtype in _INT_DTYPES):
