@@ -1,0 +1,76 @@
+"""The mission through the real entry point with tiny settings: artefacts, report, load_run, sweeps."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from experiments import load_run
+from hbni_pyro import HBNIPosterior, MacroObservationModel
+
+TINY = [
+    "mission.train_per_class=4", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
+    "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
+    "planner.num_nodes=3", "planner.iterations=2", "planner.samples=6", "planner.elites=2",
+    "study.rollouts=4", "study.reeval_rollouts=20", "progress=false",
+]
+
+
+def _run(repo_root, *args):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, *args]
+    return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def mission_run(tmp_path_factory, repo_root):
+    run_dir = tmp_path_factory.mktemp("mission")
+    _run(repo_root, f"hydra.run.dir={run_dir}")
+    return run_dir
+
+
+def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
+    metrics = json.loads((mission_run / "metrics.json").read_text())
+    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean"}
+    for entry in metrics["variants"].values():
+        assert {"value", "stderr", "delivered_per_rollout", "wrong_per_rollout", "mean_inference_frames"} <= set(entry)
+    report = (mission_run / "report.md").read_text()
+    for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png"):
+        assert (mission_run / png).stat().st_size > 10_000
+        assert f"]({png})" in report
+    manifest = json.loads((mission_run / "artifacts.json").read_text())
+    assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
+                             "controller_perfect", "controller_hbni", "controller_ssbf", "controller_max_of_mean"}
+
+
+def test_load_run_returns_ready_objects(mission_run):
+    from classifiers.data import render_images
+
+    run = load_run(mission_run)
+    images = render_images("ambulance", 2, "mission", seed=5)
+    probs = run.classifier.predict_proba(images)
+    assert probs.shape == (2, 6)
+    torch.testing.assert_close(probs.sum(-1).double(), torch.ones(2, dtype=torch.float64), atol=1e-5, rtol=0)
+    assert "theta[0]" in run.posterior.summary()
+    assert isinstance(HBNIPosterior.load(mission_run / "posterior.safetensors"), HBNIPosterior)
+    label, frames = run.macro_hbni.sample(torch.zeros(10, dtype=torch.long), torch.Generator().manual_seed(0))
+    assert label.shape == frames.shape == (10,) and (frames >= 1).all() and (frames <= 5).all()
+    assert isinstance(MacroObservationModel.load(mission_run / "macro_ssbf.safetensors"), MacroObservationModel)
+    assert run.controller_hbni.action.shape[:2] == (1, 2)
+
+
+@pytest.mark.parametrize("launcher", ["joblib_local", "submitit_local_jobs"])
+def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
+    _run(repo_root, "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf")
+    for job, variant in (("0", "hbni"), ("1", "ssbf")):
+        metrics = json.loads((tmp_path / job / "metrics.json").read_text())
+        assert set(metrics["variants"]) == {"perfect", variant}
+    report = (tmp_path / "report.md").read_text()
+    assert "perception=hbni" in report and "perception=ssbf" in report and "hbni value" in report
+
+
+def test_unknown_perception_variant_is_a_clear_error(tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}", "perception=oracle"]
+    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and "perception: expected a subset of" in proc.stderr
