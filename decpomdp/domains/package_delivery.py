@@ -286,11 +286,13 @@ class PackageDelivery(DecPOSMDP):
         here = self._here(state)
         index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
         ok = _lookup(_START["ok"], index) & agents
-        drafted = self._draft(state, agents, actions, ok & _lookup(_IS_JOINT, actions))
+        joint = ok & _lookup(_IS_JOINT, actions)
+        drafted = self._draft(state, agents, actions, joint)
         if drafted is not None:
             actions = drafted
             index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
             ok = _lookup(_START["ok"], index) & agents
+            joint = ok & _lookup(_IS_JOINT, actions)
         noise = (DURATION_NOISE * torch.randn(actions.shape, generator=generator)).clamp(min=MIN_NOISE_FACTOR - 1.0)
         mean = _lookup(_START["mean"], index)
         finish = t[:, None] + mean * (1.0 + _lookup(_START["noisy"], index) * noise.to(torch.float64))
@@ -306,25 +308,26 @@ class PackageDelivery(DecPOSMDP):
         if bool(solo_pick.any()):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
-        joint = ok & _lookup(_IS_JOINT, actions)
         if bool(joint.any()):
             self._start_joint(state, joint.any(dim=1).nonzero().squeeze(1), joint, here, t, finish, end, generator)
         return end
 
     @staticmethod
     def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
-        """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody is drafted."""
-        same = (state["loc"][:, 0] == state["loc"][:, 1]) & (state["load"][:, 0] == state["load"][:, 1])
-        joins = agents & state["waiting"].roll(1, 1) & same[:, None]  # the partner waits in a joint MA here
-        both = agents[:, 0] & agents[:, 1] & same
-        lead0 = both & joint_ok[:, 0]
-        lead1 = both & joint_ok[:, 1] & ~joint_ok[:, 0]
-        if not bool((joins.any(dim=1) | lead0 | lead1).any()):
+        """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody can be drafted."""
+        partner_waits = agents & state["waiting"].roll(1, 1)
+        candidate = partner_waits.any(dim=1) | (agents[:, 0] & agents[:, 1] & joint_ok.any(dim=1))
+        if not bool(candidate.any()):
             return None
-        actions = torch.where(joins, state["ma"].roll(1, 1), actions)
-        follow0 = torch.where(lead1, actions[:, 1], actions[:, 0])
-        follow1 = torch.where(lead0, actions[:, 0], actions[:, 1])
-        return torch.stack([follow0, follow1], dim=1)
+        rows = candidate.nonzero().squeeze(1)
+        loc, load, act, lead = state["loc"][rows], state["load"][rows], actions[rows], joint_ok[rows]
+        same = (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
+        act = torch.where(partner_waits[rows] & same[:, None], state["ma"][rows].roll(1, 1), act)
+        both = agents[rows, 0] & agents[rows, 1] & same
+        lead0, lead1 = both & lead[:, 0], both & lead[:, 1] & ~lead[:, 0]
+        actions = actions.clone()
+        actions[rows] = torch.stack([torch.where(lead1, act[:, 1], act[:, 0]), torch.where(lead0, act[:, 0], act[:, 1])], dim=1)
+        return actions
 
     def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
         """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
