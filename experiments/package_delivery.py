@@ -82,7 +82,8 @@ def bar_figure(entries: dict[str, dict[str, float]], title: str, reference: dict
            color=["tab:blue", "tab:orange", "tab:green", "tab:gray", "tab:purple"][: len(names)])
     for label, value in (reference or {}).items():
         ax.axhline(value, ls="--", lw=1, color="k", alpha=0.5)
-        ax.text(len(names) - 0.5, value, f" {label}", va="bottom", ha="right", fontsize=8)
+        ax.text(-0.45, value, label, va="bottom", ha="left", fontsize=8)
+    ax.set_ylim(top=1.1 * max([ax.get_ylim()[1], *(reference or {}).values()]))
     ax.set_ylabel("discounted return (mean +- s.e.)")
     ax.set_title(title)
     return fig
