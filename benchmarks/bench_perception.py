@@ -3,9 +3,12 @@
 1. Frames per second for backbone + SVM head + HBNI filter update, one frame at a time (the
    onboard setting; floor 20 fps, the paper's rate), and the HBNI update's share of the frame time.
 2. Head training time, accuracy and log-loss of :class:`classifiers.OneVsOneSVC` against
-   ``sklearn.svm.SVC(kernel="linear", probability=True)`` on the same standardised backbone features.
+   ``sklearn.svm.SVC(kernel="linear", probability=True)`` on the same standardised backbone
+   features: trained on training-condition snapshots, tested on mission-condition snapshots
+   (the perception study's setting).
 
 Usage: ``python benchmarks/bench_perception.py [--frames 60] [--threads 2] [--seed 0]``
+(``--threads`` is torch's global setting; the frame-rate part measures 1 and 2 backbone threads.)
 """
 
 from __future__ import annotations
@@ -24,10 +27,10 @@ from classifiers.data import VEHICLES, render_images, render_sequence
 FLOOR_FPS = 20.0
 
 
-def _features(clf: FrameClassifier, n: int, seed: int) -> tuple[torch.Tensor, np.ndarray]:
+def _features(clf: FrameClassifier, n: int, conditions: str, seed: int) -> tuple[torch.Tensor, np.ndarray]:
     images, labels = [], []
     for k, name in enumerate(VEHICLES):
-        images += list(render_images(name, n, "mission", seed=seed))
+        images += list(render_images(name, n, conditions, seed=seed))
         labels += [k] * n
     return clf.features(images), np.array(labels)
 
@@ -76,7 +79,8 @@ def bench_head(x_tr, y_tr, x_te, y_te, seed: int) -> None:
         ref = SVC(kernel="linear", probability=True, C=1.0, random_state=seed).fit(a, y_tr)
         t_ref = time.perf_counter() - t0
     p, p_ref = head.predict_proba(b).numpy(), ref.predict_proba(b)
-    print(f"[head] {len(y_tr)} training / {len(y_te)} test mission snapshots, {a.shape[1]} features, 3 classes")
+    print(f"[head] {len(y_tr)} training-condition snapshots to train, {len(y_te)} mission-condition snapshots to test, "
+          f"{a.shape[1]} features, 3 classes")
     print(f"  train time: torch OvO SVC {t_ours:.2f} s, sklearn SVC {t_ref:.2f} s (ratio ours/sklearn {t_ours / t_ref:.1f}x)")
     print(f"  accuracy: ours {accuracy_score(y_te, head.predict(b)):.3f}, sklearn {accuracy_score(y_te, ref.predict(b)):.3f}")
     print(f"  log-loss: ours {log_loss(y_te, p):.3f}, sklearn {log_loss(y_te, p_ref):.3f}")
@@ -87,12 +91,13 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--per-class", type=int, default=60)
+    parser.add_argument("--train-per-class", type=int, default=100)
+    parser.add_argument("--test-per-class", type=int, default=60)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     clf = FrameClassifier(seed=args.seed)
-    x_tr, y_tr = _features(clf, args.per_class, args.seed)
-    x_te, y_te = _features(clf, args.per_class, args.seed + 1)
+    x_tr, y_tr = _features(clf, args.train_per_class, "training", args.seed)
+    x_te, y_te = _features(clf, args.test_per_class, "mission", args.seed + 1)
     clf.fit_features(x_tr, [VEHICLES[k] for k in y_tr])
     bench_head(x_tr, y_tr, x_te, y_te, args.seed)
     bench_frame_rate(clf, x_te, y_te, args.frames, args.seed)

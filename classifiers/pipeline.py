@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from classifiers.backbone import Backbone, load_backbone
+from classifiers.backbone import Backbone, load_backbone, torch_threads
 from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
 from classifiers.storage import load_tensors, save_tensors
 from classifiers.svm import OneVsOneSVC
@@ -40,7 +40,9 @@ class FrameClassifier:
         C: SVM penalty. cv: Platt cross-validation folds. padding: crop padding fraction.
         seed: seed of the augmentation and of the Platt split.
         batch_size: images per backbone call.
-        threads: torch intra-op threads for the backbone (``None``: torch's global setting).
+        threads: torch intra-op threads for feature extraction and prediction (``None``: torch's
+            global setting). One thread is the default: on a small shared machine it is as fast as
+            two when idle and many times faster when other processes compete for the cores.
 
     Raises:
         FileNotFoundError: ``weights_path`` does not exist.
@@ -81,11 +83,12 @@ class FrameClassifier:
     def _embed(self, crops: list[np.ndarray], progress: bool) -> Tensor:
         out = []
         bar = tqdm(total=len(crops), desc="backbone", unit="img", disable=not progress, leave=False)
-        for i in range(0, len(crops), self.batch_size):
-            chunk = crops[i : i + self.batch_size]
-            x = normalize(chunk, self.backbone.mean, self.backbone.std)
-            out.append(self.backbone(x, self.batch_size, self.threads))
-            bar.update(len(chunk))
+        with torch_threads(self.threads):
+            for i in range(0, len(crops), self.batch_size):
+                chunk = crops[i : i + self.batch_size]
+                x = normalize(chunk, self.backbone.mean, self.backbone.std)
+                out.append(self.backbone(x, self.batch_size, threads=None))
+                bar.update(len(chunk))
         bar.close()
         return torch.cat(out)
 
@@ -134,7 +137,8 @@ class FrameClassifier:
         """Class probabilities ``(B, M)`` float32 from backbone features ``(B, 1000)``."""
         if self.mean_ is None:
             raise RuntimeError("FrameClassifier: call fit() or load() first")
-        return self.head.predict_proba((X.double() - self.mean_) / self.scale_).float()
+        with torch_threads(self.threads):
+            return self.head.predict_proba((X.double() - self.mean_) / self.scale_).float()
 
     def predict_proba(self, images: Any) -> Tensor:
         """Class probabilities ``(B, M)`` float32, columns in ``classes_`` order (rows sum to 1)."""

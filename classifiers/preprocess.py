@@ -113,9 +113,12 @@ def augment(
 
 
 def normalize(crops: np.ndarray | Sequence[np.ndarray], mean: Sequence[float], std: Sequence[float]) -> Tensor:
-    """uint8 BGR crops ``(B, S, S, 3)`` -> float32 RGB ``(B, 3, S, S)``, ``(x - mean) / std`` per channel."""
-    x = torch.from_numpy(np.ascontiguousarray(np.stack(list(crops)) if not isinstance(crops, np.ndarray) else crops))
-    x = x.flip(-1).permute(0, 3, 1, 2).float()
-    m = torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1)
-    s = torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1)
-    return ((x - m) / s).contiguous()
+    """uint8 BGR crops ``(B, S, S, 3)`` -> float32 RGB ``(B, 3, S, S)``, ``(x - mean) / std`` per channel.
+
+    The result is a channels-last view (the memory layout the backbone runs in), computed in numpy.
+    """
+    arr = crops if isinstance(crops, np.ndarray) else np.stack(list(crops))
+    m = np.asarray(mean, np.float32)
+    inv = 1.0 / np.asarray(std, np.float32)
+    x = (arr[..., ::-1].astype(np.float32) - m) * inv
+    return torch.from_numpy(np.ascontiguousarray(x)).permute(0, 3, 1, 2)

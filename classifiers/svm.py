@@ -29,7 +29,7 @@ from classifiers.coupling import pairwise_coupling
 from classifiers.platt import fit_platt, platt_predict
 from classifiers.storage import load_tensors, save_tensors
 
-__all__ = ["OneVsOneSVC", "objective", "train_squared_hinge"]
+__all__ = ["OneVsOneSVC", "bias_scale", "objective", "train_squared_hinge"]
 
 _KIND = "classifiers.OneVsOneSVC"
 _PROB_FLOOR = 1e-7  # libsvm clamps pairwise probabilities to [1e-7, 1 - 1e-7]
