@@ -2,12 +2,17 @@
 
 Each agent's controller graph has ``num_nodes`` nodes. G-DICE keeps categorical distributions over
 every node's MA, ``action_probs`` (A, Nn, |MA|), and every (node, observation)'s next node,
-``next_probs`` (A, Nn, O, Nn), uniform at the start. Each iteration it
+``next_probs`` (A, Nn, O, Nn), uniform at the start (or, warm-started from a given controller,
+``(1 - init_weight) * uniform + init_weight * one_hot(that controller)``). Each iteration it
 
 1. samples ``samples`` (N_s) joint controllers and scores them with a pluggable evaluator
    (Monte Carlo rollouts in one batched simulation, or exact values for tabular problems);
-2. keeps the samples whose value is >= the previous iteration's worst elite value and takes the
-   best ``elites`` (N_b) of them (ties broken by sample order);
+2. keeps the samples whose value is >= the threshold and takes the best ``elites`` (N_b) of them
+   (ties broken by sample order). The threshold is the previous iteration's worst elite value
+   (``threshold_rule="paper"``), or that value capped at this iteration's N_b-th best value
+   (``"capped"``). Under Monte Carlo scores the paper's rule can stall: one lucky iteration sets a
+   threshold no later sample reaches, nothing is kept and the distributions freeze. The cap keeps
+   the rule whenever it admits N_b samples and otherwise falls back to this iteration's N_b best;
 3. sets each distribution to ``alpha * frequency in the elites + (1 - alpha) * old`` (no change
    when nothing was kept);
 4. optionally injects entropy: every categorical row whose normalised entropy fell below
@@ -22,6 +27,7 @@ JSON, with the generator state) let an interrupted run resume to exactly the sam
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from dataclasses import asdict, dataclass, field
@@ -37,6 +43,7 @@ from decpomdp.evaluate import Evaluator
 
 _KIND = "decpomdp.GDICECheckpoint"
 _VERSION = 1
+_THRESHOLD_RULES = ("paper", "capped")
 
 
 @dataclass(frozen=True)
@@ -56,6 +63,10 @@ class GDICEConfig:
         layer_width: None for a free graph; else W makes a layered graph for finite horizons: node 0
             is layer 0, then layers of W nodes (``num_nodes = 1 + W * (layers - 1)``); a node may only
             move to the next layer, and the last layer moves within itself.
+        threshold_rule: ``"paper"`` (the previous iteration's worst elite) or ``"capped"`` (that,
+            but never above the current iteration's N_b-th best value, so N_b elites are always kept).
+        init_weight: weight of the warm-start controller passed to :func:`gdice` as ``init`` in the
+            initial distributions, in [0, 1]; must be > 0 exactly when ``init`` is given.
     """
 
     num_nodes: int = 13
@@ -67,6 +78,8 @@ class GDICEConfig:
     injection_threshold: float = 0.05
     injection_until: float = 0.5
     layer_width: int | None = None
+    threshold_rule: str = "paper"
+    init_weight: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("num_nodes", "iterations", "samples", "elites"):
@@ -83,6 +96,10 @@ class GDICEConfig:
             raise ValueError(f"injection_threshold: expected a value in [0, 1], got {self.injection_threshold}")
         if not 0.0 <= self.injection_until <= 1.0:
             raise ValueError(f"injection_until: expected a fraction in [0, 1], got {self.injection_until}")
+        if self.threshold_rule not in _THRESHOLD_RULES:
+            raise ValueError(f"threshold_rule: expected one of {_THRESHOLD_RULES}, got {self.threshold_rule!r}")
+        if not 0.0 <= self.init_weight <= 1.0:
+            raise ValueError(f"init_weight: expected a weight in [0, 1], got {self.init_weight}")
         w = self.layer_width
         if w is not None and (not isinstance(w, int) or w < 1 or self.num_nodes < 1 + w or (self.num_nodes - 1) % w):
             raise ValueError(f"layer_width: expected an int W >= 1 with num_nodes = 1 + W * k (k >= 1), got {w!r}")
@@ -152,14 +169,19 @@ def _inject(p: Tensor, uniform: Tensor, cfg: GDICEConfig) -> Tensor:
 class _State:
     """Everything a G-DICE run carries between iterations (what a checkpoint stores)."""
 
-    def __init__(self, a: int, m: int, o: int, cfg: GDICEConfig) -> None:
+    def __init__(self, a: int, m: int, o: int, cfg: GDICEConfig, init: JointController | None = None) -> None:
         nn = cfg.num_nodes
         self.iteration = 0
-        self.action_probs = torch.full((a, nn, m), 1.0 / m, dtype=torch.float64)
         mask = cfg.transition_mask().to(torch.float64)
         self.next_uniform = (mask / mask.sum(-1, keepdim=True))[None, :, None, :].expand(a, nn, o, nn)
         self.action_uniform = torch.full((a, nn, m), 1.0 / m, dtype=torch.float64)
-        self.next_probs = self.next_uniform.clone()
+        self.action_probs, self.next_probs = self.action_uniform.clone(), self.next_uniform.clone()
+        if init is not None:
+            w, ni = cfg.init_weight, init.num_nodes
+            act = torch.nn.functional.one_hot(init.action[0], m).to(torch.float64)
+            nxt = torch.nn.functional.one_hot(init.next_node[0], nn).to(torch.float64)
+            self.action_probs[:, :ni] = (1 - w) * self.action_probs[:, :ni] + w * act
+            self.next_probs[:, :ni] = (1 - w) * self.next_probs[:, :ni] + w * nxt
         self.threshold = -math.inf
         self.best = JointController(torch.zeros(1, a, nn, dtype=torch.long), torch.zeros(1, a, nn, o, dtype=torch.long))
         self.best_value = -math.inf
@@ -167,7 +189,7 @@ class _State:
             k: [] for k in ("best", "iteration_best", "iteration_mean", "threshold", "kept", "entropy")
         }
 
-    def save(self, path: Path, cfg: GDICEConfig, generator: torch.Generator) -> None:
+    def save(self, path: Path, cfg: GDICEConfig, generator: torch.Generator, init_digest: str | None) -> None:
         tensors = {
             "action_probs": self.action_probs,
             "next_probs": self.next_probs,
@@ -178,6 +200,7 @@ class _State:
         meta = {
             "version": _VERSION,
             "config": asdict(cfg),
+            "init": init_digest,
             "iteration": self.iteration,
             "threshold": None if self.threshold == -math.inf else self.threshold,
             "best_value": None if self.best_value == -math.inf else self.best_value,
@@ -186,13 +209,16 @@ class _State:
         save_tensors(path, _KIND, tensors, meta)
 
     @classmethod
-    def load(cls, path: Path, cfg: GDICEConfig, shape: tuple[int, int, int], generator: torch.Generator) -> _State:
+    def load(cls, path: Path, cfg: GDICEConfig, shape: tuple[int, int, int], generator: torch.Generator,
+             init_digest: str | None) -> _State:
         tensors, meta = load_tensors(path, _KIND)
         if meta.get("version") != _VERSION:
             raise ValueError(f"checkpoint: {str(path)!r} is not a version-{_VERSION} G-DICE checkpoint")
         if meta.get("config") != asdict(cfg):
             raise ValueError(f"checkpoint: {str(path)!r} was written with another configuration: {meta.get('config')}")
-        state = cls(*shape, cfg)
+        if meta.get("init") != init_digest:
+            raise ValueError(f"checkpoint: {str(path)!r} was written with another warm-start controller (init)")
+        state = cls(*shape, cfg)  # distributions are overwritten below, so no warm start is needed
         try:
             if state.action_probs.shape != tensors["action_probs"].shape:
                 raise ValueError("distribution shapes differ from this problem's")
@@ -208,6 +234,27 @@ class _State:
         return state
 
 
+def _check_init(init: JointController | None, cfg: GDICEConfig, agents: int, actions: int, obs: int) -> None:
+    """Validate a warm-start controller against the problem and the configuration."""
+    if init is None:
+        if cfg.init_weight > 0:
+            raise ValueError(f"init_weight: {cfg.init_weight} > 0 needs a warm-start controller (init)")
+        return
+    if not isinstance(init, JointController):
+        raise TypeError(f"init: expected a JointController, got {type(init).__name__}")
+    if cfg.init_weight == 0:
+        raise ValueError("init: a warm-start controller has no effect with config.init_weight = 0")
+    k, a, ni = init.action.shape
+    if k != 1 or a != agents or init.num_obs != obs or ni > cfg.num_nodes:
+        raise ValueError(f"init: expected shape (1, {agents}, <= {cfg.num_nodes} nodes, {obs} observations), "
+                         f"got action {tuple(init.action.shape)}, next_node {tuple(init.next_node.shape)}")
+    if bool((init.action >= actions).any()):
+        raise ValueError(f"init: actions must lie in [0, {actions})")
+    rows = torch.arange(ni)[None, None, :, None].expand_as(init.next_node)
+    if not bool(cfg.transition_mask()[rows, init.next_node].all()):
+        raise ValueError("init: transitions must respect the layered graph (layer_width)")
+
+
 def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torch.Generator) -> None:
     """One G-DICE iteration (Alg. 1, lines 4-17), updating ``state`` in place."""
     a, nn, m = state.action_probs.shape
@@ -219,7 +266,10 @@ def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torc
     if float(values[top]) > state.best_value:
         state.best_value, state.best = float(values[top]), ctrl[top]
     order = torch.sort(values, descending=True, stable=True).indices
-    order = order[values[order] >= state.threshold][: cfg.elites]
+    threshold = state.threshold
+    if cfg.threshold_rule == "capped":
+        threshold = min(threshold, float(values[order[cfg.elites - 1]]))
+    order = order[values[order] >= threshold][: cfg.elites]
     if order.numel() > 0:
         state.threshold = float(values[order[-1]])
         elite = ctrl[order]
@@ -246,6 +296,7 @@ def gdice(
     num_obs: int,
     config: GDICEConfig | None = None,
     seed: int = 0,
+    init: JointController | None = None,
     reevaluator: Evaluator | None = None,
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: int = 10,
@@ -259,6 +310,12 @@ def gdice(
         num_agents, num_actions, num_obs: the problem's A, |MA| and O.
         config: the settings (default :class:`GDICEConfig`).
         seed: seeds the one generator used for sampling and evaluation.
+        init: a warm-start controller (K = 1, A agents, at most Nn nodes, same MAs and observations):
+            node ``n < init.num_nodes`` starts from ``(1 - w) * uniform + w * one_hot(init)`` with
+            ``w = config.init_weight``, for its MA and for every next node. Nodes beyond
+            ``init.num_nodes`` start uniform; since ``init`` never moves into them, they receive only
+            the uniform share ``(1 - w) / Nn`` of each transition. At ``w = 1`` every first-iteration
+            sample is ``init`` itself (extra nodes unreachable).
         reevaluator: if given, scores the final best controller independently (value +- stderr).
         checkpoint: file to write every ``checkpoint_every`` iterations and at the end; if it exists, the
             run resumes from it (same config required) and reaches exactly the uninterrupted result.
@@ -274,17 +331,23 @@ def gdice(
         raise TypeError(f"evaluator: expected a callable (controller, generator) -> (mean, stderr), got {evaluator!r}")
     if not isinstance(checkpoint_every, int) or checkpoint_every < 1:
         raise ValueError(f"checkpoint_every: expected an int >= 1, got {checkpoint_every!r}")
+    _check_init(init, cfg, num_agents, num_actions, num_obs)
+    digest = None if init is None else hashlib.sha256(
+        init.action.numpy().tobytes() + init.next_node.numpy().tobytes()).hexdigest()
     generator = torch.Generator().manual_seed(int(seed))
     shape = (num_agents, num_actions, num_obs)
     path = None if checkpoint is None else Path(checkpoint)
-    state = _State.load(path, cfg, shape, generator) if path is not None and path.exists() else _State(*shape, cfg)
+    if path is not None and path.exists():
+        state = _State.load(path, cfg, shape, generator, digest)
+    else:
+        state = _State(*shape, cfg, init)
     bar = tqdm(total=cfg.iterations, initial=state.iteration, disable=not progress, desc="G-DICE")
     while state.iteration < cfg.iterations:
         _step(state, evaluator, cfg, generator)
         bar.update(1)
         bar.set_postfix(best=f"{state.best_value:.4g}", kept=int(state.history["kept"][-1]))
         if path is not None and (state.iteration % checkpoint_every == 0 or state.iteration == cfg.iterations):
-            state.save(path, cfg, generator)
+            state.save(path, cfg, generator, digest)
     bar.close()
     value = stderr = None
     if reevaluator is not None:

@@ -1,4 +1,5 @@
-"""G-DICE: improvement over random search, seeded determinism, checkpoint/resume, options and errors."""
+"""G-DICE: improvement over random search, seeded determinism, checkpoint/resume, warm start, threshold rules,
+options and errors."""
 
 import math
 
@@ -106,6 +107,9 @@ def test_layered_graph_and_injection():
         ({"alpha": 0.0}, "alpha"),
         ({"injection_weight": 1.5}, "injection_weight"),
         ({"num_nodes": 6, "layer_width": 2}, "layer_width"),
+        ({"threshold_rule": "median"}, "threshold_rule"),
+        ({"init_weight": -0.1}, "init_weight"),
+        ({"init_weight": 1.5}, "init_weight"),
     ],
 )
 def test_config_errors(kwargs, match):
@@ -124,3 +128,103 @@ def test_argument_errors(recycling):
     with pytest.raises(ValueError, match="budget"):
         monte_carlo_search(ev, 2, 3, 2, num_nodes=2, budget=0)
     assert isinstance(run(recycling, GDICEConfig(num_nodes=1, iterations=1, samples=2, elites=1)).best, JointController)
+
+
+def recycling_controller(num_nodes=2):
+    """A fixed 2-agent recycling controller with ``num_nodes`` nodes (next node depends on node and obs)."""
+    g = torch.Generator().manual_seed(11)
+    return JointController(torch.randint(0, 3, (1, 2, num_nodes), generator=g),
+                           torch.randint(0, num_nodes, (1, 2, num_nodes, 2), generator=g))
+
+
+@pytest.mark.parametrize("init_nodes", [2, 3])
+def test_warm_start_at_weight_one_samples_the_init_controller(recycling, init_nodes):
+    init = recycling_controller(init_nodes)
+    target = exact_value(recycling, init).item()
+    res = run(recycling, GDICEConfig(num_nodes=3, iterations=1, samples=8, elites=2, init_weight=1.0), seed=0,
+              init=init)
+    # exact evaluation: every first-iteration sample is ``init`` (padding node unreachable), so all values agree
+    assert res.history["iteration_best"][0] == pytest.approx(target, abs=1e-9)
+    assert res.history["iteration_mean"][0] == pytest.approx(target, abs=1e-9)
+    assert torch.equal(res.best.action[..., :init_nodes], init.action)
+    assert torch.equal(res.best.next_node[..., :init_nodes, :], init.next_node)
+    assert res.action_probs.shape == (2, 3, 3) and res.next_probs.shape == (2, 3, 2, 3)
+
+
+def test_warm_start_distributions(recycling):
+    init = recycling_controller(2)
+    w = 0.6
+    cfg = GDICEConfig(num_nodes=3, iterations=1, samples=4, elites=4, alpha=1e-12, init_weight=w)
+    res = run(recycling, cfg, seed=0, init=init)
+    # alpha ~ 0: the final distributions are the initial ones up to 1e-12
+    act = torch.full((2, 3, 3), (1 - w) / 3, dtype=torch.float64)
+    act[:, :2] += w * torch.nn.functional.one_hot(init.action[0], 3).double()
+    nxt = torch.full((2, 3, 2, 3), (1 - w) / 3, dtype=torch.float64)
+    nxt[:, :2] += w * torch.nn.functional.one_hot(init.next_node[0], 3).double()
+    nxt[:, 2] = 1 / 3  # the node the init controller lacks stays uniform
+    act[:, 2] = 1 / 3
+    torch.testing.assert_close(res.action_probs, act, rtol=0, atol=1e-10)
+    torch.testing.assert_close(res.next_probs, nxt, rtol=0, atol=1e-10)
+    # the warm start speeds the search up: a warm start from the cold-start best sample is at least as good
+    cold = run(recycling, GDICEConfig(num_nodes=2, iterations=3, samples=20, elites=4), seed=1)
+    warm = run(recycling, GDICEConfig(num_nodes=2, iterations=3, samples=20, elites=4, init_weight=0.9), seed=1,
+               init=cold.best)
+    assert warm.best_value >= cold.best_value
+
+
+def test_warm_start_errors(recycling, tmp_path):
+    ev, init = ExactEvaluator(recycling), recycling_controller(2)
+    cfg = GDICEConfig(num_nodes=2, iterations=1, samples=4, elites=2, init_weight=0.5)
+    with pytest.raises(ValueError, match="init_weight"):
+        gdice(ev, 2, 3, 2, cfg)
+    with pytest.raises(ValueError, match="no effect"):
+        gdice(ev, 2, 3, 2, GDICEConfig(num_nodes=2, iterations=1, samples=4, elites=2), init=init)
+    with pytest.raises(TypeError, match="init"):
+        gdice(ev, 2, 3, 2, cfg, init=init.action)
+    with pytest.raises(ValueError, match="init: expected shape"):
+        gdice(ev, 2, 3, 2, cfg, init=recycling_controller(3))  # more nodes than num_nodes
+    with pytest.raises(ValueError, match="init: expected shape"):
+        gdice(ev, 2, 3, 2, cfg, init=JointController.cat([init, init]))
+    with pytest.raises(ValueError, match="init: expected shape"):
+        gdice(ev, 2, 3, 2, cfg, init=init[0].__class__(init.action[:, :1], init.next_node[:, :1]))
+    with pytest.raises(ValueError, match="actions"):
+        gdice(ev, 2, 2, 2, cfg, init=JointController(torch.full((1, 2, 2), 2), init.next_node))
+    layered = GDICEConfig(num_nodes=3, layer_width=2, iterations=1, samples=4, elites=2, init_weight=0.5)
+    with pytest.raises(ValueError, match="layered"):
+        gdice(ev, 2, 3, 2, layered, init=JointController(torch.zeros(1, 2, 3, dtype=torch.long),
+                                                          torch.zeros(1, 2, 3, 2, dtype=torch.long)))
+    ckpt = tmp_path / "warm.safetensors"
+    gdice(ev, 2, 3, 2, cfg, init=init, checkpoint=ckpt)
+    other = JointController(init.action, 1 - init.next_node)
+    with pytest.raises(ValueError, match="another warm-start controller"):
+        gdice(ev, 2, 3, 2, cfg, init=other, checkpoint=ckpt)
+
+
+class Scripted:
+    """An evaluator returning scripted values per iteration (sample j of iteration i scores ``values[i][j]``)."""
+
+    def __init__(self, values):
+        self.values, self.calls = values, 0
+
+    def __call__(self, ctrl, generator):
+        v = torch.tensor(self.values[self.calls], dtype=torch.float64)
+        self.calls += 1
+        return v, torch.zeros_like(v)
+
+
+def test_threshold_rules():
+    # iteration 0 is "lucky": its worst elite (9) is above everything iteration 1 and 2 sample
+    values = [[10.0, 9.0, 1.0, 0.0], [5.0, 4.0, 3.0, 2.0], [8.0, 7.0, 6.0, 0.0]]
+    paper = gdice(Scripted(values), 1, 2, 2, GDICEConfig(num_nodes=2, iterations=3, samples=4, elites=2), seed=0)
+    assert paper.history["kept"] == [2.0, 0.0, 0.0] and paper.history["threshold"] == [9.0, 9.0, 9.0]
+    capped = gdice(Scripted(values), 1, 2, 2, GDICEConfig(num_nodes=2, iterations=3, samples=4, elites=2,
+                                                           threshold_rule="capped"), seed=0)
+    # capped at the current N_b-th best: 4 in iteration 1; in iteration 2 the rule (>= 4) admits 8 and 7 again
+    assert capped.history["kept"] == [2.0, 2.0, 2.0] and capped.history["threshold"] == [9.0, 4.0, 7.0]
+    # identical while the paper's rule admits N_b samples
+    rising = [[1.0, 0.0, 0.0, 0.0], [2.0, 1.5, 0.0, 0.0], [3.0, 2.5, 2.0, 0.0]]
+    a = gdice(Scripted(rising), 1, 2, 2, GDICEConfig(num_nodes=2, iterations=3, samples=4, elites=2), seed=0)
+    b = gdice(Scripted(rising), 1, 2, 2, GDICEConfig(num_nodes=2, iterations=3, samples=4, elites=2,
+                                                      threshold_rule="capped"), seed=0)
+    assert a.history == b.history
+    torch.testing.assert_close(a.next_probs, b.next_probs, rtol=0, atol=0)
