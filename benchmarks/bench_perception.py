@@ -39,7 +39,8 @@ def bench_frame_rate(clf: FrameClassifier, x_cal: torch.Tensor, y_cal: np.ndarra
     posterior = hbni_pyro.fit(clf.proba_from_features(x_cal).double(), torch.as_tensor(y_cal), num_chains=8,
                               num_samples=500, warmup_steps=300, seed=seed, progress=False)
     filt = hbni_pyro.HBNIFilter(posterior, mode="marginal")
-    seq = np.concatenate([render_sequence(name, frames // 3 + 1, "mission", seed=seed + 7) for name in VEHICLES])[:frames]
+    per_class = frames // len(VEHICLES) + 1
+    seq = np.concatenate([render_sequence(name, per_class, "mission", seed=seed + 7) for name in VEHICLES])[:frames]
     print(f"[frame rate] {len(seq)} mission frames one at a time (crop, backbone, head, HBNI marginal update over "
           f"{filt.theta.shape[0]} draws)")
     for threads in (1, 2):
@@ -81,8 +82,10 @@ def bench_head(x_tr, y_tr, x_te, y_te, seed: int) -> None:
     p, p_ref = head.predict_proba(b).numpy(), ref.predict_proba(b)
     print(f"[head] {len(y_tr)} training-condition snapshots to train, {len(y_te)} mission-condition snapshots to test, "
           f"{a.shape[1]} features, 3 classes")
-    print(f"  train time: torch OvO SVC {t_ours:.2f} s, sklearn SVC {t_ref:.2f} s (ratio ours/sklearn {t_ours / t_ref:.1f}x)")
-    print(f"  accuracy: ours {accuracy_score(y_te, head.predict(b)):.3f}, sklearn {accuracy_score(y_te, ref.predict(b)):.3f}")
+    print(f"  train time: torch OvO SVC {t_ours:.2f} s, sklearn SVC {t_ref:.2f} s "
+          f"(ratio ours/sklearn {t_ours / t_ref:.1f}x)")
+    acc, acc_ref = accuracy_score(y_te, head.predict(b)), accuracy_score(y_te, ref.predict(b))
+    print(f"  accuracy: ours {acc:.3f}, sklearn {acc_ref:.3f}")
     print(f"  log-loss: ours {log_loss(y_te, p):.3f}, sklearn {log_loss(y_te, p_ref):.3f}")
 
 

@@ -80,7 +80,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
-    calib, _ = _sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")
+    calib, _ = _sequence_outputs(
+        clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration"
+    )
     calib = calib[..., order]
     calib_labels = torch.arange(len(classes)).view(-1, 1, 1).expand(calib.shape[:3]).reshape(-1)
     posterior = hbni_pyro.fit(
@@ -144,7 +146,9 @@ def _sequence_figure(obs, posts, h, s, classes, frames_img, threshold) -> plt.Fi
     ax0.imshow(np.hstack([frames_img[i][..., ::-1] for i in picks]))
     ax0.set_axis_off()
     ax0.set_title(f"true class: {classes[h]} (held-out sequence {s}); frames {', '.join(str(i + 1) for i in picks)}")
-    panels = [("raw classifier output", obs), ("SSBF posterior", posts["ssbf"][h, s]), ("HBNI posterior", posts["hbni"][h, s])]
+    panels = [
+        ("raw classifier output", obs), ("SSBF posterior", posts["ssbf"][h, s]), ("HBNI posterior", posts["hbni"][h, s])
+    ]
     for k, (title, y) in enumerate(panels):
         ax = fig.add_subplot(grid[k + 1])
         for m, name in enumerate(classes):

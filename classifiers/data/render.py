@@ -237,7 +237,8 @@ def render_sequence(
     dx, dy = _smooth_path(rng, *cond.offset, t), _smooth_path(rng, *cond.offset, t)
     base = _sample_look(cond, rng)
     period, phase = rng.uniform(0.5, 1.5), rng.uniform(0, 2 * np.pi)
-    gain = base.gain * np.exp(cond.drift * np.sin(2 * np.pi * t / period + phase) + 0.05 * np.cumsum(rng.normal(size=n_frames)) / np.sqrt(max(n_frames, 1)))
+    wander = 0.05 * np.cumsum(rng.normal(size=n_frames)) / np.sqrt(n_frames)  # slow random walk
+    gain = base.gain * np.exp(cond.drift * np.sin(2 * np.pi * t / period + phase) + wander)
     pan = 0.35 * h
     pan_dir = rng.uniform(-1, 1, size=2)
     big = _background(cond, rng, (h + int(2 * pan) + 2, w + int(2 * pan) + 2))
