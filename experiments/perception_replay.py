@@ -11,9 +11,11 @@
 
 Backbone features are computed once per frame and reused by everything downstream. The three
 image sets use different seeds, so test sequences never overlap training or calibration.
+The hardest class is the one with the lowest per-frame classifier accuracy on the test frames.
 Writes ``classifier.safetensors``, ``hbni_posterior.safetensors``, ``replay_sequence.png``
-(raw outputs, SSBF and HBNI posteriors over one sequence of the hardest class) and
-``accuracy_vs_frames.png``.
+(raw outputs, SSBF and HBNI posteriors over one test sequence of the hardest class: the first
+one HBNI ends right on and SSBF wrong, else sequence 0; its index is in the metrics) and
+``accuracy_vs_frames.png`` (per class, the share of sequences whose argmax is right after n frames).
 """
 
 from __future__ import annotations
