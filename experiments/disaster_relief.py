@@ -1,10 +1,13 @@
 """G-DICE on health-aware disaster relief against the greedy policy, Monte Carlo search and random controllers.
 
-The team shares one controller (``study.shared_controller``). Every reported policy is
+The team shares one controller (``study.shared_controller``). Two G-DICE runs are reported: the
+cold start (``planner``) and "G-DICE seeded with the hand-written policy" (``planner`` overridden by
+``study.seeded``, warm-started from robot 0's greedy controller). Every reported policy is
 re-evaluated on ``study.reeval_rollouts`` independent rollouts, with per-rollout counts of
 objects delivered right, wrong deliveries, inferences, inference frames and repairs. Writes
-``metrics.json``, ``value_vs_iteration.png``, ``comparison.png``, ``counters.png`` and
-``best_controller.safetensors``.
+``metrics.json``, ``value_vs_iteration.png`` (cold), ``value_vs_iteration_seeded.png``,
+``comparison.png``, ``counters.png``, ``best_controller.safetensors`` (seeded) and
+``best_controller_cold.safetensors``.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from omegaconf import DictConfig
 from decpomdp import GDICEConfig
 from decpomdp.policies import disaster_relief_greedy
 from experiments.common import save_figure
-from experiments.package_delivery import bar_figure, history_figure, run_baselines, run_gdice, score
+from experiments.package_delivery import bar_figure, history_figure, run_baselines, run_gdice, run_seeded, score
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 
@@ -34,18 +37,23 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     reeval = int(study.reeval_rollouts)
 
     result, best, seconds = run_gdice(env, config, study, seed, bool(cfg.progress))
-    best.save(run_dir / "best_controller.safetensors")
+    best.save(run_dir / "best_controller_cold.safetensors")
     gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
     save_figure(history_figure(result.history, "G-DICE on disaster relief"), run_dir / "value_vs_iteration.png")
+    greedy_policy = disaster_relief_greedy(env.num_agents)
+    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, seed + 500, bool(cfg.progress))
+    seeded_best.save(run_dir / "best_controller.safetensors")
+    save_figure(history_figure(seeded.history, "G-DICE seeded with the hand-written policy, disaster relief"),
+                run_dir / "value_vs_iteration_seeded.png")
     baselines = run_baselines(env, config, study, seed + 300)
-    greedy = score(env, disaster_relief_greedy(env.num_agents), reeval, seed + 400)
-    entries = {"G-DICE": gdice_score, "greedy": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
+    greedy = score(env, greedy_policy, reeval, seed + 400)
+    entries = {"G-DICE seeded": seeded_score, "G-DICE": gdice_score, "greedy": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
                "random": baselines["random"]}
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")
     save_figure(_counters_figure({k: v for k, v in entries.items() if k != "random"}), run_dir / "counters.png")
 
-    def beats(other: dict) -> bool:
-        return gdice_score["value"] - gdice_score["stderr"] > other["value"] + other["stderr"]
+    def beats(entry: dict, other: dict) -> bool:
+        return entry["value"] - entry["stderr"] > other["value"] + other["stderr"]
 
     return {
         "domain": repr(env),
@@ -55,9 +63,13 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "reeval_rollouts": reeval,
         "gdice": gdice_score,
         "gdice_history": result.history,
+        "gdice_seeded": seeded_score,
+        "gdice_seeded_history": seeded.history,
         "baselines": {**baselines, "greedy": greedy},
-        "acceptance": {"gdice_beats_greedy": beats(greedy),
-                       "gdice_beats_monte_carlo_search": beats(baselines["monte_carlo_search"])},
+        "acceptance": {"gdice_beats_greedy": beats(gdice_score, greedy),
+                       "gdice_beats_monte_carlo_search": beats(gdice_score, baselines["monte_carlo_search"]),
+                       "seeded_gdice_beats_greedy": beats(seeded_score, greedy),
+                       "seeded_gdice_beats_monte_carlo_search": beats(seeded_score, baselines["monte_carlo_search"])},
     }
 
 
@@ -66,7 +78,7 @@ def _counters_figure(entries: dict[str, dict]) -> plt.Figure:
     names = list(entries)
     for ax, key in zip(axes, COUNTS):
         ax.bar(np.arange(len(names)), [entries[n][f"{key}_per_rollout"] for n in names],
-               yerr=[entries[n][f"{key}_stderr"] for n in names], capsize=3, color=["tab:blue", "tab:orange", "tab:green"])
+               yerr=[entries[n][f"{key}_stderr"] for n in names], capsize=3, color=["tab:blue", "tab:cyan", "tab:orange", "tab:green"])
         ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right", fontsize=8)
         ax.set_title(key.replace("_", " ") + " / rollout", fontsize=9)
     fig.tight_layout()

@@ -11,7 +11,7 @@ from decpomdp import JointController
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["planner.iterations=2", "planner.samples=6", "planner.elites=2", "planner.num_nodes=4", "study.rollouts=3",
-        "study.reeval_rollouts=5", "study.random_controllers=4", "progress=false"]
+        "study.reeval_rollouts=5", "study.random_controllers=4", "study.select_rollouts=4", "progress=false"]
 
 
 def run(name: str, tmp_path: Path, *overrides: str) -> dict:
@@ -22,24 +22,28 @@ def run(name: str, tmp_path: Path, *overrides: str) -> dict:
 
 def test_package_delivery(tmp_path):
     metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]")
-    for png in ("value_vs_iteration.png", "alpha_sweep.png", "baselines.png"):
+    for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png"):
         assert (tmp_path / png).stat().st_size > 0
     assert len(metrics["gdice_history"]["best"]) == 2
+    check_seeded(metrics, tmp_path, num_nodes=14)
     assert set(metrics["alpha_sweep"]) == {"0.1", "0.3"}
     assert metrics["baselines"]["monte_carlo_search"]["budget"] == 12
     assert metrics["baselines"]["greedy"]["value"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 2
-    assert set(metrics["acceptance"]) == {"gdice_at_least_14.4", "mcs_at_most_third_of_gdice"}
+    assert set(metrics["acceptance"]) == {"gdice_at_least_14.4", "mcs_at_most_third_of_gdice",
+                                          "seeded_gdice_at_least_14.4", "mcs_at_most_third_of_seeded_gdice"}
 
 
 def test_disaster_relief(tmp_path):
     metrics = run("disaster_relief", tmp_path, "domain.num_agents=3")
-    for png in ("value_vs_iteration.png", "comparison.png", "counters.png"):
+    for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "comparison.png", "counters.png"):
         assert (tmp_path / png).stat().st_size > 0
+    check_seeded(metrics, tmp_path, num_nodes=8)
     greedy = metrics["baselines"]["greedy"]
     assert greedy["delivered_per_rollout"] > 0 and greedy["inference_frames_per_rollout"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 3
-    assert set(metrics["acceptance"]) == {"gdice_beats_greedy", "gdice_beats_monte_carlo_search"}
+    assert set(metrics["acceptance"]) == {"gdice_beats_greedy", "gdice_beats_monte_carlo_search",
+                                          "seeded_gdice_beats_greedy", "seeded_gdice_beats_monte_carlo_search"}
 
 
 @pytest.mark.parametrize("name", ["package_delivery", "disaster_relief"])
@@ -48,6 +52,16 @@ def test_same_seed_same_numbers(tmp_path, name):
     a = run(name, tmp_path / "a", "seed=3", *extra)
     b = run(name, tmp_path / "b", "seed=3", *extra)
     assert without_timings(a) == without_timings(b)
+
+
+def check_seeded(metrics: dict, run_dir: Path, num_nodes: int) -> None:
+    """The seeded run: its settings, candidates and saved controller (the cold one is saved too)."""
+    seeded = metrics["gdice_seeded"]
+    assert seeded["planner"]["num_nodes"] == num_nodes and seeded["planner"]["init_weight"] == seeded["init_weight"] > 0
+    assert set(seeded["selection_values"]) == {"best_sampled", "mode"} and seeded["selected"] in seeded["selection_values"]
+    assert len(metrics["gdice_seeded_history"]["best"]) == 2 and metrics["planner"]["init_weight"] == 0
+    assert JointController.load(run_dir / "best_controller.safetensors").num_nodes == num_nodes
+    assert JointController.load(run_dir / "best_controller_cold.safetensors").num_nodes == 4
 
 
 def without_timings(obj):
