@@ -42,12 +42,15 @@ def test_seeded_determinism(recycling):
     assert a.history != run(recycling, cfg, seed=6).history
 
 
-def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env):
+@pytest.mark.parametrize("warm", [False, True])
+def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0)
     cfg = GDICEConfig(num_nodes=3, iterations=6, samples=12, elites=3, alpha=0.2, injection_weight=0.1,
-                      injection_threshold=0.9)
+                      injection_threshold=0.9, threshold_rule="capped" if warm else "paper",
+                      init_weight=0.7 if warm else 0.0)
+    init = recycling_controller(2) if warm else None
     evaluator = MonteCarloEvaluator(env, 8)
-    full = gdice(evaluator, 2, 3, 2, cfg, seed=3)
+    full = gdice(evaluator, 2, 3, 2, cfg, seed=3, init=init)
     ckpt = tmp_path / "gdice.safetensors"
     # interrupt the run in its 5th iteration; the last checkpoint holds iteration 4 and the generator state
     calls = {"n": 0}
@@ -59,9 +62,10 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env):
         return evaluator(ctrl, gen)
 
     with pytest.raises(KeyboardInterrupt):
-        gdice(flaky, 2, 3, 2, cfg, seed=3, checkpoint=ckpt, checkpoint_every=2)
+        gdice(flaky, 2, 3, 2, cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
     assert ckpt.exists()
-    resumed = gdice(evaluator, 2, 3, 2, cfg, seed=999, checkpoint=ckpt, checkpoint_every=2)  # seed comes from the file
+    resumed = gdice(evaluator, 2, 3, 2, cfg, seed=999, init=init, checkpoint=ckpt,
+                    checkpoint_every=2)  # seed comes from the file
     assert resumed.history == full.history
     assert torch.equal(resumed.best.next_node, full.best.next_node) and resumed.best_value == full.best_value
     torch.testing.assert_close(resumed.next_probs, full.next_probs, rtol=0, atol=0)
@@ -70,7 +74,7 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env):
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="not a valid decpomdp file"):
-        gdice(evaluator, 2, 3, 2, cfg, checkpoint=bad)
+        gdice(evaluator, 2, 3, 2, cfg, init=init, checkpoint=bad)
 
 
 def test_monte_carlo_evaluation_and_reevaluation(toy_env):
