@@ -34,6 +34,16 @@ def _check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"env: simulation needs a finite horizon, got {env.horizon}")
 
 
+def _any(mask: Tensor) -> bool:
+    """``bool(mask.any())`` for a contiguous bool tensor (a uint8 max, much faster than ``any`` on CPU)."""
+    return mask.numel() > 0 and bool(mask.view(torch.uint8).max())
+
+
+def _gather(table: Tensor, index: Tensor) -> Tensor:
+    """``table[index]`` for a 1-D table (a flat ``index_select``, faster than advanced indexing on CPU)."""
+    return table.index_select(0, index.reshape(-1)).view(index.shape)
+
+
 def simulate(
     env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator
 ) -> Tensor:
@@ -62,18 +72,18 @@ def simulate(
 
     state = env.reset(batch, generator)
     node = torch.zeros(batch, a_count, dtype=torch.long)
-    actions = act_table[base]
+    actions = _gather(act_table, base)
     t = torch.zeros(batch, dtype=torch.float64)
     all_agents = torch.ones(batch, a_count, dtype=torch.bool)
     end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64), generator)
-    gamma = float(env.gamma)
+    log_gamma = math.log(float(env.gamma))
     horizon = float(env.horizon)
     value = torch.zeros(batch, dtype=torch.float64)
 
     while rows.numel() > 0:
-        t_next = end_time.min(dim=1).values
+        t_next = end_time.amin(dim=1)
         live = t_next <= horizon
-        if not bool(live.all()):
+        if _any(~live):
             values[rows[~live]] = value[~live]
             if int(live.sum()) * 4 <= rows.numel() * 3:
                 keep = live.nonzero().squeeze(1)
@@ -85,14 +95,15 @@ def simulate(
                     break
         completing = (end_time == t_next[:, None]) & live[:, None]
         reward, obs = env.complete(state, completing, actions, t_next, generator)
-        value = value + torch.where(live, reward.to(torch.float64) * gamma**t_next, 0.0)
-        stepped = next_table[(base + node) * n_obs + obs.clamp(0, n_obs - 1)]
+        # rows past the horizon earn nothing (their discount is 0); exp(t log gamma) is gamma ** t
+        value.addcmul_(reward, torch.exp(t_next * log_gamma) * live)
+        stepped = _gather(next_table, (base + node) * n_obs + obs.clamp(0, n_obs - 1))
         node = torch.where(completing, stepped, node)
-        actions = torch.where(completing, act_table[base + node], actions)
+        actions = torch.where(completing, _gather(act_table, base + node), actions)
         new_end = env.start(state, completing, actions, t_next, end_time, generator)
-        if bool(((new_end <= t_next[:, None]) & completing).any()):
-            raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
-        end_time = torch.where(live[:, None], new_end, end_time)
         # Rows that stopped but were not compacted stay frozen: they never complete again.
-        end_time = torch.where(live[:, None], end_time, math.inf)
+        end_time = torch.where(live[:, None], new_end, math.inf)
+        # every live agent must end after t_next (inf - inf = nan on frozen rows compares False)
+        if _any(end_time - t_next[:, None] <= 0):
+            raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
     return values.view(k_count, rollouts_per_controller)

@@ -153,20 +153,28 @@ def preconditions_hold(loc: int, load: int, here: int, ma: int) -> bool:
     return size == SMALL  # put down, place on truck
 
 
+_NOISY, _OK, _JOINT_OK, _SOLO_PICK_OK = 1, 2, 4, 8  # bits (_NOISY first: ``flags & _NOISY`` is 0 or 1) of the start table's ``flags``
+
+
 def _start_tables() -> dict[str, Tensor]:
-    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma``."""
+    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma``.
+
+    ``flags`` (uint8) holds bits ``_OK`` (preconditions hold), ``_JOINT_OK`` (a joint MA whose
+    preconditions hold), ``_SOLO_PICK_OK`` (a pick-up whose preconditions hold) and ``_NOISY`` (the
+    duration is noisy: preconditions hold and the MA is not ``wait``); ``mean`` is the mean duration.
+    """
     n = _N_LOC * _N_LOAD * _N_PKG * _N_MA
-    ok, mean, noisy = torch.zeros(n, dtype=torch.bool), torch.zeros(n, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
+    flags, mean = torch.zeros(n, dtype=torch.uint8), torch.zeros(n, dtype=torch.float64)
     i = 0
     for loc in range(_N_LOC):
         for load in range(_N_LOAD):
             for here in range(_N_PKG):
                 for ma in range(_N_MA):
-                    ok[i] = preconditions_hold(loc, load, here, ma)
-                    mean[i] = float(MEAN_DURATION[ma, loc]) if ok[i] else FAIL_DURATION
-                    noisy[i] = float(bool(ok[i]) and ma != WAIT)
+                    ok = preconditions_hold(loc, load, here, ma)
+                    flags[i] = ok * (_OK + _JOINT_OK * (ma in JOINT_MAS) + _SOLO_PICK_OK * (ma == PICK) + _NOISY * (ma != WAIT))
+                    mean[i] = float(MEAN_DURATION[ma, loc]) if ok else FAIL_DURATION
                     i += 1
-    return {"ok": ok, "mean": mean, "noisy": noisy}
+    return {"flags": flags, "mean": mean}
 
 
 _START = _start_tables()
@@ -181,6 +189,17 @@ def _flags(mas) -> Tensor:
 _IS_JOINT, _IS_SOLO_PICK, _IS_PICK, _IS_DROP = _flags(JOINT_MAS), _flags([PICK]), _flags([PICK, JPICK]), _flags(DROP_MAS)
 _IS_GO = _flags(m for m, node in enumerate(TARGET_NODE) if node >= 0)
 _TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32)
+
+
+def _any(mask: Tensor) -> bool:
+    """``bool(mask.any())`` for a contiguous bool tensor (a uint8 max, much faster than ``any`` on CPU)."""
+    return mask.numel() > 0 and bool(mask.view(torch.uint8).max())
+
+
+def _same_place_and_load(state: dict[str, Tensor]) -> Tensor:
+    """bool (B,): both robots at one node with the same load."""
+    loc, load = state["loc"], state["load"]
+    return (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
 
 
 def _lookup(table: Tensor, index: Tensor) -> Tensor:
@@ -284,50 +303,44 @@ class PackageDelivery(DecPOSMDP):
     def start(self, state, agents, actions, t, end_time, generator):
         loc, load, actions = state["loc"], state["load"], actions.to(torch.int32)
         here = self._here(state)
-        index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
-        ok = _lookup(_START["ok"], index) & agents
-        joint = ok & _lookup(_IS_JOINT, actions)
-        drafted = self._draft(state, agents, actions, joint)
+        situation = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA  # the table index without the MA
+        flags = _lookup(_START["flags"], situation + actions) * agents
+        drafted = self._draft(state, agents, actions, (flags & _JOINT_OK).bool())
         if drafted is not None:
             actions = drafted
-            index = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA + actions
-            ok = _lookup(_START["ok"], index) & agents
-            joint = ok & _lookup(_IS_JOINT, actions)
-        noise = (DURATION_NOISE * torch.randn(actions.shape, generator=generator)).clamp(min=MIN_NOISE_FACTOR - 1.0)
-        mean = _lookup(_START["mean"], index)
-        finish = t[:, None] + mean * (1.0 + _lookup(_START["noisy"], index) * noise.to(torch.float64))
-        solo_pick = ok & _lookup(_IS_SOLO_PICK, actions)
+            flags = _lookup(_START["flags"], situation + actions) * agents
+        index = situation + actions
+        noise = torch.randn(actions.shape, generator=generator).mul_(DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
+        noise.mul_(flags & _NOISY).add_(1.0)
+        finish = torch.addcmul(t[:, None], _lookup(_START["mean"], index), noise)
+        ok, joint, solo_pick = (flags & _OK).bool(), (flags & _JOINT_OK).bool(), (flags & _SOLO_PICK_OK).bool()
         clash = solo_pick[:, 0] & solo_pick[:, 1] & (loc[:, 0] == loc[:, 1])
-        if bool(clash.any()):  # both pick up at one base at once: robot 0 takes the package
+        if _any(clash):  # both pick up at one base at once: robot 0 takes the package
             ok[:, 1] &= ~clash
             solo_pick[:, 1] &= ~clash
             finish[:, 1] = torch.where(clash, t + FAIL_DURATION, finish[:, 1])
         end = torch.where(agents, finish, end_time)
         state["ma"] = torch.where(agents, actions, state["ma"])
-        state["ok"] = (state["ok"] & ~agents) | ok
-        if bool(solo_pick.any()):
+        state["ok"] = torch.where(agents, ok, state["ok"])
+        if _any(solo_pick):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
-        if bool(joint.any()):
-            self._start_joint(state, joint.any(dim=1).nonzero().squeeze(1), joint, here, t, finish, end, generator)
+        if _any(joint):
+            end = self._start_joint(state, joint, here, t, finish, end, generator)
         return end
 
     @staticmethod
     def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
         """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody can be drafted."""
         partner_waits = agents & state["waiting"].roll(1, 1)
-        candidate = partner_waits.any(dim=1) | (agents[:, 0] & agents[:, 1] & joint_ok.any(dim=1))
-        if not bool(candidate.any()):
+        # joint_ok implies agents: a joint MA starting while the partner also starts
+        if not _any(partner_waits | (joint_ok & agents.roll(1, 1))):
             return None
-        rows = candidate.nonzero().squeeze(1)
-        loc, load, act, lead = state["loc"][rows], state["load"][rows], actions[rows], joint_ok[rows]
-        same = (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
-        act = torch.where(partner_waits[rows] & same[:, None], state["ma"][rows].roll(1, 1), act)
-        both = agents[rows, 0] & agents[rows, 1] & same
-        lead0, lead1 = both & lead[:, 0], both & lead[:, 1] & ~lead[:, 0]
-        actions = actions.clone()
-        actions[rows] = torch.stack([torch.where(lead1, act[:, 1], act[:, 0]), torch.where(lead0, act[:, 0], act[:, 1])], dim=1)
-        return actions
+        same = _same_place_and_load(state)
+        act = torch.where(partner_waits & same[:, None], state["ma"].roll(1, 1), actions)
+        both = agents[:, 0] & agents[:, 1] & same
+        lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & ~joint_ok[:, 0]
+        return torch.stack([torch.where(lead1, act[:, 1], act[:, 0]), torch.where(lead0, act[:, 0], act[:, 1])], dim=1)
 
     def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
         """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
@@ -340,32 +353,36 @@ class PackageDelivery(DecPOSMDP):
         base = state["base"]
         return torch.where(state["loc"] == BASE2, base[:, 1:], base[:, :1])
 
-    def _start_joint(self, state, rows, joint, here, t, finish, end, generator) -> None:
-        """Joint-MA synchronisation on the rollouts ``rows`` where some robot starts a joint MA."""
-        joint, ma, loc, load = joint[rows], state["ma"][rows], state["loc"][rows], state["load"][rows]
-        waiting, finish = state["waiting"][rows], finish[rows]
-        same = (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
+    def _start_joint(self, state, joint, here, t, finish, end, generator) -> Tensor:
+        """Joint-MA synchronisation where some robot starts a joint MA; returns the new end times (B, 2)."""
+        ma, waiting = state["ma"], state["waiting"]
+        same = _same_place_and_load(state)
         # a (drafted) robot joins a partner waiting in the same joint MA at the same place with the same load
         joins = joint & waiting.roll(1, 1) & (ma.roll(1, 1) == ma) & same[:, None]
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & (ma[:, 0] == ma[:, 1]) & same
         finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
         alone = joint & ~joins & ~together[:, None]
-        waits = alone & ~torch.tensor(self.solo_joint)
-        finish = torch.where(waits, t[rows, None] + self.joint_wait, finish)
-        ends = torch.where(joint, finish, end[rows])
-        end[rows] = torch.where(joins.roll(1, 1), finish.roll(1, 1), ends)
-        state["waiting"][rows] = (waiting & ~joins.roll(1, 1)) | waits
+        if self.solo_joint:
+            waits = torch.zeros_like(alone)
+        else:
+            waits = alone
+            finish = torch.where(waits, t[:, None] + self.joint_wait, finish)
+        joined = joins.roll(1, 1)
+        end = torch.where(joined, finish.roll(1, 1), torch.where(joint, finish, end))
+        state["waiting"] = (waiting & ~joined) | waits
         lift = (joins[:, 0] | joins[:, 1] | together) & (ma[:, 0] == JPICK)
-        if bool(lift.any()):
-            row = rows[lift]
+        if _any(lift):
+            row = lift.nonzero().squeeze(1)
             package = here[row, 0]
             state["load"][row] = (package + 1)[:, None].expand(-1, 2)
             state["base"][row, state["loc"][row, 0].long()] = self.sample_packages(int(row.numel()), generator)
-        solo = alone & (ma == JPICK) & torch.tensor(self.solo_joint)
-        if bool(solo.any()):
-            row, col = solo.nonzero(as_tuple=True)
-            self._take(state, rows[row], col, here[rows[row], col], generator)
+        if self.solo_joint:
+            solo = alone & (ma == JPICK)
+            if _any(solo):
+                row, col = solo.nonzero(as_tuple=True)
+                self._take(state, row, col, here[row, col], generator)
+        return end
 
     def complete(self, state, agents, actions, t, generator):
         ma, okay, waiting = state["ma"], state["ok"], state["waiting"]
@@ -377,7 +394,7 @@ class PackageDelivery(DecPOSMDP):
         load = state["load"]
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
         dropped = effective & _lookup(_IS_DROP, ma)
-        if bool(dropped.any()):
+        if _any(dropped):
             row, col = dropped.nonzero(as_tuple=True)
             index = ((ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]).long()
             table = self._complete_tables
