@@ -171,15 +171,19 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "hbni" not in results:
         return out
     h = results["hbni"]
-    out["hbni_over_perfect"] = h["value"] / results["perfect"]["value"]
+    out["hbni_over_perfect"] = _ratio(h["value"], results["perfect"]["value"])
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]
             out[f"hbni_beats_{other}_outside_stderr"] = h["value"] - h["stderr"] > o["value"] + o["stderr"]
-            out[f"hbni_minus_{other}_in_stderr"] = (h["value"] - o["value"]) / (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+            out[f"hbni_minus_{other}_in_stderr"] = _ratio(h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
     if "ssbf" in results:
         out["hbni_wrong_rate_below_ssbf"] = h["wrong_rate"] < results["ssbf"]["wrong_rate"]
     return out
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if b else float("nan")
 
 
 def _report(metrics: dict, figures: list[str]) -> str:

@@ -56,7 +56,7 @@ def _run(args, repo_root):
 def test_filtering_error_smoke(tmp_path, repo_root):
     _run(["experiment=filtering_error", f"hydra.run.dir={tmp_path}", *TINY_FILTERING], repo_root)
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert m["N"] == list(range(1, 9)) and m["settings"]["hbni_filter_mode"] == "marginal"
+    assert m["N"] == list(range(1, 9)) and m["settings"]["hbni_filter_mode"] == "plugin"
     for size in ("15", "30"):
         for method in ("voting", "max_of_mean", "ssbf", "hbni", "hbni_oracle"):
             e = m["error"][size][method]

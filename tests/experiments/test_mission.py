@@ -11,15 +11,15 @@ from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
 
 TINY = [
-    "mission.train_per_class=4", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
+    "mission.train_per_class=5", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
     "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
     "planner.num_nodes=3", "planner.iterations=2", "planner.samples=6", "planner.elites=2",
     "study.rollouts=4", "study.reeval_rollouts=20", "progress=false",
 ]
 
 
-def _run(repo_root, *args):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, *args]
+def _run(repo_root, *args, multirun=False):
+    cmd = [sys.executable, "-m", "experiments.run", *(["-m"] if multirun else []), "experiment=mission", *TINY, *args]
     return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
 
 
@@ -62,7 +62,7 @@ def test_load_run_returns_ready_objects(mission_run):
 
 @pytest.mark.parametrize("launcher", ["joblib_local", "submitit_local_jobs"])
 def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
-    _run(repo_root, "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf")
+    _run(repo_root, f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf", multirun=True)
     for job, variant in (("0", "hbni"), ("1", "ssbf")):
         metrics = json.loads((tmp_path / job / "metrics.json").read_text())
         assert set(metrics["variants"]) == {"perfect", variant}
