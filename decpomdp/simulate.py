@@ -99,7 +99,7 @@ def simulate(
         value.addcmul_(reward, torch.exp(t_next * log_gamma) * live)
         stepped = _gather(next_table, (base + node) * n_obs + obs.clamp(0, n_obs - 1))
         node = torch.where(completing, stepped, node)
-        actions = torch.where(completing, _gather(act_table, base + node), actions)
+        actions = _gather(act_table, base + node)  # unchanged where the node did not move
         new_end = env.start(state, completing, actions, t_next, end_time, generator)
         # Rows that stopped but were not compacted stay frozen: they never complete again.
         end_time = torch.where(live[:, None], new_end, math.inf)

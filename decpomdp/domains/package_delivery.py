@@ -186,8 +186,10 @@ def _flags(mas) -> Tensor:
     return flags
 
 
-_IS_JOINT, _IS_SOLO_PICK, _IS_PICK, _IS_DROP = _flags(JOINT_MAS), _flags([PICK]), _flags([PICK, JPICK]), _flags(DROP_MAS)
-_IS_GO = _flags(m for m, node in enumerate(TARGET_NODE) if node >= 0)
+_GO, _DROP, _PICKS = 1, 2, 4  # bits of ``_MA_KIND``
+#: uint8 (13,): whether each MA moves the robot, drops its load, or picks a package up
+_MA_KIND = (_flags(m for m, node in enumerate(TARGET_NODE) if node >= 0) * _GO + _flags(DROP_MAS) * _DROP
+            + _flags([PICK, JPICK]) * _PICKS).to(torch.uint8)
 _TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32)
 
 
@@ -321,7 +323,7 @@ class PackageDelivery(DecPOSMDP):
             finish[:, 1] = torch.where(clash, t + FAIL_DURATION, finish[:, 1])
         end = torch.where(agents, finish, end_time)
         state["ma"] = torch.where(agents, actions, state["ma"])
-        state["ok"] = torch.where(agents, ok, state["ok"])
+        state["ok"] = (state["ok"] & ~agents) | ok  # ok implies agents
         if _any(solo_pick):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
@@ -385,15 +387,16 @@ class PackageDelivery(DecPOSMDP):
         return end
 
     def complete(self, state, agents, actions, t, generator):
-        ma, okay, waiting = state["ma"], state["ok"], state["waiting"]
-        effective = agents & okay & ~waiting
-        go = _lookup(_IS_GO, ma)
-        travelling = go & okay & ~waiting & ~agents
+        ma, waiting = state["ma"], state["waiting"]
+        active = state["ok"] & ~waiting  # running an MA whose preconditions held, not waiting for the partner
+        kind = _lookup(_MA_KIND, ma) * active
+        travelling = (kind & _GO).bool() & ~agents
+        kind *= agents  # the effective completions
         state["waiting"] = waiting & ~agents  # a wait that runs out is a failed joint MA
-        loc = state["loc"] = torch.where(effective & go, _lookup(_TARGET, ma), state["loc"])
+        loc = state["loc"] = torch.where((kind & _GO).bool(), _lookup(_TARGET, ma), state["loc"])
         load = state["load"]
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
-        dropped = effective & _lookup(_IS_DROP, ma)
+        dropped = (kind & _DROP).bool()
         if _any(dropped):
             row, col = dropped.nonzero(as_tuple=True)
             index = ((ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]).long()
@@ -408,7 +411,7 @@ class PackageDelivery(DecPOSMDP):
             for k, key in enumerate(COUNTERS):
                 state[key].index_add_(0, row, counts[:, k])
             load[row, col] = 0
-        package = torch.where(effective & _lookup(_IS_PICK, ma), load - 1, self._here(state))
+        package = torch.where((kind & _PICKS).bool(), load - 1, self._here(state))
         partner = (loc == loc.roll(1, 1)) & ~travelling.roll(1, 1)
-        obs = torch.where(loc <= BASE2, 1 + 6 * partner.to(torch.int32) + package, 0)
+        obs = (1 + 6 * partner.to(torch.int32) + package) * (loc <= BASE2)
         return reward, obs.long()
