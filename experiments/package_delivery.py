@@ -129,6 +129,8 @@ def bar_figure(entries: dict[str, dict[str, float]], title: str, reference: dict
     ax.set_ylim(top=1.1 * max([ax.get_ylim()[1], *(reference or {}).values()]))
     ax.set_ylabel("discounted return (mean +- s.e.)")
     ax.set_title(title)
+    plt.setp(ax.get_xticklabels(), rotation=20, ha="right")
+    fig.tight_layout()
     return fig
 
 
