@@ -79,11 +79,16 @@ def simulate(
     log_gamma = math.log(float(env.gamma))
     horizon = float(env.horizon)
     value = torch.zeros(batch, dtype=torch.float64)
+    t_prev = t
 
     while rows.numel() > 0:
         t_next = end_time.amin(dim=1)
+        # every MA ends after the event that started it (inf - inf = nan on frozen rows compares False)
+        if _any(t_next - t_prev <= 0):
+            raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
         live = t_next <= horizon
-        if _any(~live):
+        some_dead = _any(~live)
+        if some_dead:
             values[rows[~live]] = value[~live]
             if int(live.sum()) * 4 <= rows.numel() * 3:
                 keep = live.nonzero().squeeze(1)
@@ -91,19 +96,21 @@ def simulate(
                     x[keep] for x in (rows, base, value, node, actions, end_time, t_next, live)
                 )
                 state = {key: v[keep] for key, v in state.items()}
+                some_dead = False
                 if rows.numel() == 0:
                     break
-        completing = (end_time == t_next[:, None]) & live[:, None]
+        completing = end_time == t_next[:, None]
+        discount = torch.exp(t_next * log_gamma)  # gamma ** t
+        if some_dead:  # rows past the horizon neither complete nor earn
+            completing &= live[:, None]
+            discount = torch.where(live, discount, 0.0)
         reward, obs = env.complete(state, completing, actions, t_next, generator)
-        # rows past the horizon earn nothing (their discount is 0); exp(t log gamma) is gamma ** t
-        value.addcmul_(reward, torch.exp(t_next * log_gamma) * live)
+        value.addcmul_(reward, discount)
         stepped = _gather(next_table, (base + node) * n_obs + obs.clamp(0, n_obs - 1))
         node = torch.where(completing, stepped, node)
         actions = _gather(act_table, base + node)  # unchanged where the node did not move
-        new_end = env.start(state, completing, actions, t_next, end_time, generator)
-        # Rows that stopped but were not compacted stay frozen: they never complete again.
-        end_time = torch.where(live[:, None], new_end, math.inf)
-        # every live agent must end after t_next (inf - inf = nan on frozen rows compares False)
-        if _any(end_time - t_next[:, None] <= 0):
-            raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
+        end_time = env.start(state, completing, actions, t_next, end_time, generator)
+        if some_dead:  # rows that stopped but were not compacted stay frozen: they never complete again
+            end_time = torch.where(live[:, None], end_time, math.inf)
+        t_prev = t_next
     return values.view(k_count, rollouts_per_controller)

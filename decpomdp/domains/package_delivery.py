@@ -352,8 +352,7 @@ class PackageDelivery(DecPOSMDP):
     @staticmethod
     def _here(state: dict[str, Tensor]) -> Tensor:
         """int32 (B, 2): the package waiting at each robot's base (Base1's away from the bases)."""
-        base = state["base"]
-        return torch.where(state["loc"] == BASE2, base[:, 1:], base[:, :1])
+        return state["base"].gather(1, (state["loc"] == BASE2).long())
 
     def _start_joint(self, state, joint, here, t, finish, end, generator) -> Tensor:
         """Joint-MA synchronisation where some robot starts a joint MA; returns the new end times (B, 2)."""
