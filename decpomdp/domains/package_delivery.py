@@ -186,22 +186,40 @@ def _flags(mas) -> Tensor:
     return flags
 
 
-_GO, _DROP, _PICKS = 1, 2, 4  # bits of ``_MA_KIND``
-#: uint8 (13,): whether each MA moves the robot, drops its load, or picks a package up
+_GO, _DROP, _PICKS, _JPUT = 1, 2, 4, 8  # bits of ``_MA_KIND`` (_GO first: ``kind & _GO`` is 0 or 1)
+#: uint8 (13,): whether each MA moves the robot, drops its load, picks a package up, is the joint put-down
 _MA_KIND = (_flags(m for m, node in enumerate(TARGET_NODE) if node >= 0) * _GO + _flags(DROP_MAS) * _DROP
-            + _flags([PICK, JPICK]) * _PICKS).to(torch.uint8)
+            + _flags([PICK, JPICK]) * _PICKS + _flags([JPUT]) * _JPUT).to(torch.uint8)
 _TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32)
 
 
+# Masks inside the rules are uint8 0/1 tensors (bool tensors seen through ``view(torch.uint8)``):
+# on CPU, ops that produce or consume bool tensors (``where``, ``==``, ``any``) cost several times
+# more than integer arithmetic, so selections are arithmetic blends ``b + mask * (a - b)`` and
+# equalities of small integers are ``1 - min((a - b) ** 2, 1)``.
+
+
 def _any(mask: Tensor) -> bool:
-    """``bool(mask.any())`` for a contiguous bool tensor (a uint8 max, much faster than ``any`` on CPU)."""
+    """``bool(mask.any())`` for a contiguous bool or uint8 tensor (a uint8 max, much faster than ``any`` on CPU)."""
     return mask.numel() > 0 and bool(mask.view(torch.uint8).max())
 
 
+def _u8(mask: Tensor) -> Tensor:
+    """uint8 0/1 view of a bool tensor (no copy when contiguous)."""
+    return mask.contiguous().view(torch.uint8)
+
+
+def _equal(a: Tensor, b: Tensor) -> Tensor:
+    """uint8 0/1: ``a == b`` for integer tensors."""
+    d = a - b
+    return (1 - d.mul_(d).clamp_(max=1)).to(torch.uint8)
+
+
 def _same_place_and_load(state: dict[str, Tensor]) -> Tensor:
-    """bool (B,): both robots at one node with the same load."""
+    """uint8 0/1 (B,): both robots at one node with the same load."""
     loc, load = state["loc"], state["load"]
-    return (loc[:, 0] == loc[:, 1]) & (load[:, 0] == load[:, 1])
+    d_loc, d_load = loc[:, 0] - loc[:, 1], load[:, 0] - load[:, 1]
+    return (1 - (d_loc * d_loc + d_load * d_load).clamp_(max=1)).to(torch.uint8)
 
 
 def _lookup(table: Tensor, index: Tensor) -> Tensor:
@@ -270,7 +288,7 @@ class PackageDelivery(DecPOSMDP):
     def _build_complete_tables(self) -> dict[str, Tensor]:
         """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
 
-        ``counts[i]`` adds to (delivered, delivered_large, wrong); a joint put-down completes for
+        ``counts[k, i]`` adds to counter k of (delivered, delivered_large, wrong); a joint put-down completes for
         both robots at once and is counted on robot 0 only.
         """
         n = _N_MA * _N_LOC * _N_LOAD
@@ -284,7 +302,7 @@ class PackageDelivery(DecPOSMDP):
                         reward[i], right = self.drop_reward(ma, load, loc)
                         counts[i] = torch.tensor([right, right and ma == JPUT, not right])
                     i += 1
-        return {"reward": reward, "counts": counts}
+        return {"reward": reward, "counts": counts.T.contiguous()}
 
     @staticmethod
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:
@@ -304,26 +322,30 @@ class PackageDelivery(DecPOSMDP):
 
     def start(self, state, agents, actions, t, end_time, generator):
         loc, load, actions = state["loc"], state["load"], actions.to(torch.int32)
+        agents_u8 = _u8(agents)
         here = self._here(state)
         situation = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA  # the table index without the MA
-        flags = _lookup(_START["flags"], situation + actions) * agents
-        drafted = self._draft(state, agents, actions, (flags & _JOINT_OK).bool())
+        flags = _lookup(_START["flags"], situation + actions) * agents_u8
+        drafted = self._draft(state, agents_u8, actions, (flags >> 2) & 1)
         if drafted is not None:
             actions = drafted
-            flags = _lookup(_START["flags"], situation + actions) * agents
+            flags = _lookup(_START["flags"], situation + actions) * agents_u8
         index = situation + actions
         noise = torch.randn(actions.shape, generator=generator).mul_(DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
         noise.mul_(flags & _NOISY).add_(1.0)
         finish = torch.addcmul(t[:, None], _lookup(_START["mean"], index), noise)
-        ok, joint, solo_pick = (flags & _OK).bool(), (flags & _JOINT_OK).bool(), (flags & _SOLO_PICK_OK).bool()
-        clash = solo_pick[:, 0] & solo_pick[:, 1] & (loc[:, 0] == loc[:, 1])
-        if _any(clash):  # both pick up at one base at once: robot 0 takes the package
-            ok[:, 1] &= ~clash
-            solo_pick[:, 1] &= ~clash
-            finish[:, 1] = torch.where(clash, t + FAIL_DURATION, finish[:, 1])
+        ok, joint, solo_pick = (flags >> 1) & 1, (flags >> 2) & 1, (flags >> 3) & 1
+        both_pick = solo_pick[:, 0] & solo_pick[:, 1]
+        if _any(both_pick):
+            clash = both_pick & _equal(loc[:, 0], loc[:, 1])
+            if _any(clash):  # both pick up at one base at once: robot 0 takes the package
+                ok[:, 1] &= 1 - clash
+                solo_pick[:, 1] &= 1 - clash
+                finish[:, 1] = torch.where(clash.view(torch.bool), t + FAIL_DURATION, finish[:, 1])
         end = torch.where(agents, finish, end_time)
-        state["ma"] = torch.where(agents, actions, state["ma"])
-        state["ok"] = (state["ok"] & ~agents) | ok  # ok implies agents
+        ma = state["ma"]
+        state["ma"] = ma + agents_u8 * (actions - ma)
+        state["ok"] = ((_u8(state["ok"]) & (1 - agents_u8)) | ok).view(torch.bool)  # ok implies agents
         if _any(solo_pick):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
@@ -333,16 +355,21 @@ class PackageDelivery(DecPOSMDP):
 
     @staticmethod
     def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
-        """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody can be drafted."""
-        partner_waits = agents & state["waiting"].roll(1, 1)
+        """int32 (B, 2) MAs after drafting partners into joint MAs, or None when nobody can be drafted.
+
+        ``agents`` and ``joint_ok`` are uint8 0/1 (B, 2).
+        """
+        partner_waits = agents & _u8(state["waiting"]).roll(1, 1)
         # joint_ok implies agents: a joint MA starting while the partner also starts
         if not _any(partner_waits | (joint_ok & agents.roll(1, 1))):
             return None
         same = _same_place_and_load(state)
-        act = torch.where(partner_waits & same[:, None], state["ma"].roll(1, 1), actions)
+        act = actions + (partner_waits & same[:, None]) * (state["ma"].roll(1, 1) - actions)
         both = agents[:, 0] & agents[:, 1] & same
-        lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & ~joint_ok[:, 0]
-        return torch.stack([torch.where(lead1, act[:, 1], act[:, 0]), torch.where(lead0, act[:, 0], act[:, 1])], dim=1)
+        lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & (1 - joint_ok[:, 0])
+        act0, act1 = act[:, 0], act[:, 1]
+        diff = act1 - act0
+        return torch.stack([act0 + lead1 * diff, act1 - lead0 * diff], dim=1)
 
     def _take(self, state: dict[str, Tensor], row: Tensor, col: Tensor, package: Tensor, generator) -> None:
         """Robot ``col`` of rollout ``row`` loads ``package`` from its base, which gets a new package."""
@@ -352,65 +379,73 @@ class PackageDelivery(DecPOSMDP):
     @staticmethod
     def _here(state: dict[str, Tensor]) -> Tensor:
         """int32 (B, 2): the package waiting at each robot's base (Base1's away from the bases)."""
-        return state["base"].gather(1, (state["loc"] == BASE2).long())
+        base, loc = state["base"], state["loc"]
+        at_base2 = (loc * (2 - loc)).clamp_(min=0)  # 1 at Base2 (node 1), else 0 (nodes 0, 2, 3, 4)
+        base1 = base[:, :1]
+        return base1 + at_base2 * (base[:, 1:] - base1)
 
     def _start_joint(self, state, joint, here, t, finish, end, generator) -> Tensor:
-        """Joint-MA synchronisation where some robot starts a joint MA; returns the new end times (B, 2)."""
-        ma, waiting = state["ma"], state["waiting"]
-        same = _same_place_and_load(state)
+        """Joint-MA synchronisation where some robot starts a joint MA (uint8 0/1 ``joint``); returns the new end times (B, 2)."""
+        ma, waiting = state["ma"], _u8(state["waiting"])
+        same = _same_place_and_load(state) & _equal(ma[:, 0], ma[:, 1])  # ... and the same MA
         # a (drafted) robot joins a partner waiting in the same joint MA at the same place with the same load
-        joins = joint & waiting.roll(1, 1) & (ma.roll(1, 1) == ma) & same[:, None]
+        joins = joint & waiting.roll(1, 1) & same[:, None]
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
-        together = joint[:, 0] & joint[:, 1] & (ma[:, 0] == ma[:, 1]) & same
-        finish[:, 1] = torch.where(together, finish[:, 0], finish[:, 1])
-        alone = joint & ~joins & ~together[:, None]
+        together = joint[:, 0] & joint[:, 1] & same
+        finish[:, 1] = torch.where(together.view(torch.bool), finish[:, 0], finish[:, 1])
+        alone = joint & (1 - joins) & (1 - together)[:, None]
         if self.solo_joint:
             waits = torch.zeros_like(alone)
         else:
             waits = alone
-            finish = torch.where(waits, t[:, None] + self.joint_wait, finish)
+            finish = torch.where(waits.view(torch.bool), t[:, None] + self.joint_wait, finish)
         joined = joins.roll(1, 1)
-        end = torch.where(joined, finish.roll(1, 1), torch.where(joint, finish, end))
-        state["waiting"] = (waiting & ~joined) | waits
-        lift = (joins[:, 0] | joins[:, 1] | together) & (ma[:, 0] == JPICK)
+        end = torch.where(joined.view(torch.bool), finish.roll(1, 1), torch.where(joint.view(torch.bool), finish, end))
+        state["waiting"] = ((waiting & (1 - joined)) | waits).view(torch.bool)
+        lift = (joins[:, 0] | joins[:, 1] | together) & _equal(ma[:, 0], JPICK)
         if _any(lift):
             row = lift.nonzero().squeeze(1)
             package = here[row, 0]
             state["load"][row] = (package + 1)[:, None].expand(-1, 2)
             state["base"][row, state["loc"][row, 0].long()] = self.sample_packages(int(row.numel()), generator)
         if self.solo_joint:
-            solo = alone & (ma == JPICK)
+            solo = alone & _equal(ma, JPICK)
             if _any(solo):
                 row, col = solo.nonzero(as_tuple=True)
                 self._take(state, row, col, here[row, col], generator)
         return end
 
     def complete(self, state, agents, actions, t, generator):
-        ma, waiting = state["ma"], state["waiting"]
-        active = state["ok"] & ~waiting  # running an MA whose preconditions held, not waiting for the partner
+        ma, waiting, agents = state["ma"], _u8(state["waiting"]), _u8(agents)
+        active = _u8(state["ok"]) & (1 - waiting)  # running an MA whose preconditions held, not waiting for the partner
         kind = _lookup(_MA_KIND, ma) * active
-        travelling = (kind & _GO).bool() & ~agents
+        travelling = (kind & _GO) & (1 - agents)
         kind *= agents  # the effective completions
-        state["waiting"] = waiting & ~agents  # a wait that runs out is a failed joint MA
-        loc = state["loc"] = torch.where((kind & _GO).bool(), _lookup(_TARGET, ma), state["loc"])
+        state["waiting"] = (waiting & (1 - agents)).view(torch.bool)  # a wait that runs out is a failed joint MA
+        loc = state["loc"]
+        loc = state["loc"] = loc + (kind & _GO) * (_lookup(_TARGET, ma) - loc)
         load = state["load"]
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
-        dropped = (kind & _DROP).bool()
+        dropped = (kind >> 1) & 1
         if _any(dropped):
-            row, col = dropped.nonzero(as_tuple=True)
-            index = ((ma[row, col] * _N_LOC + loc[row, col]) * _N_LOAD + load[row, col]).long()
+            index = ((ma * _N_LOC + loc) * _N_LOAD + load).long()
             table = self._complete_tables
-            jput = ma[row, col] == JPUT
-            paired = (dropped & (ma == JPUT)).all(dim=1)[row]  # a joint put-down by both robots
-            credit = table["reward"][index]
+            jput = (kind >> 3) & 1
+            paired = jput[:, 0] & jput[:, 1]  # a joint put-down by both robots
+            credit = _lookup(table["reward"], index) * dropped
             if not self.large_reward_per_robot:
-                credit = torch.where(jput & ~paired, 2 * credit, credit)  # a solo joint put-down gets it all
-            reward.index_add_(0, row, credit)
-            counts = table["counts"][index] * (~jput | ~paired | (col == 0))[:, None]
-            for k, key in enumerate(COUNTERS):
-                state[key].index_add_(0, row, counts[:, k])
-            load[row, col] = 0
-        package = torch.where((kind & _PICKS).bool(), load - 1, self._here(state))
-        partner = (loc == loc.roll(1, 1)) & ~travelling.roll(1, 1)
-        obs = (1 + 6 * partner.to(torch.int32) + package) * (loc <= BASE2)
+                credit = credit * (1 + (jput & (1 - paired)[:, None]))  # a solo joint put-down gets it all
+            reward = credit[:, 0] + credit[:, 1]
+            counted = dropped.clone()
+            counted[:, 1] &= 1 - paired  # a joint put-down by both robots counts once
+            for key, column in zip(COUNTERS, table["counts"]):
+                counts = _lookup(column, index) * counted
+                state[key] = state[key] + (counts[:, 0] + counts[:, 1])
+            load = state["load"] = load * (1 - dropped)
+        picks = (kind >> 2) & 1
+        here = self._here(state)
+        package = here + picks * (load - 1 - here)
+        partner = _equal(loc[:, 0], loc[:, 1])[:, None] & (1 - travelling.roll(1, 1))
+        at_base = (2 - loc).clamp_(0, 1)  # 1 at Base1/Base2 (nodes 0, 1), else 0
+        obs = (1 + 6 * partner + package) * at_base
         return reward, obs.long()
