@@ -13,7 +13,7 @@ from hbni_pyro import HBNIPosterior, MacroObservationModel
 TINY = [
     "mission.train_per_class=5", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
     "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
-    "planner.num_nodes=3", "planner.iterations=2", "planner.samples=6", "planner.elites=2",
+    "planner.iterations=2", "planner.samples=6", "planner.elites=2",
     "study.rollouts=4", "study.reeval_rollouts=20", "progress=false",
 ]
 
