@@ -40,7 +40,7 @@ def _any(mask: Tensor) -> bool:
 
 
 def _gather(table: Tensor, index: Tensor) -> Tensor:
-    """``table[index]`` for a 1-D table (a flat ``index_select``, faster than advanced indexing on CPU)."""
+    """``table[index]`` for a 1-D table and an int32/int64 index (a flat ``index_select``, faster than advanced indexing on CPU)."""
     return table.index_select(0, index.reshape(-1)).view(index.shape)
 
 
@@ -64,14 +64,16 @@ def simulate(
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
     n_nodes, n_obs = controller.num_nodes, controller.num_obs
-    act_table, next_table = controller.action.reshape(-1), controller.next_node.reshape(-1)
+    # int32 tables and indices: int64 elementwise ops cost several times more on CPU
+    act_table = controller.action.reshape(-1).to(torch.int32)
+    next_table = controller.next_node.reshape(-1).to(torch.int32)
     # flat offset of (controller k, agent a) in the (K, A, Nn) tables, per live row: (B, A)
-    base = (torch.arange(k_count).repeat_interleave(rollouts_per_controller)[:, None] * a_count + torch.arange(a_count)) * n_nodes
+    base = ((torch.arange(k_count).repeat_interleave(rollouts_per_controller)[:, None] * a_count + torch.arange(a_count)) * n_nodes).to(torch.int32)
     values = torch.zeros(batch, dtype=torch.float64)
     rows = torch.arange(batch)  # original index of each live row
 
     state = env.reset(batch, generator)
-    node = torch.zeros(batch, a_count, dtype=torch.long)
+    node = torch.zeros(batch, a_count, dtype=torch.int32)
     actions = _gather(act_table, base)
     t = torch.zeros(batch, dtype=torch.float64)
     all_agents = torch.ones(batch, a_count, dtype=torch.bool)
@@ -82,7 +84,7 @@ def simulate(
     t_prev = t
 
     while rows.numel() > 0:
-        t_next = end_time.amin(dim=1)
+        t_next = torch.minimum(end_time[:, 0], end_time[:, 1]) if a_count == 2 else end_time.amin(dim=1)
         # every MA ends after the event that started it (inf - inf = nan on frozen rows compares False)
         if _any(t_next - t_prev <= 0):
             raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
@@ -106,8 +108,8 @@ def simulate(
             discount = torch.where(live, discount, 0.0)
         reward, obs = env.complete(state, completing, actions, t_next, generator)
         value.addcmul_(reward, discount)
-        stepped = _gather(next_table, (base + node) * n_obs + obs.clamp(0, n_obs - 1))
-        node = torch.where(completing, stepped, node)
+        stepped = _gather(next_table, (base + node) * n_obs + obs.to(torch.int32).clamp_(0, n_obs - 1))
+        node += completing.view(torch.uint8) * (stepped - node)
         actions = _gather(act_table, base + node)  # unchanged where the node did not move
         end_time = env.start(state, completing, actions, t_next, end_time, generator)
         if some_dead:  # rows that stopped but were not compacted stay frozen: they never complete again
