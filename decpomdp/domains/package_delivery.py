@@ -215,6 +215,11 @@ def _equal(a: Tensor, b: Tensor) -> Tensor:
     return (1 - d.mul_(d).clamp_(max=1)).to(torch.uint8)
 
 
+def _select(mask: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """``where(mask, a, b)`` for a uint8 0/1 mask and finite float tensors, exact (a lerp with weight 0 or 1)."""
+    return torch.lerp(b, a.to(b.dtype), mask.to(b.dtype))
+
+
 def _same_place_and_load(state: dict[str, Tensor]) -> Tensor:
     """uint8 0/1 (B,): both robots at one node with the same load."""
     loc, load = state["loc"], state["load"]
@@ -342,16 +347,18 @@ class PackageDelivery(DecPOSMDP):
                 ok[:, 1] &= 1 - clash
                 solo_pick[:, 1] &= 1 - clash
                 finish[:, 1] = torch.where(clash.view(torch.bool), t + FAIL_DURATION, finish[:, 1])
-        end = torch.where(agents, finish, end_time)
         ma = state["ma"]
         state["ma"] = ma + agents_u8 * (actions - ma)
         state["ok"] = ((_u8(state["ok"]) & (1 - agents_u8)) | ok).view(torch.bool)  # ok implies agents
         if _any(solo_pick):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
+        changed = agents_u8
         if _any(joint):
-            end = self._start_joint(state, joint, here, t, finish, end, generator)
-        return end
+            finish, joined = self._start_joint(state, joint, here, t, finish, generator)
+            changed = agents_u8 | joined
+        # finish is finite wherever t is; end_time may be infinite (rows a simulation froze)
+        return torch.where(changed.view(torch.bool), finish, end_time)
 
     @staticmethod
     def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
@@ -384,23 +391,27 @@ class PackageDelivery(DecPOSMDP):
         base1 = base[:, :1]
         return base1 + at_base2 * (base[:, 1:] - base1)
 
-    def _start_joint(self, state, joint, here, t, finish, end, generator) -> Tensor:
-        """Joint-MA synchronisation where some robot starts a joint MA (uint8 0/1 ``joint``); returns the new end times (B, 2)."""
+    def _start_joint(self, state, joint, here, t, finish, generator) -> tuple[Tensor, Tensor]:
+        """Joint-MA synchronisation where some robot starts a joint MA (uint8 0/1 ``joint``).
+
+        Returns the end times (B, 2) of the robots that start or are joined, and the uint8 0/1 mask
+        (B, 2) of robots that were waiting and are joined by their partner now.
+        """
         ma, waiting = state["ma"], _u8(state["waiting"])
         same = _same_place_and_load(state) & _equal(ma[:, 0], ma[:, 1])  # ... and the same MA
         # a (drafted) robot joins a partner waiting in the same joint MA at the same place with the same load
         joins = joint & waiting.roll(1, 1) & same[:, None]
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & same
-        finish[:, 1] = torch.where(together.view(torch.bool), finish[:, 0], finish[:, 1])
+        finish[:, 1] = _select(together, finish[:, 0], finish[:, 1])
         alone = joint & (1 - joins) & (1 - together)[:, None]
         if self.solo_joint:
             waits = torch.zeros_like(alone)
         else:
             waits = alone
-            finish = torch.where(waits.view(torch.bool), t[:, None] + self.joint_wait, finish)
+            finish = _select(waits, t[:, None] + self.joint_wait, finish)
         joined = joins.roll(1, 1)
-        end = torch.where(joined.view(torch.bool), finish.roll(1, 1), torch.where(joint.view(torch.bool), finish, end))
+        finish = _select(joined, finish.roll(1, 1), finish)
         state["waiting"] = ((waiting & (1 - joined)) | waits).view(torch.bool)
         lift = (joins[:, 0] | joins[:, 1] | together) & _equal(ma[:, 0], JPICK)
         if _any(lift):
@@ -413,7 +424,7 @@ class PackageDelivery(DecPOSMDP):
             if _any(solo):
                 row, col = solo.nonzero(as_tuple=True)
                 self._take(state, row, col, here[row, col], generator)
-        return end
+        return finish, joined
 
     def complete(self, state, agents, actions, t, generator):
         ma, waiting, agents = state["ma"], _u8(state["waiting"]), _u8(agents)
