@@ -215,6 +215,11 @@ def _equal(a: Tensor, b: Tensor) -> Tensor:
     return (1 - d.mul_(d).clamp_(max=1)).to(torch.uint8)
 
 
+def _pair(x: Tensor) -> Tensor:
+    """(B,) -> contiguous (B, 2) with ``x`` in both columns (ops broadcasting a (B, 1) operand are slow on CPU)."""
+    return torch.stack([x, x], dim=1)
+
+
 def _select(mask: Tensor, a: Tensor, b: Tensor) -> Tensor:
     """``where(mask, a, b)`` for a uint8 0/1 mask and finite float tensors, exact (a lerp with weight 0 or 1)."""
     return torch.lerp(b, a.to(b.dtype), mask.to(b.dtype))
@@ -338,7 +343,7 @@ class PackageDelivery(DecPOSMDP):
         index = situation + actions
         noise = torch.randn(actions.shape, generator=generator).mul_(DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
         noise.mul_(flags & _NOISY).add_(1.0)
-        finish = torch.addcmul(t[:, None], _lookup(_START["mean"], index), noise)
+        finish = torch.addcmul(_pair(t), _lookup(_START["mean"], index), noise)
         ok, joint, solo_pick = (flags >> 1) & 1, (flags >> 2) & 1, (flags >> 3) & 1
         both_pick = solo_pick[:, 0] & solo_pick[:, 1]
         if _any(both_pick):
@@ -371,7 +376,7 @@ class PackageDelivery(DecPOSMDP):
         if not _any(partner_waits | (joint_ok & agents.roll(1, 1))):
             return None
         same = _same_place_and_load(state)
-        act = actions + (partner_waits & same[:, None]) * (state["ma"].roll(1, 1) - actions)
+        act = actions + (partner_waits & _pair(same)) * (state["ma"].roll(1, 1) - actions)
         both = agents[:, 0] & agents[:, 1] & same
         lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & (1 - joint_ok[:, 0])
         act0, act1 = act[:, 0], act[:, 1]
@@ -388,8 +393,8 @@ class PackageDelivery(DecPOSMDP):
         """int32 (B, 2): the package waiting at each robot's base (Base1's away from the bases)."""
         base, loc = state["base"], state["loc"]
         at_base2 = (loc * (2 - loc)).clamp_(min=0)  # 1 at Base2 (node 1), else 0 (nodes 0, 2, 3, 4)
-        base1 = base[:, :1]
-        return base1 + at_base2 * (base[:, 1:] - base1)
+        base1 = base[:, 0]
+        return _pair(base1) + at_base2 * _pair(base[:, 1] - base1)
 
     def _start_joint(self, state, joint, here, t, finish, generator) -> tuple[Tensor, Tensor]:
         """Joint-MA synchronisation where some robot starts a joint MA (uint8 0/1 ``joint``).
@@ -400,16 +405,16 @@ class PackageDelivery(DecPOSMDP):
         ma, waiting = state["ma"], _u8(state["waiting"])
         same = _same_place_and_load(state) & _equal(ma[:, 0], ma[:, 1])  # ... and the same MA
         # a (drafted) robot joins a partner waiting in the same joint MA at the same place with the same load
-        joins = joint & waiting.roll(1, 1) & same[:, None]
+        joins = joint & waiting.roll(1, 1) & _pair(same)
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & same
         finish[:, 1] = _select(together, finish[:, 0], finish[:, 1])
-        alone = joint & (1 - joins) & (1 - together)[:, None]
+        alone = joint & (1 - joins) & _pair(1 - together)
         if self.solo_joint:
             waits = torch.zeros_like(alone)
         else:
             waits = alone
-            finish = _select(waits, t[:, None] + self.joint_wait, finish)
+            finish = _select(waits, _pair(t + self.joint_wait), finish)
         joined = joins.roll(1, 1)
         finish = _select(joined, finish.roll(1, 1), finish)
         state["waiting"] = ((waiting & (1 - joined)) | waits).view(torch.bool)
@@ -445,7 +450,7 @@ class PackageDelivery(DecPOSMDP):
             paired = jput[:, 0] & jput[:, 1]  # a joint put-down by both robots
             credit = _lookup(table["reward"], index) * dropped
             if not self.large_reward_per_robot:
-                credit = credit * (1 + (jput & (1 - paired)[:, None]))  # a solo joint put-down gets it all
+                credit = credit * (1 + (jput & _pair(1 - paired)))  # a solo joint put-down gets it all
             reward = credit[:, 0] + credit[:, 1]
             counted = dropped.clone()
             counted[:, 1] &= 1 - paired  # a joint put-down by both robots counts once
@@ -456,7 +461,7 @@ class PackageDelivery(DecPOSMDP):
         picks = (kind >> 2) & 1
         here = self._here(state)
         package = here + picks * (load - 1 - here)
-        partner = _equal(loc[:, 0], loc[:, 1])[:, None] & (1 - travelling.roll(1, 1))
+        partner = _pair(_equal(loc[:, 0], loc[:, 1])) & (1 - travelling.roll(1, 1))
         at_base = (2 - loc).clamp_(0, 1)  # 1 at Base1/Base2 (nodes 0, 1), else 0
         obs = (1 + 6 * partner + package) * at_base
         return reward, obs.long()
