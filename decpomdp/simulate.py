@@ -104,7 +104,8 @@ def simulate(
         completing = end_time == torch.stack([t_next] * a_count, dim=1)  # faster than broadcasting a (B, 1) operand
         discount = torch.exp(t_next * log_gamma)  # gamma ** t
         if some_dead:  # rows past the horizon neither complete nor earn
-            completing &= live[:, None]
+            live_pair = torch.stack([live] * a_count, dim=1)
+            completing &= live_pair
             discount = torch.where(live, discount, 0.0)
         reward, obs = env.complete(state, completing, actions, t_next, generator)
         value.addcmul_(reward, discount)
@@ -113,6 +114,6 @@ def simulate(
         actions = _gather(act_table, base + node)  # unchanged where the node did not move
         end_time = env.start(state, completing, actions, t_next, end_time, generator)
         if some_dead:  # rows that stopped but were not compacted stay frozen: they never complete again
-            end_time = torch.where(live[:, None], end_time, math.inf)
+            end_time = torch.where(live_pair, end_time, math.inf)
         t_prev = t_next
     return values.view(k_count, rollouts_per_controller)

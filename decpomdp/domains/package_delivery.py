@@ -132,6 +132,7 @@ DROP_MAS = (PUT, JPUT, TRUCK)
 #: per-rollout counters kept in the state, long (B,)
 COUNTERS = ("delivered", "delivered_large", "wrong")
 _N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
+_COUNT_BITS, _COUNT_MASK = 8, 255  # counters packed in one int32 per event (at most 2 per event each)
 
 
 def preconditions_hold(loc: int, load: int, here: int, ma: int) -> bool:
@@ -298,8 +299,9 @@ class PackageDelivery(DecPOSMDP):
     def _build_complete_tables(self) -> dict[str, Tensor]:
         """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
 
-        ``counts[k, i]`` adds to counter k of (delivered, delivered_large, wrong); a joint put-down completes for
-        both robots at once and is counted on robot 0 only.
+        ``packed_counts[i]`` (int32) adds to the counters (delivered, delivered_large, wrong), counter
+        ``k`` in bits ``_COUNT_BITS * k`` and up; a joint put-down completes for both robots at once and
+        is counted on robot 0 only.
         """
         n = _N_MA * _N_LOC * _N_LOAD
         reward = torch.zeros(n, dtype=torch.float64)
@@ -312,7 +314,8 @@ class PackageDelivery(DecPOSMDP):
                         reward[i], right = self.drop_reward(ma, load, loc)
                         counts[i] = torch.tensor([right, right and ma == JPUT, not right])
                     i += 1
-        return {"reward": reward, "counts": counts.T.contiguous()}
+        packed = (counts << torch.arange(0, _COUNT_BITS * len(COUNTERS), _COUNT_BITS)).sum(dim=1).to(torch.int32)
+        return {"reward": reward, "packed_counts": packed}
 
     @staticmethod
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:
@@ -444,7 +447,7 @@ class PackageDelivery(DecPOSMDP):
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
         dropped = (kind >> 1) & 1
         if _any(dropped):
-            index = ((ma * _N_LOC + loc) * _N_LOAD + load).long()
+            index = (ma * _N_LOC + loc) * _N_LOAD + load
             table = self._complete_tables
             jput = (kind >> 3) & 1
             paired = jput[:, 0] & jput[:, 1]  # a joint put-down by both robots
@@ -454,9 +457,10 @@ class PackageDelivery(DecPOSMDP):
             reward = credit[:, 0] + credit[:, 1]
             counted = dropped.clone()
             counted[:, 1] &= 1 - paired  # a joint put-down by both robots counts once
-            for key, column in zip(COUNTERS, table["counts"]):
-                counts = _lookup(column, index) * counted
-                state[key] = state[key] + (counts[:, 0] + counts[:, 1])
+            counts = _lookup(table["packed_counts"], index) * counted
+            counts = counts[:, 0] + counts[:, 1]
+            for k, key in enumerate(COUNTERS):
+                state[key] = state[key] + ((counts >> (_COUNT_BITS * k)) & _COUNT_MASK)
             load = state["load"] = load * (1 - dropped)
         picks = (kind >> 2) & 1
         here = self._here(state)
