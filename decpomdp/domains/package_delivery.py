@@ -66,6 +66,7 @@ a batch step is a handful of gathers and elementwise ops.
 from __future__ import annotations
 
 import math
+import sys
 
 import torch
 from torch import Tensor
@@ -196,8 +197,8 @@ _TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32
 
 # Masks inside the rules are uint8 0/1 tensors (bool tensors seen through ``view(torch.uint8)``):
 # on CPU, ops that produce or consume bool tensors (``where``, ``==``, ``any``) cost several times
-# more than integer arithmetic, so selections are arithmetic blends ``b + mask * (a - b)`` and
-# equalities of small integers are ``1 - min((a - b) ** 2, 1)``.
+# more than integer arithmetic, so selections are arithmetic blends ``b + mask * (a - b)``, negation
+# is ``mask ^ 1``, and equalities of small integers are ``1 - min((a - b) ** 2, 1)``.
 
 
 def _any(mask: Tensor) -> bool:
@@ -218,6 +219,8 @@ def _equal(a: Tensor, b: Tensor) -> Tensor:
 
 def _pair(x: Tensor) -> Tensor:
     """(B,) -> contiguous (B, 2) with ``x`` in both columns (ops broadcasting a (B, 1) operand are slow on CPU)."""
+    if x.dtype == torch.uint8 and sys.byteorder == "little":  # each byte doubled: x * 257 as int16
+        return x.to(torch.int16).mul_(257).view(torch.uint8).view(-1, 2)
     return torch.stack([x, x], dim=1)
 
 
@@ -352,12 +355,12 @@ class PackageDelivery(DecPOSMDP):
         if _any(both_pick):
             clash = both_pick & _equal(loc[:, 0], loc[:, 1])
             if _any(clash):  # both pick up at one base at once: robot 0 takes the package
-                ok[:, 1] &= 1 - clash
-                solo_pick[:, 1] &= 1 - clash
+                ok[:, 1] &= clash ^ 1
+                solo_pick[:, 1] &= clash ^ 1
                 finish[:, 1] = torch.where(clash.view(torch.bool), t + FAIL_DURATION, finish[:, 1])
         ma = state["ma"]
         state["ma"] = ma + agents_u8 * (actions - ma)
-        state["ok"] = ((_u8(state["ok"]) & (1 - agents_u8)) | ok).view(torch.bool)  # ok implies agents
+        state["ok"] = ((_u8(state["ok"]) & (agents_u8 ^ 1)) | ok).view(torch.bool)  # ok implies agents
         if _any(solo_pick):
             row, col = solo_pick.nonzero(as_tuple=True)
             self._take(state, row, col, here[row, col], generator)
@@ -381,7 +384,7 @@ class PackageDelivery(DecPOSMDP):
         same = _same_place_and_load(state)
         act = actions + (partner_waits & _pair(same)) * (state["ma"].roll(1, 1) - actions)
         both = agents[:, 0] & agents[:, 1] & same
-        lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & (1 - joint_ok[:, 0])
+        lead0, lead1 = both & joint_ok[:, 0], both & joint_ok[:, 1] & (joint_ok[:, 0] ^ 1)
         act0, act1 = act[:, 0], act[:, 1]
         diff = act1 - act0
         return torch.stack([act0 + lead1 * diff, act1 - lead0 * diff], dim=1)
@@ -412,7 +415,7 @@ class PackageDelivery(DecPOSMDP):
         # both start the same joint MA at once (one drafted the other): they run it on robot 0's duration
         together = joint[:, 0] & joint[:, 1] & same
         finish[:, 1] = _select(together, finish[:, 0], finish[:, 1])
-        alone = joint & (1 - joins) & _pair(1 - together)
+        alone = joint & (joins ^ 1) & _pair(together ^ 1)
         if self.solo_joint:
             waits = torch.zeros_like(alone)
         else:
@@ -420,7 +423,7 @@ class PackageDelivery(DecPOSMDP):
             finish = _select(waits, _pair(t + self.joint_wait), finish)
         joined = joins.roll(1, 1)
         finish = _select(joined, finish.roll(1, 1), finish)
-        state["waiting"] = ((waiting & (1 - joined)) | waits).view(torch.bool)
+        state["waiting"] = ((waiting & (joined ^ 1)) | waits).view(torch.bool)
         lift = (joins[:, 0] | joins[:, 1] | together) & _equal(ma[:, 0], JPICK)
         if _any(lift):
             row = lift.nonzero().squeeze(1)
@@ -436,11 +439,11 @@ class PackageDelivery(DecPOSMDP):
 
     def complete(self, state, agents, actions, t, generator):
         ma, waiting, agents = state["ma"], _u8(state["waiting"]), _u8(agents)
-        active = _u8(state["ok"]) & (1 - waiting)  # running an MA whose preconditions held, not waiting for the partner
+        active = _u8(state["ok"]) & (waiting ^ 1)  # running an MA whose preconditions held, not waiting for the partner
         kind = _lookup(_MA_KIND, ma) * active
-        travelling = (kind & _GO) & (1 - agents)
+        travelling = (kind & _GO) & (agents ^ 1)
         kind *= agents  # the effective completions
-        state["waiting"] = (waiting & (1 - agents)).view(torch.bool)  # a wait that runs out is a failed joint MA
+        state["waiting"] = (waiting & (agents ^ 1)).view(torch.bool)  # a wait that runs out is a failed joint MA
         loc = state["loc"]
         loc = state["loc"] = loc + (kind & _GO) * (_lookup(_TARGET, ma) - loc)
         load = state["load"]
@@ -453,19 +456,19 @@ class PackageDelivery(DecPOSMDP):
             paired = jput[:, 0] & jput[:, 1]  # a joint put-down by both robots
             credit = _lookup(table["reward"], index) * dropped
             if not self.large_reward_per_robot:
-                credit = credit * (1 + (jput & _pair(1 - paired)))  # a solo joint put-down gets it all
+                credit = credit * (1 + (jput & _pair(paired ^ 1)))  # a solo joint put-down gets it all
             reward = credit[:, 0] + credit[:, 1]
             counted = dropped.clone()
-            counted[:, 1] &= 1 - paired  # a joint put-down by both robots counts once
+            counted[:, 1] &= paired ^ 1  # a joint put-down by both robots counts once
             counts = _lookup(table["packed_counts"], index) * counted
             counts = counts[:, 0] + counts[:, 1]
             for k, key in enumerate(COUNTERS):
                 state[key] = state[key] + ((counts >> (_COUNT_BITS * k)) & _COUNT_MASK)
-            load = state["load"] = load * (1 - dropped)
+            load = state["load"] = load * (dropped ^ 1)
         picks = (kind >> 2) & 1
         here = self._here(state)
         package = here + picks * (load - 1 - here)
-        partner = _pair(_equal(loc[:, 0], loc[:, 1])) & (1 - travelling.roll(1, 1))
+        partner = _pair(_equal(loc[:, 0], loc[:, 1])) & (travelling.roll(1, 1) ^ 1)
         at_base = (2 - loc).clamp_(0, 1)  # 1 at Base1/Base2 (nodes 0, 1), else 0
         obs = (1 + 6 * partner + package) * at_base
         return reward, obs.long()
