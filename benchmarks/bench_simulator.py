@@ -225,7 +225,8 @@ def main() -> None:
     parser.add_argument("--reference-rollouts", type=int, default=1000)
     parser.add_argument("--mutations", type=int, default=3, help="random entries changed per controller")
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (the machine's load drifts)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads for the batched simulator")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="torch threads for the batched simulator (2 = both cores; use 1 on a heavily shared machine)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
