@@ -21,7 +21,8 @@ def run(name: str, tmp_path: Path, *overrides: str) -> dict:
 
 
 def test_package_delivery(tmp_path):
-    metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]")
+    metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]",
+                  "study.seeded.iterations=2")
     for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png"):
         assert (tmp_path / png).stat().st_size > 0
     assert len(metrics["gdice_history"]["best"]) == 2
@@ -48,7 +49,7 @@ def test_disaster_relief(tmp_path):
 
 @pytest.mark.parametrize("name", ["package_delivery", "disaster_relief"])
 def test_same_seed_same_numbers(tmp_path, name):
-    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]"] if name == "package_delivery" else []
+    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.iterations=2"] if name == "package_delivery" else []
     a = run(name, tmp_path / "a", "seed=3", *extra)
     b = run(name, tmp_path / "b", "seed=3", *extra)
     assert without_timings(a) == without_timings(b)
