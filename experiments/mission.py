@@ -31,14 +31,14 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from classifiers import FrameClassifier
-from classifiers.data import get_conditions, render_images, render_sequence
+from classifiers.data import get_conditions
 from decpomdp import GDICEConfig
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from decpomdp.policies import disaster_relief_greedy
 from experiments.package_delivery import run_gdice, score, seed_controller
+from experiments.perception_replay import sequence_outputs, train_classifier
 from experiments.report import write_report
 
 VARIANTS = ("hbni", "ssbf", "max_of_mean")
@@ -50,17 +50,17 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     variants = _variants(cfg.perception)
     st = cfg.mission
     torch.manual_seed(seed)
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     _step(progress, "1/5 training the frame classifier on training-condition snapshots")
-    clf = _train_classifier(cfg, seed, progress)
+    clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), seed, progress)
     save_artifact(run_dir, "classifier", clf)
     order = [clf.classes_.index(name) for name in CLASSES]
     mission = get_conditions("mission", **OmegaConf.to_container(st.conditions))
     frames = int(st.frames)
 
     _step(progress, "2/5 classifying mission-condition frames")
-    calib = _outputs(clf, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")[..., order]
-    held = _outputs(clf, int(st.char_sequences), frames, mission, seed + 2, progress, "held-out")[..., order]
+    calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")[0]
+    held = sequence_outputs(clf, CLASSES, int(st.char_sequences), frames, mission, seed + 2, progress, "held-out")[0]
+    calib, held = calib[..., order].double(), held[..., order].double()
 
     _step(progress, "3/5 fitting HBNI on labelled calibration outputs")
     M = len(CLASSES)
@@ -148,27 +148,6 @@ def _variants(perception: Any) -> list[str]:
 def _step(progress: bool, message: str) -> None:
     if progress:
         tqdm.write(f"[mission] {message}")
-
-
-def _train_classifier(cfg: DictConfig, seed: int, progress: bool) -> FrameClassifier:
-    clf: FrameClassifier = instantiate(cfg.classifier)
-    images, labels = [], []
-    for name in CLASSES:
-        snaps = render_images(name, int(cfg.mission.train_per_class), "training", seed=seed)
-        images += list(snaps)
-        labels += [name] * len(snaps)
-    return clf.fit(images, labels, augment=int(cfg.mission.augment), progress=progress)
-
-
-def _outputs(clf: FrameClassifier, n_seq: int, frames: int, cond, seed: int, progress: bool, desc: str) -> torch.Tensor:
-    """Classifier outputs ``(M, n_seq, frames, M)`` (columns in the classifier's order), float64."""
-    out = torch.empty(len(CLASSES), n_seq, frames, len(CLASSES), dtype=torch.float64)
-    with tqdm(total=len(CLASSES) * n_seq, desc=desc, unit="seq", disable=not progress) as bar:
-        for c, name in enumerate(CLASSES):
-            for s in range(n_seq):
-                out[c, s] = clf.predict_proba(render_sequence(name, frames, cond, seed=seed, index=s)).double()
-                bar.update()
-    return out
 
 
 def _frame_accuracy(outputs: torch.Tensor) -> dict[str, float]:

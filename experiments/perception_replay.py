@@ -36,7 +36,24 @@ from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 
 
-def _sequence_outputs(
+def train_classifier(
+    classifier: DictConfig, classes: list[str], per_class: int, augment: int, seed: int, progress: bool
+) -> FrameClassifier:
+    """Instantiate the frame classifier and train it on ``per_class`` training-condition snapshots
+    of each class (plus ``augment`` random crop + mirror copies of each)."""
+    clf: FrameClassifier = instantiate(classifier)
+    images, labels = [], []
+    for name in classes:
+        snaps = render_images(name, per_class, "training", seed=seed)
+        images += list(snaps)
+        labels += [name] * len(snaps)
+    clf.fit(images, labels, augment=augment, progress=progress)
+    if clf.classes_ != sorted(classes):
+        raise RuntimeError(f"classifier classes {clf.classes_} differ from {sorted(classes)}")
+    return clf
+
+
+def sequence_outputs(
     clf: FrameClassifier, classes: list[str], n_seq: int, frames: int, cond, seed: int, progress: bool, desc: str
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Classifier outputs ``(C, n_seq, frames, M)`` and one thumbnail strip per (class, sequence) ``[0]`` frames."""
@@ -68,21 +85,13 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     mission = get_conditions("mission", **OmegaConf.to_container(st.mission))
 
     # 1. Train the head on training-condition snapshots (+ crops and mirrors).
-    clf: FrameClassifier = instantiate(cfg.classifier)
-    images, labels = [], []
-    for name in classes:
-        snaps = render_images(name, int(st.train_per_class), "training", seed=seed)
-        images += list(snaps)
-        labels += [name] * len(snaps)
-    clf.fit(images, labels, augment=int(st.augment), progress=progress)
-    if clf.classes_ != sorted(classes):
-        raise RuntimeError(f"classifier classes {clf.classes_} differ from {sorted(classes)}")
+    clf = train_classifier(cfg.classifier, classes, int(st.train_per_class), int(st.augment), seed, progress)
     order = [clf.classes_.index(name) for name in classes]  # columns in study order
     save_artifact(run_dir, "classifier", clf)
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
-    calib, _ = _sequence_outputs(
+    calib, _ = sequence_outputs(
         clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration"
     )
     calib = calib[..., order]
@@ -94,7 +103,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
-    test, thumbs = _sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, seed + 2, progress, "test")
+    test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, seed + 2, progress, "test")
     test = test[..., order].double()
     filters = {"ssbf": hbni_pyro.SSBF(len(classes)), "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode)}
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
@@ -132,7 +141,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "acceptance": {"hardest_gap_ge_0.15": gap >= 0.15, "overall_hbni_ge_ssbf": overall["hbni"] >= overall["ssbf"]},
         "theta_summary": {k: v for k, v in posterior.summary().items() if k.startswith("theta")},
         "figure_sequence": {"class": hardest, "index": shown},
-        "sizes": {"train_images": len(images) * (1 + int(st.augment)), "calibration_frames": int(calib_labels.numel()),
+        "sizes": {"train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)), "calibration_frames": int(calib_labels.numel()),
                   "test_sequences_per_class": int(st.test_sequences), "frames_per_sequence": frames},
         "mission_conditions": mission.to_dict(),
     }
