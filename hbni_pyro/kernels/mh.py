@@ -90,8 +90,9 @@ class HBNIMetropolis(MCMCKernel):
         self._hyper_m2 = torch.zeros(C, 2, 2, dtype=DTYPE)
         self._hyper_n = 0
         self._chol = torch.eye(2, dtype=DTYPE).expand(C, 2, 2).clone()
-        self._accept_sum = {"c": torch.zeros((), dtype=DTYPE), "theta": torch.zeros(()), "hyper": torch.zeros(())}
-        self._accept_last = {k: 0.0 for k in self._accept_sum}
+        self._accept_sum = {"c": 0.0, "theta": 0.0, "hyper": 0.0}
+        self._accept_last = dict(self._accept_sum)
+        self._class_moves = max(int((labels < 0).sum()) * (self.num_chains // labels.shape[0]), 1)
         self._label_counts = torch.zeros(C, obs.shape[-2], num_classes, dtype=DTYPE)
 
     def _initial_state(self, num_obs: int, num_classes: int) -> MHState:
@@ -137,16 +138,14 @@ class HBNIMetropolis(MCMCKernel):
             self._adapt(acc_t, acc_h)
         else:
             self._label_counts += torch.nn.functional.one_hot(s.c, self._label_counts.shape[-1]).to(DTYPE)
-        unknown = (self._data.labels < 0).expand_as(acc_c)
-        moves = unknown.sum().clamp_min(1)
         self._accept_last = {
-            "c": float(acc_c.sum() / moves),
+            "c": float(acc_c.sum()) / self._class_moves,
             "theta": float(acc_t.to(DTYPE).mean()),
             "hyper": float(acc_h.to(DTYPE).mean()),
         }
         if not warm:
             for k, v in self._accept_last.items():
-                self._accept_sum[k] = self._accept_sum[k] + v
+                self._accept_sum[k] += v
         self._t += 1
         return self._params()
 
@@ -178,7 +177,7 @@ class HBNIMetropolis(MCMCKernel):
         draws = max(self._t - self._warmup_steps, 1)
         return {
             "divergences": [],
-            "acceptance rate": {k: float(v) / draws for k, v in self._accept_sum.items()},
+            "acceptance rate": {k: v / draws for k, v in self._accept_sum.items()},
             "step size theta": self._log_step_theta.exp().mean(0).tolist(),
             "step scale hyper": float(self._log_scale_hyper.exp().mean()),
         }
