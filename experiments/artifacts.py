@@ -20,12 +20,8 @@ from experiments.common import write_json
 
 MANIFEST = "artifacts.json"
 
-_SUFFIX = {
-    "HBNIPosterior": ".safetensors",
-    "MacroObservationModel": ".safetensors",
-    "JointController": ".safetensors",
-    "FrameClassifier": ".safetensors",
-}
+KINDS = ("FrameClassifier", "HBNIPosterior", "JointController", "MacroObservationModel")
+"""Classes whose objects a run can save; each writes one ``.safetensors`` file."""
 
 
 def _loader(kind: str):
@@ -45,17 +41,17 @@ def _loader(kind: str):
         from classifiers import FrameClassifier
 
         return FrameClassifier.load
-    raise ValueError(f"{MANIFEST}: unknown artefact kind {kind!r}, expected one of {sorted(_SUFFIX)}")
+    raise ValueError(f"{MANIFEST}: unknown artefact kind {kind!r}, expected one of {list(KINDS)}")
 
 
 def save_artifact(run_dir: str | os.PathLike, name: str, obj: Any) -> Path:
     """Save ``obj`` (anything with ``save(path)`` whose class is a known kind) as ``run_dir/<name>.<ext>``
     and record it in the run's manifest. Returns the written path."""
     kind = type(obj).__name__
-    if kind not in _SUFFIX:
-        raise TypeError(f"obj: expected one of {sorted(_SUFFIX)}, got {kind}")
+    if kind not in KINDS:
+        raise TypeError(f"obj: expected one of {list(KINDS)}, got {kind}")
     run_dir = Path(run_dir)
-    rel = f"{name}{_SUFFIX[kind]}"
+    rel = f"{name}.safetensors"
     path = obj.save(run_dir / rel)
     manifest = _read_manifest(run_dir) if (run_dir / MANIFEST).is_file() else {}
     manifest[name] = {"kind": kind, "path": rel}
