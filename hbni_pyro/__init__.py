@@ -3,8 +3,8 @@
 Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class noise),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
-:class:`MaxOfMeanFilter`) and macro-observations (:class:`MacroObservationProcess`,
-:func:`characterize`, :class:`MacroObservationModel`).
+:class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
+macro-observations (:class:`MacroObservationProcess`, :func:`characterize`, :class:`MacroObservationModel`).
 """
 
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
@@ -14,6 +14,7 @@ from hbni_pyro.kernels import HBNIMetropolis
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
+from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 
 __all__ = [
@@ -26,12 +27,14 @@ __all__ = [
     "MaxOfMeanFilter",
     "OUTPUT_FLOOR",
     "SSBF",
+    "TemperFit",
     "VotingFilter",
     "as_outputs",
     "characterize",
     "decide",
     "fit",
     "fit_many",
+    "fit_temper",
     "gamma_log_prob",
     "hbni_model",
     "lifted_dirichlet_log_prob",

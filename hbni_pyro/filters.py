@@ -10,7 +10,7 @@ filter                    per-frame feature        posterior after N frames
 :class:`VotingFilter`     one-hot vote             vote counts / N
 :class:`MaxOfMeanFilter`  ``o``                    mean output
 :class:`SSBF`             ``log o``                ``∝ p_m * prod_i o_i,m / p_m``
-:class:`HBNIFilter`       ``log o``                ``∝ p_m * E_theta prod_i Dir(o_i; theta_m e_m + 1)``
+:class:`HBNIFilter`       ``log o``                ``∝ p_m * E_theta prod_i Dir(o_i; theta_m e_m + 1)^tau``
 ========================  ======================  ===============================================
 
 The streaming path (:meth:`StreamingFilter.update`) adds one feature to the running sum;
@@ -207,6 +207,11 @@ class HBNIFilter(_LogLinearFilter):
         class_prior: ``(M,)`` class prior; ``None`` takes ``posterior.class_prior``.
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
             draws (``None`` = all); its cost is ``O(draws)`` per frame and class.
+        temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood. HBNI's outputs are i.i.d.
+            given the class; the frames of one camera sequence are not (the same view, light and
+            background persist), so ``N`` of them carry about as much evidence as ``tau * N``
+            independent outputs. ``1`` is the paper's filter; :func:`hbni_pyro.fit_temper` fits
+            ``tau`` on labelled sequences.
 
     Both modes have the sufficient statistic ``sum_i log o_i`` and ``N``:
     ``sum_i log Dir(o_i; theta_m e_m + 1)
@@ -216,12 +221,20 @@ class HBNIFilter(_LogLinearFilter):
     MODES = ("marginal", "plugin")
 
     def __init__(
-        self, posterior: _Posterior, mode: str = "marginal", class_prior: Any = None, *, num_draws: int | None = None
+        self,
+        posterior: _Posterior,
+        mode: str = "marginal",
+        class_prior: Any = None,
+        *,
+        num_draws: int | None = None,
+        temper: float = 1.0,
     ) -> None:
         if mode not in self.MODES:
             raise ValueError(f"mode: expected one of {self.MODES}, got {mode!r}")
         if num_draws is not None and (isinstance(num_draws, bool) or not isinstance(num_draws, int) or num_draws < 1):
             raise ValueError(f"num_draws: expected a positive int or None, got {num_draws!r}")
+        if isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1:
+            raise ValueError(f"temper: expected a float in (0, 1], got {temper!r}")
         draws = getattr(posterior, "theta_draws", None)
         if not callable(draws):
             raise TypeError(
@@ -236,6 +249,7 @@ class HBNIFilter(_LogLinearFilter):
             class_prior = getattr(posterior, "class_prior", None)
         super().__init__(theta.shape[1], class_prior)
         self.mode = mode
+        self.temper = float(temper)
         if mode == "plugin":
             theta = theta.median(0).values.unsqueeze(0)
         elif num_draws is not None and num_draws < theta.shape[0]:
@@ -249,8 +263,8 @@ class HBNIFilter(_LogLinearFilter):
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
         batch = stats.shape[:-1]
-        stats = stats.reshape(-1, self.num_classes).T.contiguous().unsqueeze(-1)  # (M, K, 1)
-        counts = counts.expand(batch).reshape(1, -1, 1)  # (1, K, 1)
+        stats = self.temper * stats.reshape(-1, self.num_classes).T.contiguous().unsqueeze(-1)  # (M, K, 1)
+        counts = self.temper * counts.expand(batch).reshape(1, -1, 1)  # (1, K, 1)
         offset, theta = self._offset, self._theta
         num_draws = theta.shape[-1]
         chunk = max(1, _CHUNK_ELEMENTS // (num_draws * self.num_classes))
@@ -263,4 +277,5 @@ class HBNIFilter(_LogLinearFilter):
         return (out - math.log(num_draws)).T.reshape(*batch, self.num_classes)
 
     def __repr__(self) -> str:
-        return f"HBNIFilter(num_classes={self.num_classes}, mode={self.mode!r}, draws={self.theta.shape[0]})"
+        return (f"HBNIFilter(num_classes={self.num_classes}, mode={self.mode!r}, draws={self.theta.shape[0]}, "
+                f"temper={self.temper:g})")
