@@ -14,22 +14,7 @@ from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.validation import OUTPUT_FLOOR
 
-DT = torch.float64
-THETA = torch.tensor([1.0, 6.0, 20.0], dtype=DT)
-
-
-class DrawsPosterior:
-    """Minimal stand-in with the surface HBNIFilter uses."""
-
-    def __init__(self, draws, class_prior=None):
-        self._draws = torch.as_tensor(draws, dtype=DT)
-        self.num_classes = self._draws.shape[1]
-        self.class_prior = (
-            torch.full((self.num_classes,), 1 / self.num_classes, dtype=DT) if class_prior is None else class_prior
-        )
-
-    def theta_draws(self):
-        return self._draws
+from hbni_stubs import DT, THETA, DrawsPosterior
 
 
 def scattered_draws(num, seed=1):

@@ -12,18 +12,7 @@ from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.posterior import HBNIPosterior
 
-DT = torch.float64
-THETA = torch.tensor([1.0, 6.0, 20.0], dtype=DT)
-
-
-class DrawsPosterior:
-    def __init__(self, draws):
-        self._draws = torch.as_tensor(draws, dtype=DT)
-        self.num_classes = self._draws.shape[1]
-        self.class_prior = torch.full((self.num_classes,), 1 / self.num_classes, dtype=DT)
-
-    def theta_draws(self):
-        return self._draws
+from hbni_stubs import DT, THETA, DrawsPosterior
 
 
 def scattered_posterior(num=300, seed=1):

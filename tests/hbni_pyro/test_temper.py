@@ -12,20 +12,7 @@ from hbni_pyro.filters import HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.temper import DEFAULT_GRID, fit_temper
 
-DT = torch.float64
-THETA = torch.tensor([1.0, 6.0, 20.0], dtype=DT)
-
-
-class DrawsPosterior:
-    """Minimal stand-in with the surface HBNIFilter uses: fixed theta draws, uniform prior."""
-
-    def __init__(self, draws):
-        self._draws = torch.as_tensor(draws, dtype=DT)
-        self.num_classes = self._draws.shape[1]
-        self.class_prior = torch.full((self.num_classes,), 1 / self.num_classes, dtype=DT)
-
-    def theta_draws(self):
-        return self._draws
+from hbni_stubs import DT, THETA, DrawsPosterior
 
 
 TRUE = DrawsPosterior(THETA.unsqueeze(0))
