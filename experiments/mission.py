@@ -4,7 +4,8 @@
    disaster-relief object types (``classifiers.data``).
 2. Train the :class:`~classifiers.FrameClassifier` head on the snapshots (crops and mirrors)
    and classify every mission frame.
-3. Fit HBNI on labelled calibration sequences' outputs.
+3. Fit HBNI on labelled calibration sequences' outputs, then its likelihood temper on the
+   same sequences (:func:`hbni_pyro.fit_temper`: their frames are correlated, not i.i.d.).
 4. Run HBNI, SSBF and max-of-mean macro-observation processes (threshold, frame budget) on
    held-out output streams and tabulate each one's ``P(label, frames | true class)``: the
    :class:`~hbni_pyro.MacroObservationModel` of the "infer with 95 % confidence" MA.
@@ -49,12 +50,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     seed, progress = int(cfg.seed), bool(cfg.progress)
     variants = _variants(cfg.perception)
     st = cfg.mission
+    fixed_temper = _temper_setting(st.temper)
     torch.manual_seed(seed)
     _step(progress, "1/5 training the frame classifier on training-condition snapshots")
     clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), seed, progress)
     save_artifact(run_dir, "classifier", clf)
     order = [clf.classes_.index(name) for name in CLASSES]
-    mission = get_conditions("mission", **OmegaConf.to_container(st.conditions))
+    overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
+    mission = get_conditions("mission", **overrides)
     frames = int(st.frames)
 
     _step(progress, "2/5 classifying mission-condition frames")
@@ -70,12 +73,18 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=progress,
     )
     save_artifact(run_dir, "posterior", posterior)
+    calib_truth = torch.arange(M).repeat_interleave(calib.shape[1])
+    if fixed_temper is None:
+        fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), calib_truth, cfg.hbni.filter.mode)
+        temper = {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(), "log_score": fitted.log_score.tolist()}
+    else:
+        temper = {"value": fixed_temper, "fitted": False}
 
     _step(progress, "4/5 characterising the macro-observation processes on held-out streams")
     streams = held.reshape(-1, frames, M)
     truth = torch.arange(M).repeat_interleave(held.shape[1])
     filters = {
-        "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode),
+        "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode, temper=temper["value"]),
         "ssbf": hbni_pyro.SSBF(M),
         "max_of_mean": hbni_pyro.MaxOfMeanFilter(M),
     }
@@ -124,6 +133,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "variants": results,
         "acceptance": _acceptance(results),
         "classifier_frame_accuracy": _frame_accuracy(held),
+        "conditions": {"preset": "mission", "overrides": overrides},
+        "hbni_temper": temper,
         "theta_summary": {k: v for k, v in posterior.summary().items() if k.startswith("theta")},
         "planner": dataclasses.asdict(planner),
         "wrong_penalty": float(cfg.domain.wrong_penalty),
@@ -143,6 +154,15 @@ def _variants(perception: Any) -> list[str]:
     if unknown or not chosen:
         raise ValueError(f"perception: expected a subset of {list(VARIANTS)}, got {chosen}")
     return chosen
+
+
+def _temper_setting(setting: Any) -> float | None:
+    """``mission.temper``: ``"fit"`` (``None``: fit on the calibration streams) or a float in (0, 1]."""
+    if setting == "fit":
+        return None
+    if isinstance(setting, bool) or not isinstance(setting, (int, float)) or not 0 < setting <= 1:
+        raise ValueError(f"mission.temper: expected 'fit' or a float in (0, 1], got {setting!r}")
+    return float(setting)
 
 
 def _step(progress: bool, message: str) -> None:
@@ -196,6 +216,10 @@ def _explanation(metrics: dict) -> list[str]:
     return out + [""]
 
 
+def _overrides(overrides: dict) -> str:
+    return " with " + ", ".join(f"{k} = {v}" for k, v in overrides.items()) if overrides else ""
+
+
 def _ratio(a: float, b: float) -> float:
     return a / b if b else float("nan")
 
@@ -216,10 +240,14 @@ def _report(metrics: dict, figures: list[str]) -> str:
                          f"{float(np.mean(r['macro_mean_frames'])):.1f} | {float(np.mean(r['macro_timed_out'])):.3f} |")
     acc = metrics["acceptance"]
     explain = _explanation(metrics)
+    temper = metrics["hbni_temper"]
+    how = "fitted by log score on the labelled calibration sequences" if temper["fitted"] else "set in the config"
     lines = [
         "# Mission report: disaster relief on semantic macro-observations", "",
-        "Policies searched with G-DICE for each perception variant and re-evaluated on independent rollouts.", "",
+        "Policies searched with G-DICE for each perception variant and re-evaluated on independent rollouts.",
+        f"Frames: the `mission` imaging preset{_overrides(metrics['conditions']['overrides'])}.", "",
         *rows, "", "Macro-observation processes characterised on held-out classifier output streams:", "", *macro, "",
+        f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as independent).", "",
         *explain,
     ]
     if acc:

@@ -39,6 +39,12 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png"):
         assert (mission_run / png).stat().st_size > 10_000
         assert f"]({png})" in report
+    temper = metrics["hbni_temper"]
+    assert temper["fitted"] and temper["value"] in temper["grid"]
+    assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
+    assert f"temper is {temper['value']:g}" in report
+    assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
+    assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
     assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
                              "controller_perfect", "controller_hbni", "controller_ssbf", "controller_max_of_mean"}
@@ -68,6 +74,22 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
         assert set(metrics["variants"]) == {"perfect", variant}
     report = (tmp_path / "report.md").read_text()
     assert "perception=hbni" in report and "perception=ssbf" in report and "hbni value" in report
+
+
+def test_fixed_temper_and_preset_conditions(tmp_path, repo_root):
+    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["hbni_temper"] == {"value": 0.5, "fitted": False}
+    assert metrics["conditions"]["overrides"] == {}
+    assert "temper=0.5" in MacroObservationModel.load(tmp_path / "macro_hbni.safetensors").info["filter"]
+
+
+@pytest.mark.parametrize("temper", ["0", "1.5", "auto"])
+def test_bad_temper_is_a_clear_error(tmp_path, repo_root, temper):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
+           "perception=hbni", f"mission.temper={temper}"]
+    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and "mission.temper: expected 'fit' or a float in (0, 1]" in proc.stderr
 
 
 def test_unknown_perception_variant_is_a_clear_error(tmp_path, repo_root):
