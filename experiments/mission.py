@@ -51,13 +51,13 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     variants = _variants(cfg.perception)
     st = cfg.mission
     fixed_temper = _temper_setting(st.temper)
+    overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
+    mission = get_conditions("mission", **overrides)
     torch.manual_seed(seed)
     _step(progress, "1/5 training the frame classifier on training-condition snapshots")
     clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), seed, progress)
     save_artifact(run_dir, "classifier", clf)
     order = [clf.classes_.index(name) for name in CLASSES]
-    overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
-    mission = get_conditions("mission", **overrides)
     frames = int(st.frames)
 
     _step(progress, "2/5 classifying mission-condition frames")
@@ -65,7 +65,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     held = sequence_outputs(clf, CLASSES, int(st.char_sequences), frames, mission, seed + 2, progress, "held-out")[0]
     calib, held = calib[..., order].double(), held[..., order].double()
 
-    _step(progress, "3/5 fitting HBNI on labelled calibration outputs")
+    _step(progress, "3/5 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
     M = len(CLASSES)
     labels = torch.arange(M).view(-1, 1, 1).expand(calib.shape[:3]).reshape(-1)
     posterior = hbni_pyro.fit(

@@ -79,6 +79,8 @@ def test_errors(tmp_path):
         get_conditions("training", background="stars")
     with pytest.raises(ValueError, match="noise"):
         get_conditions("mission", noise=(5.0, 1.0))
+    with pytest.raises(ValueError, match=r"unknown field\(s\) \['fog'\]"):
+        get_conditions("mission", fog=(0.1, 0.2))
     with pytest.raises(ValueError, match="name"):
         write_image_folder(tmp_path / "x", ["irobot", "unicorn"], 1)
     assert not (tmp_path / "x").exists()  # validated before writing anything

@@ -92,6 +92,14 @@ def test_bad_temper_is_a_clear_error(tmp_path, repo_root, temper):
     assert proc.returncode != 0 and "mission.temper: expected 'fit' or a float in (0, 1]" in proc.stderr
 
 
+def test_unknown_condition_field_is_a_clear_error(tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
+           "+mission.conditions.fog=[0.1,0.2]"]
+    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and "conditions: unknown field(s) ['fog']" in proc.stderr
+    assert not (tmp_path / "classifier.safetensors").exists()  # rejected before any work
+
+
 def test_unknown_perception_variant_is_a_clear_error(tmp_path, repo_root):
     cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}", "perception=oracle"]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
