@@ -1,4 +1,4 @@
-"""Helpers shared by the experiment entry points: JSON output, figures, seeding."""
+"""Helpers shared by the experiment entry points: JSON output, figures, seeding, score comparison."""
 
 from __future__ import annotations
 
@@ -50,3 +50,11 @@ def save_figure(fig: plt.Figure, path: str | os.PathLike, dpi: int = 120) -> Pat
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def beats(entry: dict[str, float], other: dict[str, float]) -> bool:
+    """Whether ``entry``'s value beats ``other``'s by a margin outside both standard errors.
+
+    Both are score dicts with ``value`` and ``stderr``: ``value - stderr > other value + other stderr``.
+    """
+    return entry["value"] - entry["stderr"] > other["value"] + other["stderr"]

@@ -23,7 +23,7 @@ from omegaconf import DictConfig
 
 from decpomdp import GDICEConfig
 from decpomdp.policies import disaster_relief_greedy
-from experiments.common import save_figure
+from experiments.common import beats, save_figure
 from experiments.package_delivery import bar_figure, history_figure, run_baselines, run_gdice, run_seeded, score
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
@@ -51,9 +51,6 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                "random": baselines["random"]}
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")
     save_figure(_counters_figure({k: v for k, v in entries.items() if k != "random"}), run_dir / "counters.png")
-
-    def beats(entry: dict, other: dict) -> bool:
-        return entry["value"] - entry["stderr"] > other["value"] + other["stderr"]
 
     return {
         "domain": repr(env),

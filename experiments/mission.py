@@ -36,7 +36,7 @@ from classifiers.data import get_conditions
 from decpomdp import GDICEConfig
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.artifacts import save_artifact
-from experiments.common import save_figure
+from experiments.common import beats, save_figure
 from decpomdp.policies import disaster_relief_greedy
 from experiments.package_delivery import run_gdice, score, seed_controller
 from experiments.perception_replay import sequence_outputs, train_classifier
@@ -183,7 +183,7 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]
-            out[f"hbni_beats_{other}_outside_stderr"] = h["value"] - h["stderr"] > o["value"] + o["stderr"]
+            out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)
             out[f"hbni_minus_{other}_in_stderr"] = _ratio(h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
     if "ssbf" in results:
         out["hbni_wrong_rate_below_ssbf"] = h["wrong_rate"] < results["ssbf"]["wrong_rate"]
@@ -205,7 +205,7 @@ def _explanation(metrics: dict) -> list[str]:
         o = v[other]
         acc_o, frames_o = float(np.mean(o["macro_accuracy"])), float(np.mean(o["macro_mean_frames"]))
         se = ((acc_h * (1 - acc_h) + acc_o * (1 - acc_o)) / (n * len(CLASSES))) ** 0.5
-        verdict = "beats" if h["value"] - h["stderr"] > o["value"] + o["stderr"] else "does not beat"
+        verdict = "beats" if beats(h, o) else "does not beat"
         out.append(
             f"HBNI {verdict} {LABELS[other]} ({h['value']:.3f} vs {o['value']:.3f}). Its macro-observations are right "
             f"{acc_h:.1%} of the time after {frames_h:.1f} frames, against {acc_o:.1%} after {frames_o:.1f} frames "
