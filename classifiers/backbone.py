@@ -13,17 +13,17 @@ AlexNet (the paper's network, fc8 scores) is an optional extra, available only w
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import math
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from infra.threads import torch_threads
 
 __all__ = ["Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
 
@@ -229,18 +229,6 @@ class Backbone:
                 for i in range(0, x.shape[0], batch_size)
             ]
         return torch.cat(outs) if outs else x.new_zeros(0, 1000)
-
-
-@contextlib.contextmanager
-def torch_threads(threads: int | None) -> Iterator[None]:
-    """Temporarily set torch's intra-op thread count (``None`` leaves it unchanged)."""
-    before = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 _CACHE: dict[tuple[str, str], Backbone] = {}

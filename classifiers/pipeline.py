@@ -21,10 +21,11 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from classifiers.backbone import Backbone, load_backbone, torch_threads
+from classifiers.backbone import Backbone, load_backbone
 from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
-from classifiers.storage import load_tensors, save_tensors
 from classifiers.svm import OneVsOneSVC
+from infra.tensorfile import load_tensors, save_tensors
+from infra.threads import torch_threads
 
 __all__ = ["FrameClassifier"]
 

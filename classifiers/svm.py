@@ -15,9 +15,8 @@ on all data. Probabilities come from libsvm's pairwise coupling (Wu, Lin & Weng 
 
 from __future__ import annotations
 
-import contextlib
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,8 @@ from torch import Tensor
 
 from classifiers.coupling import pairwise_coupling
 from classifiers.platt import fit_platt, platt_predict
-from classifiers.storage import load_tensors, save_tensors
+from infra.tensorfile import load_tensors, save_tensors
+from infra.threads import single_thread
 
 __all__ = ["OneVsOneSVC", "bias_scale", "objective", "train_squared_hinge"]
 
@@ -44,18 +44,6 @@ def objective(w: Tensor, b: Tensor, x: Tensor, y: Tensor, s: Tensor, c: float) -
     """Primal objective per problem: ``1/2 |w|^2 + 1/2 (b / B)^2 + C sum_n s_n max(0, 1 - y_n (w.x_n + b))^2``."""
     xi = (1 - y * (w @ x.T + b[:, None])).clamp_min(0)
     return 0.5 * (w * w).sum(-1) + 0.5 * (b / bias_scale(x)) ** 2 + c * (s * xi * xi).sum(-1)
-
-
-@contextlib.contextmanager
-def _single_thread() -> Iterator[None]:
-    """Run torch on one intra-op thread: the solver's matrices are small, and on a shared
-    machine multi-threaded LAPACK calls on them cost far more in hand-offs than they save."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _dual_objective(beta: Tensor, kernel: Tensor, y: Tensor, s: Tensor, c: float) -> Tensor:
@@ -194,7 +182,7 @@ class OneVsOneSVC:
         held = torch.stack([fold == k for k in range(self.cv)] + [torch.zeros_like(fold, dtype=torch.bool)])
         s = (member[None] & ~held[:, None]).double()  # (K + 1, P, N)
         num_p = pairs.shape[0]
-        with _single_thread():
+        with single_thread():  # small matrices: LAPACK thread hand-offs cost more than they save
             w, b = train_squared_hinge(x, sign.repeat(self.cv + 1, 1), s.reshape(-1, x.shape[0]), self.C)
         w, b = w.view(self.cv + 1, num_p, -1), b.view(self.cv + 1, num_p)
         # Held-out decision value of each example under the fold model that did not see it.

@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from decpomdp._storage import load_tensors, save_tensors
+from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "decpomdp.JointController"
 _VERSION = 1

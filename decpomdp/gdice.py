@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from decpomdp._storage import load_tensors, save_tensors
+from infra.tensorfile import load_tensors, save_tensors
 from decpomdp.controller import JointController
 from decpomdp.evaluate import Evaluator
 

@@ -15,7 +15,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from hbni_pyro.storage import atomic_write_bytes
+from infra.files import atomic_write_bytes
 
 
 def write_report(path: str | os.PathLike, text: str) -> Path:

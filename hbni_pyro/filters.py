@@ -33,7 +33,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from hbni_pyro.threads import single_thread
+from infra.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
 
 _CHUNK_ELEMENTS = 1 << 16

@@ -20,7 +20,7 @@ from torch import Tensor
 from hbni_pyro.kernels import HBNIMetropolis
 from hbni_pyro.model import HyperPrior, hbni_model
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_draws
-from hbni_pyro.threads import single_thread
+from infra.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs
 
 METHODS = ("mh", "nuts")

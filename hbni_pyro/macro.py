@@ -22,10 +22,10 @@ from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs
-from hbni_pyro.storage import load_tensors, save_tensors
+from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
 
-_KIND = "MacroObservationModel"
+_KIND = "hbni_pyro.MacroObservationModel"
 
 
 class MacroObservation(NamedTuple):

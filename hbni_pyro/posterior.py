@@ -13,10 +13,10 @@ from torch import Tensor
 
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.model import HyperPrior
-from hbni_pyro.storage import load_tensors, save_tensors
+from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
 
-_KIND = "HBNIPosterior"
+_KIND = "hbni_pyro.HBNIPosterior"
 _SITES = ("theta", "kappa", "gamma")
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from classifiers.data.conditions import Conditions, get_conditions
 from classifiers.data.sprites import SPRITE_SIZE, SPRITES, draw_sprite
-from classifiers.storage import atomic_write_bytes
+from infra.files import atomic_write_bytes
 
 __all__ = [
     "CLASSES",

@@ -72,7 +72,7 @@ def test_error_paths(tmp_path, fitted_classifier, frames):
         fitted_classifier.augmented_features(frames, -1)
     corrupt = tmp_path / "corrupt.safetensors"
     corrupt.write_bytes(b"{not safetensors}")
-    with pytest.raises(ValueError, match="not a valid model file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         FrameClassifier.load(corrupt)
     head_file = fitted_classifier.head.save(tmp_path / "head.safetensors")
     with pytest.raises(ValueError, match="FrameClassifier"):

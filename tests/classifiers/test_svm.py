@@ -93,12 +93,12 @@ def test_error_paths(tmp_path, standardized_features):
         head.predict_proba(x_tr[:, :10])
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"\x00" * 40)
-    with pytest.raises(ValueError, match="not a valid model file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         OneVsOneSVC.load(bad)
     with pytest.raises(FileNotFoundError):
         OneVsOneSVC.load(tmp_path / "missing.safetensors")
-    from classifiers.storage import save_tensors
+    from infra.tensorfile import save_tensors
 
     save_tensors(tmp_path / "other.safetensors", "something.else", {"a": torch.zeros(1)}, {})
-    with pytest.raises(ValueError, match="expected a 'classifiers.OneVsOneSVC' file"):
+    with pytest.raises(ValueError, match="holds something.else, expected a saved classifiers.OneVsOneSVC"):
         OneVsOneSVC.load(tmp_path / "other.safetensors")

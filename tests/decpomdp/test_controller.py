@@ -22,17 +22,17 @@ def test_round_trip(tmp_path):
 def test_corrupt_and_foreign_files(tmp_path):
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"\x00garbage that is not a safetensors file")
-    with pytest.raises(ValueError, match="not a valid decpomdp file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         JointController.load(bad)
     from safetensors.torch import save_file
 
     foreign = tmp_path / "foreign.safetensors"
     save_file({"action": torch.zeros(1, 2, 3, dtype=torch.long)}, str(foreign))
-    with pytest.raises(ValueError, match="expected a 'decpomdp.JointController' file"):
+    with pytest.raises(ValueError, match="holds a foreign file, expected a saved decpomdp.JointController"):
         JointController.load(foreign)
     truncated = tmp_path / "trunc.safetensors"
     truncated.write_bytes(make().save(tmp_path / "ok.safetensors").read_bytes()[:-7])
-    with pytest.raises(ValueError, match="not a valid decpomdp file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         JointController.load(truncated)
     with pytest.raises(FileNotFoundError, match="path"):
         JointController.load(tmp_path / "missing.safetensors")

@@ -73,7 +73,7 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
         gdice(evaluator, 2, 3, 2, GDICEConfig(num_nodes=3, iterations=4, samples=12, elites=3), checkpoint=ckpt)
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match="not a valid decpomdp file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         gdice(evaluator, 2, 3, 2, cfg, init=init, checkpoint=bad)
 
 

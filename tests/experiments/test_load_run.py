@@ -49,7 +49,7 @@ def test_missing_and_corrupt_artefacts(toy_run, tmp_path):
     with pytest.raises(FileNotFoundError, match="artefact 'posterior' .* is missing"):
         load_run(copy)
     (copy / "posterior.safetensors").write_bytes(b"garbage")
-    with pytest.raises(ValueError, match="not a readable hbni_pyro file"):
+    with pytest.raises(ValueError, match="is not a readable model file"):
         load_run(copy)
     (copy / "artifacts.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt manifest"):

@@ -222,7 +222,7 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
     post = HBNIPosterior({"theta": torch.ones(1, 2, 3, dtype=DT), "kappa": torch.ones(1, 2, dtype=DT),
                           "gamma": torch.ones(1, 2, dtype=DT)}, torch.full((3,), 1 / 3, dtype=DT))
     post.save(tmp_path / "post.safetensors")
-    with pytest.raises(ValueError, match="expected a saved MacroObservationModel"):
+    with pytest.raises(ValueError, match="holds hbni_pyro.HBNIPosterior, expected a saved hbni_pyro.MacroObservationModel"):
         MacroObservationModel.load(tmp_path / "post.safetensors")
     (tmp_path / "junk").write_bytes(b"\x00" * 5 + b"not a model")
     with pytest.raises(ValueError, match="not a readable"):

@@ -50,9 +50,9 @@ def test_corrupt_and_foreign_files_raise_clear_errors(posterior, tmp_path):
     foreign = tmp_path / "foreign.safetensors"
     save_file({"w": torch.zeros(2)}, str(foreign))
     for path in (truncated, garbage, pickled):
-        with pytest.raises(ValueError, match="not a readable hbni_pyro file"):
+        with pytest.raises(ValueError, match="is not a readable model file"):
             HBNIPosterior.load(path)
-    with pytest.raises(ValueError, match="expected a saved HBNIPosterior, found a foreign file"):
+    with pytest.raises(ValueError, match="holds a foreign file, expected a saved hbni_pyro.HBNIPosterior"):
         HBNIPosterior.load(foreign)
     with pytest.raises(FileNotFoundError, match="no such file"):
         HBNIPosterior.load(tmp_path / "missing.safetensors")

@@ -1,0 +1,27 @@
+"""Infrastructure shared by ``hbni_pyro``, ``classifiers``, ``decpomdp`` and ``experiments``.
+
+A leaf package: it imports nothing of the project and holds no domain code.
+
+* :mod:`infra.files`: atomic, fsynced file writes that respect the umask.
+* :mod:`infra.tensorfile`: one-file storage of named tensors plus JSON metadata (safetensors, no pickle).
+* :mod:`infra.fingerprint`: what produced a checkpoint or cache, and a check that names the field that differs.
+* :mod:`infra.threads`: torch intra-op thread control for small tensor programs.
+
+See ``docs/architecture.md`` for where this sits in the project.
+"""
+
+from infra.files import atomic_write_bytes, atomic_write_text
+from infra.fingerprint import check_fingerprint, digest
+from infra.tensorfile import load_tensors, save_tensors
+from infra.threads import single_thread, torch_threads
+
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_fingerprint",
+    "digest",
+    "load_tensors",
+    "save_tensors",
+    "single_thread",
+    "torch_threads",
+]
