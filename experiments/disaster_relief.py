@@ -24,7 +24,8 @@ from omegaconf import DictConfig
 from decpomdp import GDICEConfig
 from decpomdp.policies import disaster_relief_greedy
 from experiments.common import beats, save_figure
-from experiments.package_delivery import bar_figure, history_figure, run_baselines, run_gdice, run_seeded, score
+from experiments.steps.planning import run_baselines, run_gdice, run_seeded, score
+from experiments.steps.planning_figures import bar_figure, history_figure
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 

@@ -22,52 +22,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from typing import Any
+
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from tqdm.auto import tqdm
 
 import hbni_pyro
-from classifiers import FrameClassifier
-from classifiers.data import get_conditions, render_images, render_sequence
+from classifiers.data import get_conditions
 from experiments.artifacts import save_artifact
 from experiments.common import save_figure
-
-
-def train_classifier(
-    classifier: DictConfig, classes: list[str], per_class: int, augment: int, seed: int, progress: bool
-) -> FrameClassifier:
-    """Instantiate the frame classifier and train it on ``per_class`` training-condition snapshots
-    of each class (plus ``augment`` random crop + mirror copies of each)."""
-    clf: FrameClassifier = instantiate(classifier)
-    images, labels = [], []
-    for name in classes:
-        snaps = render_images(name, per_class, "training", seed=seed)
-        images += list(snaps)
-        labels += [name] * len(snaps)
-    clf.fit(images, labels, augment=augment, progress=progress)
-    if clf.classes_ != sorted(classes):
-        raise RuntimeError(f"classifier classes {clf.classes_} differ from {sorted(classes)}")
-    return clf
-
-
-def sequence_outputs(
-    clf: FrameClassifier, classes: list[str], n_seq: int, frames: int, cond, seed: int, progress: bool, desc: str
-) -> tuple[torch.Tensor, np.ndarray]:
-    """Classifier outputs ``(C, n_seq, frames, M)`` and one thumbnail strip per (class, sequence) ``[0]`` frames."""
-    out = torch.empty(len(classes), n_seq, frames, len(classes))
-    thumbs = np.empty((len(classes), n_seq), dtype=object)
-    bar = tqdm(total=len(classes) * n_seq, desc=desc, unit="seq", disable=not progress)
-    for c, name in enumerate(classes):
-        for s in range(n_seq):
-            seq = render_sequence(name, frames, cond, seed=seed, index=s)
-            out[c, s] = clf.predict_proba(seq)
-            thumbs[c, s] = seq
-            bar.update()
-    bar.close()
-    return out, thumbs
+from experiments.steps.noise import fit_labelled
+from experiments.steps.perception import sequence_outputs, train_classifier
 
 
 def _frames_to_reach(post: torch.Tensor, true: int, threshold: float) -> torch.Tensor:
@@ -91,15 +58,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
-    calib, _ = sequence_outputs(
-        clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration"
-    )
-    calib = calib[..., order]
-    calib_labels = torch.arange(len(classes)).view(-1, 1, 1).expand(calib.shape[:3]).reshape(-1)
-    posterior = hbni_pyro.fit(
-        calib.reshape(-1, len(classes)).double(), calib_labels, **OmegaConf.to_container(cfg.hbni.fit),
-        hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=progress,
-    )
+    calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")
+    posterior = fit_labelled(calib[..., order], cfg.hbni, seed, progress)
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
@@ -107,21 +67,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     test = test[..., order].double()
     filters = {"ssbf": hbni_pyro.SSBF(len(classes)), "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode)}
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
-
-    per_class: dict = {}
-    for c, name in enumerate(classes):
-        frame_acc = float((test[c].argmax(-1) == c).double().mean())
-        entry = {"frame_accuracy": frame_acc, "mean_output": test[c].mean((0, 1))}
-        for k, post in posts.items():
-            reach = _frames_to_reach(post[c], c, float(st.threshold))
-            entry[k] = {
-                "end_accuracy": float((post[c, :, -1].argmax(-1) == c).double().mean()),
-                "accuracy_by_frame": (post[c].argmax(-1) == c).double().mean(0),
-                "frames_to_threshold_mean": float(reach.nanmean()) if reach.isfinite().any() else None,
-                "frames_to_threshold_median": float(reach.nanmedian()) if reach.isfinite().any() else None,
-                "reached_fraction": float(reach.isfinite().double().mean()),
-            }
-        per_class[name] = entry
+    per_class = _per_class(test, posts, classes, float(st.threshold))
     hardest = min(classes, key=lambda n: per_class[n]["frame_accuracy"])
     overall = {k: float(np.mean([per_class[n][k]["end_accuracy"] for n in classes])) for k in posts}
     gap = per_class[hardest]["hbni"]["end_accuracy"] - per_class[hardest]["ssbf"]["end_accuracy"]
@@ -141,10 +87,30 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "acceptance": {"hardest_gap_ge_0.15": gap >= 0.15, "overall_hbni_ge_ssbf": overall["hbni"] >= overall["ssbf"]},
         "theta_summary": {k: v for k, v in posterior.summary().items() if k.startswith("theta")},
         "figure_sequence": {"class": hardest, "index": shown},
-        "sizes": {"train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)), "calibration_frames": int(calib_labels.numel()),
+        "sizes": {"train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)),
+                  "calibration_frames": int(calib[..., 0].numel()),
                   "test_sequences_per_class": int(st.test_sequences), "frames_per_sequence": frames},
         "mission_conditions": mission.to_dict(),
     }
+
+
+def _per_class(test: torch.Tensor, posts: dict[str, torch.Tensor], classes: list[str], threshold: float) -> dict[str, Any]:
+    """Per class: frame accuracy, mean output, and each filter's end accuracy, accuracy by frame and
+    frames to put ``threshold`` on the true class (``test`` and each posterior ``(C, S, N, M)``)."""
+    per_class: dict[str, Any] = {}
+    for c, name in enumerate(classes):
+        entry = {"frame_accuracy": float((test[c].argmax(-1) == c).double().mean()), "mean_output": test[c].mean((0, 1))}
+        for k, post in posts.items():
+            reach = _frames_to_reach(post[c], c, threshold)
+            entry[k] = {
+                "end_accuracy": float((post[c, :, -1].argmax(-1) == c).double().mean()),
+                "accuracy_by_frame": (post[c].argmax(-1) == c).double().mean(0),
+                "frames_to_threshold_mean": float(reach.nanmean()) if reach.isfinite().any() else None,
+                "frames_to_threshold_median": float(reach.nanmedian()) if reach.isfinite().any() else None,
+                "reached_fraction": float(reach.isfinite().double().mean()),
+            }
+        per_class[name] = entry
+    return per_class
 
 
 def _sequence_figure(obs, posts, h, s, classes, frames_img, threshold) -> plt.Figure:

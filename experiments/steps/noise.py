@@ -1,0 +1,22 @@
+"""Noise-fitting step: HBNI on classifier outputs whose true classes are known."""
+
+from __future__ import annotations
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+import hbni_pyro
+
+
+def fit_labelled(outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool) -> hbni_pyro.HBNIPosterior:
+    """Fit HBNI on ``outputs (C, S, F, M)``: ``S`` sequences of ``F`` frames of each true class ``c``.
+
+    Uses the ``hbni.fit`` sampler settings and the ``hbni.hyperprior``; every output's class is known.
+    """
+    num_classes = outputs.shape[0]
+    labels = torch.arange(num_classes).view(-1, 1, 1).expand(outputs.shape[:3]).reshape(-1)
+    return hbni_pyro.fit(
+        outputs.reshape(-1, outputs.shape[-1]).double(), labels, **OmegaConf.to_container(hbni.fit),
+        hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress,
+    )

@@ -1,0 +1,101 @@
+"""Planning steps: G-DICE runs, baselines and scores of controllers on independent rollouts.
+
+Shared by the package-delivery, disaster-relief and mission experiments. A team either shares
+one controller (every robot runs agent 0's FSC; searched as a one-agent controller) or gives each
+robot its own (``study.shared_controller``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import torch
+
+from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, random_controllers
+from decpomdp.core import DecPOSMDP
+from decpomdp.domains import SharedControllerEvaluator, rollout_counters, shared
+
+
+def search_setup(env: DecPOSMDP, rollouts: int, shared_controller: bool):
+    """(evaluator, agents searched, to_joint) for a team that shares one controller or not."""
+    if shared_controller:
+        return SharedControllerEvaluator(env, rollouts), 1, lambda c: shared(c, env.num_agents)
+    return MonteCarloEvaluator(env, rollouts), env.num_agents, lambda c: c
+
+
+def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int) -> dict[str, Any]:
+    """Mean return +- stderr over ``rollouts`` and the mean (+- stderr) of every per-rollout counter."""
+    returns, counters = rollout_counters(env, controller, rollouts, torch.Generator().manual_seed(seed))
+    out: dict[str, Any] = {"value": float(returns.mean()), "stderr": float(returns.std() / rollouts**0.5)}
+    for key, value in counters.items():
+        value = value.to(torch.float64)
+        out[f"{key}_per_rollout"] = float(value.mean())
+        out[f"{key}_stderr"] = float(value.std() / rollouts**0.5)
+    return out
+
+
+def run_gdice(
+    env, config: GDICEConfig, study, seed: int, progress: bool, init: JointController | None = None
+) -> tuple[Any, JointController, float]:
+    """One G-DICE run; returns (result, best joint controller, seconds).
+
+    ``init`` warm-starts the search (weight ``config.init_weight``): a one-agent controller when
+    ``study.shared_controller`` is true (see :func:`seed_controller`), else a joint controller.
+    """
+    evaluator, agents, to_joint = search_setup(env, int(study.rollouts), bool(study.shared_controller))
+    tic = time.perf_counter()
+    result = gdice(evaluator, agents, env.num_actions, env.num_obs, config, seed=seed, init=init, progress=progress)
+    return result, to_joint(result.best), time.perf_counter() - tic
+
+
+def seed_controller(policy: JointController, shared_controller: bool) -> JointController:
+    """The warm start G-DICE searches from: agent 0's FSC of ``policy`` for a shared controller, else all of it."""
+    if not shared_controller:
+        return policy
+    return JointController(policy.action[:, :1].clone(), policy.next_node[:, :1].clone())
+
+
+def mode_controller(action_probs, next_probs) -> JointController:
+    """The most likely controller (K = 1) of G-DICE's distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
+    return JointController(action_probs.argmax(-1)[None], next_probs.argmax(-1)[None])
+
+
+def run_seeded(env, config: GDICEConfig, study, policy: JointController, seed: int, progress: bool):
+    """G-DICE seeded with ``policy`` (settings: ``config`` overridden by ``study.seeded``): (result, best, score).
+
+    The best sampled controller is a maximum over noisy scores, so the final distributions' most
+    likely controller is a second candidate: both are scored on ``study.select_rollouts`` rollouts,
+    the better one is kept, and its reported value comes from ``study.reeval_rollouts`` further
+    independent rollouts (so the selection does not bias it).
+    """
+    seeded_cfg = dataclasses.replace(config, **dict(study.seeded))
+    shared_controller = bool(study.shared_controller)
+    result, best, seconds = run_gdice(env, seeded_cfg, study, seed, progress, init=seed_controller(policy, shared_controller))
+    mode = mode_controller(result.action_probs, result.next_probs)
+    candidates = {"best_sampled": best, "mode": shared(mode, env.num_agents) if shared_controller else mode}
+    selection = {name: score(env, ctrl, int(study.select_rollouts), seed + 20)["value"] for name, ctrl in candidates.items()}
+    chosen = max(selection, key=selection.get)
+    entry = {"init_weight": seeded_cfg.init_weight, "planner": dataclasses.asdict(seeded_cfg),
+             "best_sampled": result.best_value, "seconds": seconds, "selected": chosen, "selection_values": selection,
+             **score(env, candidates[chosen], int(study.reeval_rollouts), seed + 10)}
+    return result, candidates[chosen], entry
+
+
+def run_baselines(env, config: GDICEConfig, study, seed: int) -> dict[str, Any]:
+    """Monte Carlo search with G-DICE's sample budget, and the mean of uniformly random controllers."""
+    evaluator, agents, to_joint = search_setup(env, int(study.rollouts), bool(study.shared_controller))
+    budget = config.iterations * config.samples
+    tic = time.perf_counter()
+    mcs = monte_carlo_search(evaluator, agents, env.num_actions, env.num_obs, config.num_nodes, budget, seed=seed)
+    seconds = time.perf_counter() - tic
+    rand = random_controllers(int(study.random_controllers), agents, config.num_nodes, env.num_actions, env.num_obs,
+                              torch.Generator().manual_seed(seed + 1))
+    values, _ = evaluator(rand, torch.Generator().manual_seed(seed + 2))
+    return {
+        "monte_carlo_search": {"budget": budget, "best_sampled": mcs.best_value, "seconds": seconds,
+                               **score(env, to_joint(mcs.best), int(study.reeval_rollouts), seed + 3)},
+        "random": {"controllers": len(values), "value": float(values.mean()),
+                   "stderr": float(values.std() / len(values) ** 0.5)},
+    }
