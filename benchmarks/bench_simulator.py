@@ -17,7 +17,6 @@ Prints both rates and their ratio (floor: 30x).
 from __future__ import annotations
 
 import argparse
-import math
 import random
 import time
 
@@ -25,13 +24,12 @@ import torch
 
 from decpomdp import JointController, simulate
 from decpomdp.domains import package_delivery as pd
-from decpomdp.policies import package_delivery_greedy
 
 _MEAN = pd.MEAN_DURATION.tolist()
 _TARGET = pd.TARGET_NODE
 _JOINT = set(pd.JOINT_MAS)
 _DROPS = set(pd.DROP_MAS)
-_ARRIVAL = pd._ARRIVAL.tolist()
+_ARRIVAL = pd.ARRIVAL.tolist()
 
 
 class ReferencePackageDelivery:
@@ -76,7 +74,7 @@ class ReferencePackageDelivery:
         takers = []
         for a in agents:
             p, act = 1 - a, acts[a]
-            noise = max(1.0 + pd.DURATION_NOISE * rng.gauss(0.0, 1.0), pd.MIN_NOISE_FACTOR)
+            noise = max(1.0 + pd.rules.DURATION_NOISE * rng.gauss(0.0, 1.0), pd.MIN_NOISE_FACTOR)
             s["ma"][a], s["okay"][a], s["waiting"][a] = act, ok[a], False
             if act == pd.WAIT:
                 s["end"][a] = t + 1.0
@@ -121,7 +119,7 @@ class ReferencePackageDelivery:
                 picked.add(a)
             elif act in _DROPS:
                 robots = sum(s["ma"][b] == pd.JPUT for b in effective) if act == pd.JPUT else 1
-                reward += env.drop_reward(act, s["load"][a], s["pos"][a], robots)[0]
+                reward += env.rewards.for_drop(act, s["load"][a], s["pos"][a], robots)[0]
                 s["load"][a] = 0
         obs = [0, 0]
         for a in agents:
@@ -167,7 +165,7 @@ def controller_family(count: int, mutations: int, seed: int) -> JointController:
     Mutants behave like the controllers G-DICE evaluates mid-search: mostly sensible, sometimes
     failing or idle.
     """
-    greedy = package_delivery_greedy()
+    greedy = pd.greedy_controller()
     action = greedy.action.expand(count, -1, -1).clone()
     next_node = greedy.next_node.expand(count, -1, -1, -1).clone()
     rng = random.Random(seed)

@@ -31,8 +31,11 @@ class DecPOSMDP(abc.ABC):
         gamma: discount per unit time; reward earned at time ``t`` is scaled by ``gamma ** t``.
         horizon: the simulation stops at this time (see the module docstring).
         action_names, obs_names: human-readable labels (length ``num_actions`` / ``num_obs``).
+        counters: names of per-rollout counters (long (B,) entries of the state that change only in
+            :meth:`complete`, e.g. deliveries), reported by :func:`decpomdp.domains.rollout_counters`.
     """
 
+    counters: tuple[str, ...] = ()
     num_agents: int
     num_actions: int
     num_obs: int

@@ -15,6 +15,7 @@ import math
 import torch
 from torch import Tensor
 
+from decpomdp.batched import any_true, lookup
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 
@@ -32,16 +33,6 @@ def _check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"controller: action entries must lie in [0, {env.num_actions})")
     if not math.isfinite(env.horizon):
         raise ValueError(f"env: simulation needs a finite horizon, got {env.horizon}")
-
-
-def _any(mask: Tensor) -> bool:
-    """``bool(mask.any())`` for a contiguous bool tensor (a uint8 max, much faster than ``any`` on CPU)."""
-    return mask.numel() > 0 and bool(mask.view(torch.uint8).max())
-
-
-def _gather(table: Tensor, index: Tensor) -> Tensor:
-    """``table[index]`` for a 1-D table and an int32/int64 index (a flat ``index_select``, faster than advanced indexing on CPU)."""
-    return table.index_select(0, index.reshape(-1)).view(index.shape)
 
 
 def simulate(
@@ -74,7 +65,7 @@ def simulate(
 
     state = env.reset(batch, generator)
     node = torch.zeros(batch, a_count, dtype=torch.int32)
-    actions = _gather(act_table, base)
+    actions = lookup(act_table, base)
     t = torch.zeros(batch, dtype=torch.float64)
     all_agents = torch.ones(batch, a_count, dtype=torch.bool)
     end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64), generator)
@@ -86,10 +77,10 @@ def simulate(
     while rows.numel() > 0:
         t_next = torch.minimum(end_time[:, 0], end_time[:, 1]) if a_count == 2 else end_time.amin(dim=1)
         # every MA ends after the event that started it (inf - inf = nan on frozen rows compares False)
-        if _any(t_next - t_prev <= 0):
+        if any_true(t_next - t_prev <= 0):
             raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
         live = t_next <= horizon
-        some_dead = _any(~live)
+        some_dead = any_true(~live)
         if some_dead:
             values[rows[~live]] = value[~live]
             if int(live.sum()) * 4 <= rows.numel() * 3:
@@ -109,9 +100,9 @@ def simulate(
             discount = torch.where(live, discount, 0.0)
         reward, obs = env.complete(state, completing, actions, t_next, generator)
         value.addcmul_(reward, discount)
-        stepped = _gather(next_table, (base + node) * n_obs + obs.to(torch.int32).clamp_(0, n_obs - 1))
+        stepped = lookup(next_table, (base + node) * n_obs + obs.to(torch.int32).clamp_(0, n_obs - 1))
         node += completing.view(torch.uint8) * (stepped - node)
-        actions = _gather(act_table, base + node)  # unchanged where the node did not move
+        actions = lookup(act_table, base + node)  # unchanged where the node did not move
         end_time = env.start(state, completing, actions, t_next, end_time, generator)
         if some_dead:  # rows that stopped but were not compacted stay frozen: they never complete again
             end_time = torch.where(live_pair, end_time, math.inf)

@@ -22,7 +22,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from decpomdp import GDICEConfig
-from decpomdp.policies import disaster_relief_greedy
+from decpomdp.domains.disaster_relief import greedy_controller
 from experiments.common import beats, save_figure
 from experiments.steps.planning import run_baselines, run_gdice, run_seeded, score
 from experiments.steps.planning_figures import bar_figure, history_figure
@@ -41,7 +41,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     best.save(run_dir / "best_controller_cold.safetensors")
     gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
     save_figure(history_figure(result.history, "G-DICE on disaster relief"), run_dir / "value_vs_iteration.png")
-    greedy_policy = disaster_relief_greedy(env.num_agents)
+    greedy_policy = greedy_controller(env.num_agents)
     seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, seed + 500, bool(cfg.progress))
     seeded_best.save(run_dir / "best_controller.safetensors")
     save_figure(history_figure(seeded.history, "G-DICE seeded with the hand-written policy, disaster relief"),

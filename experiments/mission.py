@@ -36,8 +36,7 @@ import hbni_pyro
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions
 from decpomdp import GDICEConfig
-from decpomdp.domains.disaster_relief import CLASSES
-from decpomdp.policies import disaster_relief_greedy
+from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import mission_report
 from experiments.artifacts import save_artifact
 from experiments.common import beats, save_figure
@@ -170,7 +169,7 @@ def plan(
     with torch_threads(int(study.threads)):
         for k, name in enumerate(("perfect", *settings.variants)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
-            greedy = disaster_relief_greedy(env.num_agents)
+            greedy = greedy_controller(env.num_agents)
             init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
             result, best, seconds = run_gdice(env, planner, study, seed + 10 * k, settings.progress, init=init)
             save_artifact(run_dir, f"controller_{name}", best)

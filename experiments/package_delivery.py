@@ -25,7 +25,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from decpomdp import GDICEConfig
-from decpomdp.policies import package_delivery_greedy
+from decpomdp.domains.package_delivery import greedy_controller
 from experiments.common import save_figure
 from experiments.steps.planning import run_baselines, run_gdice, run_seeded, score
 from experiments.steps.planning_figures import bar_figure, history_figure
@@ -44,7 +44,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     best.save(run_dir / "best_controller_cold.safetensors")
     gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
     save_figure(history_figure(result.history, "G-DICE on package delivery"), run_dir / "value_vs_iteration.png")
-    seeded, seeded_best, seeded_score = run_seeded(env, config, study, package_delivery_greedy(), seed + 500,
+    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_controller(), seed + 500,
                                                    bool(cfg.progress))
     seeded_best.save(run_dir / "best_controller.safetensors")
     save_figure(history_figure(seeded.history, "G-DICE seeded with the hand-written policy, package delivery"),
@@ -59,7 +59,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
     baselines = run_baselines(env, config, study, seed + 300)
-    greedy = score(env, package_delivery_greedy(), reeval, seed + 400)
+    greedy = score(env, greedy_controller(), reeval, seed + 400)
     entries = {"G-DICE seeded": seeded_score, "G-DICE": gdice_score, "greedy (hand)": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
                "random": baselines["random"]}
     save_figure(bar_figure(entries, "Package delivery: re-evaluated values",

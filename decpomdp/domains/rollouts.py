@@ -48,12 +48,12 @@ def rollout_counters(
     """Discounted returns (K, R) and each counter's final value per rollout, {key: (K, R)}.
 
     Args:
-        env: a domain whose counters (``env``'s module ``COUNTERS`` by default) change only in
-            ``complete``, so the value after a rollout's last completion is final.
+        env: a domain whose counters (``env.counters`` by default) change only in ``complete``, so the
+            value after a rollout's last completion is final.
         keys: the state entries to report (long (B,) each).
     """
     if keys is None:
-        keys = tuple(getattr(__import__(type(env).__module__, fromlist=["COUNTERS"]), "COUNTERS", ()))
+        keys = env.counters
     recorder = _Recorder(env, tuple(keys))
     returns = simulate(recorder, controller, rollouts, generator)
     shape = returns.shape

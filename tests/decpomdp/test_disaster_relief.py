@@ -9,7 +9,6 @@ from decpomdp import JointController, simulate
 from decpomdp.domains import DisasterRelief, rollout_counters
 from decpomdp.domains import disaster_relief as dr
 from decpomdp.perception import PerfectPerception, check_true_class
-from decpomdp.policies import disaster_relief_greedy
 
 
 def g(seed=0):
@@ -44,7 +43,7 @@ def cycle(*per_agent, num_obs=dr.DisasterRelief.num_obs):
 
 @pytest.fixture
 def no_noise(monkeypatch):
-    monkeypatch.setattr(dr, "DURATION_NOISE", 0.0)
+    monkeypatch.setattr(dr.domain, "DURATION_NOISE", 0.0)
 
 
 def start(env, state, actions, t=0.0, agents=None):
@@ -81,7 +80,7 @@ def test_infer_uses_the_plugged_model(no_noise):
 
 def test_deliveries_right_and_wrong(no_noise):
     # robot 0 infers, picks up, goes to the inferred destination, puts down, returns to Base1
-    greedy = disaster_relief_greedy(1)
+    greedy = dr.greedy_controller(1)
     _, counters = rollout_counters(DisasterRelief(num_agents=1, degrade_prob=0.0), greedy, 50, g(1))
     assert counters["wrong"].sum() == 0 and counters["delivered"].min() >= 4
     wrong_env = DisasterRelief(perception=ShiftedPerception(), num_agents=1, degrade_prob=0.0, wrong_penalty=0.5)
@@ -150,11 +149,11 @@ def test_degradation_and_sensor_rates():
 
 
 def test_greedy_seeded_determinism_and_more_agents():
-    env, ctrl = DisasterRelief(), disaster_relief_greedy()
+    env, ctrl = DisasterRelief(), dr.greedy_controller()
     a, b = simulate(env, ctrl, 100, g(7)), simulate(env, ctrl, 100, g(7))
     assert torch.equal(a, b) and not torch.equal(a, simulate(env, ctrl, 100, g(8)))
     three = DisasterRelief(num_agents=3)
-    assert simulate(three, disaster_relief_greedy(3), 50, g()).mean() > a.mean()
+    assert simulate(three, dr.greedy_controller(3), 50, g()).mean() > a.mean()
 
 
 def test_default_perception_is_perfect():

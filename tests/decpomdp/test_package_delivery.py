@@ -1,7 +1,7 @@
 """Package delivery semantics against hand-computed cases, and against an independent per-rollout simulator.
 
 Hand-computed cases switch the duration noise off and fix the package stream by monkeypatching the
-module constants ``DURATION_NOISE`` and ``_ARRIVAL``.
+constants ``DURATION_NOISE`` and ``ARRIVAL`` of :mod:`decpomdp.domains.package_delivery.rules`.
 """
 
 import importlib.util
@@ -15,7 +15,6 @@ import torch
 from decpomdp import JointController, evaluate, simulate
 from decpomdp.domains import PackageDelivery, rollout_counters
 from decpomdp.domains import package_delivery as pd
-from decpomdp.policies import package_delivery_greedy
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -38,10 +37,10 @@ def cycle(*per_agent):
 @pytest.fixture
 def exact(monkeypatch):
     """No duration noise; every new package has code ``code`` (see pd.PACKAGES)."""
-    monkeypatch.setattr(pd, "DURATION_NOISE", 0.0)
+    monkeypatch.setattr(pd.rules, "DURATION_NOISE", 0.0)
 
     def packages(code):
-        monkeypatch.setattr(pd, "_ARRIVAL", torch.tensor([code], dtype=torch.int32))
+        monkeypatch.setattr(pd.rules, "ARRIVAL", torch.tensor([code], dtype=torch.int32))
 
     return packages
 
@@ -228,7 +227,7 @@ def compare(bench, env, controllers, n):
 
 
 def test_greedy_controller_and_seeded_determinism():
-    env, ctrl = PackageDelivery(), package_delivery_greedy()
+    env, ctrl = PackageDelivery(), pd.greedy_controller()
     a, b = simulate(env, ctrl, 200, g(7)), simulate(env, ctrl, 200, g(7))
     assert torch.equal(a, b) and not torch.equal(a, simulate(env, ctrl, 200, g(8)))
     assert a.mean() > 10.0  # delivers steadily (about 14 in expectation)
@@ -246,4 +245,4 @@ def test_bad_arguments(kwargs, match):
 
 def test_rollout_counters_bad_key():
     with pytest.raises(ValueError, match="keys"):
-        rollout_counters(PackageDelivery(), package_delivery_greedy(), 2, g(), keys=("nope",))
+        rollout_counters(PackageDelivery(), pd.greedy_controller(), 2, g(), keys=("nope",))

@@ -88,7 +88,7 @@ COUNTERS = ("delivered", "wrong", "inference_frames", "inferences", "repairs")
 
 
 class DisasterRelief(DecPOSMDP):
-    """The health-aware disaster-relief Dec-POSMDP (9 MAs, 12 macro-observations per robot).
+    """The health-aware disaster-relief Dec-POSMDP (9 MAs, 30 macro-observations per robot).
 
     Args:
         perception: the model behind the ``infer`` MA (default ``PerfectPerception(6, frames=10)``).
@@ -102,6 +102,7 @@ class DisasterRelief(DecPOSMDP):
 
     num_actions = len(ACTION_NAMES)
     num_obs = len(OBS_NAMES)
+    counters = COUNTERS
 
     def __init__(
         self,
