@@ -1,6 +1,8 @@
 """Images -> probability vectors: CNN backbone features and a Platt-scaled one-vs-one SVM head.
 
 Never imports ``hbni_pyro``: the two packages meet on a plain ``(N, M)`` probability tensor.
+
+See ``docs/architecture.md`` for where this sits between the camera and the noise model.
 """
 
 from classifiers.backbone import Backbone, EfficientNetLite0, default_weights_path, load_backbone

@@ -1,7 +1,9 @@
 """Dec-POSMDP planning: a batched event-driven simulator, finite-state controllers and G-DICE.
 
-Perception enters only through :class:`MacroObservationModel`; this package never imports
+Perception enters only through :class:`PerceptionModel`; this package never imports
 ``classifiers`` or ``hbni_pyro``.
+
+See ``docs/architecture.md`` for the layout and the data's path from pixels to policy.
 """
 
 from decpomdp.baselines import SearchResult, monte_carlo_search, random_controllers
@@ -9,7 +11,7 @@ from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.evaluate import Evaluator, MonteCarloEvaluator, evaluate
 from decpomdp.gdice import GDICEConfig, GDICEResult, gdice, sample_controllers
-from decpomdp.perception import MacroObservationModel, PerfectPerception
+from decpomdp.perception import PerceptionModel, PerfectPerception
 from decpomdp.simulate import simulate
 
 __all__ = [
@@ -18,7 +20,7 @@ __all__ = [
     "GDICEConfig",
     "GDICEResult",
     "JointController",
-    "MacroObservationModel",
+    "PerceptionModel",
     "MonteCarloEvaluator",
     "PerfectPerception",
     "SearchResult",

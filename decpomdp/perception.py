@@ -1,7 +1,7 @@
 """How a domain sees perception: sample a class label and the frames it took, given the true class.
 
 A Dec-POSMDP domain with an "infer object class" macro-action asks a
-:class:`MacroObservationModel` for the label the robot reports and the number of camera frames the
+:class:`PerceptionModel` for the label the robot reports and the number of camera frames the
 inference used; the domain turns frames into MA duration. Any object with ``num_classes`` and a
 matching ``sample`` plugs in (a tabulated HBNI or SSBF characterisation, or
 :class:`PerfectPerception`); this module never imports the perception packages.
@@ -16,8 +16,9 @@ from torch import Tensor
 
 
 @runtime_checkable
-class MacroObservationModel(Protocol):
-    """A perception process seen by the planner.
+class PerceptionModel(Protocol):
+    """The planner's model of perception: for a true class, the label an inference reports and the
+    frames it took (e.g. ``hbni_pyro.MacroObservationModel``, a tabulated macro-observation process).
 
     Attributes:
         num_classes: C, the number of object classes (labels lie in ``[0, C)``).

@@ -35,10 +35,33 @@ def _check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"env: simulation needs a finite horizon, got {env.horizon}")
 
 
+def _flat_tables(controller: JointController, rollouts: int) -> tuple[Tensor, Tensor, Tensor]:
+    """int32 flat ``action`` and ``next_node`` tables, and each rollout's offset into them.
+
+    int32 because int64 elementwise ops cost several times more on CPU. The offset of rollout ``b``
+    (of controller ``b // rollouts``) for agent ``a`` is where that controller's agent-``a`` rows
+    start in the ``(K, A, Nn)`` table: (K * rollouts, A).
+    """
+    k_count, a_count, n_nodes = controller.action.shape
+    act_table = controller.action.reshape(-1).to(torch.int32)
+    next_table = controller.next_node.reshape(-1).to(torch.int32)
+    owner = torch.arange(k_count).repeat_interleave(rollouts)[:, None]
+    base = ((owner * a_count + torch.arange(a_count)) * n_nodes).to(torch.int32)
+    return act_table, next_table, base
+
+
+def _rows(keep: Tensor, *tensors: Tensor) -> tuple[Tensor, ...]:
+    """The rows ``keep`` of every tensor (compaction of the live rollouts)."""
+    return tuple(x[keep] for x in tensors)
+
+
 def simulate(
     env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator
 ) -> Tensor:
     """Discounted return of every rollout.
+
+    The event loop stays in one function on purpose: its steps share a dozen live-row tensors that
+    compaction replaces together, and splitting it would pass them all back and forth.
 
     Args:
         env: the Dec-POSMDP.
@@ -54,12 +77,8 @@ def simulate(
         raise ValueError(f"rollouts_per_controller: expected an int >= 1, got {rollouts_per_controller!r}")
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
-    n_nodes, n_obs = controller.num_nodes, controller.num_obs
-    # int32 tables and indices: int64 elementwise ops cost several times more on CPU
-    act_table = controller.action.reshape(-1).to(torch.int32)
-    next_table = controller.next_node.reshape(-1).to(torch.int32)
-    # flat offset of (controller k, agent a) in the (K, A, Nn) tables, per live row: (B, A)
-    base = ((torch.arange(k_count).repeat_interleave(rollouts_per_controller)[:, None] * a_count + torch.arange(a_count)) * n_nodes).to(torch.int32)
+    n_obs = controller.num_obs
+    act_table, next_table, base = _flat_tables(controller, rollouts_per_controller)
     values = torch.zeros(batch, dtype=torch.float64)
     rows = torch.arange(batch)  # original index of each live row
 
@@ -85,9 +104,8 @@ def simulate(
             values[rows[~live]] = value[~live]
             if int(live.sum()) * 4 <= rows.numel() * 3:
                 keep = live.nonzero().squeeze(1)
-                rows, base, value, node, actions, end_time, t_next, live = (
-                    x[keep] for x in (rows, base, value, node, actions, end_time, t_next, live)
-                )
+                rows, base, value, node, actions, end_time, t_next, live = _rows(
+                    keep, rows, base, value, node, actions, end_time, t_next, live)
                 state = {key: v[keep] for key, v in state.items()}
                 some_dead = False
                 if rows.numel() == 0:

@@ -109,12 +109,11 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
     _step(settings.progress, "2/5 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
-    order = [clf.classes_.index(name) for name in CLASSES]
     calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, seed + 1, progress,
                              "calibration")[0]
     held = sequence_outputs(clf, CLASSES, int(st.char_sequences), settings.frames, mission, seed + 2, progress,
                             "held-out")[0]
-    return Outputs(calib[..., order].double(), held[..., order].double())
+    return Outputs(calib.double(), held.double())
 
 
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
@@ -148,7 +147,7 @@ def characterise_processes(
     for name in settings.variants:
         process = hbni_pyro.MacroObservationProcess(filters[name], threshold=float(cfg.mission.threshold),
                                                     max_frames=settings.frames)
-        models[name] = hbni_pyro.macro.tabulate(process, streams, truth)
+        models[name] = hbni_pyro.tabulate(process, streams, truth)
         save_artifact(run_dir, f"macro_{name}", models[name])
     return models
 

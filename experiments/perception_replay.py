@@ -53,18 +53,17 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
     # 1. Train the head on training-condition snapshots (+ crops and mirrors).
     clf = train_classifier(cfg.classifier, classes, int(st.train_per_class), int(st.augment), seed, progress)
-    order = [clf.classes_.index(name) for name in classes]  # columns in study order
     save_artifact(run_dir, "classifier", clf)
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
     calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")
-    posterior = fit_labelled(calib[..., order], cfg.hbni, seed, progress)
+    posterior = fit_labelled(calib, cfg.hbni, seed, progress)
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
     test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, seed + 2, progress, "test")
-    test = test[..., order].double()
+    test = test.double()
     filters = {"ssbf": hbni_pyro.SSBF(len(classes)), "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode)}
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
     per_class = _per_class(test, posts, classes, float(st.threshold))

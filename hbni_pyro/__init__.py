@@ -4,14 +4,17 @@ Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class nois
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
-macro-observations (:class:`MacroObservationProcess`, :func:`characterize`, :class:`MacroObservationModel`).
+macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
+:func:`tabulate` from recorded streams, :class:`MacroObservationModel`).
+
+See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
 
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
 from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import HBNIMetropolis
-from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
+from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize, tabulate
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.temper import TemperFit, fit_temper
@@ -39,4 +42,5 @@ __all__ = [
     "hbni_model",
     "lifted_dirichlet_log_prob",
     "log_joint",
+    "tabulate",
 ]

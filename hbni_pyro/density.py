@@ -1,4 +1,4 @@
-"""Closed-form log densities of the HBNI noise model (DESIGN.md §2).
+"""Closed-form log densities of the HBNI noise model.
 
 The output model is ``o | c = m ~ Dir(theta_m * e_m + 1)``: only the m-th concentration
 is lifted above 1. Its log density has the closed form

@@ -1,4 +1,4 @@
-"""Streaming class filters over classifier outputs (DESIGN.md §2).
+"""Streaming class filters over classifier outputs.
 
 Every filter here summarises a stream ``o_1, ..., o_N`` by a running sum of one per-frame
 feature vector (``(M,)``) and the frame count ``N``; its class posterior is a pure function of

@@ -1,4 +1,4 @@
-"""Semantic macro-observations: run a filter until it is confident, then report (DESIGN.md §4).
+"""Semantic macro-observations: run a filter until it is confident, then report.
 
 A :class:`MacroObservationProcess` feeds outputs to a streaming filter and stops at the first
 frame where ``max_m P(m) >= threshold``, or when ``max_frames`` outputs (or the stream) are

@@ -1,4 +1,4 @@
-"""The HBNI generative model (DESIGN.md §2) as a Pyro program and in closed form.
+"""The HBNI generative model as a Pyro program and in closed form (docs/architecture.md).
 
     kappa   ~ Ga(beta, eta)                 hyperprior, shape-scale
     gamma   ~ Ga(nu, omega)                 hyperprior, shape-scale

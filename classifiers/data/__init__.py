@@ -3,22 +3,18 @@
 from classifiers.data.conditions import MISSION, TRAINING, Conditions, get_conditions
 from classifiers.data.image_folder import ImageFolder
 from classifiers.data.render import (
-    CLASSES,
     FRAME_SHAPE,
-    RELIEF_OBJECTS,
-    VEHICLES,
+    OBJECTS,
     render_images,
     render_sequence,
     write_image_folder,
 )
 
 __all__ = [
-    "CLASSES",
     "FRAME_SHAPE",
     "MISSION",
-    "RELIEF_OBJECTS",
+    "OBJECTS",
     "TRAINING",
-    "VEHICLES",
     "Conditions",
     "ImageFolder",
     "get_conditions",

@@ -23,10 +23,8 @@ from classifiers.data.sprites import SPRITE_SIZE, SPRITES, draw_sprite
 from infra.files import atomic_write_bytes
 
 __all__ = [
-    "CLASSES",
     "FRAME_SHAPE",
-    "RELIEF_OBJECTS",
-    "VEHICLES",
+    "OBJECTS",
     "Look",
     "Pose",
     "render_frame",
@@ -35,9 +33,8 @@ __all__ = [
     "write_image_folder",
 ]
 
-VEHICLES = ("irobot", "quadrotor", "racecar")
-RELIEF_OBJECTS = ("ambulance", "police_car", "medical_copter", "news_copter", "food_crate", "medical_crate")
-CLASSES = VEHICLES + RELIEF_OBJECTS
+#: the object kinds the renderer can draw; a caller says which of them make up its classes
+OBJECTS = tuple(SPRITES)
 FRAME_SHAPE = (240, 320)  # (H, W) pixels
 
 
@@ -68,7 +65,7 @@ class Look:
 
 def _check_class(name: str) -> None:
     if name not in SPRITES:
-        raise ValueError(f"name: unknown object class {name!r}; expected one of {list(CLASSES)}")
+        raise ValueError(f"name: unknown object class {name!r}; expected one of {list(OBJECTS)}")
 
 
 def _rng(seed: int, index: int) -> np.random.Generator:
@@ -257,7 +254,7 @@ def render_sequence(
 
 
 def write_image_folder(
-    root: str | os.PathLike, classes: Sequence[str] = VEHICLES, n_per_class: int = 10,
+    root: str | os.PathLike, classes: Sequence[str], n_per_class: int = 10,
     conditions: str | Conditions = "training", seed: int = 0, shape: tuple[int, int] = FRAME_SHAPE,
 ) -> Path:
     """Render ``n_per_class`` snapshots per class into ``root/<class>/<class>_<i>.png``; returns ``root``."""

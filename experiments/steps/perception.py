@@ -32,14 +32,19 @@ def train_classifier(
 def sequence_outputs(
     clf: FrameClassifier, classes: list[str], n_seq: int, frames: int, cond, seed: int, progress: bool, desc: str
 ) -> tuple[torch.Tensor, np.ndarray]:
-    """Classifier outputs ``(C, n_seq, frames, M)`` and one thumbnail strip per (class, sequence) ``[0]`` frames."""
+    """Classifier outputs ``(C, n_seq, frames, C)`` and one thumbnail strip per (class, sequence) ``[0]`` frames.
+
+    Row ``c`` holds sequences of ``classes[c]``; output columns follow ``classes`` too (the
+    classifier's own column order is alphabetical, ``clf.classes_``).
+    """
+    order = [clf.classes_.index(name) for name in classes]
     out = torch.empty(len(classes), n_seq, frames, len(classes))
     thumbs = np.empty((len(classes), n_seq), dtype=object)
     bar = tqdm(total=len(classes) * n_seq, desc=desc, unit="seq", disable=not progress)
     for c, name in enumerate(classes):
         for s in range(n_seq):
             seq = render_sequence(name, frames, cond, seed=seed, index=s)
-            out[c, s] = clf.predict_proba(seq)
+            out[c, s] = clf.predict_proba(seq)[:, order]
             thumbs[c, s] = seq
             bar.update()
     bar.close()

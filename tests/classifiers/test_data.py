@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from classifiers.data import (
-    CLASSES,
     FRAME_SHAPE,
     MISSION,
+    OBJECTS,
     TRAINING,
     ImageFolder,
     get_conditions,
@@ -43,10 +43,10 @@ def test_renderer_seeded_and_conditions_shared_across_classes():
 
 
 def test_classes_distinct_and_conditions_differ():
-    sprites = [draw_sprite(name)[0].astype(float) for name in CLASSES]
+    sprites = [draw_sprite(name)[0].astype(float) for name in OBJECTS]
     for i in range(len(sprites)):
         for j in range(i + 1, len(sprites)):
-            assert np.abs(sprites[i] - sprites[j]).mean() > 10, (CLASSES[i], CLASSES[j])
+            assert np.abs(sprites[i] - sprites[j]).mean() > 10, (OBJECTS[i], OBJECTS[j])
     bright = render_images("ambulance", 4, TRAINING, seed=0).astype(float)
     dim = render_images("ambulance", 4, MISSION, seed=0).astype(float)
     assert bright.mean() > 1.5 * dim.mean()  # dim light

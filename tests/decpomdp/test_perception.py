@@ -1,9 +1,9 @@
-"""PerfectPerception and the MacroObservationModel protocol."""
+"""PerfectPerception and the PerceptionModel protocol."""
 
 import pytest
 import torch
 
-from decpomdp.perception import MacroObservationModel, PerfectPerception
+from decpomdp.perception import PerceptionModel, PerfectPerception
 
 
 def test_perfect_perception_reports_the_true_class_and_fixed_frames():
@@ -21,8 +21,8 @@ def test_perfect_perception_reports_the_true_class_and_fixed_frames():
 
 
 def test_satisfies_the_protocol():
-    assert isinstance(PerfectPerception(2), MacroObservationModel)
-    assert not isinstance(object(), MacroObservationModel)
+    assert isinstance(PerfectPerception(2), PerceptionModel)
+    assert not isinstance(object(), PerceptionModel)
 
 
 @pytest.mark.parametrize(

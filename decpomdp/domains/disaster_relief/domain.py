@@ -5,7 +5,7 @@ object waits at each base at a time and is replaced when picked up; its class is
 ``CLASSES``. Each class has one destination (``DESTINATION``): ambulance and medical_copter go to
 the Hospital, police_car and news_copter to the Airport, food_crate and medical_crate to the
 Crate_zone. A robot does not see an object's class: the ``infer`` MA runs the plugged
-:class:`~decpomdp.perception.MacroObservationModel` on the object waiting at its base and reports
+:class:`~decpomdp.perception.PerceptionModel` on the object waiting at its base and reports
 the destination of the inferred label; it lasts ``frames * frame_period``.
 
 MAs (per robot): go to Base1, Base2, Hospital, Airport, Crate_zone; go to the repair station
@@ -52,7 +52,7 @@ import torch
 from torch import Tensor
 
 from decpomdp.core import DecPOSMDP
-from decpomdp.perception import MacroObservationModel, PerfectPerception
+from decpomdp.perception import PerceptionModel, PerfectPerception
 
 CLASSES = ["ambulance", "police_car", "medical_copter", "news_copter", "food_crate", "medical_crate"]
 LOCATIONS = ["Base1", "Base2", "Hospital", "Airport", "Crate_zone", "Repair"]
@@ -106,7 +106,7 @@ class DisasterRelief(DecPOSMDP):
 
     def __init__(
         self,
-        perception: MacroObservationModel | None = None,
+        perception: PerceptionModel | None = None,
         num_agents: int = 2,
         gamma: float = 0.99,
         horizon: float = 50.0,
@@ -116,8 +116,8 @@ class DisasterRelief(DecPOSMDP):
         wrong_penalty: float = 0.0,
     ) -> None:
         perception = PerfectPerception(len(CLASSES), frames=10) if perception is None else perception
-        if not isinstance(perception, MacroObservationModel):
-            raise TypeError(f"perception: expected a MacroObservationModel (num_classes and sample), got {type(perception).__name__}")
+        if not isinstance(perception, PerceptionModel):
+            raise TypeError(f"perception: expected a PerceptionModel (num_classes and sample), got {type(perception).__name__}")
         if perception.num_classes != len(CLASSES):
             raise ValueError(f"perception: expected num_classes == {len(CLASSES)}, got {perception.num_classes}")
         if isinstance(num_agents, bool) or not isinstance(num_agents, int) or num_agents < 1:
