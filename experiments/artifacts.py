@@ -17,6 +17,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.common import write_json
+from experiments.status import read_status
 
 MANIFEST = "artifacts.json"
 
@@ -88,15 +89,21 @@ class Run:
         return sorted(set(super().__dir__()) | set(self.artifacts))
 
 
-def load_run(run_dir: str | os.PathLike) -> Run:
+def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
     """Load a run directory written by ``python -m experiments.run``.
 
     Returns a :class:`Run` whose artefacts are ready to use, e.g. ``run.posterior.summary()``
     or ``run.classifier.predict_proba(images)``.
 
+    Args:
+        run_dir: the run's directory (Hydra's output directory).
+        allow_incomplete: read what a failed or unfinished run left (its metrics may be empty);
+            without it such a run is refused.
+
     Raises:
         FileNotFoundError: the directory, its ``.hydra/config.yaml``, or a recorded artefact is missing.
-        ValueError: a file is corrupt or not what the manifest says.
+        ValueError: the run failed or did not finish (unless ``allow_incomplete``), or a file is
+            corrupt or not what the manifest says.
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -104,8 +111,10 @@ def load_run(run_dir: str | os.PathLike) -> Run:
     cfg_path = run_dir / ".hydra" / "config.yaml"
     if not cfg_path.is_file():
         raise FileNotFoundError(f"run_dir: {str(run_dir)!r} is not a Hydra run directory (no .hydra/config.yaml)")
-    cfg = OmegaConf.load(cfg_path)
     metrics_path = run_dir / "metrics.json"
+    if not allow_incomplete:
+        _check_completed(run_dir, metrics_path)
+    cfg = OmegaConf.load(cfg_path)
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
     artifacts: dict[str, Any] = {}
     if (run_dir / MANIFEST).is_file():
@@ -115,3 +124,13 @@ def load_run(run_dir: str | os.PathLike) -> Run:
                 raise FileNotFoundError(f"run_dir: artefact {name!r} ({entry['kind']}) is missing: {str(path)!r}")
             artifacts[name] = _loader(entry["kind"])(path)
     return Run(run_dir, cfg, metrics, artifacts)
+
+
+def _check_completed(run_dir: Path, metrics_path: Path) -> None:
+    """Raise ``ValueError`` unless the run completed (its status says so, or it wrote its metrics)."""
+    status = read_status(run_dir)
+    hint = "pass allow_incomplete=True to read what it left"
+    if status is not None and status["status"] == "failed":
+        raise ValueError(f"run_dir: the run in {str(run_dir)!r} failed ({status.get('error', 'no error recorded')}); {hint}")
+    if (status is not None and status["status"] != "completed") or not metrics_path.is_file():
+        raise ValueError(f"run_dir: the run in {str(run_dir)!r} did not finish (no metrics.json); {hint}")

@@ -46,9 +46,6 @@ from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import run_gdice, score, seed_controller
 from infra.threads import torch_threads
 
-VARIANTS = ("hbni", "ssbf", "max_of_mean")
-
-
 class Settings(NamedTuple):
     """The mission's validated settings (checked before any work starts)."""
 
@@ -75,7 +72,7 @@ class Noise(NamedTuple):
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
-    settings = check_settings(cfg)
+    settings = read_settings(cfg)
     torch.manual_seed(settings.seed)
     clf = train_perception(cfg, settings, run_dir)
     outputs = classify_sequences(clf, cfg, settings)
@@ -85,13 +82,13 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories)
 
 
-def check_settings(cfg: DictConfig) -> Settings:
-    """Validate the perception variants, the temper and the imaging conditions."""
+def read_settings(cfg: DictConfig) -> Settings:
+    """The mission's settings from its config (already checked against its schema, ``experiments.schemas``)."""
     st = cfg.mission
     overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
-    get_conditions("mission", **overrides)  # rejects unknown fields now, not after training
-    return Settings(int(cfg.seed), bool(cfg.progress), _variants(cfg.perception), _temper_setting(st.temper),
-                    overrides, int(st.frames))
+    variants = list(cfg.perception) if isinstance(cfg.perception, ListConfig) else [str(cfg.perception)]
+    temper = None if st.temper == "fit" else float(st.temper)
+    return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames))
 
 
 def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> FrameClassifier:
@@ -226,23 +223,6 @@ def _delivery_rates(entry: dict[str, float]) -> dict[str, float]:
     wrong, right = entry["wrong_per_rollout"], entry["delivered_per_rollout"]
     return {"wrong_rate": wrong / max(wrong + right, 1e-12),
             "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)}
-
-
-def _variants(perception: Any) -> list[str]:
-    chosen = list(perception) if isinstance(perception, (list, tuple, ListConfig)) else [str(perception)]
-    unknown = [v for v in chosen if v not in VARIANTS]
-    if unknown or not chosen:
-        raise ValueError(f"perception: expected a subset of {list(VARIANTS)}, got {chosen}")
-    return chosen
-
-
-def _temper_setting(setting: Any) -> float | None:
-    """``mission.temper``: ``"fit"`` (``None``: fit on the calibration streams) or a float in (0, 1]."""
-    if setting == "fit":
-        return None
-    if isinstance(setting, bool) or not isinstance(setting, (int, float)) or not 0 < setting <= 1:
-        raise ValueError(f"mission.temper: expected 'fit' or a float in (0, 1], got {setting!r}")
-    return float(setting)
 
 
 def _step(progress: bool, message: str) -> None:

@@ -1,23 +1,114 @@
-"""Every experiment config composes with Hydra's compose API and names an importable entry point."""
+"""Every experiment config composes against its typed schema; bad values fail before any work, naming the key.
+
+Type errors and unknown keys fail while Hydra composes; ranges (and keys added with ``+``) fail in
+``check_config``, which ``experiments.run`` calls before the experiment starts.
+"""
 
 from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
 from hydra.utils import get_method
+
+from experiments.schemas import SCHEMAS, check_config, register
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+register()
 
 
-def test_there_are_experiments():
-    assert "hbni_toy" in EXPERIMENTS
+def _compose(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+
+
+def test_every_experiment_has_a_schema():
+    assert "hbni_toy" in EXPERIMENTS and set(EXPERIMENTS) <= set(SCHEMAS)
 
 
 @pytest.mark.parametrize("name", EXPERIMENTS)
-def test_experiment_config_composes(name):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"experiment={name}"], return_hydra_config=True)
+def test_experiment_config_composes_and_checks(name):
+    cfg = _compose(f"experiment={name}")
     assert cfg.name == name
     assert callable(get_method(cfg.entry))
     assert cfg.hydra.launcher._target_.endswith("JoblibLauncher")
+    assert len(cfg.headline) >= 1
+    check_config(cfg)
+
+
+# (experiment, override, the key the message names) -- a wrong type fails while composing
+TYPE_ERRORS = [
+    ("hbni_toy", "seed=abc", "seed"),
+    ("hbni_toy", "progress=maybe", "progress"),
+    ("hbni_toy", "toy.per_class=abc", "toy.per_class"),
+    ("hbni_toy", "hbni.fit.num_chains=two", "hbni.fit.num_chains"),
+    ("hbni_toy", "hbni.hyperprior.beta=big", "hbni.hyperprior.beta"),
+    ("filtering_error", "study.num_trials=1.5", "study.num_trials"),
+    ("macro_observation", "study.threshold=high", "study.threshold"),
+    ("perception_replay", "study.frames=x", "study.frames"),
+    ("perception_replay", "classifier.C=big", "classifier.C"),
+    ("package_delivery", "planner.alpha=fast", "planner.alpha"),
+    ("package_delivery", "domain.joint_wait=long", "domain.joint_wait"),
+    ("disaster_relief", "study.rollouts=many", "study.rollouts"),
+    ("dpomdp_benchmarks", "study.caps.iterations=x", "study.caps.iterations"),
+    ("mission", "mission.threshold=abc", "mission.threshold"),
+    ("mission", "domain.num_agents=two", "domain.num_agents"),
+]
+
+
+@pytest.mark.parametrize("name, override, key", TYPE_ERRORS)
+def test_a_wrong_type_fails_while_composing(name, override, key):
+    with pytest.raises(ConfigCompositionException) as info:
+        _compose(f"experiment={name}", override)
+    assert f"full_key: {key}" in str(info.value.__cause__)
+
+
+@pytest.mark.parametrize("name, override", [("mission", "mission.nope=1"), ("hbni_toy", "toy.nope=1"), ("hbni_toy", "nope=1")])
+def test_an_unknown_key_fails_while_composing(name, override):
+    with pytest.raises(ConfigCompositionException, match="Could not override"):
+        _compose(f"experiment={name}", override)
+
+
+# (experiment, override, the start of the message)
+RANGE_ERRORS = [
+    ("hbni_toy", "toy.per_class=0", "toy.per_class: expected an int >= 1"),
+    ("hbni_toy", "toy.theta=[1.0,-2.0]", "toy.theta: expected at least 2 noise levels > 0"),
+    ("hbni_toy", "hbni.fit.method=hmc", "hbni.fit.method: expected one of ['mh', 'nuts']"),
+    ("hbni_toy", "hbni.fit.warmup_steps=-1", "hbni.fit.warmup_steps: expected an int >= 0"),
+    ("hbni_toy", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
+    ("hbni_toy", "hbni.hyperprior.beta=-1", "hbni.hyperprior: HyperPrior.beta: expected a positive finite number"),
+    ("hbni_toy", "toy.near_perfect_hyperprior.eta=0", "toy.near_perfect_hyperprior: HyperPrior.eta"),
+    ("filtering_error", "study.targets=[0.5,1.5]", "study.targets: expected a probability in (0, 1]"),
+    ("filtering_error", "study.training_sizes=[]", "study.training_sizes: expected sizes >= 1"),
+    ("macro_observation", "study.threshold=0", "study.threshold: expected a probability in (0, 1]"),
+    ("perception_replay", "study.classes=[irobot,unicorn]", "study.classes: expected at least 2 distinct objects"),
+    ("perception_replay", "classifier.cv=1", "classifier.cv: expected an integer >= 2"),
+    ("perception_replay", "+study.mission.fog=[1,2]", "study.mission: unknown field(s) ['fog']"),
+    ("package_delivery", "planner.alpha=2", "planner.alpha: expected a learning rate in (0, 1]"),
+    ("package_delivery", "planner.elites=500", "planner.elites: expected <= samples"),
+    ("package_delivery", "domain.gamma=1.5", "domain.gamma: expected a float in (0, 1]"),
+    ("package_delivery", "study.alpha_sweep=[0.1,3]", "study.alpha_sweep: expected a probability in (0, 1]"),
+    ("package_delivery", "study.seeded.init_weight=2", "study.seeded: init_weight: expected a weight in [0, 1]"),
+    ("package_delivery", "+study.seeded.speed=2", "study.seeded: unknown planner setting(s) ['speed']"),
+    ("disaster_relief", "study.reeval_rollouts=1", "study.reeval_rollouts: expected an int >= 2"),
+    ("disaster_relief", "domain.degrade_prob=2", "domain.degrade_prob: expected a probability in [0, 1]"),
+    ("dpomdp_benchmarks", "study.caps.restarts=0", "study.caps.restarts: expected an int >= 1"),
+    ("mission", "mission.threshold=1.5", "mission.threshold: expected a probability in (0, 1]"),
+    ("mission", "mission.temper=auto", "mission.temper: expected 'fit' or a float in (0, 1]"),
+    ("mission", "mission.temper=0", "mission.temper: expected 'fit' or a float in (0, 1]"),
+    ("mission", "mission.frames=0", "mission.frames: expected an int >= 1"),
+    ("mission", "+mission.conditions.fog=[0.1,0.2]", "mission.conditions: unknown field(s) ['fog']"),
+    ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'ssbf', 'max_of_mean']"),
+    ("mission", "study.threads=0", "study.threads: expected an int >= 1"),
+    ("mission", "+mission.foo=1", "mission.foo: Key 'foo' not in 'MissionBlock'"),
+    ("mission_full", "planner.num_nodes=0", "planner.num_nodes: expected an int >= 1"),
+]
+
+
+@pytest.mark.parametrize("name, override, message", RANGE_ERRORS)
+def test_an_out_of_range_value_fails_the_check_naming_the_key(name, override, message):
+    cfg = _compose(f"experiment={name}", override)
+    with pytest.raises(ValueError) as info:
+        check_config(cfg)
+    assert str(info.value).startswith(message), str(info.value)

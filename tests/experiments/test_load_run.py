@@ -1,5 +1,6 @@
 """load_run: a round trip through a real run directory, and clear errors for missing pieces."""
 
+import json
 import shutil
 import subprocess
 import sys
@@ -54,3 +55,50 @@ def test_missing_and_corrupt_artefacts(toy_run, tmp_path):
     (copy / "artifacts.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt manifest"):
         load_run(copy)
+
+
+def test_a_run_says_where_it_wrote_and_fills_its_log(toy_run):
+    assert json.loads((toy_run / "status.json").read_text()) == {"status": "completed"}
+    log = (toy_run / "run.log").read_text()
+    assert f"writing to {toy_run}" in log and f"outputs in {toy_run}" in log
+
+
+def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
+           "toy.per_class=0", "progress=false"]
+    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and "toy.per_class: expected an int >= 1" in proc.stderr
+    status = json.loads((tmp_path / "status.json").read_text())
+    assert status["status"] == "failed" and "toy.per_class" in status["error"]
+    with pytest.raises(ValueError, match="failed .*toy.per_class.*pass allow_incomplete=True"):
+        load_run(tmp_path)
+    run = load_run(tmp_path, allow_incomplete=True)
+    assert run.metrics == {} and run.cfg.toy.per_class == 0
+
+
+def test_an_unfinished_run_is_refused(toy_run, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(toy_run, copy)
+    (copy / "metrics.json").unlink()
+    with pytest.raises(ValueError, match="did not finish"):
+        load_run(copy)
+    (copy / "status.json").write_text('{"status": "running"}')
+    with pytest.raises(ValueError, match="did not finish"):
+        load_run(copy)
+    (copy / "status.json").write_text('{"status": "sleeping"}')
+    with pytest.raises(ValueError, match="expected a status in"):
+        load_run(copy)
+
+
+def _without_timings(obj):
+    if isinstance(obj, dict):
+        return {k: _without_timings(v) for k, v in obj.items() if "seconds" not in k}
+    return [_without_timings(v) for v in obj] if isinstance(obj, list) else obj
+
+
+def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
+           "hbni.fit.num_chains=2", "hbni.fit.num_samples=50", "hbni.fit.warmup_steps=50", "progress=false"]
+    subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
+    first, second = (json.loads((d / "metrics.json").read_text()) for d in (toy_run, tmp_path))
+    assert json.dumps(_without_timings(first)) == json.dumps(_without_timings(second))

@@ -73,7 +73,11 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
         metrics = json.loads((tmp_path / job / "metrics.json").read_text())
         assert set(metrics["variants"]) == {"perfect", variant}
     report = (tmp_path / "report.md").read_text()
-    assert "perception=hbni" in report and "perception=ssbf" in report and "hbni value" in report
+    header = next(line for line in report.splitlines() if line.startswith("| job"))
+    assert header.startswith("| job | status | perception | variants.perfect | variants.hbni |")
+    assert "| variants.ssbf |" in header and "| variants.hbni.wrong_rate |" in header
+    rows = [line for line in report.splitlines() if line.startswith("| [")]
+    assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith("| [1](1/) | completed | ssbf | ")
 
 
 def test_fixed_temper_and_preset_conditions(tmp_path, repo_root):

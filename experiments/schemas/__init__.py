@@ -1,0 +1,67 @@
+"""Typed schemas of every experiment's config, checked before any work starts.
+
+Each ``conf/experiment/<name>.yaml`` puts ``/schema: <name>`` first in its defaults: Hydra then
+types every key while it composes, so a wrong type (``seed=abc``) or an unknown key fails there,
+naming the key. :func:`check_config` then merges the composed config into the schema once more
+(which also rejects keys added with ``+``) and checks every range (``mission.threshold=1.5``),
+naming the key; :mod:`experiments.run` calls it before the experiment does anything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from experiments.schemas.studies import SCHEMAS
+from experiments.schemas.targets import join_key
+
+__all__ = ["SCHEMAS", "check_config", "register"]
+
+
+def register() -> None:
+    """Store every experiment's schema as ``schema/<name>`` (package ``_global_``) in Hydra's ConfigStore."""
+    store = ConfigStore.instance()
+    for name, schema in SCHEMAS.items():
+        store.store(group="schema", name=name, node=schema, package="_global_")
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Raise ``ValueError`` naming the key if ``cfg`` does not fit its experiment's schema.
+
+    Args:
+        cfg: a composed config (with or without its ``hydra`` node).
+    """
+    plain = OmegaConf.to_container(cfg, resolve=False)
+    plain.pop("hydra", None)
+    plain = OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
+    name = plain.get("name")
+    if name not in SCHEMAS:
+        raise ValueError(f"name: unknown experiment {name!r}; expected one of {sorted(SCHEMAS)}")
+    try:
+        typed = OmegaConf.merge(OmegaConf.structured(SCHEMAS[name]), plain)
+        obj = OmegaConf.to_object(typed)
+    except OmegaConfBaseException as exc:
+        key = getattr(exc, "full_key", None)
+        message = str(exc).split("\n")[0]
+        raise ValueError(f"{key}: {message}" if key else message) from None
+    _check(obj, "")
+
+
+def _check(obj: Any, path: str) -> None:
+    """Call ``check(path)`` on every block, inner blocks first, prefixing errors with the block's key."""
+    if not dataclasses.is_dataclass(obj):
+        return
+    for f in dataclasses.fields(obj):
+        _check(getattr(obj, f.name), f"{path}.{f.name}" if path else f.name)
+    if hasattr(obj, "check"):
+        try:
+            obj.check(path)
+        except ValueError as exc:
+            message = str(exc)
+            if not path or message.startswith(f"{path}.") or message.startswith(f"{path}:"):
+                raise
+            raise ValueError(join_key(path, message, [f.name for f in dataclasses.fields(obj)])) from None

@@ -1,0 +1,116 @@
+"""Schemas of the config blocks that several experiments share: ``hbni`` and planning ``study``.
+
+Each block is a dataclass: Hydra types every key when it composes (a wrong type or an unknown
+key fails there, naming the key), and :meth:`check` validates ranges before any work starts.
+Messages name the field; :func:`experiments.schemas.check_config` prefixes the block's path.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from experiments.schemas.targets import target_schema
+
+HyperPriorBlock = target_schema("hbni_pyro.HyperPrior")
+
+
+def positive_int(name: str, value: int, minimum: int = 1) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value >= minimum``."""
+    if value < minimum:
+        raise ValueError(f"{name}: expected an int >= {minimum}, got {value}")
+
+
+def probability(name: str, value: float, low_open: bool = True) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` lies in (0, 1] (or [0, 1])."""
+    if not (math.isfinite(value) and (value > 0 if low_open else value >= 0) and value <= 1):
+        raise ValueError(f"{name}: expected a probability in {'(' if low_open else '['}0, 1], got {value}")
+
+
+def one_of(name: str, value: Any, choices: tuple) -> None:
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {list(choices)}, got {value!r}")
+
+
+@dataclass
+class FitBlock:
+    """``hbni.fit``: the MCMC settings of :func:`hbni_pyro.fit`."""
+
+    method: str = "mh"
+    num_chains: int = 16
+    num_samples: int = 1000
+    warmup_steps: int = 500
+
+    def check(self, path: str) -> None:
+        one_of("method", self.method, ("mh", "nuts"))
+        positive_int("num_chains", self.num_chains)
+        positive_int("num_samples", self.num_samples)
+        positive_int("warmup_steps", self.warmup_steps, 0)
+
+
+@dataclass
+class FilterBlock:
+    """``hbni.filter``: how the HBNI filter uses the posterior."""
+
+    mode: str = "marginal"
+
+    def check(self, path: str) -> None:
+        one_of("mode", self.mode, ("marginal", "plugin"))
+
+
+@dataclass
+class HBNIBlock:
+    """``hbni``: hyperprior, fitting settings and filter mode."""
+
+    hyperprior: Any = field(default_factory=HyperPriorBlock)
+    fit: FitBlock = field(default_factory=FitBlock)
+    filter: FilterBlock = field(default_factory=FilterBlock)
+
+
+@dataclass
+class PlanningStudy:
+    """``study`` of the planning experiments: how controllers are searched and scored."""
+
+    shared_controller: bool = False
+    rollouts: int = 80
+    reeval_rollouts: int = 1000
+    threads: int = 1
+
+    def check(self, path: str) -> None:
+        positive_int("rollouts", self.rollouts, 2)
+        positive_int("reeval_rollouts", self.reeval_rollouts, 2)
+        positive_int("threads", self.threads)
+
+
+@dataclass
+class BaselineStudy(PlanningStudy):
+    """A planning ``study`` that also runs baselines and a G-DICE run seeded with the greedy controller.
+
+    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run.
+    """
+
+    random_controllers: int = 1000
+    seeded: dict[str, Any] = field(default_factory=dict)
+    select_rollouts: int = 1000
+
+    def check(self, path: str) -> None:
+        super().check(path)
+        positive_int("random_controllers", self.random_controllers, 2)
+        positive_int("select_rollouts", self.select_rollouts, 2)
+
+
+def check_seeded(planner: Any, seeded: dict[str, Any]) -> None:
+    """Raise ``ValueError`` unless ``planner`` overridden by the ``seeded`` settings is a valid planner."""
+    import dataclasses
+
+    from hydra.utils import instantiate
+
+    base = instantiate({k: getattr(planner, k) for k in planner.__dataclass_fields__})
+    unknown = sorted(set(seeded) - set(base.__dataclass_fields__))
+    if unknown:
+        raise ValueError(f"study.seeded: unknown planner setting(s) {unknown}")
+    try:
+        dataclasses.replace(base, **seeded)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"study.seeded: {exc}") from None

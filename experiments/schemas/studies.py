@@ -1,0 +1,255 @@
+"""One schema per experiment: the root of its composed config (``conf/experiment/<name>.yaml``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from experiments.schemas.blocks import (
+    BaselineStudy, HBNIBlock, HyperPriorBlock, PlanningStudy, check_seeded, positive_int, probability,
+)
+from experiments.schemas.targets import target_schema
+
+ClassifierBlock = target_schema("classifiers.FrameClassifier")
+PlannerBlock = target_schema("decpomdp.GDICEConfig")
+DisasterReliefBlock = target_schema("decpomdp.domains.DisasterRelief", runtime=("perception",))
+PackageDeliveryBlock = target_schema("decpomdp.domains.PackageDelivery")
+
+
+@dataclass
+class Root:
+    """Keys every experiment has."""
+
+    name: str = "?"
+    entry: str = "?"
+    headline: list[str] = field(default_factory=list)  # metrics a sweep report shows (paths into metrics.json)
+    seed: int = 0
+    progress: bool = True
+    hbni: HBNIBlock = field(default_factory=HBNIBlock)
+
+
+def _check_theta(name: str, theta: list[float]) -> None:
+    if len(theta) < 2 or any(not t > 0 for t in theta):
+        raise ValueError(f"{name}: expected at least 2 noise levels > 0, got {list(theta)}")
+
+
+def _check_conditions(name: str, overrides: dict[str, Any] | None) -> None:
+    from classifiers.data import get_conditions
+
+    try:
+        get_conditions("mission", **(overrides or {}))
+    except (TypeError, ValueError) as exc:
+        message = str(exc).removeprefix("conditions: ")
+        raise ValueError(f"{name}: {message}") from None
+
+
+@dataclass
+class ToyBlock:
+    theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
+    per_class: int = 5
+    near_perfect_hyperprior: Any = field(default_factory=HyperPriorBlock)
+
+    def check(self, path: str) -> None:
+        _check_theta("theta", self.theta)
+        positive_int("per_class", self.per_class)
+
+
+@dataclass
+class HBNIToy(Root):
+    toy: ToyBlock = field(default_factory=ToyBlock)
+
+
+@dataclass
+class FilteringStudy:
+    true_theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
+    training_sizes: list[int] = field(default_factory=lambda: [15, 30, 60, 150])
+    num_training_sets: int = 20
+    num_trials: int = 2000
+    max_len: int = 50
+    filter_draws: int = 1000
+    targets: list[float] = field(default_factory=lambda: [0.05, 0.01, 0.005])
+
+    def check(self, path: str) -> None:
+        _check_theta("true_theta", self.true_theta)
+        if not self.training_sizes or min(self.training_sizes) < 1:
+            raise ValueError(f"training_sizes: expected sizes >= 1, got {list(self.training_sizes)}")
+        for name in ("num_training_sets", "num_trials", "max_len", "filter_draws"):
+            positive_int(name, getattr(self, name))
+        for t in self.targets:
+            probability("targets", t)
+
+
+@dataclass
+class FilteringError(Root):
+    study: FilteringStudy = field(default_factory=FilteringStudy)
+
+
+@dataclass
+class MacroStudy:
+    true_theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
+    training_per_class: int = 5
+    threshold: float = 0.95
+    max_frames: int = 50
+    num_streams: int = 2000
+    filter_draws: int = 1000
+
+    def check(self, path: str) -> None:
+        _check_theta("true_theta", self.true_theta)
+        probability("threshold", self.threshold)
+        for name in ("training_per_class", "max_frames", "num_streams", "filter_draws"):
+            positive_int(name, getattr(self, name))
+
+
+@dataclass
+class MacroObservation(Root):
+    study: MacroStudy = field(default_factory=MacroStudy)
+
+
+@dataclass
+class ReplayStudy:
+    classes: list[str] = field(default_factory=lambda: ["irobot", "quadrotor", "racecar"])
+    train_per_class: int = 100
+    augment: int = 1
+    calib_sequences: int = 10
+    test_sequences: int = 30
+    frames: int = 15
+    threshold: float = 0.95
+    mission: dict[str, Any] = field(default_factory=dict)
+
+    def check(self, path: str) -> None:
+        from classifiers.data import OBJECTS
+
+        unknown = [c for c in self.classes if c not in OBJECTS]
+        if len(self.classes) < 2 or unknown or len(set(self.classes)) != len(self.classes):
+            raise ValueError(f"classes: expected at least 2 distinct objects of {list(OBJECTS)}, got {list(self.classes)}")
+        for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
+            positive_int(name, getattr(self, name))
+        positive_int("augment", self.augment, 0)
+        probability("threshold", self.threshold)
+        _check_conditions("mission", self.mission)
+
+
+@dataclass
+class PerceptionReplay(Root):
+    classifier: Any = field(default_factory=ClassifierBlock)
+    study: ReplayStudy = field(default_factory=ReplayStudy)
+
+
+@dataclass
+class PackageStudy(BaselineStudy):
+    alpha_sweep: list[float] = field(default_factory=lambda: [0.05, 0.1, 0.2, 0.4])
+    sweep_iterations: int = 100
+
+    def check(self, path: str) -> None:
+        super().check(path)
+        positive_int("sweep_iterations", self.sweep_iterations)
+        for alpha in self.alpha_sweep:
+            probability("alpha_sweep", alpha)
+
+
+@dataclass
+class PackageDeliveryExperiment(Root):
+    planner: Any = field(default_factory=PlannerBlock)
+    domain: Any = field(default_factory=PackageDeliveryBlock)
+    study: PackageStudy = field(default_factory=PackageStudy)
+
+    def check(self, path: str) -> None:
+        check_seeded(self.planner, self.study.seeded)
+
+
+@dataclass
+class DisasterReliefExperiment(Root):
+    planner: Any = field(default_factory=PlannerBlock)
+    domain: Any = field(default_factory=DisasterReliefBlock)
+    study: BaselineStudy = field(default_factory=BaselineStudy)
+
+    def check(self, path: str) -> None:
+        check_seeded(self.planner, self.study.seeded)
+
+
+@dataclass
+class Caps:
+    iterations: Optional[int] = None
+    samples: Optional[int] = None
+    restarts: Optional[int] = None
+
+    def check(self, path: str) -> None:
+        for name in ("iterations", "samples", "restarts"):
+            if getattr(self, name) is not None:
+                positive_int(name, getattr(self, name))
+
+
+@dataclass
+class BenchmarkStudy:
+    benchmark_dir: str = "?"
+    random_controllers: int = 1000
+    caps: Caps = field(default_factory=Caps)
+    problems: dict[str, Any] = field(default_factory=dict)
+
+    def check(self, path: str) -> None:
+        positive_int("random_controllers", self.random_controllers, 2)
+        if not self.problems:
+            raise ValueError("problems: expected at least one problem")
+
+
+@dataclass
+class DPOMDPBenchmarks(Root):
+    planner: Any = field(default_factory=PlannerBlock)
+    study: BenchmarkStudy = field(default_factory=BenchmarkStudy)
+
+
+@dataclass
+class MissionBlock:
+    """``mission``: the perception side of the mission (data sizes, inference threshold, temper, imaging)."""
+
+    train_per_class: int = 30
+    augment: int = 1
+    calib_sequences: int = 8
+    char_sequences: int = 16
+    frames: int = 30
+    threshold: float = 0.95
+    temper: Any = "fit"
+    conditions: Optional[dict[str, Any]] = None
+
+    def check(self, path: str) -> None:
+        for name in ("train_per_class", "calib_sequences", "char_sequences", "frames"):
+            positive_int(name, getattr(self, name))
+        positive_int("augment", self.augment, 0)
+        probability("threshold", self.threshold)
+        t = self.temper
+        if t != "fit" and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t <= 1):
+            raise ValueError(f"temper: expected 'fit' or a float in (0, 1], got {t!r}")
+        _check_conditions("conditions", self.conditions)
+
+
+MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
+
+
+@dataclass
+class Mission(Root):
+    classifier: Any = field(default_factory=ClassifierBlock)
+    planner: Any = field(default_factory=PlannerBlock)
+    domain: Any = field(default_factory=DisasterReliefBlock)
+    perception: Any = field(default_factory=lambda: list(MISSION_VARIANTS))
+    mission: MissionBlock = field(default_factory=MissionBlock)
+    study: PlanningStudy = field(default_factory=PlanningStudy)
+
+    def check(self, path: str) -> None:
+        chosen = [self.perception] if isinstance(self.perception, str) else list(self.perception)
+        unknown = [v for v in chosen if v not in MISSION_VARIANTS]
+        if unknown or not chosen:
+            raise ValueError(f"perception: expected a subset of {list(MISSION_VARIANTS)}, got {chosen}")
+
+
+#: schema of each experiment, by its ``name``
+SCHEMAS: dict[str, type] = {
+    "hbni_toy": HBNIToy,
+    "filtering_error": FilteringError,
+    "macro_observation": MacroObservation,
+    "perception_replay": PerceptionReplay,
+    "package_delivery": PackageDeliveryExperiment,
+    "disaster_relief": DisasterReliefExperiment,
+    "dpomdp_benchmarks": DPOMDPBenchmarks,
+    "mission": Mission,
+    "mission_full": Mission,
+}

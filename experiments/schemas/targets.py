@@ -1,0 +1,78 @@
+"""Schemas of ``_target_`` blocks, derived from the target's own signature.
+
+A block such as ``planner`` (``_target_: decpomdp.GDICEConfig``) is typed by the parameters of
+its target: :func:`target_schema` builds a dataclass with ``_target_`` and one field per
+parameter (its annotation when it is a plain ``int``/``float``/``bool``/``str``, optionally
+``None``; ``Any`` otherwise), so Hydra rejects a wrong type or an unknown key when it composes.
+Ranges are checked by the target itself: :meth:`TargetBlock.check` instantiates it (with
+``overrides`` for arguments supplied at run time) and reports its error under the block's key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import types
+import typing
+from typing import Any, Optional
+
+from hydra.utils import get_object, instantiate
+
+_PLAIN = (int, float, bool, str)
+
+
+def _field_type(hint: Any) -> Any:
+    """The OmegaConf type of a parameter annotation: plain types (optionally None), else ``Any``."""
+    if hint in _PLAIN:
+        return hint
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(args) == 1 and args[0] in _PLAIN and len(typing.get_args(hint)) == 2:
+            return Optional[args[0]]
+    return Any
+
+
+class TargetBlock:
+    """Base of the generated schemas: ``check`` builds the target to run its own validation."""
+
+    _runtime: tuple[str, ...] = ()  # parameters supplied when the experiment instantiates the block
+
+    def check(self, path: str) -> None:
+        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name in self._runtime:
+            kwargs.pop(name, None)
+        try:
+            instantiate(kwargs)
+        except Exception as exc:  # the target's own message names the argument
+            cause = exc.__cause__ if exc.__cause__ is not None else exc
+            raise ValueError(join_key(path, str(cause), kwargs)) from None
+
+
+def join_key(path: str, message: str, fields: Any = ()) -> str:
+    """``"path.field: ..."`` when ``message`` starts with one of ``fields``, else ``"path: message"``."""
+    head = message.split(":", 1)[0]
+    if head in fields:
+        return f"{path}.{message}"
+    return f"{path}: {message}"
+
+
+def target_schema(target: str, runtime: tuple[str, ...] = ()) -> type:
+    """A dataclass schema for a ``_target_: <target>`` block (see the module docstring).
+
+    Args:
+        target: dotted path of a class or function.
+        runtime: parameters the experiment passes at instantiation (left out of the range check).
+    """
+    obj = get_object(target)
+    init = obj.__init__ if inspect.isclass(obj) else obj
+    hints = typing.get_type_hints(init)
+    fields: list[tuple[str, Any, Any]] = [("_target_", str, dataclasses.field(default=target))]
+    for name, param in inspect.signature(init).parameters.items():
+        if name == "self" or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
+            continue
+        default = None if param.default is inspect.Parameter.empty else param.default
+        if isinstance(default, (list, dict, tuple)) or not (default is None or isinstance(default, _PLAIN)):
+            default = None
+        fields.append((name, _field_type(hints.get(name, Any)), dataclasses.field(default=default)))
+    name = target.rsplit(".", 1)[-1] + "Block"
+    return dataclasses.make_dataclass(name, fields, bases=(TargetBlock,), namespace={"_runtime": runtime})
