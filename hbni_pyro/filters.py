@@ -100,7 +100,7 @@ class StreamingFilter:
 
     def update(self, o: Any) -> Tensor:
         """Consume one output ``o (M,)``; return the class posterior ``(M,)`` after it."""
-        o = as_outputs(o, self.num_classes, name="o")
+        o = as_outputs(o, self.num_classes, name=f"o (frame {self.frames_seen + 1} of the stream)")
         if o.dim() != 1:
             raise ValueError(f"o: expected one output of shape ({self.num_classes},), got {tuple(o.shape)}")
         self._stats = self._stats + self.features(o)

@@ -22,6 +22,7 @@ from hbni_pyro.model import HyperPrior, hbni_model
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_draws
 from infra.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs
+from infra.checks import as_int
 
 METHODS = ("mh", "nuts")
 DEFAULT_CHAINS = {"mh": 16, "nuts": 2}
@@ -65,7 +66,8 @@ def fit(
     if x.dim() != 2:
         raise ValueError(f"obs: expected shape (N, M), got {tuple(x.shape)}; use fit_many for a stack of datasets")
     y = None if labels is None else as_labels(labels, x.shape[0], x.shape[1])
-    hp, p, chains = _check_settings(method, num_chains, num_samples, warmup_steps, hyperprior, class_prior, x.shape[1])
+    hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
+        method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
     if method == "mh":
         return _fit_mh(x.unsqueeze(0), None if y is None else y.unsqueeze(0), chains, num_samples, warmup_steps, seed, progress, hp, p)[0]
     return _fit_nuts(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p, jit)
@@ -96,21 +98,21 @@ def fit_many(
         y = torch.stack([as_labels(row, x.shape[1], x.shape[2], name=f"labels[{d}]") for d, row in enumerate(torch.as_tensor(labels))])
         if y.shape[0] != x.shape[0]:
             raise ValueError(f"labels: expected {x.shape[0]} rows to match obs_sets, got {y.shape[0]}")
-    hp, p, chains = _check_settings("mh", num_chains, num_samples, warmup_steps, hyperprior, class_prior, x.shape[2])
+    hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
+        "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
     return _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p)
 
 
-def _check_settings(method, num_chains, num_samples, warmup_steps, hyperprior, class_prior, num_classes):
+def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, num_classes):
+    """Validated (hyperprior, class prior, chains, num_samples, warmup_steps, seed); numpy/torch ints accepted."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    chains = DEFAULT_CHAINS[method] if num_chains is None else num_chains
-    for name, value, low in (("num_chains", chains, 1), ("num_samples", num_samples, 1), ("warmup_steps", warmup_steps, 0)):
-        if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
-            raise ValueError(f"{name}: expected an int >= {low}, got {value!r}")
+    chains = as_int("num_chains", DEFAULT_CHAINS[method] if num_chains is None else num_chains, minimum=1)
+    sizes = as_int("num_samples", num_samples, minimum=1), as_int("warmup_steps", warmup_steps, minimum=0)
     hp = HyperPrior() if hyperprior is None else hyperprior
     if not isinstance(hp, HyperPrior):
         raise TypeError(f"hyperprior: expected a HyperPrior, got {type(hyperprior).__name__}")
-    return hp, as_class_prior(class_prior, num_classes), chains
+    return hp, as_class_prior(class_prior, num_classes), chains, *sizes, as_int("seed", seed)
 
 
 def _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:

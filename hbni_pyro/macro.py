@@ -24,6 +24,7 @@ from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs
 from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
+from infra.checks import as_int, as_probability
 
 _KIND = "hbni_pyro.MacroObservationModel"
 
@@ -49,9 +50,7 @@ class MacroObservationBatch(NamedTuple):
 
 
 def _positive_int(value: Any, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name}: expected a positive int, got {value!r}")
-    return value
+    return as_int(name, value, minimum=1)
 
 
 class MacroObservationProcess:
@@ -66,10 +65,8 @@ class MacroObservationProcess:
     def __init__(self, filter: StreamingFilter, threshold: float = 0.95, max_frames: int = 100) -> None:
         if not isinstance(filter, StreamingFilter):
             raise TypeError(f"filter: expected a StreamingFilter, got {type(filter).__name__}")
-        if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0 < threshold <= 1:
-            raise ValueError(f"threshold: expected a probability in (0, 1], got {threshold!r}")
         self.filter = filter
-        self.threshold = float(threshold)
+        self.threshold = as_probability("threshold", threshold, allow_zero=False)
         self.max_frames = _positive_int(max_frames, "max_frames")
 
     @property

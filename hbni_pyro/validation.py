@@ -25,7 +25,10 @@ DTYPE = torch.float64
 
 
 def _row_name(flat_index: int, batch_shape: torch.Size) -> str:
-    if len(batch_shape) <= 1:
+    """How a message names a bad row: ``"the output"`` for a single row, else its index."""
+    if len(batch_shape) == 0:
+        return "the output"
+    if len(batch_shape) == 1:
         return f"row {flat_index}"
     idx = []
     for size in reversed(batch_shape):
@@ -94,7 +97,10 @@ _INT_DTYPES = (torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
 
 def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "labels") -> Tensor:
     """Validate class labels: int64 tensor ``(N,)`` with entries in ``[0, M)`` or ``-1`` (unknown)."""
-    x = torch.as_tensor(labels)
+    try:
+        x = torch.as_tensor(labels)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError(f"{name}: expected integer class indices of shape ({num_obs},), got {type(labels).__name__}") from None
     if x.is_floating_point():
         if not torch.equal(x, x.round()):
             raise TypeError(f"{name}: expected integer class indices, got non-integer values")

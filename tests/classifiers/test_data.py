@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -87,8 +88,24 @@ def test_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="root"):
         ImageFolder(tmp_path / "nope")
     (tmp_path / "empty" / "cls").mkdir(parents=True)
-    with pytest.raises(ValueError, match="no <class>/ folders"):
+    with pytest.raises(ValueError, match="has no images .* neither in <class>/ folders nor directly in it"):
         ImageFolder(tmp_path / "empty")
     (tmp_path / "empty" / "cls" / "broken.png").write_bytes(b"not a png")
     with pytest.raises(ValueError, match="decoded"):
         ImageFolder(tmp_path / "empty")[0]
+
+
+def test_a_flat_folder_of_frames_is_read_unlabelled_in_name_order(tmp_path):
+    frames = render_sequence("ambulance", 12, "mission", seed=3)
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"frame_{i}.png"), frame)  # frame_2 must come before frame_10
+    folder = ImageFolder(tmp_path)
+    assert not folder.labelled and folder.classes == []
+    assert [p.name for p, _ in folder.samples] == [f"frame_{i}.png" for i in range(12)]
+    images, labels = folder.load()
+    assert labels.tolist() == [-1] * 12
+    assert all(np.array_equal(a, b) for a, b in zip(images, frames))  # PNG is lossless
+    (tmp_path / "cls").mkdir()
+    cv2.imwrite(str(tmp_path / "cls" / "x.png"), frames[0])
+    with pytest.raises(ValueError, match="both <class>/ folders and loose images"):
+        ImageFolder(tmp_path)

@@ -105,7 +105,7 @@ def test_exact_zeros_are_floored_not_fatal():
         ([[0.5, 0.5]], [0.5], {}, TypeError, "labels: expected integer"),
         ([[0.5, 0.5]], None, {"method": "gibbs"}, ValueError, "method: expected one of"),
         ([[0.5, 0.5]], None, {"num_samples": 0}, ValueError, "num_samples"),
-        ([[0.5, 0.5]], None, {"num_chains": 1.5}, ValueError, "num_chains"),
+        ([[0.5, 0.5]], None, {"num_chains": 1.5}, TypeError, "num_chains: expected an int"),
         ([[0.5, 0.5]], None, {"hyperprior": {"beta": 1}}, TypeError, "hyperprior"),
         ([[0.5, 0.5]], None, {"class_prior": [0.2, 0.2]}, ValueError, "class_prior"),
         ("abc", None, {}, TypeError, "obs"),

@@ -85,11 +85,17 @@ def test_batched_process_agrees_with_the_streaming_process(make_filter, max_fram
 def test_process_errors():
     with pytest.raises(TypeError, match="filter"):
         MacroObservationProcess("ssbf")
-    for bad in (0.0, 1.5, True, "0.9"):
+    for bad in (0.0, 1.5):
         with pytest.raises(ValueError, match="threshold"):
             MacroObservationProcess(SSBF(3), threshold=bad)
-    for bad in (0, -3, 2.5, True):
+    for bad in (True, "0.9"):  # not numbers
+        with pytest.raises(TypeError, match="threshold"):
+            MacroObservationProcess(SSBF(3), threshold=bad)
+    for bad in (0, -3):
         with pytest.raises(ValueError, match="max_frames"):
+            MacroObservationProcess(SSBF(3), max_frames=bad)
+    for bad in (2.5, True):  # not ints
+        with pytest.raises(TypeError, match="max_frames"):
             MacroObservationProcess(SSBF(3), max_frames=bad)
     process = MacroObservationProcess(SSBF(3))
     with pytest.raises(ValueError, match="empty"):

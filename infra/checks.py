@@ -1,0 +1,58 @@
+"""Validation of scalar arguments at a public boundary, with messages that name the argument.
+
+Python, numpy and 0-d torch numbers are all accepted (``np.float32(0.9)``, ``torch.tensor(3)``);
+booleans are not numbers here. Each function returns the plain Python value.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import torch
+
+
+def _scalar(value: Any) -> Any:
+    """A 0-d tensor's Python value; anything else unchanged."""
+    if isinstance(value, torch.Tensor) and value.dim() == 0:
+        return value.item()
+    return value
+
+
+def as_int(name: str, value: Any, minimum: int | None = None) -> int:
+    """``value`` as an ``int`` (``>= minimum`` when given), else ``TypeError``/``ValueError`` naming ``name``."""
+    value = _scalar(value)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name}: expected an int, got {value!r} ({type(value).__name__})")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name}: expected an int >= {minimum}, got {value}")
+    return value
+
+
+def as_float(
+    name: str, value: Any, low: float = -math.inf, high: float = math.inf,
+    low_open: bool = False, high_open: bool = False,
+) -> float:
+    """``value`` as a finite ``float`` in the interval from ``low`` to ``high`` (closed unless ``*_open``).
+
+    Raises:
+        TypeError: not a real number (booleans and strings included).
+        ValueError: NaN, infinite, or outside the interval; the message names ``name`` and the interval.
+    """
+    value = _scalar(value)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a number, got {value!r} ({type(value).__name__})")
+    value = float(value)
+    above = value > low if low_open else value >= low
+    below = value < high if high_open else value <= high
+    if not (math.isfinite(value) and above and below):
+        interval = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+        raise ValueError(f"{name}: expected a finite number in {interval}, got {value}")
+    return value
+
+
+def as_probability(name: str, value: Any, allow_zero: bool = True) -> float:
+    """``value`` as a probability in ``[0, 1]`` (``(0, 1]`` when ``allow_zero`` is false)."""
+    return as_float(name, value, 0.0, 1.0, low_open=not allow_zero)

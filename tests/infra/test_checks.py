@@ -1,0 +1,46 @@
+"""Boundary checks accept Python, numpy and 0-d torch numbers and name the argument when they refuse."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from infra.checks import as_float, as_int, as_probability
+
+
+@pytest.mark.parametrize("value", [3, np.int64(3), np.int32(3), torch.tensor(3)])
+def test_ints(value):
+    assert as_int("n", value, minimum=1) == 3 and type(as_int("n", value)) is int
+
+
+@pytest.mark.parametrize("value", [0.9, np.float32(0.9), np.float64(0.9), torch.tensor(0.9), 1])
+def test_floats(value):
+    out = as_probability("threshold", value)
+    assert type(out) is float and math.isclose(out, float(value), rel_tol=1e-6)
+
+
+@pytest.mark.parametrize("value", [True, "3", 3.0, None, torch.tensor([3])])
+def test_non_ints_are_type_errors(value):
+    with pytest.raises(TypeError, match="n: expected an int"):
+        as_int("n", value)
+
+
+@pytest.mark.parametrize("value", [True, "0.1", None, [0.1]])
+def test_non_numbers_are_type_errors(value):
+    with pytest.raises(TypeError, match="alpha: expected a number"):
+        as_float("alpha", value)
+
+
+def test_ranges_name_the_argument_and_interval():
+    with pytest.raises(ValueError, match=r"n: expected an int >= 1, got 0"):
+        as_int("n", 0, minimum=1)
+    with pytest.raises(ValueError, match=r"threshold: expected a finite number in \(0, 1\], got 0.0"):
+        as_probability("threshold", 0.0, allow_zero=False)
+    with pytest.raises(ValueError, match=r"p: expected a finite number in \[0, 1\], got nan"):
+        as_probability("p", float("nan"))
+    with pytest.raises(ValueError, match=r"x: expected a finite number in \[-inf, inf\], got inf"):
+        as_float("x", math.inf)
+    assert as_float("x", 2.0, 0.0, 2.0) == 2.0
+    with pytest.raises(ValueError, match=r"\[0, 2\)"):
+        as_float("x", 2.0, 0.0, 2.0, high_open=True)
