@@ -14,6 +14,8 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
+from infra.checks import as_int
+
 
 @runtime_checkable
 class PerceptionModel(Protocol):
@@ -59,13 +61,8 @@ class PerfectPerception:
     """
 
     def __init__(self, num_classes: int, frames: int = 1) -> None:
-        for name, value in (("num_classes", num_classes), ("frames", frames)):
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
-            if value < 1:
-                raise ValueError(f"{name}: expected an int >= 1, got {value}")
-        self.num_classes = num_classes
-        self.frames = frames
+        self.num_classes = as_int("num_classes", num_classes, minimum=1)
+        self.frames = as_int("frames", frames, minimum=1)
 
     def sample(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         """Return ``(true_class, frames)``; the generator is not consumed."""

@@ -18,6 +18,7 @@ from torch import Tensor
 from decpomdp.batched import any_true, lookup
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
+from infra.checks import as_int
 
 
 def _check(env: DecPOSMDP, controller: JointController) -> None:
@@ -73,8 +74,7 @@ def simulate(
         float64 (K, R): return of rollout ``r`` of controller ``k``.
     """
     _check(env, controller)
-    if not isinstance(rollouts_per_controller, int) or rollouts_per_controller < 1:
-        raise ValueError(f"rollouts_per_controller: expected an int >= 1, got {rollouts_per_controller!r}")
+    rollouts_per_controller = as_int("rollouts_per_controller", rollouts_per_controller, minimum=1)
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
     n_obs = controller.num_obs

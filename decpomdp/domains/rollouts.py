@@ -9,6 +9,7 @@ from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.evaluate import evaluate
 from decpomdp.simulate import simulate
+from infra.checks import as_int
 
 _ROW = "_rollout_row"
 
@@ -64,8 +65,7 @@ def shared(controller: JointController, num_agents: int) -> JointController:
     """Give every agent the FSC of agent 0: a (K, 1, Nn) controller becomes (K, num_agents, Nn)."""
     if not isinstance(controller, JointController):
         raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
-    if isinstance(num_agents, bool) or not isinstance(num_agents, int) or num_agents < 1:
-        raise ValueError(f"num_agents: expected an int >= 1, got {num_agents!r}")
+    num_agents = as_int("num_agents", num_agents, minimum=1)
     k, _, n = controller.action.shape
     o = controller.num_obs
     return JointController(
@@ -84,9 +84,7 @@ class SharedControllerEvaluator:
     def __init__(self, env: DecPOSMDP, rollouts: int, max_batch: int = 200_000) -> None:
         if not isinstance(env, DecPOSMDP):
             raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
-        if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 2:
-            raise ValueError(f"rollouts: expected an int >= 2, got {rollouts!r}")
-        self.env, self.rollouts, self.max_batch = env, rollouts, max_batch
+        self.env, self.rollouts, self.max_batch = env, as_int("rollouts", rollouts, minimum=2), max_batch
 
     def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         return evaluate(self.env, shared(controller, self.env.num_agents), self.rollouts, generator, self.max_batch)

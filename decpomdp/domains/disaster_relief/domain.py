@@ -46,13 +46,13 @@ long (B,).
 
 from __future__ import annotations
 
-import math
 
 import torch
 from torch import Tensor
 
 from decpomdp.core import DecPOSMDP
 from decpomdp.perception import PerceptionModel, PerfectPerception
+from infra.checks import as_float, as_int, as_probability
 
 CLASSES = ["ambulance", "police_car", "medical_copter", "news_copter", "food_crate", "medical_crate"]
 LOCATIONS = ["Base1", "Base2", "Hospital", "Airport", "Crate_zone", "Repair"]
@@ -120,22 +120,13 @@ class DisasterRelief(DecPOSMDP):
             raise TypeError(f"perception: expected a PerceptionModel (num_classes and sample), got {type(perception).__name__}")
         if perception.num_classes != len(CLASSES):
             raise ValueError(f"perception: expected num_classes == {len(CLASSES)}, got {perception.num_classes}")
-        if isinstance(num_agents, bool) or not isinstance(num_agents, int) or num_agents < 1:
-            raise ValueError(f"num_agents: expected an int >= 1, got {num_agents!r}")
-        if not 0.0 < float(gamma) <= 1.0:
-            raise ValueError(f"gamma: expected a float in (0, 1], got {gamma!r}")
-        for name, value in (("horizon", horizon), ("frame_period", frame_period)):
-            if not (math.isfinite(float(value)) and float(value) > 0.0):
-                raise ValueError(f"{name}: expected a finite float > 0, got {value!r}")
-        for name, value in (("degrade_prob", degrade_prob), ("sensor_accuracy", sensor_accuracy)):
-            if not 0.0 <= float(value) <= 1.0:
-                raise ValueError(f"{name}: expected a probability in [0, 1], got {value!r}")
-        if not math.isfinite(float(wrong_penalty)):
-            raise ValueError(f"wrong_penalty: expected a finite float, got {wrong_penalty!r}")
-        self.perception, self.num_agents = perception, num_agents
-        self.gamma, self.horizon, self.frame_period = float(gamma), float(horizon), float(frame_period)
-        self.degrade_prob, self.sensor_accuracy = float(degrade_prob), float(sensor_accuracy)
-        self.wrong_penalty = float(wrong_penalty)
+        self.perception, self.num_agents = perception, as_int("num_agents", num_agents, minimum=1)
+        self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
+        self.horizon = as_float("horizon", horizon, 0.0, low_open=True)
+        self.frame_period = as_float("frame_period", frame_period, 0.0, low_open=True)
+        self.degrade_prob = as_probability("degrade_prob", degrade_prob)
+        self.sensor_accuracy = as_probability("sensor_accuracy", sensor_accuracy)
+        self.wrong_penalty = as_float("wrong_penalty", wrong_penalty)
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
 
     def __repr__(self) -> str:

@@ -8,13 +8,13 @@ simulator of the same rules, one rollout at a time.
 
 from __future__ import annotations
 
-import math
 
 import torch
 from torch import Tensor
 
 from decpomdp.batched import any_true, as_u8, equal_u8, lookup, pair, select
 from decpomdp.core import DecPOSMDP
+from infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
     ACTION_NAMES, BASE1, COUNTERS, DROP_MAS, FAIL_DURATION, JOINT_MAS, JPICK, JPUT, MEAN_DURATION, MIN_NOISE_FACTOR,
@@ -102,16 +102,11 @@ class PackageDelivery(DecPOSMDP):
         large_reward_per_robot: bool = True,
         solo_joint: bool = False,
     ) -> None:
-        if not 0.0 < float(gamma) <= 1.0:
-            raise ValueError(f"gamma: expected a float in (0, 1], got {gamma!r}")
-        for name, value in (("horizon", horizon), ("joint_wait", joint_wait)):
-            if not (math.isfinite(float(value)) and float(value) > 0.0):
-                raise ValueError(f"{name}: expected a finite float > 0, got {value!r}")
-        for name, value in (("small_reward", small_reward), ("large_reward", large_reward), ("truck_reward", truck_reward)):
-            if not math.isfinite(float(value)):
-                raise ValueError(f"{name}: expected a finite float, got {value!r}")
-        self.gamma, self.horizon, self.joint_wait = float(gamma), float(horizon), float(joint_wait)
-        self.rewards = Rewards(float(small_reward), float(large_reward), float(truck_reward), bool(large_reward_per_robot))
+        self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
+        self.horizon = as_float("horizon", horizon, 0.0, low_open=True)
+        self.joint_wait = as_float("joint_wait", joint_wait, 0.0, low_open=True)
+        self.rewards = Rewards(as_float("small_reward", small_reward), as_float("large_reward", large_reward),
+                               as_float("truck_reward", truck_reward), bool(large_reward_per_robot))
         self.solo_joint = bool(solo_joint)
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
