@@ -4,6 +4,6 @@
 See ``docs/architecture.md`` for the layout and the shared steps.
 """
 
-from experiments.artifacts import Run, load_run
+from experiments.artifacts import Run, latest_run, load_run
 
-__all__ = ["Run", "load_run"]
+__all__ = ["Run", "latest_run", "load_run"]

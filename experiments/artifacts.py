@@ -126,6 +126,19 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
     return Run(run_dir, cfg, metrics, artifacts)
 
 
+def latest_run(name: str, root: str | os.PathLike = "outputs") -> Path:
+    """The newest completed run directory of experiment ``name`` under ``root/<name>/``.
+
+    Raises:
+        FileNotFoundError: no completed run of ``name`` under ``root``.
+    """
+    runs = sorted(p for p in (Path(root) / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed")
+    if not runs:
+        raise FileNotFoundError(f"name: no completed {name!r} run under {str(Path(root) / name)!r}; "
+                                f"run `python -m experiments.run experiment={name}` first")
+    return runs[-1]
+
+
 def _check_completed(run_dir: Path, metrics_path: Path) -> None:
     """Raise ``ValueError`` unless the run completed (its status says so, or it wrote its metrics)."""
     status = read_status(run_dir)
