@@ -148,23 +148,25 @@ class PackageStudy(BaselineStudy):
 
 
 @dataclass
-class PackageDeliveryExperiment(Root):
+class PlanningExperiment(Root):
+    """A planning experiment with baselines and a run seeded from the greedy controller."""
+
     planner: Any = field(default_factory=PlannerBlock)
-    domain: Any = field(default_factory=PackageDeliveryBlock)
-    study: PackageStudy = field(default_factory=PackageStudy)
+    study: BaselineStudy = field(default_factory=BaselineStudy)
 
     def check(self, path: str) -> None:
         check_seeded(self.planner, self.study.seeded)
 
 
 @dataclass
-class DisasterReliefExperiment(Root):
-    planner: Any = field(default_factory=PlannerBlock)
-    domain: Any = field(default_factory=DisasterReliefBlock)
-    study: BaselineStudy = field(default_factory=BaselineStudy)
+class PackageDeliveryExperiment(PlanningExperiment):
+    domain: Any = field(default_factory=PackageDeliveryBlock)
+    study: PackageStudy = field(default_factory=PackageStudy)
 
-    def check(self, path: str) -> None:
-        check_seeded(self.planner, self.study.seeded)
+
+@dataclass
+class DisasterReliefExperiment(PlanningExperiment):
+    domain: Any = field(default_factory=DisasterReliefBlock)
 
 
 @dataclass
