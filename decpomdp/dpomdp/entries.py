@@ -68,7 +68,7 @@ class _Transitions:
     def row_write(self, seq: int, line: int, ja: np.ndarray, s: np.ndarray, payload: str | float | np.ndarray) -> None:
         """Rows (ja x s) set to ``payload``: 'uniform', 'identity', a float, (S',) or (S, S') values."""
         rows = (ja[:, None] * self.n_s + s[None, :]).ravel()
-        self._grow(rows.size * (1 if isinstance(payload, str) and payload == "identity" else self.n_s), line)
+        self._grow(rows.size * (1 if isinstance(payload, str) and payload == "identity" else self.n_s), seq)
         self.records.append((seq, line, rows, payload))
 
     def single(self, line: int, ja: np.ndarray, s: np.ndarray, s2: int, p: float) -> None:

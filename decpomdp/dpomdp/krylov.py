@@ -51,10 +51,11 @@ def gmres(apply: Callable[[Tensor], Tensor], b: Tensor, owner: Tensor, k: int, t
         for j in range(restart):
             w = apply(basis[j])
             before = _dot(w, w, owner, k).sqrt()
-            for i in range(j + 1):  # modified Gram-Schmidt
-                hij = _dot(w, basis[i], owner, k)
-                h[:, i, j] = hij
-                w -= hij[owner, None] * basis[i]
+            for _ in range(2):  # modified Gram-Schmidt, twice: keeps the basis orthogonal to rounding
+                for i in range(j + 1):
+                    hij = _dot(w, basis[i], owner, k)
+                    h[:, i, j] += hij
+                    w -= hij[owner, None] * basis[i]
             norm = _dot(w, w, owner, k).sqrt()
             # (lucky) breakdown: the Krylov space is invariant, the solution lies in it; a rounding-noise
             # vector would not be orthogonal to the basis, so it is replaced by zero
