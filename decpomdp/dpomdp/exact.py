@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from decpomdp.controller import JointController
+from infra.threads import torch_threads
 from decpomdp.dpomdp.backup import Columns, JointNodes, TransitionOperator, link, operator_for
 from decpomdp.dpomdp.krylov import gmres
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
@@ -149,6 +150,7 @@ def exact_value(
     max_dense: int = 1500,
     tol: float = 1e-10,
     memory_budget: int = DEFAULT_EVAL_BUDGET,
+    threads: int | None = 1,
 ) -> Tensor:
     """Exact value of each of the K joint controllers, float64 (K,).
 
@@ -159,6 +161,8 @@ def exact_value(
         tol: bound on ``max |V - V*|`` for systems solved by GMRES.
         memory_budget: bytes of working memory; controllers are evaluated in chunks that fit
             (the per-controller need is bounded with every joint node reachable).
+        threads: torch intra-op threads during the call (None: unchanged). One by default: the
+            products are many and small, and thread hand-offs cost more than they save on a busy machine.
 
     Raises:
         ValueError: bad arguments, or one controller alone needs more than ``memory_budget``.
@@ -170,15 +174,16 @@ def exact_value(
     if need > memory_budget:
         raise ValueError(f"memory_budget: one controller needs up to {need} bytes, more than {memory_budget}")
     chunk = memory_budget // need
-    op = operator_for(env)
     out = []
-    for i in range(0, controller.num_controllers, chunk):
-        part = controller[i : i + chunk]
-        nodes, k = JointNodes(env, part), part.num_controllers
-        if horizon == math.inf:
-            out.append(_infinite(op, nodes, k, env.gamma, env.start_dist, max_dense, tol))
-        else:
-            out.append(_finite(op, nodes, k, int(horizon), env.gamma, env.start_dist))
+    with torch_threads(threads):
+        op = operator_for(env)
+        for i in range(0, controller.num_controllers, chunk):
+            part = controller[i : i + chunk]
+            nodes, k = JointNodes(env, part), part.num_controllers
+            if horizon == math.inf:
+                out.append(_infinite(op, nodes, k, env.gamma, env.start_dist, max_dense, tol))
+            else:
+                out.append(_finite(op, nodes, k, int(horizon), env.gamma, env.start_dist))
     return torch.cat(out)
 
 
@@ -188,16 +193,16 @@ class ExactEvaluator:
     Args:
         env: the tabular problem.
         horizon: overrides ``env.horizon`` (None keeps it).
-        memory_budget: working memory of each call, bytes (see :func:`exact_value`).
+        memory_budget, threads: per call, see :func:`exact_value`.
     """
 
     def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None,
-                 memory_budget: int = DEFAULT_EVAL_BUDGET) -> None:
+                 memory_budget: int = DEFAULT_EVAL_BUDGET, threads: int | None = 1) -> None:
         if not isinstance(env, TabularDecPOSMDP):
             raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
-        self.env, self.horizon, self.memory_budget = env, horizon, memory_budget
+        self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
         self.num_agents, self.num_actions, self.num_obs = env.num_agents, env.num_actions, env.num_obs
 
     def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        v = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget)
+        v = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget, threads=self.threads)
         return v, torch.zeros_like(v)

@@ -4,7 +4,8 @@
 dense parser of commit 0aad4c6 (the implementation this package replaced) produced for them, so
 that the compact parser is checked against it without keeping two parsers. Regenerate with
 ``python tests/decpomdp/dpomdp_synthetic.py OLD_PARSER.py OUT.npz`` (``OLD_PARSER.py`` exposes
-``parse_dpomdp`` returning dense ``transition``, ``observation`` and ``reward`` arrays).
+``parse_dpomdp`` and ``load_dpomdp`` returning dense ``transition``, ``observation`` and ``reward``
+arrays); the archive also holds the dense tables of the shipped problems.
 """
 
 from __future__ import annotations
@@ -102,8 +103,11 @@ if __name__ == "__main__":  # regenerate the reference tables with a dense parse
 
     import numpy as np
 
+    from decpomdp.dpomdp import problem_path
+
     spec = importlib.util.spec_from_file_location("old_parser", sys.argv[1])
     old = importlib.util.module_from_spec(spec)
+    sys.modules["old_parser"] = old
     spec.loader.exec_module(old)
     out: dict[str, np.ndarray] = {}
     for seed in range(60):
@@ -112,4 +116,9 @@ if __name__ == "__main__":  # regenerate the reference tables with a dense parse
         out[f"text_{seed}"] = np.array(text)
         for name in ("start", "transition", "observation", "reward"):
             out[f"{name}_{seed}"] = getattr(m, name)
+    for problem in ["dectiger", "broadcastChannel", "recycling", "GridSmall", "oneDoor_2_7_0.20_0.00_0_2"]:
+        m = old.load_dpomdp(problem_path(problem))  # oneDoor: gunzip it first for a parser without .gz support
+        for name in ("start", "transition", "observation", "reward"):
+            out[f"{name}_{problem}"] = getattr(m, name)
+        out[f"expected_reward_{problem}"] = m.expected_reward()
     np.savez_compressed(sys.argv[2], **out)
