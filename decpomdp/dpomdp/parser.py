@@ -43,6 +43,7 @@ from decpomdp.dpomdp.syntax import (
     Lines,
     check_budget,
     gib,
+    is_index,
     model_bytes,
     number,
     row_block,
@@ -54,7 +55,7 @@ def _names(rest: str, lineno: int, what: str, budget: int) -> list[str]:
     toks = rest.split()
     if not toks:
         raise DPOMDPSyntaxError(lineno, f"expected a count or a list of {what} names")
-    if len(toks) == 1 and toks[0].isdigit():
+    if len(toks) == 1 and is_index(toks[0]):
         n = int(toks[0])
         if n < 1:
             raise DPOMDPSyntaxError(lineno, f"expected at least one {what}, got {n}")
@@ -129,7 +130,7 @@ def _start(lines: Lines, lineno: int, mode: str | None, rest: str, states: list[
         vec = np.full(n, 1.0 / n) if isinstance(row, str) else row
     elif toks == ["uniform"]:
         vec = np.full(n, 1.0 / n)
-    elif len(toks) == 1 and (toks[0].isdigit() or IDENT.match(toks[0])) and not (n == 1 and "." in toks[0]):
+    elif len(toks) == 1 and (is_index(toks[0]) or IDENT.match(toks[0])) and not (n == 1 and "." in toks[0]):
         vec = np.zeros(n)
         vec[index(toks[0], lineno, wildcard=False)] = 1.0
     elif len(toks) == n:

@@ -25,6 +25,11 @@ class DPOMDPSyntaxError(ValueError):
         self.lineno = lineno
 
 
+def is_index(tok: str) -> bool:
+    """ASCII digits only (``str.isdigit`` also accepts characters such as '²' that ``int`` rejects)."""
+    return tok.isascii() and tok.isdigit()
+
+
 def number(tok: str, lineno: int) -> float:
     try:
         value = float(tok)
@@ -83,7 +88,7 @@ class Index:
             return hit
         if tok == "*" and wildcard:
             out = self.all
-        elif tok.isdigit():
+        elif is_index(tok):
             i = int(tok)
             if i >= self.n:
                 raise DPOMDPSyntaxError(lineno, f"{self.what} index {i} out of range (there are {self.n})")
@@ -116,9 +121,9 @@ class Joint:
         if len(toks) == 1 and len(self.parts) > 1:
             if toks[0] == "*":
                 out = np.arange(self.total)
-            elif toks[0].isdigit() and int(toks[0]) < self.total:
+            elif is_index(toks[0]) and int(toks[0]) < self.total:
                 out = np.array([int(toks[0])])
-            elif toks[0].isdigit():
+            elif is_index(toks[0]):
                 raise DPOMDPSyntaxError(lineno, f"joint {self.what} index {toks[0]} out of range (there are {self.total})")
             else:
                 raise DPOMDPSyntaxError(lineno, f"unknown joint {self.what} {toks[0]!r} (a joint index, '*', or one per agent)")

@@ -314,3 +314,34 @@ def test_gzipped_files_load_directly_and_bad_ones_fail_cleanly(tmp_path):
     bomb.write_bytes(gzip.compress(b"0" * 50_000_000))
     with pytest.raises(DPOMDPSyntaxError, match="bomb.dpomdp.gz: the file holds more than the memory budget"):
         load_dpomdp(bomb, memory_budget=10_000_000)
+
+
+def test_mutated_files_raise_only_syntax_errors():
+    """Seeded random edits of a valid file (deleted, duplicated or swapped lines, replaced tokens, injected
+    characters): each either parses or raises DPOMDPSyntaxError naming a line, never another exception."""
+    import random
+
+    rng = random.Random(0)
+    tokens = ["*", ":", "0", "9", "-1", "1e9", "nan", "uniform", "identity", "s0", "zz", "²", "T:", "R:", "\x00", "é"]
+    lines = GOOD.splitlines()
+    for _ in range(400):
+        edit = list(lines)
+        for _ in range(rng.randint(1, 3)):
+            i = rng.randrange(len(edit))
+            kind = rng.randrange(4)
+            if kind == 0:
+                del edit[i]
+            elif kind == 1:
+                edit.insert(i, edit[rng.randrange(len(edit))])
+            elif kind == 2:
+                toks = edit[i].split(" ")
+                toks[rng.randrange(len(toks))] = rng.choice(tokens)
+                edit[i] = " ".join(toks)
+            else:
+                pos = rng.randrange(len(edit[i]) + 1)
+                edit[i] = edit[i][:pos] + rng.choice(tokens) + edit[i][pos:]
+        text = "\n".join(edit) + "\n"
+        try:
+            parse_dpomdp(text)
+        except DPOMDPSyntaxError as exc:
+            assert 1 <= exc.lineno <= len(text.splitlines()) + 1, (exc, text)
