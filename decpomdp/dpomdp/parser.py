@@ -175,7 +175,7 @@ def _read_bytes(path: Path, budget: int) -> bytes:
         data = f.read(budget + 1)
     if data[:2] == b"\x1f\x8b":
         try:
-            with gzip.GzipFile(fileobj=open(path, "rb")) as g:
+            with open(path, "rb") as raw, gzip.GzipFile(fileobj=raw) as g:
                 data = g.read(budget + 1)
         except (OSError, EOFError, zlib.error) as exc:
             raise DPOMDPSyntaxError(1, f"{path.name}: not a valid gzip file ({exc})") from None
