@@ -83,9 +83,10 @@ def layered_controllers(env: TabularDecPOSMDP, count: int, nodes: int, seed: int
     return JointController(act, nxt)
 
 
-def cpu_time(fn) -> tuple[float, object]:
+def cpu_time(fn, *args, **kwargs) -> tuple[float, object]:
+    """CPU seconds of ``fn(*args, **kwargs)`` and its result."""
     start = time.process_time()
-    out = fn()
+    out = fn(*args, **kwargs)
     return time.process_time() - start, out
 
 
@@ -101,7 +102,7 @@ def bench_evaluators(args: argparse.Namespace) -> None:
     for name, env, nodes, horizon in cases:
         ctrl = layered_controllers(env, args.controllers, nodes, args.seed)
         exact_value(env, ctrl[:2], horizon=horizon)  # warm-up (operator build)
-        t_new, v_new = cpu_time(lambda: exact_value(env, ctrl, horizon=horizon))
+        t_new, v_new = cpu_time(exact_value, env, ctrl, horizon=horizon)
         q, s, jo = nodes**2, env.num_states, env.observation.shape[-1]
         dense_bytes = q * s * s * jo * 8 * 2
         if dense_bytes > 4 * 1024**3:
@@ -109,7 +110,7 @@ def bench_evaluators(args: argparse.Namespace) -> None:
                   f"  (dense product needs {dense_bytes / 1024**3:.0f} GB per controller)")
             continue
         ref = ctrl[: args.reference]
-        t_ref, v_ref = cpu_time(lambda: dense_reference_value(env, ref, horizon))
+        t_ref, v_ref = cpu_time(dense_reference_value, env, ref, horizon)
         diff = float((v_ref - v_new[: args.reference]).abs().max())
         new_rate, ref_rate = args.controllers / t_new, args.reference / t_ref
         print(f"{name:34s} {nodes:5d} {horizon:2d} {new_rate:11.1f} {ref_rate:13.3f} {new_rate / ref_rate:8.0f}x {diff:10.1e}"
@@ -127,7 +128,7 @@ def bench_parser() -> None:
         load_dpomdp(path)
         best = math.inf
         for _ in range(3 if os.path.getsize(path) > 100_000 else 30):
-            best = min(best, cpu_time(lambda: load_dpomdp(path))[0])
+            best = min(best, cpu_time(load_dpomdp, path)[0])
         with open(path, "rb") as f:
             raw = f.read()
         size = len(__import__("gzip").decompress(raw)) if raw[:2] == b"\x1f\x8b" else len(raw)

@@ -193,8 +193,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
 def markdown_table(table: dict) -> str:
     """The table for people: one line per row."""
-    lines = ["| row | S | gamma | h | G-DICE | optimum | % of optimum | gap closed | random mean | wall s / CPU s per run "
-             "| paper budget: value, wall s / CPU s |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    header = ("| row | S | gamma | h | G-DICE | optimum | % of optimum | gap closed | random mean | wall s / CPU s per run "
+              "| paper budget: value, wall s / CPU s |")
+    lines = [header, "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for name, e in table.items():
         opt = "n/a" if e["optimum"] is None else f"{e['optimum']:.4f}"
         frac = "n/a" if e["fraction_of_optimum"] is None else (

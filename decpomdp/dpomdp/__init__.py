@@ -11,10 +11,10 @@ from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 __all__ = [
     "DEFAULT_EVAL_BUDGET",
     "DEFAULT_MEMORY_BUDGET",
+    "PROBLEM_DIR",
     "DPOMDPModel",
     "DPOMDPSyntaxError",
     "ExactEvaluator",
-    "PROBLEM_DIR",
     "SparseTransitions",
     "TabularDecPOSMDP",
     "exact_value",

@@ -106,7 +106,7 @@ class JointNodes:
     """Joint action and successors of the joint nodes of K joint controllers (first agent most significant)."""
 
     def __init__(self, env: TabularDecPOSMDP, controller: JointController) -> None:
-        k, a, nn = controller.action.shape
+        _, a, nn = controller.action.shape
         self.num_nodes, self.num_joint = nn, nn**a
         self.action, self.next_node = controller.action, controller.next_node
         self.node_strides = torch.tensor([nn ** (a - 1 - i) for i in range(a)])

@@ -26,10 +26,10 @@ import torch
 from torch import Tensor
 
 from decpomdp.controller import JointController
-from infra.threads import torch_threads
 from decpomdp.dpomdp.backup import Columns, JointNodes, TransitionOperator, link, operator_for
 from decpomdp.dpomdp.krylov import gmres
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from infra.threads import torch_threads
 
 DEFAULT_EVAL_BUDGET = 512 * 1024**2
 """Default working memory of :func:`exact_value`, bytes (512 MiB)."""

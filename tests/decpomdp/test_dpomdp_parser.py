@@ -253,8 +253,8 @@ def test_non_finite_numbers_are_rejected_with_their_line(bad, old, new, needle):
         ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 100000000\n", 4, r"100000000 states need \d+ bytes"),
         ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 100000\nstart: uniform\nactions:\n100\n100\n", 8,
          r"100000 states, 10000 joint actions and 1 joint observations need \d+ bytes"),
-        ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 3000\nstart: uniform\nactions:\n30\n30\n"
-         "observations:\n30\n30\n", 11, r"3000 states, 900 joint actions and 900 joint observations need"),
+        (("agents: 2\ndiscount: 1\nvalues: reward\nstates: 3000\nstart: uniform\nactions:\n30\n30\n"
+          "observations:\n30\n30\n"), 11, r"3000 states, 900 joint actions and 900 joint observations need"),
         ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 3\nstart: uniform\nactions:\n1000000000\n", 7,
          r"1000000000 actions need"),
     ],

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from decpomdp import JointController, MonteCarloEvaluator, evaluate, random_controllers
+from decpomdp import JointController, MonteCarloEvaluator, random_controllers
 from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value
 
 
