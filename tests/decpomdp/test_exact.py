@@ -187,3 +187,26 @@ def test_tabular_env_rejects_rows_that_are_not_distributions():
     text = text.replace("T: * : 0 : 0 : 0.5", "T: * :\nidentity").replace("O: * :\nuniform", "O: * : 1 : 0 0 : 0.3")
     with pytest.raises(ValueError, match=r"observation row \(joint action 0, state 0\) sums to 0, not 1"):
         TabularDecPOSMDP(parse_dpomdp(text, check_probabilities=False), horizon=3)
+
+
+def _bench_exact():
+    """benchmarks/bench_exact.py, which keeps the dense product this package used before as its reference."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_exact.py"
+    spec = importlib.util.spec_from_file_location("bench_exact", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name, horizon", [("dectiger", 4), ("broadcastChannel", 6), ("recycling", 4), ("GridSmall", 3)])
+def test_equals_the_former_dense_product(name, horizon):
+    """The factored evaluator reproduces the former (K, Q, S, S', JO) dense product to 1e-9 on the small problems."""
+    bench = _bench_exact()
+    env = TabularDecPOSMDP.from_problem(name, gamma=1.0, horizon=horizon)
+    for ctrl in (random_controllers(8, 2, 3, env.num_actions, env.num_obs, torch.Generator().manual_seed(3)),
+                 bench.layered_controllers(env, 8, 1 + 3 * (horizon - 1), seed=4)):
+        torch.testing.assert_close(exact_value(env, ctrl), bench.dense_reference_value(env, ctrl, horizon),
+                                   atol=1e-9, rtol=0)
