@@ -87,8 +87,9 @@ def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, GDICEC
                   optimum=plain.get("optimum"), source=plain.get("source", ""), evaluator=plain.get("evaluator", "exact"),
                   rollouts=int(plain.get("rollouts", 200)), restarts=int(plain.get("restarts", 1)),
                   gdice=plain.get("gdice", {}))
-        merged = OmegaConf.merge(planner, row.gdice)
-        paper = OmegaConf.merge(merged, study.paper_budget)
+        settings = {**OmegaConf.to_container(planner, resolve=True), **row.gdice}  # plain: schemas stay apart
+        merged = OmegaConf.create(settings)
+        paper = OmegaConf.create({**settings, **OmegaConf.to_container(study.paper_budget, resolve=True)})
         cfgs = []
         for settings in (merged, paper):
             for key in ("iterations", "samples"):

@@ -88,3 +88,26 @@ def test_infinite_rows_need_a_discount():
     with pytest.raises(ValueError, match="study.rows.recycling_inf.horizon: null"):
         build_rows(study, PLANNER)
     assert all(math.isfinite(cfg.alpha) for _, cfg, _ in build_rows(CONFIG.study, PLANNER))
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("study.rows.dectiger_h2.problem=nope", "study.rows.dectiger_h2.problem: expected one of"),
+        ("study.rows.dectiger_h2.evaluator=guess", "study.rows.dectiger_h2.evaluator: expected one of"),
+        ("study.rows.recycling_inf.gamma=1.0", r"study.rows.recycling_inf.horizon: null \(infinite\) needs gamma < 1"),
+        ("study.rows.dectiger_h2.restarts=0", "study.rows.dectiger_h2.restarts: expected an int >= 1"),
+        ("study.paper_budget.samples=0", "study.paper_budget.samples: expected an int >= 1"),
+    ],
+)
+def test_composed_config_fails_naming_the_key(override, message):
+    """The typed schema rejects a bad row when the config is composed and checked, before the run starts."""
+    from hydra import compose, initialize_config_dir
+
+    from experiments.schemas import check_config, register
+
+    register()
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["experiment=dpomdp_benchmarks", override])
+    with pytest.raises(ValueError, match=message):
+        check_config(cfg)
