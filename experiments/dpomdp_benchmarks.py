@@ -67,6 +67,8 @@ class Row:
             raise ValueError(f"{where}.horizon: expected a whole number >= 1 or null, got {self.horizon}")
         if self.evaluator not in _EVALUATORS:
             raise ValueError(f"{where}.evaluator: expected one of {_EVALUATORS}, got {self.evaluator!r}")
+        if self.evaluator == "monte_carlo" and self.horizon == math.inf:
+            raise ValueError(f"{where}.evaluator: monte_carlo rollouts need a finite horizon")
         if self.rollouts < 2 or self.restarts < 1:
             raise ValueError(f"{where}: rollouts must be >= 2 and restarts >= 1, got {self.rollouts}, {self.restarts}")
         if self.optimum is not None and not self.source:

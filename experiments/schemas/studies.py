@@ -205,6 +205,8 @@ class BenchmarkRow:
         if self.horizon is not None:
             positive_int("horizon", self.horizon)
         one_of("evaluator", self.evaluator, ("exact", "monte_carlo"))
+        if self.evaluator == "monte_carlo" and self.horizon is None:
+            raise ValueError("evaluator: monte_carlo rollouts need a finite horizon")
         positive_int("rollouts", self.rollouts, 2)
         positive_int("restarts", self.restarts)
         if self.optimum is not None and not self.source:

@@ -98,6 +98,7 @@ def test_infinite_rows_need_a_discount():
         ("study.rows.recycling_inf.gamma=1.0", r"study.rows.recycling_inf.horizon: null \(infinite\) needs gamma < 1"),
         ("study.rows.dectiger_h2.restarts=0", "study.rows.dectiger_h2.restarts: expected an int >= 1"),
         ("study.paper_budget.samples=0", "study.paper_budget.samples: expected an int >= 1"),
+        ("study.rows.recycling_inf.evaluator=monte_carlo", "study.rows.recycling_inf.evaluator: monte_carlo rollouts"),
     ],
 )
 def test_composed_config_fails_naming_the_key(override, message):
