@@ -1,16 +1,21 @@
 """Exact values of joint finite-state controllers on a tabular Dec-POMDP.
 
-For K joint controllers with Nn nodes per agent, the joint node ``q = (n_1, ..., n_A)`` and the state
-``s`` form a Markov chain. With ``r[q, s] = R(s, a(q))`` and
-``P[q, s -> next(q, jo), s'] = T(s'|s, a(q)) O(jo|a(q), s')``:
+For K joint controllers the (joint node q, state s) pairs form a Markov chain; with
+``r[q, s] = R(s, a(q))`` the values solve ``V = r + gamma P V`` with the factored backup ``P`` of
+:mod:`decpomdp.dpomdp.backup` (no S x S' x joint-observation tensor). Only joint nodes reachable
+from the start node ``(0, ..., 0)`` are ever touched:
 
-* infinite horizon, ``gamma < 1``: ``V = r + gamma P V`` is solved as a dense linear system over
-  (q, s) (``torch.linalg.solve``, controllers chunked to bound memory); above ``max_dense`` unknowns it
-  is solved by fixed-point iteration to a residual below ``tol``;
-* finite horizon ``h``: ``V_0 = 0``, ``V_{j+1} = r + gamma P V_j`` (backward recursion, h steps).
+* finite horizon ``h``: the joint nodes reachable at each step ``t`` are found forwards (for a
+  layered controller, only the current layer's), then ``V_t = r + gamma P V_{t+1}`` backwards over
+  exactly those (``V_h = 0``);
+* infinite horizon, ``gamma < 1``: over all reachable joint nodes, the system
+  ``(I - gamma P) V = r`` is solved densely (``torch.linalg.solve``) when every controller's system has
+  at most ``max_dense`` unknowns, and otherwise by restarted GMRES on the factored operator (batched
+  over controllers) until the residual guarantees ``max |V - V*| <= tol``.
 
-The value is ``sum_s b0(s) V[q = (0, ..., 0), s]``: step ``k`` rewards discounted by ``gamma ** k``,
-the same convention as :class:`~decpomdp.dpomdp.tabular.TabularDecPOSMDP` under the simulator.
+The value is ``sum_s b0(s) V[(0, ..., 0), s]``: step ``k`` rewards discounted by ``gamma ** k``, the
+same convention as :class:`~decpomdp.dpomdp.tabular.TabularDecPOSMDP` under the simulator. Everything
+is float64; controllers are processed in chunks whose working memory stays within ``memory_budget``.
 """
 
 from __future__ import annotations
@@ -21,60 +26,17 @@ import torch
 from torch import Tensor
 
 from decpomdp.controller import JointController
+from decpomdp.dpomdp.backup import Columns, JointNodes, TransitionOperator, link, operator_for
+from decpomdp.dpomdp.krylov import gmres
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from infra.threads import torch_threads
+
+DEFAULT_EVAL_BUDGET = 512 * 1024**2
+"""Default working memory of :func:`exact_value`, bytes (512 MiB)."""
+_GMRES_RESTART = 30
 
 
-def _joint_tables(env: TabularDecPOSMDP, ctrl: JointController) -> tuple[Tensor, Tensor, Tensor]:
-    """Joint-node tables: r (K, Q, S), P (K, Q, S, S', JO), next (K, Q, JO)."""
-    k, a, nn = ctrl.action.shape
-    grids = torch.cartesian_prod(*[torch.arange(nn)] * a).view(-1, a) if a > 1 else torch.arange(nn)[:, None]
-    agent = torch.arange(a)
-    acts = ctrl.action[:, agent, grids]  # (K, Q, A)
-    ja = env.joint_action(acts)  # (K, Q)
-    obs = env.split_obs(torch.arange(env.observation.shape[-1]))  # (JO, A)
-    # next node of agent i: next_node[k, i, q_i, o_i] -> (K, Q, JO, A)
-    nxt = ctrl.next_node[:, agent, grids[:, None, :], obs[None, :, :]]
-    node_strides = torch.tensor([nn ** (a - 1 - i) for i in range(a)])
-    nxt_q = (nxt * node_strides).sum(-1)
-    r = env.expected_reward[ja]  # (K, Q, S)
-    p = env.transition[ja][..., None] * env.observation[ja][:, :, None]  # (K, Q, S, S', JO)
-    return r, p, nxt_q
-
-
-def _backup(v: Tensor, r: Tensor, p: Tensor, nxt: Tensor, gamma: float) -> Tensor:
-    """One Bellman backup of V (K, Q, S) for fixed controllers."""
-    k, q, s = v.shape
-    w = torch.gather(v, 1, nxt.reshape(k, -1)[..., None].expand(-1, -1, s)).view(k, q, -1, s)  # (K, Q, JO, S')
-    return r + gamma * torch.einsum("kqsxj,kqjx->kqs", p, w)
-
-
-def _dense(r: Tensor, p: Tensor, nxt: Tensor, gamma: float) -> Tensor:
-    k, q, s = r.shape
-    jo = p.shape[-1]
-    n = q * s
-    rows = (torch.arange(q)[:, None] * s + torch.arange(s)).view(q, s, 1, 1).expand(q, s, s, jo)
-    cols = nxt.view(k, q, 1, 1, jo) * s + torch.arange(s).view(1, 1, 1, s, 1)
-    flat = (rows.unsqueeze(0) * n + cols).reshape(k, -1)
-    m = torch.zeros(k, n * n, dtype=torch.float64).scatter_add_(1, flat, p.reshape(k, -1)).view(k, n, n)
-    lhs = torch.eye(n, dtype=torch.float64) - gamma * m
-    return torch.linalg.solve(lhs, r.reshape(k, n, 1)).view(k, q, s)
-
-
-def exact_value(
-    env: TabularDecPOSMDP,
-    controller: JointController,
-    horizon: float | None = None,
-    max_dense: int = 1500,
-    tol: float = 1e-10,
-) -> Tensor:
-    """Exact value of each of the K joint controllers, float64 (K,).
-
-    Args:
-        env: the tabular problem (its ``gamma``; its ``horizon`` unless ``horizon`` is given).
-        horizon: number of steps, or ``math.inf`` for the discounted infinite-horizon value.
-        max_dense: largest (joint node x state) system solved densely.
-        tol: fixed-point residual for larger infinite-horizon systems.
-    """
+def _check(env: TabularDecPOSMDP, controller: JointController, horizon: float | None) -> float:
     if not isinstance(env, TabularDecPOSMDP):
         raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
     if not isinstance(controller, JointController):
@@ -87,45 +49,160 @@ def exact_value(
     if int(controller.action.max()) >= env.num_actions:
         raise ValueError(f"controller: action entries must lie in [0, {env.num_actions})")
     horizon = env.horizon if horizon is None else float(horizon)
-    gamma = env.gamma
-    if horizon == math.inf and gamma >= 1.0:
+    if horizon == math.inf and env.gamma >= 1.0:
         raise ValueError("horizon: an infinite horizon needs gamma < 1")
     if horizon != math.inf and not (horizon.is_integer() and horizon >= 1):
         raise ValueError(f"horizon: expected a whole number of steps >= 1 or math.inf, got {horizon}")
-    n = controller.num_nodes**controller.num_agents * env.num_states
-    dense = horizon == math.inf and n <= max_dense
-    per_controller = n * n if dense else n * env.num_states * env.observation.shape[-1]
-    chunk = max(1, int(2e7 // per_controller))
-    out = []
-    for i in range(0, controller.num_controllers, chunk):
-        r, p, nxt = _joint_tables(env, controller[i : i + chunk])
-        if dense:
-            v = _dense(r, p, nxt, gamma)
-        elif horizon == math.inf:
-            v = torch.zeros_like(r)
-            while True:
-                new = _backup(v, r, p, nxt, gamma)
-                done = (new - v).abs().max() <= tol * (1 - gamma)
-                v = new
-                if done:
-                    break
+    return horizon
+
+
+def _finite(op: TransitionOperator, nodes: JointNodes, k: int, horizon: int, gamma: float, start: Tensor) -> Tensor:
+    """Values (K,) at a finite horizon, over the joint nodes reachable at each step."""
+    layers = []
+    ids = torch.arange(k) * nodes.num_joint  # start node (0, ..., 0) of every controller
+    for t in range(horizon):
+        cols = nodes.columns(ids)
+        layers.append(cols)
+        if t + 1 < horizon:
+            ids = torch.unique(cols.next_ids)
+    v = None
+    for t in reversed(range(horizon)):
+        cols = layers[t]
+        r = op.reward.index_select(0, cols.action)
+        if v is None:
+            v = r
         else:
-            v = torch.zeros_like(r)
-            for _ in range(int(horizon)):
-                v = _backup(v, r, p, nxt, gamma)
-        out.append(v[:, 0, :] @ env.start_dist)
+            link(cols, layers[t + 1], k * nodes.num_joint)
+            v = r.add_(op.backup(v, cols), alpha=gamma)
+    order = torch.argsort(layers[0].ids)  # back to controller order
+    return v[order] @ start
+
+
+def _reachable(nodes: JointNodes, k: int) -> Columns:
+    """All columns reachable from the start nodes, linked to themselves."""
+    seen = torch.zeros(k * nodes.num_joint, dtype=torch.bool)
+    frontier = torch.arange(k) * nodes.num_joint
+    seen[frontier] = True
+    while frontier.numel():
+        nxt = torch.unique(nodes.columns(frontier).next_ids)
+        frontier = nxt[~seen[nxt]]
+        seen[frontier] = True
+    cols = nodes.columns(seen.nonzero().squeeze(1))
+    link(cols, cols, k * nodes.num_joint)
+    return cols
+
+
+def _dense_solve(op: TransitionOperator, cols: Columns, owner: Tensor, k: int, gamma: float) -> Tensor:
+    """Solve ``(I - gamma P) V = r`` per controller as a dense system; returns V (C, S)."""
+    n_s = op.num_states
+    count = torch.bincount(owner, minlength=k)
+    first = torch.cumsum(count, 0) - count
+    by_id = torch.argsort(cols.ids)  # ids k * Q + q group the columns by controller
+    local = torch.empty_like(owner)
+    local[by_id] = torch.arange(owner.numel()) - first[owner[by_id]]  # column index within its controller
+    n = int(count.max()) * n_s
+    m = torch.zeros(k, n, n, dtype=torch.float64)
+    rows = (local[:, None] * n_s + torch.arange(n_s)).reshape(-1)  # (C * S,)
+    for a, lo, hi in cols.groups:
+        t_a = op.dense(a)
+        for jo in range(op.num_joint_obs):
+            block = t_a * op.obs_rows[a * op.num_joint_obs + jo][None, :]  # (S, S')
+            tgt = local[cols.next[lo:hi, jo]]
+            r_idx = (local[lo:hi, None, None] * n_s + torch.arange(n_s)[None, :, None]).expand(-1, n_s, n_s)
+            c_idx = (tgt[:, None, None] * n_s + torch.arange(n_s)[None, None, :]).expand(-1, n_s, n_s)
+            m.index_put_((owner[lo:hi, None, None].expand(-1, n_s, n_s), r_idx, c_idx),
+                         block.expand(hi - lo, -1, -1), accumulate=True)
+    lhs = torch.eye(n, dtype=torch.float64) - gamma * m
+    rhs = torch.zeros(k, n, dtype=torch.float64)
+    rhs[owner.repeat_interleave(n_s), rows] = op.reward.index_select(0, cols.action).reshape(-1)
+    sol = torch.linalg.solve(lhs, rhs)
+    return sol[owner.repeat_interleave(n_s), rows].view(-1, n_s)
+
+
+def _infinite(op: TransitionOperator, nodes: JointNodes, k: int, gamma: float, start: Tensor, max_dense: int,
+              tol: float) -> Tensor:
+    """Discounted infinite-horizon values (K,) over the reachable joint nodes."""
+    cols = _reachable(nodes, k)
+    owner = cols.ids // nodes.num_joint
+    if int(torch.bincount(owner, minlength=k).max()) * op.num_states <= max_dense:
+        v = _dense_solve(op, cols, owner, k, gamma)
+    else:
+        r = op.reward.index_select(0, cols.action)
+        v = gmres(lambda x: x - gamma * op.backup(x, cols), r, owner, k, tol * (1.0 - gamma), _GMRES_RESTART)
+    at_start = (cols.ids % nodes.num_joint) == 0
+    order = torch.argsort(owner[at_start])
+    return v[at_start][order] @ start
+
+
+def _bytes_per_controller(controller: JointController, env: TabularDecPOSMDP, horizon: float, max_dense: int) -> int:
+    q, s = controller.num_nodes**controller.num_agents, env.num_states
+    if horizon != math.inf:
+        return 6 * 8 * q * s + 8 * q * env.observation.shape[-1] * 3
+    dense = min(q * s, max_dense)  # the reachable part decides, so either solver may run
+    return max(3 * 8 * dense**2, (_GMRES_RESTART + 8) * 8 * q * s)
+
+
+def exact_value(
+    env: TabularDecPOSMDP,
+    controller: JointController,
+    horizon: float | None = None,
+    max_dense: int = 300,
+    tol: float = 1e-10,
+    memory_budget: int = DEFAULT_EVAL_BUDGET,
+    threads: int | None = 1,
+) -> Tensor:
+    """Exact value of each of the K joint controllers, float64 (K,).
+
+    Args:
+        env: the tabular problem (its ``gamma``; its ``horizon`` unless ``horizon`` is given).
+        horizon: number of steps, or ``math.inf`` for the discounted infinite-horizon value.
+        max_dense: largest per-controller (reachable joint node x state) system solved densely; above
+            about 300 unknowns GMRES on the factored operator is the faster of the two.
+        tol: bound on ``max |V - V*|`` for systems solved by GMRES.
+        memory_budget: bytes of working memory; controllers are evaluated in chunks that fit
+            (the per-controller need is bounded with every joint node reachable).
+        threads: torch intra-op threads during the call (None: unchanged). One by default: the
+            products are many and small, and thread hand-offs cost more than they save on a busy machine.
+
+    Raises:
+        ValueError: bad arguments, or one controller alone needs more than ``memory_budget``.
+    """
+    horizon = _check(env, controller, horizon)
+    if not isinstance(memory_budget, int) or memory_budget < 1:
+        raise ValueError(f"memory_budget: expected a number of bytes >= 1, got {memory_budget!r}")
+    need = _bytes_per_controller(controller, env, horizon, max_dense)
+    if need > memory_budget:
+        raise ValueError(f"memory_budget: one controller needs up to {need} bytes, more than {memory_budget}")
+    chunk = memory_budget // need
+    out = []
+    with torch_threads(threads):
+        op = operator_for(env)
+        for i in range(0, controller.num_controllers, chunk):
+            part = controller[i : i + chunk]
+            nodes, k = JointNodes(env, part), part.num_controllers
+            if horizon == math.inf:
+                out.append(_infinite(op, nodes, k, env.gamma, env.start_dist, max_dense, tol))
+            else:
+                out.append(_finite(op, nodes, k, int(horizon), env.gamma, env.start_dist))
     return torch.cat(out)
 
 
 class ExactEvaluator:
-    """An :class:`~decpomdp.evaluate.Evaluator` returning exact values (standard error 0)."""
+    """An :class:`~decpomdp.evaluate.Evaluator` returning exact values (standard error 0).
 
-    def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None) -> None:
+    Args:
+        env: the tabular problem.
+        horizon: overrides ``env.horizon`` (None keeps it).
+        memory_budget, threads: per call, see :func:`exact_value`.
+    """
+
+    def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None,
+                 memory_budget: int = DEFAULT_EVAL_BUDGET, threads: int | None = 1) -> None:
         if not isinstance(env, TabularDecPOSMDP):
             raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
-        self.env, self.horizon = env, horizon
+        self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
         self.num_agents, self.num_actions, self.num_obs = env.num_agents, env.num_actions, env.num_obs
 
     def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        v = exact_value(self.env, controller, self.horizon)
+        v = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget, threads=self.threads)
         return v, torch.zeros_like(v)

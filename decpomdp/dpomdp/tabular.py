@@ -1,9 +1,10 @@
 """A tabular Dec-POMDP as a Dec-POSMDP whose every primitive action is a unit-duration MA.
 
 Time convention (see :mod:`decpomdp.core`): the step-``k`` joint action starts at ``k`` and completes
-at ``k + 1``; ``horizon = h`` runs ``h`` steps. ``complete`` samples ``s' ~ T(.|s, ja)``,
-``jo ~ O(.|ja, s')`` and returns ``R(s, ja, s', jo) / gamma``, so with the simulator's ``gamma ** (k+1)``
-step ``k``'s reward is discounted by ``gamma ** k`` as in the Dec-POMDP literature.
+at ``k + 1``; ``horizon = h`` runs ``h`` steps. ``complete`` samples ``s' ~ T(.|s, ja)`` from the sparse
+row of ``(ja, s)``, ``jo ~ O(.|ja, s')`` and returns ``R(s, ja, s', jo) / gamma``, so with the
+simulator's ``gamma ** (k+1)`` step ``k``'s reward is discounted by ``gamma ** k`` as in the
+Dec-POMDP literature. Memory is that of the compact model: nothing is (JA, S, S') dense.
 """
 
 from __future__ import annotations
@@ -16,7 +17,11 @@ import torch
 from torch import Tensor
 
 from decpomdp.core import DecPOSMDP
-from decpomdp.dpomdp.parser import DPOMDPModel, load_dpomdp
+from decpomdp.dpomdp.model import DPOMDPModel
+from decpomdp.dpomdp.parser import load_dpomdp
+from decpomdp.dpomdp.problems import load_problem
+
+_ROW_TOL = 1e-6
 
 
 def _sample(cum: Tensor, generator: torch.Generator) -> Tensor:
@@ -25,15 +30,29 @@ def _sample(cum: Tensor, generator: torch.Generator) -> Tensor:
     return torch.searchsorted(cum, u, right=True).squeeze(1).clamp_(max=cum.shape[1] - 1)
 
 
+def _check_distributions(model: DPOMDPModel) -> None:
+    sums = model.transition.row_sums()
+    if np.abs(sums - 1.0).max(initial=0.0) > _ROW_TOL:
+        ja, s = np.unravel_index(np.abs(sums - 1.0).argmax(), sums.shape)
+        raise ValueError(f"model: transition row (joint action {ja}, state {s}) sums to {sums[ja, s]:.6g}, not 1")
+    o_sums = model.observation.sum(-1)
+    if np.abs(o_sums - 1.0).max(initial=0.0) > _ROW_TOL:
+        ja, s = np.unravel_index(np.abs(o_sums - 1.0).argmax(), o_sums.shape)
+        raise ValueError(f"model: observation row (joint action {ja}, state {s}) sums to {o_sums[ja, s]:.6g}, not 1")
+
+
 class TabularDecPOSMDP(DecPOSMDP):
     """A ``.dpomdp`` model with unit-duration MAs.
 
     Args:
-        model: a parsed :class:`~decpomdp.dpomdp.parser.DPOMDPModel` (every agent with the same numbers
-            of actions and observations).
+        model: a parsed :class:`~decpomdp.dpomdp.model.DPOMDPModel` (every agent with the same numbers
+            of actions and observations; every T and O row a distribution).
         gamma: discount in (0, 1]; defaults to the file's.
         horizon: number of steps ``h`` (``math.inf`` for an infinite-horizon problem, which
             :func:`~decpomdp.dpomdp.exact.exact_value` evaluates but :func:`~decpomdp.simulate` cannot).
+
+    Attributes (float64 torch tensors unless noted): ``start_dist`` (S,), ``observation`` (JA, S', JO),
+    ``expected_reward`` (JA, S), and ``model`` (its sparse ``transition`` is what exact evaluation uses).
     """
 
     def __init__(self, model: DPOMDPModel, gamma: float | None = None, horizon: float = math.inf) -> None:
@@ -43,6 +62,7 @@ class TabularDecPOSMDP(DecPOSMDP):
         n_obs = {len(o) for o in model.obs_names}
         if len(n_act) != 1 or len(n_obs) != 1:
             raise ValueError("model: every agent must have the same numbers of actions and of observations")
+        _check_distributions(model)
         gamma = model.discount if gamma is None else float(gamma)
         if not 0.0 < gamma <= 1.0:
             raise ValueError(f"gamma: expected a discount in (0, 1], got {gamma}")
@@ -57,23 +77,35 @@ class TabularDecPOSMDP(DecPOSMDP):
         self.gamma, self.horizon = gamma, float(horizon)
         self.action_names = list(model.action_names[0])
         self.obs_names = list(model.obs_names[0])
-        f64 = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
+        f64 = lambda x: torch.as_tensor(np.asarray(x, dtype=np.float64))
         self.start_dist = f64(model.start)
-        self.transition = f64(model.transition)  # (JA, S, S')
         self.observation = f64(model.observation)  # (JA, S', JO)
-        self.reward = f64(model.reward)  # (JA, S, S', JO)
         self.expected_reward = f64(model.expected_reward())  # (JA, S)
         self._start_cum = self.start_dist.cumsum(0)
-        self._t_cum = self.transition.cumsum(-1)
         self._o_cum = self.observation.cumsum(-1)
+        t = model.transition
+        self._t_indptr = torch.as_tensor(t.indptr)
+        self._t_indices = torch.as_tensor(t.indices)
+        self._t_cum = torch.as_tensor(np.cumsum(t.data))  # running sum over all stored entries, row after row
+        self._t_cum0 = torch.cat([torch.zeros(1, dtype=torch.float64), self._t_cum])
+        # the reward as a flat table with stride 0 along the indices it does not depend on
+        r = np.ascontiguousarray(model.reward, dtype=np.float64)
+        self._reward = torch.as_tensor(r.ravel())
+        strides = np.cumprod((r.shape[1:] + (1,))[::-1])[::-1]
+        self._reward_strides = [int(st) if n > 1 else 0 for st, n in zip(strides, r.shape)]
         a = self.num_agents
         self.action_strides = torch.tensor([self.num_actions ** (a - 1 - i) for i in range(a)])
         self.obs_strides = torch.tensor([self.num_obs ** (a - 1 - i) for i in range(a)])
 
     @classmethod
     def from_file(cls, path: str | os.PathLike, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
-        """Load a ``.dpomdp`` file."""
+        """Load a ``.dpomdp`` or ``.dpomdp.gz`` file."""
         return cls(load_dpomdp(path), gamma, horizon)
+
+    @classmethod
+    def from_problem(cls, name: str, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
+        """Load a problem shipped with the package (see :func:`~decpomdp.dpomdp.problem_path`)."""
+        return cls(load_problem(name), gamma, horizon)
 
     def joint_action(self, actions: Tensor) -> Tensor:
         """(..., A) individual actions -> (...) joint index (first agent most significant)."""
@@ -82,6 +114,20 @@ class TabularDecPOSMDP(DecPOSMDP):
     def split_obs(self, jo: Tensor) -> Tensor:
         """(...) joint observation -> (..., A) individual observations."""
         return (jo[..., None] // self.obs_strides) % self.num_obs
+
+    def sample_next_state(self, ja: Tensor, s: Tensor, generator: torch.Generator) -> Tensor:
+        """``s' ~ T(. | s, ja)`` for (B,) joint actions and states, from the sparse rows."""
+        row = ja * self.num_states + s
+        lo, hi = self._t_indptr[row], self._t_indptr[row + 1]
+        base, total = self._t_cum0[lo], self._t_cum0[hi] - self._t_cum0[lo]
+        target = base + torch.rand(row.shape, generator=generator, dtype=torch.float64) * total
+        idx = torch.searchsorted(self._t_cum, target, right=True)
+        return self._t_indices[torch.minimum(torch.maximum(idx, lo), hi - 1)]
+
+    def reward_of(self, ja: Tensor, s: Tensor, s2: Tensor, jo: Tensor) -> Tensor:
+        """``R(ja, s, s', jo)`` for (B,) index tensors."""
+        st = self._reward_strides
+        return self._reward[ja * st[0] + s * st[1] + s2 * st[2] + jo * st[3]]
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
         u = torch.rand(batch, generator=generator, dtype=torch.float64) * self._start_cum[-1]
@@ -94,8 +140,8 @@ class TabularDecPOSMDP(DecPOSMDP):
         act = agents.any(dim=1)
         s = state["s"]
         ja = self.joint_action(actions)
-        s2 = _sample(self._t_cum[ja, s], generator)
+        s2 = self.sample_next_state(ja, s, generator)
         jo = _sample(self._o_cum[ja, s2], generator)
-        reward = torch.where(act, self.reward[ja, s, s2, jo] / self.gamma, 0.0)
+        reward = torch.where(act, self.reward_of(ja, s, s2, jo) / self.gamma, 0.0)
         state["s"] = torch.where(act, s2, s)
         return reward, self.split_obs(jo)

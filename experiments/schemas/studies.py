@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from experiments.schemas.blocks import (
-    BaselineStudy, HBNIBlock, HyperPriorBlock, PlanningStudy, check_seeded, positive_int, probability,
+    BaselineStudy, HBNIBlock, HyperPriorBlock, PlanningStudy, check_seeded, one_of, positive_int, probability,
 )
 from experiments.schemas.targets import target_schema
 
@@ -182,16 +182,65 @@ class Caps:
 
 
 @dataclass
-class BenchmarkStudy:
-    benchmark_dir: str = "?"
-    random_controllers: int = 1000
-    caps: Caps = field(default_factory=Caps)
-    problems: dict[str, Any] = field(default_factory=dict)
+class BenchmarkRow:
+    """One row of ``dpomdp_benchmarks``: a shipped problem, its horizon (None: infinite) and optimum."""
+
+    problem: str = "?"
+    gamma: float = 1.0
+    horizon: Optional[int] = None
+    optimum: Optional[float] = None
+    source: str = ""
+    evaluator: str = "exact"
+    rollouts: int = 200
+    restarts: int = 1
+    gdice: dict[str, Any] = field(default_factory=dict)
 
     def check(self, path: str) -> None:
+        from decpomdp.dpomdp import problem_names
+
+        one_of("problem", self.problem, tuple(problem_names()))
+        probability("gamma", self.gamma)
+        if self.horizon is None and self.gamma >= 1:
+            raise ValueError("horizon: null (infinite) needs gamma < 1")
+        if self.horizon is not None:
+            positive_int("horizon", self.horizon)
+        one_of("evaluator", self.evaluator, ("exact", "monte_carlo"))
+        if self.evaluator == "monte_carlo" and self.horizon is None:
+            raise ValueError("evaluator: monte_carlo rollouts need a finite horizon")
+        positive_int("rollouts", self.rollouts, 2)
+        positive_int("restarts", self.restarts)
+        if self.optimum is not None and not self.source:
+            raise ValueError("source: a published optimum needs its source")
+
+
+@dataclass
+class PaperBudget:
+    samples: int = 100
+    iterations: int = 100
+
+    def check(self, path: str) -> None:
+        positive_int("samples", self.samples)
+        positive_int("iterations", self.iterations)
+
+
+@dataclass
+class BenchmarkStudy:
+    threads: int = 1
+    random_controllers: int = 1000
+    paper_budget: PaperBudget = field(default_factory=PaperBudget)
+    caps: Caps = field(default_factory=Caps)
+    rows: dict[str, BenchmarkRow] = field(default_factory=dict)
+
+    def check(self, path: str) -> None:
+        positive_int("threads", self.threads)
         positive_int("random_controllers", self.random_controllers, 2)
-        if not self.problems:
-            raise ValueError("problems: expected at least one problem")
+        if not self.rows:
+            raise ValueError("rows: expected at least one row")
+        for name, row in self.rows.items():
+            try:
+                row.check(f"{path}.rows.{name}")
+            except ValueError as exc:
+                raise ValueError(f"{path}.rows.{name}.{exc}") from None
 
 
 @dataclass

@@ -1,13 +1,24 @@
-"""Smoke run of the dpomdp_benchmarks experiment through the real Hydra entry point, tiny settings."""
+"""The dpomdp_benchmarks experiment: a smoke run through the real Hydra entry point (tiny settings), its
+config (every optimum cited, published horizon-2 optima equal exhaustive search on the shipped files),
+and config errors raised before any work."""
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+from omegaconf import OmegaConf
+
 from decpomdp import JointController
+from decpomdp.dpomdp import TabularDecPOSMDP
+from decpomdp.dpomdp.exhaustive import exhaustive_optimum
+from experiments.dpomdp_benchmarks import build_rows, fraction_of_optimum
 
 REPO = Path(__file__).resolve().parents[2]
+CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")
+PLANNER = OmegaConf.load(REPO / "conf" / "planner" / "gdice.yaml")
 
 
 def test_dpomdp_benchmarks_smoke(tmp_path):
@@ -18,11 +29,86 @@ def test_dpomdp_benchmarks_smoke(tmp_path):
         cwd=REPO, check=True, capture_output=True,
     )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    problems = metrics["problems"]
-    assert set(problems) == {"broadcast_h10", "broadcast_h100", "dectiger_h3", "dectiger_h4", "recycling", "gridsmall"}
-    for name, row in problems.items():
-        assert row["controllers_evaluated"] == 2 * 20
+    rows = metrics["rows"]
+    assert set(rows) == set(CONFIG.study.rows)
+    for name, row in rows.items():
+        assert row["controllers_per_run"] == 2 * 20 and row["paper_budget"]["samples"] == 20
         ctrl = JointController.load(tmp_path / "controllers" / f"{name}.safetensors")
         assert ctrl.num_controllers == 1
-    assert problems["dectiger_h3"]["horizon"] == 3 and problems["recycling"]["horizon"] == "inf"
-    assert (tmp_path / "gdice_learning_curves.png").stat().st_size > 10_000
+        if row["optimum"] is not None:
+            assert row["gdice_value"] <= row["optimum"] + 1e-9  # no controller beats the optimum
+            assert row["meets_95"] == (row["fraction_of_optimum"] >= 0.95)
+    assert rows["dectiger_h3"]["horizon"] == 3 and rows["recycling_inf"]["horizon"] == "inf"
+    assert rows["firefighting_h2"]["optimum_source"].startswith("exhaustive search over all 4096")
+    assert rows["firefighting_h4_monte_carlo"]["evaluator"] == "monte_carlo"
+    assert metrics["rows_scored"] == sum(r["meets_95"] is not None for r in rows.values())
+    assert (tmp_path / "dpomdp_benchmarks.png").stat().st_size > 20_000
+    assert (tmp_path / "table.md").read_text().count("\n") == len(rows) + 2
+
+
+def test_every_optimum_cites_its_source_and_horizon_2_optima_fit_the_shipped_files():
+    checked = 0
+    for name, row in CONFIG.study.rows.items():
+        assert row.source, name
+        if row.optimum is not None and row.horizon == 2:
+            env = TabularDecPOSMDP.from_problem(row.problem, gamma=float(row.gamma), horizon=2)
+            assert exhaustive_optimum(env, 2)[0] == pytest.approx(row.optimum, abs=1e-6), name
+            checked += 1
+    assert checked == 5
+
+
+def test_fraction_of_optimum():
+    assert fraction_of_optimum(9.0, 10.0, 0.0) == pytest.approx(0.9)  # V / V* for a positive optimum
+    assert fraction_of_optimum(-4.2, -4.0, -90.0) == pytest.approx(0.95)  # shortfall 0.2 of |V*| = 4
+    assert fraction_of_optimum(-0.5, 0.0, -10.0) == pytest.approx(0.95)  # V* = 0: over the random shortfall
+    assert fraction_of_optimum(0.0, 0.0, 0.0) == 1.0
+
+
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("problem", "nope", "study.rows.dectiger_h2.problem: expected one of"),
+        ("gamma", 1.5, "study.rows.dectiger_h2.gamma"),
+        ("horizon", 2.5, "study.rows.dectiger_h2.horizon"),
+        ("evaluator", "guess", "study.rows.dectiger_h2.evaluator"),
+        ("colour", "red", r"study.rows.dectiger_h2: unknown keys \['colour'\]"),
+        ("gdice", {"num_nodes": 3, "layer_width": 5}, "study.rows.dectiger_h2.gdice"),
+    ],
+)
+def test_config_errors_name_the_key_before_any_work(key, value, message):
+    study = OmegaConf.create(OmegaConf.to_container(CONFIG.study))
+    study.rows.dectiger_h2[key] = value
+    with pytest.raises(ValueError, match=message):
+        build_rows(study, PLANNER)
+
+
+def test_infinite_rows_need_a_discount():
+    study = OmegaConf.create(OmegaConf.to_container(CONFIG.study))
+    study.rows.recycling_inf.gamma = 1.0
+    with pytest.raises(ValueError, match="study.rows.recycling_inf.horizon: null"):
+        build_rows(study, PLANNER)
+    assert all(math.isfinite(cfg.alpha) for _, cfg, _ in build_rows(CONFIG.study, PLANNER))
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("study.rows.dectiger_h2.problem=nope", "study.rows.dectiger_h2.problem: expected one of"),
+        ("study.rows.dectiger_h2.evaluator=guess", "study.rows.dectiger_h2.evaluator: expected one of"),
+        ("study.rows.recycling_inf.gamma=1.0", r"study.rows.recycling_inf.horizon: null \(infinite\) needs gamma < 1"),
+        ("study.rows.dectiger_h2.restarts=0", "study.rows.dectiger_h2.restarts: expected an int >= 1"),
+        ("study.paper_budget.samples=0", "study.paper_budget.samples: expected an int >= 1"),
+        ("study.rows.recycling_inf.evaluator=monte_carlo", "study.rows.recycling_inf.evaluator: monte_carlo rollouts"),
+    ],
+)
+def test_composed_config_fails_naming_the_key(override, message):
+    """The typed schema rejects a bad row when the config is composed and checked, before the run starts."""
+    from hydra import compose, initialize_config_dir
+
+    from experiments.schemas import check_config, register
+
+    register()
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["experiment=dpomdp_benchmarks", override])
+    with pytest.raises(ValueError, match=message):
+        check_config(cfg)
