@@ -1,4 +1,5 @@
-"""Dec-POSMDP planning: a batched event-driven simulator, finite-state controllers and G-DICE.
+"""Dec-POSMDP planning: a batched event-driven simulator, finite-state controllers, G-DICE and the
+robot-side executor of a planned controller (:class:`ControllerExecutor`).
 
 Perception enters only through :class:`PerceptionModel`; this package never imports
 ``classifiers`` or ``hbni_pyro``.
@@ -10,16 +11,19 @@ from decpomdp.baselines import SearchResult, monte_carlo_search, random_controll
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.evaluate import Evaluator, MonteCarloEvaluator, evaluate
+from decpomdp.executor import ControllerExecutor, MacroAction
 from decpomdp.gdice import GDICEConfig, GDICEResult, gdice, sample_controllers
 from decpomdp.perception import PerceptionModel, PerfectPerception
 from decpomdp.simulate import simulate
 
 __all__ = [
+    "ControllerExecutor",
     "DecPOSMDP",
     "Evaluator",
     "GDICEConfig",
     "GDICEResult",
     "JointController",
+    "MacroAction",
     "PerceptionModel",
     "MonteCarloEvaluator",
     "PerfectPerception",

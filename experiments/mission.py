@@ -1,9 +1,12 @@
-"""The mission end to end: pixels -> classifier outputs -> HBNI macro-observations -> Dec-POSMDP policy.
+"""The mission end to end: pixels -> classifier outputs -> HBNI macro-observations -> Dec-POSMDP policy,
+then the policy executed with the actual filter on held-out frames.
 
-:func:`run` reads as its five stages:
+:func:`run` reads as its stages:
 
 1. :func:`train_perception`: render training-condition snapshots of the six disaster-relief
    object types and train the :class:`~classifiers.FrameClassifier` head on them (crops and mirrors).
+   :func:`start_bank`: the bank of held-out mission-condition sequences for the closed loop, from the
+   cache or built in background processes while the next stages run.
 2. :func:`classify_sequences`: render labelled calibration and held-out mission-condition
    sequences and classify every frame.
 3. :func:`fit_noise`: fit HBNI on the calibration outputs, then its likelihood temper on the same
@@ -11,14 +14,21 @@
 4. :func:`characterise_processes`: run HBNI, SSBF and max-of-mean macro-observation processes
    (threshold, frame budget) on the held-out streams and tabulate each one's
    ``P(label, frames | true class)``: the :class:`~hbni_pyro.MacroObservationModel` of the
-   "infer with 95 % confidence" MA.
+   "infer with 95 % confidence" MA (the empirical planning model). :func:`characterise_generative`:
+   the same processes run on streams simulated from HBNI's fitted posterior predictive (the
+   generative planning model); :func:`planning_models` gives each variant the one
+   ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
 5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain, search a
    controller with G-DICE (seeded with the hand-written greedy controller when
    ``planner.init_weight > 0``), and re-evaluate it, and the greedy controller itself, on
-   independent rollouts.
+   independent rollouts: the planned value.
+6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
+   answered by that variant's process on a fresh bank stream of the true class: the executed value,
+   and its gap to the planned one in standard errors.
 
 Writes ``metrics.json``, ``report.md`` with the figures ``values.png``, ``confusion.png``,
-``frames.png`` and ``learning_curves.png``, and every fitted artefact (``artifacts.json``).
+``frames.png``, ``learning_curves.png`` and ``closed_loop.png``, and every fitted artefact
+(``artifacts.json``).
 """
 
 from __future__ import annotations
@@ -35,12 +45,15 @@ from tqdm.auto import tqdm
 import hbni_pyro
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions
-from decpomdp import GDICEConfig
+from decpomdp import GDICEConfig, JointController
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import mission_report
 from experiments.artifacts import save_artifact
 from experiments.common import beats, save_figure
 from experiments.report import write_report
+from experiments.schemas.studies import MISSION_VARIANTS
+from experiments.steps import closed_loop
+from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import run_gdice, score, seed_controller
@@ -55,6 +68,7 @@ class Settings(NamedTuple):
     temper: float | None  # None: fit it on the calibration sequences
     overrides: dict[str, Any]  # imaging overrides of the `mission` preset
     frames: int
+    loop: closed_loop.LoopSettings  # planning model, generative streams, held-out bank
 
 
 class Outputs(NamedTuple):
@@ -75,11 +89,18 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     settings = read_settings(cfg)
     torch.manual_seed(settings.seed)
     clf = train_perception(cfg, settings, run_dir)
-    outputs = classify_sequences(clf, cfg, settings)
-    noise = fit_noise(outputs.calibration, cfg, settings, run_dir)
-    models = characterise_processes(noise, outputs.held_out, cfg, settings, run_dir)
-    results, histories = plan(models, cfg, settings, run_dir)
-    return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories)
+    bank = start_bank(clf, settings, run_dir)
+    try:
+        outputs = classify_sequences(clf, cfg, settings)
+        noise = fit_noise(outputs.calibration, cfg, settings, run_dir)
+        empirical = characterise_processes(noise, outputs.held_out, cfg, settings, run_dir)
+        generative = characterise_generative(noise, cfg, settings, run_dir)
+        models = planning_models(empirical, generative, settings)
+        results, histories = plan(models, cfg, settings, run_dir)
+        execute_closed_loop(bank.result(settings.progress), noise, results, cfg, settings, run_dir)
+    finally:
+        bank.cancel()
+    return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank)
 
 
 def read_settings(cfg: DictConfig) -> Settings:
@@ -88,12 +109,13 @@ def read_settings(cfg: DictConfig) -> Settings:
     overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
     variants = list(cfg.perception) if isinstance(cfg.perception, ListConfig) else [str(cfg.perception)]
     temper = None if st.temper == "fit" else float(st.temper)
-    return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames))
+    return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames),
+                    closed_loop.check_loop_settings(cfg))
 
 
 def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> FrameClassifier:
     """Stage 1: the frame classifier, trained on training-condition snapshots (saved as ``classifier``)."""
-    _step(settings.progress, "1/5 training the frame classifier on training-condition snapshots")
+    _step(settings.progress, "1/6 training the frame classifier on training-condition snapshots")
     st = cfg.mission
     clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), settings.seed,
                            settings.progress)
@@ -101,9 +123,21 @@ def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> Fram
     return clf
 
 
+def start_bank(clf: FrameClassifier, settings: Settings, run_dir: Path) -> BankBuild:
+    """Stage 1b: the held-out bank (seed ``seed + 3``; calibration and characterisation use ``+1``, ``+2``):
+    loaded from ``mission.bank.cache_dir``, or rendered and classified by background workers."""
+    loop = settings.loop
+    spec = BankSpec(tuple(CLASSES), get_conditions("mission", **settings.overrides), settings.seed + 3,
+                    loop.bank_sequences, settings.frames)
+    bank = BankBuild(spec, clf, run_dir / "classifier.safetensors", loop.cache_dir, loop.workers)
+    how = "found in the cache" if bank.cached else f"building with {loop.workers} background worker(s)"
+    _step(settings.progress, f"held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
+    return bank
+
+
 def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings) -> Outputs:
     """Stage 2: classifier outputs of the calibration and held-out mission-condition sequences."""
-    _step(settings.progress, "2/5 classifying mission-condition frames")
+    _step(settings.progress, "2/6 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
     calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, seed + 1, progress,
@@ -115,7 +149,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
 
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
     """Stage 3: HBNI fitted on the labelled calibration outputs (saved as ``posterior``), and its temper."""
-    _step(settings.progress, "3/5 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
+    _step(settings.progress, "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
     posterior = fit_labelled(calib, cfg.hbni, settings.seed, settings.progress)
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
@@ -131,22 +165,75 @@ def characterise_processes(
     noise: Noise, held: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """Stage 4: each variant's macro-observation table on the held-out streams (saved as ``macro_<variant>``)."""
-    _step(settings.progress, "4/5 characterising the macro-observation processes on held-out streams")
+    _step(settings.progress, "4/6 characterising the macro-observation processes on held-out streams")
     M = len(CLASSES)
     streams = held.reshape(-1, settings.frames, M)
     truth = torch.arange(M).repeat_interleave(held.shape[1])
-    filters = {
-        "hbni": hbni_pyro.HBNIFilter(noise.posterior, mode=cfg.hbni.filter.mode, temper=noise.temper["value"]),
-        "ssbf": hbni_pyro.SSBF(M),
-        "max_of_mean": hbni_pyro.MaxOfMeanFilter(M),
-    }
     models = {}
-    for name in settings.variants:
-        process = hbni_pyro.MacroObservationProcess(filters[name], threshold=float(cfg.mission.threshold),
-                                                    max_frames=settings.frames)
+    for name, process in build_processes(noise, cfg, settings).items():
         models[name] = hbni_pyro.tabulate(process, streams, truth)
         save_artifact(run_dir, f"macro_{name}", models[name])
     return models
+
+
+def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
+    """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
+    M = len(CLASSES)
+    filters = {
+        "hbni": lambda: hbni_pyro.HBNIFilter(noise.posterior, mode=cfg.hbni.filter.mode, temper=noise.temper["value"]),
+        "ssbf": lambda: hbni_pyro.SSBF(M),
+        "max_of_mean": lambda: hbni_pyro.MaxOfMeanFilter(M),
+    }
+    return {name: hbni_pyro.MacroObservationProcess(filters[name](), threshold=float(cfg.mission.threshold),
+                                                    max_frames=settings.frames) for name in settings.variants}
+
+
+def characterise_generative(
+    noise: Noise, cfg: DictConfig, settings: Settings, run_dir: Path
+) -> dict[str, hbni_pyro.MacroObservationModel]:
+    """Stage 4b: the generative planning model of the variants that need it (all of them when
+    ``mission.planning_model=generative``, else HBNI when ``mission.compare_planning_models``): each
+    process run on ``mission.generative_streams`` streams per class drawn from HBNI's posterior
+    predictive (a theta draw per stream, i.i.d. outputs given it); saved as ``macro_<variant>_generative``."""
+    loop = settings.loop
+    needed = settings.variants if loop.planning_model == "generative" else (
+        [v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])
+    if needed:
+        _step(settings.progress, f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
+    processes = build_processes(noise, cfg, settings)
+    models = {}
+    for k, name in enumerate(needed):
+        models[name] = hbni_pyro.characterize(processes[name], noise.posterior, loop.generative_streams,
+                                              settings.seed + 40 + k)
+        save_artifact(run_dir, f"macro_{name}_generative", models[name])
+    return models
+
+
+def planning_models(
+    empirical: dict[str, hbni_pyro.MacroObservationModel], generative: dict[str, hbni_pyro.MacroObservationModel],
+    settings: Settings,
+) -> dict[str, hbni_pyro.MacroObservationModel]:
+    """What each policy plans on: every variant on ``mission.planning_model``, and HBNI also on the other model
+    (entry ``hbni_<other>``) when ``mission.compare_planning_models``."""
+    loop = settings.loop
+    tables = {"empirical": empirical, "generative": generative}
+    models = dict(tables[loop.planning_model])
+    other = closed_loop.other_model(loop.planning_model)
+    if loop.compare_planning_models and "hbni" in tables[other]:
+        models[f"hbni_{other}"] = tables[other]["hbni"]
+    return models
+
+
+def entry_planning(settings: Settings, name: str) -> str:
+    """The planning model of policy ``name`` (``exact`` for perfect perception)."""
+    if name == "perfect":
+        return "exact"
+    return settings.loop.planning_model if name in MISSION_VARIANTS else name.rsplit("_", 1)[1]
+
+
+def _entry_variant(name: str) -> str:
+    """The perception variant of a planned policy: ``hbni_generative`` -> ``hbni``."""
+    return name if name in MISSION_VARIANTS else name.rsplit("_", 1)[0]
 
 
 def plan(
@@ -157,13 +244,13 @@ def plan(
 
     Returns the score entry and the G-DICE history of every variant.
     """
-    _step(settings.progress, "5/5 planning with G-DICE on the disaster-relief domain")
+    _step(settings.progress, "5/6 planning with G-DICE on the disaster-relief domain")
     planner: GDICEConfig = instantiate(cfg.planner)
     study, seed, reeval = cfg.study, settings.seed, int(cfg.study.reeval_rollouts)
     results: dict[str, Any] = {}
     histories = {}
     with torch_threads(int(study.threads)):
-        for k, name in enumerate(("perfect", *settings.variants)):
+        for k, name in enumerate(("perfect", *models)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
             init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
@@ -183,9 +270,27 @@ def plan(
     return results, histories
 
 
+def execute_closed_loop(
+    bank: torch.Tensor, noise: Noise, results: dict[str, dict], cfg: DictConfig, settings: Settings, run_dir: Path
+) -> None:
+    """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
+    streams (perfect perception: in its own domain again); adds ``executed`` to every result entry."""
+    _step(settings.progress, "6/6 executing every policy in closed loop on the held-out bank")
+    streams, truth = closed_loop.bank_streams(bank)
+    replays = {name: hbni_pyro.StreamReplay(process, streams, truth)
+               for name, process in build_processes(noise, cfg, settings).items()}
+    reeval = int(cfg.study.reeval_rollouts)
+    for k, name in enumerate(results):
+        controller = JointController.load(run_dir / f"controller_{name}.safetensors")
+        replay = None if name == "perfect" else replays[_entry_variant(name)]
+        executed = closed_loop.execute(controller, replay, cfg.domain, reeval, settings.seed + 10 * k + 7)
+        results[name]["executed"] = closed_loop.summarise(results[name], executed, replay)
+
+
 def write_outputs(
     run_dir: Path, cfg: DictConfig, settings: Settings, outputs: Outputs, noise: Noise,
     models: dict[str, hbni_pyro.MacroObservationModel], results: dict[str, dict], histories: dict[str, dict],
+    bank: BankBuild,
 ) -> dict:
     """Figures, ``report.md``; returns the metrics."""
     figures = {
@@ -193,6 +298,7 @@ def write_outputs(
         "confusion.png": mission_report.confusion_figure(models),
         "frames.png": mission_report.frames_figure(models),
         "learning_curves.png": mission_report.curves_figure(histories),
+        "closed_loop.png": closed_loop.figure(results, mission_report.LABELS),
     }
     for file, fig in figures.items():
         save_figure(fig, run_dir / file)
@@ -202,6 +308,10 @@ def write_outputs(
         "classes": CLASSES,
         "variants": results,
         "acceptance": _acceptance(results),
+        "closed_loop": {"acceptance": closed_loop.acceptance(results),
+                        "planning": {name: entry_planning(settings, name) for name in results},
+                        "bank": {"path": str(bank.path), "cached": bank.cached, "seed": bank.spec.seed,
+                                 "sequences_per_class": bank.spec.sequences, "frames": bank.spec.frames}},
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
@@ -214,7 +324,9 @@ def write_outputs(
             "held_out_streams": int(held.shape[0] * held.shape[1]), "frames_per_stream": settings.frames,
         },
     }
-    write_report(run_dir / "report.md", mission_report.report(metrics, list(figures)))
+    cl = metrics["closed_loop"]
+    section = closed_loop.report_lines(results, mission_report.LABELS, cl["planning"], cl["bank"])
+    write_report(run_dir / "report.md", mission_report.report(metrics, list(figures)) + "\n" + "\n".join(section))
     return metrics
 
 

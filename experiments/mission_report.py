@@ -9,7 +9,8 @@ import hbni_pyro
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.common import beats
 
-LABELS = {"perfect": "perfect perception", "hbni": "HBNI", "ssbf": "SSBF", "max_of_mean": "max-of-mean"}
+LABELS = {"perfect": "perfect perception", "hbni": "HBNI", "ssbf": "SSBF", "max_of_mean": "max-of-mean",
+          "hbni_generative": "HBNI (generative)", "hbni_empirical": "HBNI (empirical)"}
 
 
 def _explanation(metrics: dict) -> list[str]:
@@ -77,7 +78,7 @@ def report(metrics: dict, figures: list[str]) -> str:
 def value_figure(results: dict[str, dict]) -> plt.Figure:
     names = list(results)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    colors = ["tab:gray", "tab:blue", "tab:orange", "tab:green"][: len(names)]
+    colors = ["tab:gray", "tab:blue", "tab:orange", "tab:green", "tab:purple"][: len(names)]
     axes[0].bar([LABELS[n] for n in names], [results[n]["value"] for n in names],
                 yerr=[results[n]["stderr"] for n in names], capsize=4, color=colors)
     axes[0].set_ylabel("discounted return (mean ± s.e.)")

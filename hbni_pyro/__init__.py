@@ -5,7 +5,8 @@ Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class nois
 the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
-:func:`tabulate` from recorded streams, :class:`MacroObservationModel`).
+:func:`tabulate` from recorded streams, :class:`MacroObservationModel`) and closed-loop perception
+replaying recorded streams through a process (:class:`StreamReplay`).
 
 See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
@@ -17,6 +18,7 @@ from hbni_pyro.kernels import HBNIMetropolis
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize, tabulate
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
+from hbni_pyro.replay import StreamReplay
 from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 
@@ -30,6 +32,7 @@ __all__ = [
     "MaxOfMeanFilter",
     "OUTPUT_FLOOR",
     "SSBF",
+    "StreamReplay",
     "TemperFit",
     "VotingFilter",
     "as_outputs",

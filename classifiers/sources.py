@@ -1,0 +1,214 @@
+"""Frame sources: a video file, a folder of frames or a camera, read through OpenCV.
+
+Every source iterates over uint8 BGR frames ``(H, W, 3)``, the layout
+:meth:`classifiers.FrameClassifier.predict_proba` takes, and is a context manager that releases
+its file or device. :func:`open_source` picks the kind from what it is given:
+
+* an existing directory: :class:`FrameFolder`, a flat folder of images read in name order
+  (numbers compared as numbers, so ``frame_2.png`` comes before ``frame_10.png``);
+* an existing file: :class:`VideoFile`, any container and codec the OpenCV build decodes;
+* an int (or a string of digits that is not a path): :class:`Camera`, a device index.
+
+A video file or folder can be iterated more than once (each pass starts at its first frame); a
+camera is one live stream.
+"""
+
+from __future__ import annotations
+
+import abc
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["Camera", "FRAME_EXTENSIONS", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
+
+FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+class FrameSource(abc.ABC):
+    """An iterable of uint8 BGR frames ``(H, W, 3)``.
+
+    Attributes:
+        fps: the source's nominal frame rate (``None`` when unknown).
+        num_frames: frames in the source when known in advance (``None`` for a camera).
+    """
+
+    fps: float | None = None
+    num_frames: int | None = None
+
+    @abc.abstractmethod
+    def __iter__(self) -> Iterator[np.ndarray]: ...
+
+    def close(self) -> None:
+        """Release the file or device (iteration after closing is an error for a camera only)."""
+
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _bgr(frame: np.ndarray) -> np.ndarray:
+    """A decoded frame as contiguous uint8 BGR ``(H, W, 3)`` (grey and BGRA frames converted)."""
+    if frame.ndim == 2:
+        return cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+    if frame.shape[2] == 4:
+        return cv2.cvtColor(frame, cv2.COLOR_BGRA2BGR)
+    return np.ascontiguousarray(frame)
+
+
+def _read_all(capture: cv2.VideoCapture, limit: int | None) -> Iterator[np.ndarray]:
+    count = 0
+    while limit is None or count < limit:
+        ok, frame = capture.read()
+        if not ok:
+            return
+        count += 1
+        yield _bgr(frame)
+
+
+class VideoFile(FrameSource):
+    """The frames of a video file, in order.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: OpenCV cannot open it as a video.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"source: no such video file {str(self.path)!r}")
+        capture = self._open()
+        fps = capture.get(cv2.CAP_PROP_FPS)
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        capture.release()
+        self.fps = float(fps) if fps > 0 else None
+        self.num_frames = count if count > 0 else None  # the container's count: exact for most codecs
+
+    def _open(self) -> cv2.VideoCapture:
+        capture = cv2.VideoCapture(str(self.path))
+        if not capture.isOpened():
+            capture.release()
+            raise ValueError(f"source: {str(self.path)!r} could not be opened as a video by OpenCV")
+        return capture
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        capture = self._open()
+        try:
+            yield from _read_all(capture, None)
+        finally:
+            capture.release()
+
+    def __repr__(self) -> str:
+        return f"VideoFile({str(self.path)!r}, fps={self.fps}, frames={self.num_frames})"
+
+
+def _natural_key(name: str) -> list:
+    """Sort key comparing runs of digits as numbers: ``f2 < f10``."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+class FrameFolder(FrameSource):
+    """The images directly inside a folder (unlabelled, flat), in name order with numbers compared as numbers.
+
+    Args:
+        path: the folder; files with other extensions than :data:`FRAME_EXTENSIONS` are ignored.
+        fps: nominal frame rate to report (a folder has none of its own).
+
+    Raises:
+        FileNotFoundError: ``path`` is not a directory.
+        ValueError: no image at the folder's top level (a labelled ``root/<class>/`` folder is
+            named as such: read it with :class:`classifiers.data.ImageFolder`).
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float | None = None) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise FileNotFoundError(f"source: no such folder {str(self.path)!r}")
+        self.files = sorted((f for f in self.path.iterdir() if f.is_file() and f.suffix.lower() in FRAME_EXTENSIONS),
+                            key=lambda f: _natural_key(f.name))
+        if not self.files:
+            nested = any(d.is_dir() and any(f.suffix.lower() in FRAME_EXTENSIONS for f in d.iterdir())
+                         for d in self.path.iterdir())
+            hint = (" (it holds sub-folders of images: a labelled root/<class>/ folder is read by "
+                    "classifiers.data.ImageFolder)") if nested else ""
+            raise ValueError(f"source: folder {str(self.path)!r} has no {'/'.join(FRAME_EXTENSIONS)} frames{hint}")
+        self.fps = fps
+        self.num_frames = len(self.files)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for f in self.files:
+            frame = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            if frame is None:
+                raise ValueError(f"source: frame {str(f)!r} could not be decoded")
+            if frame.dtype != np.uint8:
+                raise ValueError(f"source: frame {str(f)!r} is {frame.dtype}, expected 8-bit")
+            yield _bgr(frame)
+
+    def __repr__(self) -> str:
+        return f"FrameFolder({str(self.path)!r}, frames={self.num_frames})"
+
+
+class Camera(FrameSource):
+    """A live camera by device index; iteration stops after ``max_frames`` frames or when a read fails.
+
+    Raises:
+        ValueError: ``index`` is not an int >= 0, ``max_frames`` not a positive int or ``None``, or
+            the device cannot be opened.
+    """
+
+    def __init__(self, index: int, max_frames: int | None = None) -> None:
+        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+            raise ValueError(f"source: expected a camera index >= 0, got {index!r}")
+        if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
+            raise ValueError(f"max_frames: expected a positive int or None, got {max_frames!r}")
+        self.index, self.max_frames = index, max_frames
+        self._capture = cv2.VideoCapture(index)
+        if not self._capture.isOpened():
+            self._capture.release()
+            raise ValueError(f"source: camera {index} could not be opened")
+        fps = self._capture.get(cv2.CAP_PROP_FPS)
+        self.fps = float(fps) if fps > 0 else None
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        if not self._capture.isOpened():
+            raise ValueError(f"source: camera {self.index} is closed")
+        yield from _read_all(self._capture, self.max_frames)
+
+    def close(self) -> None:
+        self._capture.release()
+
+    def __repr__(self) -> str:
+        return f"Camera({self.index}, max_frames={self.max_frames})"
+
+
+def open_source(source: str | int | os.PathLike, max_frames: int | None = None) -> FrameSource:
+    """A :class:`FrameSource` for a video file, a folder of frames or a camera index.
+
+    Args:
+        source: an existing file (video) or directory (frames), or a camera index (an int, or a
+            string of digits that names no existing path).
+        max_frames: for a camera, stop after this many frames (``None``: until a read fails).
+
+    Raises:
+        TypeError: ``source`` is neither a path nor an int.
+        FileNotFoundError: a path that does not exist.
+    """
+    if isinstance(source, bool) or not isinstance(source, (str, int, os.PathLike)):
+        raise TypeError(f"source: expected a video file, a folder of frames or a camera index, got {type(source).__name__}")
+    if isinstance(source, int):
+        return Camera(source, max_frames)
+    path = Path(source)
+    if path.is_dir():
+        return FrameFolder(path)
+    if path.is_file():
+        return VideoFile(path)
+    if isinstance(source, str) and source.isdigit():
+        return Camera(int(source), max_frames)
+    raise FileNotFoundError(f"source: no such video file or folder {str(path)!r} (a camera is given by its index)")

@@ -1,0 +1,196 @@
+"""A bank of held-out classifier-output streams, rendered and classified once and cached on disk.
+
+The closed-loop evaluation draws a fresh recorded stream for every "infer" MA from a bank of
+mission-condition sequences that neither noise fitting nor tabulation saw. Rendering and
+classifying them is the costly part, so the bank is built once and cached, keyed by everything
+that produced it (:func:`fingerprint`): the classifier (a digest of its head, standardisation,
+crop setting and backbone weights), the renderer's code, the class order, the imaging conditions,
+the seed, the number of sequences per class, the frames per sequence, the frame shape and the
+torch and OpenCV versions.
+
+Cache policy: the file name is a digest of that fingerprint, so a run whose inputs differ in any
+field looks for another file and builds its own bank next to the old one (later runs and sweeps
+with those inputs reuse it). The file also records the fingerprint in full; a file under the
+right name that records another fingerprint (copied, edited, or a digest collision) is refused
+with a ``ValueError`` naming the first field that differs, never silently used or overwritten.
+
+Building runs in ``workers`` background processes (spawned, each loading the saved classifier
+file), so the mission can go on fitting and planning meanwhile; ``workers=0`` builds in this
+process when the result is asked for. Each sequence is rendered from ``(seed, index)`` and
+classified on its own, so the bank does not depend on how it was split among workers.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sys
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from classifiers import FrameClassifier
+from classifiers.data import FRAME_SHAPE, Conditions, render_sequence
+from infra.fingerprint import check_fingerprint, digest
+from infra.tensorfile import load_tensors, save_tensors
+
+_KIND = "experiments.OutputBank"
+_VERSION = 1
+_RENDERER_MODULES = ("classifiers.data.render", "classifiers.data.sprites", "classifiers.data.conditions")
+
+
+@dataclass(frozen=True)
+class BankSpec:
+    """What to render: ``sequences`` sequences of ``frames`` frames per class, seeds ``(seed, 0..sequences-1)``."""
+
+    classes: tuple[str, ...]
+    conditions: Conditions
+    seed: int
+    sequences: int
+    frames: int
+    shape: tuple[int, int] = FRAME_SHAPE
+
+    def __post_init__(self) -> None:
+        for name in ("sequences", "frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}: expected a positive int, got {value!r}")
+        if len(set(self.classes)) != len(self.classes) or len(self.classes) < 2:
+            raise ValueError(f"classes: expected at least two distinct names, got {list(self.classes)}")
+
+
+def classifier_identity(clf: FrameClassifier) -> str:
+    """Digest of everything that decides a classifier's outputs: head, standardisation, crop, backbone weights."""
+    if clf.mean_ is None:
+        raise ValueError("clf: the classifier is not fitted")
+    tensors, meta = clf.head.state()
+    weights = Path(clf.backbone.weights_path).read_bytes()
+    return digest(meta, clf.backbone.name, clf.padding, clf.mean_, clf.scale_, *(tensors[k] for k in sorted(tensors)),
+                  weights)
+
+
+def renderer_identity() -> str:
+    """Digest of the renderer's source code (a change to how frames are drawn is a new bank)."""
+    return digest(*(Path(sys.modules[name].__file__).read_bytes() for name in _RENDERER_MODULES))
+
+
+def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
+    """The bank's full key: a JSON-able dict (see the module docstring)."""
+    return {
+        "kind": _KIND, "version": _VERSION, "classifier": classifier_identity(clf), "renderer": renderer_identity(),
+        "classes": list(spec.classes), "conditions": asdict(spec.conditions), "seed": spec.seed,
+        "sequences_per_class": spec.sequences, "frames": spec.frames, "frame_shape": list(spec.shape),
+        "software": {"torch": torch.__version__, "opencv": cv2.__version__},
+    }
+
+
+def cache_path(cache_dir: str | os.PathLike, key: dict[str, Any]) -> Path:
+    """Where the bank with fingerprint ``key`` lives in ``cache_dir``."""
+    return Path(cache_dir) / f"bank-{digest(key)[:24]}.safetensors"
+
+
+def load_bank(path: str | os.PathLike, key: dict[str, Any]) -> Tensor:
+    """The cached outputs ``(C, S, F, C)``; refuses a file recording another fingerprint, naming the field."""
+    tensors, meta = load_tensors(path, _KIND)
+    check_fingerprint(meta.get("fingerprint"), key, "output bank", path)
+    outputs = tensors.get("outputs")
+    shape = (len(key["classes"]), key["sequences_per_class"], key["frames"], len(key["classes"]))
+    if outputs is None or tuple(outputs.shape) != shape:
+        raise ValueError(f"output bank {str(path)!r}: expected outputs of shape {shape}, got "
+                         f"{None if outputs is None else tuple(outputs.shape)}")
+    return outputs
+
+
+def _chunks(spec: BankSpec, size: int) -> list[tuple[int, int, int]]:
+    """``(class, first, last + 1)`` sequence ranges of at most ``size`` sequences."""
+    return [(c, i, min(i + size, spec.sequences)) for c in range(len(spec.classes))
+            for i in range(0, spec.sequences, size)]
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _load_worker(classifier_path: str) -> None:
+    torch.set_num_threads(1)
+    _WORKER["clf"] = FrameClassifier.load(classifier_path)
+
+
+def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: int) -> Tensor:
+    """Outputs ``(last - first, F, C)`` of sequences ``first..last-1`` of class ``c``, columns in ``spec.classes`` order."""
+    order = [clf.classes_.index(name) for name in spec.classes]
+    return torch.stack([
+        clf.predict_proba(render_sequence(spec.classes[c], spec.frames, spec.conditions, seed=spec.seed, index=i,
+                                          shape=spec.shape))[:, order]
+        for i in range(first, last)
+    ])
+
+
+def _classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
+    return _classify(_WORKER["clf"], spec, c, first, last)
+
+
+class BankBuild:
+    """The bank for ``spec``: loaded from ``cache_dir`` when there, else built (in the background).
+
+    Args:
+        spec: what to render.
+        clf: the classifier, fitted; ``classifier_path`` is its saved file (loaded by the workers).
+        cache_dir: the cache directory (created when needed).
+        workers: background processes (0: build in this process inside :meth:`result`).
+        chunk: sequences per task.
+
+    Attributes:
+        path: the cache file. cached: whether it was already there. key: the fingerprint.
+    """
+
+    def __init__(self, spec: BankSpec, clf: FrameClassifier, classifier_path: str | os.PathLike,
+                 cache_dir: str | os.PathLike, workers: int = 1, chunk: int = 4) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise ValueError(f"workers: expected an int >= 0, got {workers!r}")
+        self.spec, self.clf, self.workers, self.chunk = spec, clf, workers, chunk
+        self.key = fingerprint(spec, clf)
+        self.path = cache_path(cache_dir, self.key)
+        self.cached = self.path.is_file()
+        self._outputs = load_bank(self.path, self.key) if self.cached else None
+        self._pool: ProcessPoolExecutor | None = None
+        self._futures: dict[Future, tuple[int, int, int]] = {}
+        if not self.cached and workers > 0:
+            context = multiprocessing.get_context("spawn")
+            self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_load_worker,
+                                             initargs=(str(classifier_path),))
+            self._futures = {self._pool.submit(_classify_in_worker, spec, *task): task for task in _chunks(spec, chunk)}
+
+    def result(self, progress: bool = False) -> Tensor:
+        """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
+        if self._outputs is not None:
+            return self._outputs
+        spec = self.spec
+        out = torch.empty(len(spec.classes), spec.sequences, spec.frames, len(spec.classes))
+        tasks = _chunks(spec, self.chunk)
+        with tqdm(total=len(spec.classes) * spec.sequences, desc="bank", unit="seq", disable=not progress) as bar:
+            if self._pool is None:
+                for c, first, last in tasks:
+                    out[c, first:last] = _classify(self.clf, spec, c, first, last)
+                    bar.update(last - first)
+            else:
+                try:
+                    for future in as_completed(self._futures):
+                        c, first, last = self._futures[future]
+                        out[c, first:last] = future.result()
+                        bar.update(last - first)
+                finally:
+                    self._pool.shutdown(cancel_futures=True)
+        save_tensors(self.path, _KIND, {"outputs": out}, {"fingerprint": self.key})
+        self._outputs = out
+        return out
+
+    def cancel(self) -> None:
+        """Stop a background build (nothing is written)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,168 @@
+"""Planned against executed: policies run with the actual filter on held-out recorded streams.
+
+A policy is planned on a macro-observation model (a table of ``P(label, frames | true class)``,
+from recorded streams or from the fitted generative model) and scored there: its *planned* value.
+:func:`execute` runs the same saved controller in the same domain, but every "infer" MA draws a
+fresh recorded stream of the true object's class from a bank the planner never saw and runs that
+variant's process (filter, threshold, frame budget) on it (:class:`hbni_pyro.StreamReplay`): its
+*executed* value. Their gap, in standard errors, says how honest the planning model is.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+import hbni_pyro
+from decpomdp import JointController
+from experiments.common import beats
+from experiments.steps.planning import score
+
+PLANNING_MODELS = ("empirical", "generative")
+
+
+class LoopSettings(NamedTuple):
+    """The mission's closed-loop settings (``mission.planning_model``, ``mission.bank``, ...)."""
+
+    planning_model: str  # what the variants plan on: empirical | generative
+    compare_planning_models: bool  # also plan HBNI on the other model (entry hbni_<other>)
+    generative_streams: int  # streams per class simulated from the fitted model
+    bank_sequences: int  # held-out bank sequences per class
+    cache_dir: Path
+    workers: int
+
+
+def check_loop_settings(cfg: DictConfig) -> LoopSettings:
+    """Validate the closed-loop keys of ``cfg.mission``; raises ``ValueError`` naming the key."""
+    st = cfg.mission
+    if st.planning_model not in PLANNING_MODELS:
+        raise ValueError(f"mission.planning_model: expected one of {list(PLANNING_MODELS)}, got {st.planning_model!r}")
+    if not isinstance(st.compare_planning_models, bool):
+        raise ValueError(f"mission.compare_planning_models: expected true or false, got {st.compare_planning_models!r}")
+    ints = {"mission.generative_streams": (st.generative_streams, 1), "mission.bank.sequences": (st.bank.sequences, 2),
+            "mission.bank.workers": (st.bank.workers, 0)}
+    for key, (value, low) in ints.items():
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{key}: expected an int >= {low}, got {value!r}")
+    if not st.bank.cache_dir:
+        raise ValueError("mission.bank.cache_dir: expected a directory for cached output banks")
+    return LoopSettings(st.planning_model, st.compare_planning_models, st.generative_streams, st.bank.sequences,
+                        Path(os.path.expanduser(str(st.bank.cache_dir))), st.bank.workers)
+
+
+def other_model(planning_model: str) -> str:
+    return PLANNING_MODELS[1 - PLANNING_MODELS.index(planning_model)]
+
+
+def gap(planned: dict[str, float], executed: dict[str, float]) -> float:
+    """``(executed - planned) / sqrt(se_p^2 + se_e^2)``: the executed value's departure in standard errors."""
+    se = (planned["stderr"] ** 2 + executed["stderr"] ** 2) ** 0.5
+    return (executed["value"] - planned["value"]) / se if se > 0 else float("nan")
+
+
+def bank_streams(bank: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bank outputs ``(C, S, F, C)`` as streams ``(C * S, F, C)`` float64 and their true classes ``(C * S,)``."""
+    C, S = bank.shape[:2]
+    return bank.reshape(C * S, *bank.shape[2:]).double(), torch.arange(C).repeat_interleave(S)
+
+
+def execute(controller: JointController, perception: Any, domain: DictConfig, rollouts: int, seed: int) -> dict[str, Any]:
+    """The score of ``controller`` in the domain whose "infer" MA is answered by ``perception``.
+
+    ``perception``: a :class:`hbni_pyro.StreamReplay` (closed loop) or ``None`` (perfect perception).
+    """
+    env = instantiate(domain, perception=perception)
+    entry = score(env, controller, rollouts, seed)
+    entry["mean_inference_frames"] = entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)
+    return entry
+
+
+def summarise(entry: dict[str, Any], executed: dict[str, Any], replay: hbni_pyro.StreamReplay | None) -> dict[str, Any]:
+    """The closed-loop part of a variant's metrics: executed score, gap, and the process on the bank."""
+    out = {"value": executed["value"], "stderr": executed["stderr"], "gap_in_stderr": gap(entry, executed),
+           "delivered_per_rollout": executed["delivered_per_rollout"], "wrong_per_rollout": executed["wrong_per_rollout"],
+           "mean_inference_frames": executed["mean_inference_frames"]}
+    if replay is not None:
+        right = (replay.results.label == replay.true_class).double()
+        out["bank_accuracy"] = [float(right[replay.true_class == c].mean()) for c in range(replay.num_classes)]
+        frames = replay.results.frames_used.double()
+        out["bank_mean_frames"] = [float(frames[replay.true_class == c].mean()) for c in range(replay.num_classes)]
+    return out
+
+
+def acceptance(results: dict[str, dict]) -> dict[str, Any]:
+    """The closed-loop checks on executed values: HBNI against perfect perception, SSBF and max-of-mean."""
+    if "hbni" not in results or "executed" not in results["hbni"]:
+        return {}
+    h = results["hbni"]["executed"]
+    out: dict[str, Any] = {"hbni_executed_over_perfect": h["value"] / results["perfect"]["executed"]["value"]}
+    for other in ("ssbf", "max_of_mean"):
+        if other in results:
+            o = results[other]["executed"]
+            out[f"hbni_executed_beats_{other}_outside_stderr"] = beats(h, o)
+            out[f"hbni_minus_{other}_executed_in_stderr"] = (h["value"] - o["value"]) / (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+    return out
+
+
+def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dict[str, str], bank: dict[str, Any]) -> list[str]:
+    """Markdown: planned vs executed per variant, and which planning model the gaps call honest."""
+    rows = ["| policy | planned on | planned value (± s.e.) | executed value (± s.e.) | gap (s.e.) | executed wrong / run "
+            "| executed frames / inference | bank accuracy | bank mean frames |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        e = r["executed"]
+        acc = f"{np.mean(e['bank_accuracy']):.3f}" if "bank_accuracy" in e else "1"
+        frames = f"{np.mean(e['bank_mean_frames']):.1f}" if "bank_mean_frames" in e else "-"
+        rows.append(f"| {labels.get(name, name)} | {planning.get(name, 'exact')} | {r['value']:.3f} ± {r['stderr']:.3f} | "
+                    f"{e['value']:.3f} ± {e['stderr']:.3f} | {e['gap_in_stderr']:+.1f} | {e['wrong_per_rollout']:.2f} | "
+                    f"{e['mean_inference_frames']:.1f} | {acc} | {frames} |")
+    source = "loaded from the cache" if bank["cached"] else "rendered and classified for this run"
+    lines = ["## Closed loop: planned against executed", "",
+             f"Every \"infer\" MA of an executed rollout draws one of {bank['sequences_per_class']} held-out mission "
+             f"sequences per class ({bank['frames']} frames each, seed {bank['seed']}, never used to fit or tabulate; "
+             f"{source}: `{bank['path']}`) and runs that variant's filter and threshold on it. The gap is "
+             "(executed - planned) / sqrt(se_planned^2 + se_executed^2).", "", *rows, ""]
+    return lines + honesty_lines(results, planning) + [""]
+
+
+def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[str]:
+    """Which planning model predicts its policy's executed value (|gap| <= 2 s.e.), per model, with the numbers."""
+    out = []
+    for model in PLANNING_MODELS:
+        gaps = {name: r["executed"]["gap_in_stderr"] for name, r in results.items() if planning.get(name) == model}
+        if not gaps:
+            continue
+        worst = max(gaps, key=lambda n: abs(gaps[n]))
+        honest = all(abs(g) <= 2 for g in gaps.values())
+        listed = ", ".join(f"{n} {g:+.1f}" for n, g in gaps.items())
+        out.append(f"- The {model} planning model is {'honest' if honest else 'not honest'} here: gaps {listed} s.e. "
+                   f"(largest |gap| {abs(gaps[worst]):.1f} s.e., {worst}; honest means every |gap| <= 2).")
+    return out
+
+
+def figure(results: dict[str, dict], labels: dict[str, str]) -> plt.Figure:
+    """Planned and executed value (± s.e.) of every policy side by side."""
+    names = list(results)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(max(6.5, 1.5 * len(names)), 3.8))
+    ax.bar(x - 0.2, [results[n]["value"] for n in names], 0.4, yerr=[results[n]["stderr"] for n in names], capsize=3,
+           label="planned (on its planning model)", color="tab:blue")
+    ax.bar(x + 0.2, [results[n]["executed"]["value"] for n in names], 0.4,
+           yerr=[results[n]["executed"]["stderr"] for n in names], capsize=3, label="executed (closed loop)",
+           color="tab:orange")
+    for i, n in enumerate(names):
+        top = max(results[n]["value"], results[n]["executed"]["value"])
+        ax.text(i, top * 1.02, f"{results[n]['executed']['gap_in_stderr']:+.1f} s.e.", ha="center", fontsize=8)
+    ax.set_xticks(x, [labels.get(n, n) for n in names], fontsize=8)
+    ax.set_ylabel("discounted return (mean ± s.e.)")
+    ax.set_title("Planned vs executed value (label: gap in standard errors)")
+    ax.set_ylim(0, 1.15 * max(max(r["value"], r["executed"]["value"]) for r in results.values()))
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,208 @@
+"""Live macro-observations: frames from a video file, a folder or a camera, classified and filtered.
+
+:func:`run` reads as its stages:
+
+1. :func:`check_settings`: the source and the saved models exist, every setting is valid (before
+   anything is loaded).
+2. :func:`load_models`: the saved :class:`~classifiers.FrameClassifier` and
+   :class:`~hbni_pyro.HBNIPosterior` (from a finished mission run, ``stream.run``, or from files),
+   the posterior's class order and the HBNI temper; the macro-observation process built on them.
+3. :func:`stream_frames`: every frame through the classifier (batches of ``stream.batch``) and the
+   process, which restarts after each macro-observation; the annotated video is written as frames go.
+4. :func:`write_outputs`: ``macro_observations.jsonl`` (one record per macro-observation: frame
+   range, label, confidence, frames used, timed out, stream ended), ``strip.png`` and the metrics
+   (frames, macro-observations, frames per second end to end).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from omegaconf import DictConfig, ListConfig
+from tqdm.auto import tqdm
+
+import hbni_pyro
+from classifiers import FrameClassifier
+from classifiers.sources import FrameSource, open_source
+from experiments.artifacts import load_run
+from experiments.common import save_figure
+from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
+from experiments.steps.streaming import Segment, classify_frames, macro_observations
+from infra.files import atomic_write_text
+
+ANNOTATIONS = ("video", "strip")
+
+
+class Settings(NamedTuple):
+    """The stream's validated settings."""
+
+    source: str | int
+    max_input_frames: int | None
+    run: Path | None
+    classifier: Path | None
+    posterior: Path | None
+    classes: list[str] | None
+    temper: float | None
+    threshold: float
+    max_frames: int
+    batch: int
+    annotate: tuple[str, ...]
+    progress: bool
+
+
+class Models(NamedTuple):
+    classifier: FrameClassifier
+    process: hbni_pyro.MacroObservationProcess
+    classes: list[str]
+    temper: float
+
+
+class Streamed(NamedTuple):
+    """What :func:`stream_frames` saw: segments, their running confidences and deciding frames, timing."""
+
+    segments: list[Segment]
+    beliefs: list[Any]
+    thumbs: list[np.ndarray]
+    frames: int
+    seconds: float
+    cpu_seconds: float
+    video: Path | None
+
+
+def run(cfg: DictConfig, run_dir: Path) -> dict:
+    settings = check_settings(cfg)
+    models = load_models(settings, cfg)
+    streamed = stream_frames(settings, models, run_dir)
+    return write_outputs(settings, models, streamed, run_dir)
+
+
+def _path(value: Any, key: str) -> Path | None:
+    if value is None:
+        return None
+    path = Path(str(value))
+    if not path.exists():
+        raise FileNotFoundError(f"{key}: no such file or directory {str(path)!r}")
+    return path
+
+
+def _positive_int(value: Any, key: str, optional: bool = False) -> int | None:
+    if optional and value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{key}: expected a positive int{' or null' if optional else ''}, got {value!r}")
+    return value
+
+
+def check_settings(cfg: DictConfig) -> Settings:
+    """Validate ``cfg.stream``; raises ``ValueError``/``FileNotFoundError`` naming the key."""
+    st = cfg.stream
+    source = st.source
+    if source is None or (isinstance(source, str) and not source.strip()):
+        raise ValueError("stream.source: expected a video file, a folder of frames or a camera index "
+                         "(e.g. stream.source=clip.mp4)")
+    if not isinstance(source, int):
+        source = str(source)
+        if not source.isdigit():
+            _path(source, "stream.source")
+    run, clf, post = _path(st.run, "stream.run"), _path(st.classifier, "stream.classifier"), _path(st.posterior, "stream.posterior")
+    if run is None and (clf is None or post is None):
+        raise ValueError("stream.run: expected a finished mission run, or both stream.classifier and stream.posterior")
+    annotate = tuple(st.annotate) if isinstance(st.annotate, (list, ListConfig)) else (() if st.annotate is None else (st.annotate,))
+    unknown = [a for a in annotate if a not in ANNOTATIONS]
+    if unknown:
+        raise ValueError(f"stream.annotate: expected a subset of {list(ANNOTATIONS)}, got {list(annotate)}")
+    temper = st.temper
+    if temper is not None and (isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1):
+        raise ValueError(f"stream.temper: expected null or a float in (0, 1], got {temper!r}")
+    threshold = st.threshold
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0 < threshold <= 1:
+        raise ValueError(f"stream.threshold: expected a probability in (0, 1], got {threshold!r}")
+    classes = None if st.classes is None else [str(c) for c in st.classes]
+    return Settings(source, _positive_int(st.max_input_frames, "stream.max_input_frames", optional=True), run, clf,
+                    post, classes, None if temper is None else float(temper), float(threshold),
+                    _positive_int(st.max_frames, "stream.max_frames"), _positive_int(st.batch, "stream.batch"),
+                    annotate, bool(cfg.progress))
+
+
+def load_models(settings: Settings, cfg: DictConfig) -> Models:
+    """The classifier, the HBNI process and the class order (a mission run's, overridden by explicit files)."""
+    finished = load_run(settings.run) if settings.run is not None else None
+    clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
+    posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
+    classes = settings.classes or (list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
+    if len(classes) != posterior.num_classes:
+        raise ValueError(f"stream.classes: the posterior has {posterior.num_classes} classes, got {classes}")
+    temper = settings.temper
+    if temper is None:
+        temper = float(finished.metrics["hbni_temper"]["value"]) if finished is not None else 1.0
+    filt = hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode, temper=temper)
+    process = hbni_pyro.MacroObservationProcess(filt, threshold=settings.threshold, max_frames=settings.max_frames)
+    return Models(clf, process, classes, temper)
+
+
+def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed:
+    """Classify and filter every frame of the source; write the annotated video as segments complete."""
+    source: FrameSource = open_source(settings.source, max_frames=settings.max_input_frames)
+    limit, total = settings.max_input_frames, source.num_frames
+    if limit is not None:
+        total = limit if total is None else min(total, limit)
+    video = None
+    if "video" in settings.annotate:
+        video = AnnotatedVideo(run_dir / "annotated.mp4", source.fps or 30.0, models.classes, settings.threshold,
+                               settings.max_frames)
+    items = classify_frames(itertools.islice(source, limit), models.classifier, models.classes, settings.batch)
+    segments, beliefs, thumbs = [], [], []
+    bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
+    tic, cpu = time.perf_counter(), time.process_time()
+    try:
+        for seg in macro_observations(items, models.process, models.classes, keep_frames=True):
+            running = running_posterior(models.process, seg.outputs)
+            if video is not None:
+                video.write(seg, running)
+            segments.append(seg._replace(frames=[]))
+            beliefs.append(max_confidence(running))
+            thumbs.append(thumbnail(seg.frames[-1]))
+            bar.update(seg.frames_used)
+            bar.set_postfix(macro=len(segments), label=seg.name)
+    except KeyboardInterrupt:  # a camera runs until stopped: keep what was seen
+        tqdm.write("[stream] interrupted: writing the macro-observations so far")
+    finally:
+        seconds, cpu_seconds = time.perf_counter() - tic, time.process_time() - cpu
+        bar.close()
+        source.close()
+        written = video.close() if video is not None else None
+    count = sum(s.frames_used for s in segments)
+    if not count:
+        raise ValueError(f"stream.source: {settings.source!r} gave no frames")
+    return Streamed(segments, beliefs, thumbs, count, seconds, cpu_seconds, written)
+
+
+def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_dir: Path) -> dict:
+    """``macro_observations.jsonl``, ``strip.png``; prints where they are and returns the metrics."""
+    records = [s.record() for s in streamed.segments]
+    jsonl = atomic_write_text(run_dir / "macro_observations.jsonl", "".join(json.dumps(r) + "\n" for r in records))
+    written = {"records": str(jsonl)}
+    if "strip" in settings.annotate:
+        fig = strip_figure(streamed.segments, streamed.beliefs, streamed.thumbs, models.classes, settings.threshold,
+                           f"{settings.source}: HBNI macro-observations (temper {models.temper:g})")
+        written["strip"] = str(save_figure(fig, run_dir / "strip.png"))
+    if streamed.video is not None:
+        written["video"] = str(streamed.video)
+    labels = [s.name for s in streamed.segments]
+    metrics = {
+        "source": str(settings.source), "frames": streamed.frames, "macro_observations": len(records),
+        "labels": {name: labels.count(name) for name in models.classes},
+        "mean_frames_used": streamed.frames / len(records),
+        "timed_out": sum(s.timed_out for s in streamed.segments),
+        "seconds": streamed.seconds, "cpu_seconds": streamed.cpu_seconds,
+        "fps": streamed.frames / max(streamed.seconds, 1e-9),
+        "process": repr(models.process), "classes": models.classes, "outputs": written,
+    }
+    print(f"[stream] {streamed.frames} frames -> {len(records)} macro-observations at {metrics['fps']:.1f} fps; "
+          f"wrote {', '.join(written.values())}")
+    return metrics

@@ -1,0 +1,101 @@
+"""Closed-loop perception: a planner's "infer" MA answered by recorded streams run through a real process.
+
+:class:`StreamReplay` holds a bank of recorded classifier-output streams with their true classes
+and a :class:`~hbni_pyro.MacroObservationProcess` (a filter, a threshold, a frame budget). Each
+inference of an object of class ``c`` draws one stream of class ``c`` uniformly from the bank and
+reports what the process decides on it: ``(label, frames_used)``. It has ``num_classes`` and
+``sample(true_class, generator)``, so a Dec-POSMDP domain takes it wherever it takes a tabulated
+:class:`~hbni_pyro.MacroObservationModel` (``decpomdp.perception.PerceptionModel``), and a policy
+planned on a table is executed on streams the table never saw.
+
+The process is a deterministic function of the stream, so every bank stream is run through it once,
+at construction (batched, :meth:`MacroObservationProcess.run_batch`, which equals running each
+stream alone); a draw then replays its stream's result. :meth:`StreamReplay.draw` also says which
+stream each inference used.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
+
+
+class StreamReplay:
+    """Perception by recorded streams of each true class, run through ``process``.
+
+    Args:
+        process: the macro-observation process the robot runs.
+        streams: ``(B, N, M)`` recorded classifier outputs, ``N >= 1`` (the process reads at most
+            ``process.max_frames`` of each).
+        true_class: ``(B,)`` integer true class of each stream; every class needs at least one stream.
+
+    Attributes:
+        results: the process's :class:`MacroObservationBatch` on every stream, ``(B,)`` each.
+        true_class: ``(B,)`` long.
+    """
+
+    def __init__(self, process: MacroObservationProcess, streams: Any, true_class: Any) -> None:
+        if not isinstance(process, MacroObservationProcess):
+            raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
+        streams = torch.as_tensor(streams)
+        truth = torch.as_tensor(true_class)
+        if truth.is_floating_point() or truth.dtype == torch.bool or truth.dim() != 1:
+            raise TypeError(f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape "
+                            f"{tuple(truth.shape)}")
+        if streams.dim() != 3 or streams.shape[0] != truth.shape[0]:
+            raise ValueError(f"streams: expected shape ({truth.shape[0]}, N, {process.num_classes}) to match "
+                             f"true_class, got {tuple(streams.shape)}")
+        truth = truth.long()
+        M = process.num_classes
+        if ((truth < 0) | (truth >= M)).any():
+            raise ValueError(f"true_class: expected classes in [0, {M})")
+        counts = torch.bincount(truth, minlength=M)
+        if (counts == 0).any():
+            raise ValueError(f"true_class: every class needs a stream; none for {(counts == 0).nonzero().flatten().tolist()}")
+        self.process = process
+        self.num_classes = M
+        self.true_class = truth
+        self.results: MacroObservationBatch = process.run_batch(streams)
+        self._counts = counts
+        order = torch.argsort(truth, stable=True)  # streams grouped by class, bank order within a class
+        self._pool = order
+        self._offset = torch.cumsum(counts, 0) - counts  # first pool position of each class
+
+    @property
+    def streams_per_class(self) -> Tensor:
+        """``(M,)`` bank streams of each class."""
+        return self._counts.clone()
+
+    def draw(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+        """For each object, a uniformly drawn bank stream of its class and the process's result on it.
+
+        Args:
+            true_class: long ``(B,)`` classes in ``[0, M)``.
+            generator: the only source of randomness (one uniform per object).
+
+        Returns:
+            ``label``, ``frames_used`` and the bank index of the stream used, long ``(B,)`` each.
+        """
+        if not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator: expected a torch.Generator, got {type(generator).__name__}")
+        if not isinstance(true_class, Tensor) or true_class.dtype != torch.long or true_class.dim() != 1:
+            raise TypeError(f"true_class: expected a long tensor of shape (B,), got {true_class!r:.80}")
+        if true_class.numel() and (int(true_class.min()) < 0 or int(true_class.max()) >= self.num_classes):
+            raise ValueError(f"true_class: entries must lie in [0, {self.num_classes})")
+        u = torch.rand(true_class.shape, generator=generator, dtype=torch.float64)
+        count = self._counts[true_class]
+        pick = (u * count).long().clamp_(max=count - 1)  # uniform in [0, count)
+        stream = self._pool[self._offset[true_class] + pick]
+        return self.results.label[stream], self.results.frames_used[stream], stream
+
+    def sample(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """``(label, frames_used)`` of fresh draws (:meth:`draw` without the stream index)."""
+        label, frames, _ = self.draw(true_class, generator)
+        return label, frames
+
+    def __repr__(self) -> str:
+        return f"StreamReplay({self.process!r}, streams per class={self._counts.tolist()})"
