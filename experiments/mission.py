@@ -97,7 +97,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         generative = characterise_generative(noise, cfg, settings, run_dir)
         models = planning_models(empirical, generative, settings)
         results, histories = plan(models, cfg, settings, run_dir)
-        execute_closed_loop(bank.result(settings.progress), noise, results, cfg, settings, run_dir)
+        execute_closed_loop(bank.result(settings.progress), outputs.held_out, noise, results, cfg, settings, run_dir)
     finally:
         bank.cancel()
     return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank)
@@ -271,20 +271,34 @@ def plan(
 
 
 def execute_closed_loop(
-    bank: torch.Tensor, noise: Noise, results: dict[str, dict], cfg: DictConfig, settings: Settings, run_dir: Path
+    bank: torch.Tensor, held: torch.Tensor, noise: Noise, results: dict[str, dict], cfg: DictConfig,
+    settings: Settings, run_dir: Path,
 ) -> None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
-    streams (perfect perception: in its own domain again); adds ``executed`` to every result entry."""
+    streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
+    the stream standard errors of the planned value (an empirical table's sequences ``held``) and of the
+    executed one (the bank's sequences), by bootstrap over sequence indices."""
     _step(settings.progress, "6/6 executing every policy in closed loop on the held-out bank")
-    streams, truth = closed_loop.bank_streams(bank)
-    replays = {name: hbni_pyro.StreamReplay(process, streams, truth)
-               for name, process in build_processes(noise, cfg, settings).items()}
-    reeval = int(cfg.study.reeval_rollouts)
-    for k, name in enumerate(results):
+    processes = build_processes(noise, cfg, settings)
+    replays = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(bank)) for name, p in processes.items()}
+    boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
+    for k, name in tqdm(list(enumerate(results)), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
-        replay = None if name == "perfect" else replays[_entry_variant(name)]
-        executed = closed_loop.execute(controller, replay, cfg.domain, reeval, settings.seed + 10 * k + 7)
-        results[name]["executed"] = closed_loop.summarise(results[name], executed, replay)
+        seed = settings.seed + 10 * k + 7
+        if name == "perfect":
+            executed = closed_loop.execute(controller, None, cfg.domain, reeval, seed)
+            results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
+            continue
+        process = processes[_entry_variant(name)]
+        executed = closed_loop.execute(controller, replays[_entry_variant(name)], cfg.domain, reeval, seed)
+        on_bank = closed_loop.stream_stderr(
+            controller, lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(bank[:, idx])),
+            bank.shape[1], cfg.domain, boot, seed + 1000)
+        on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
+            controller, lambda idx: hbni_pyro.tabulate(process, *closed_loop.as_streams(held[:, idx])),
+            held.shape[1], cfg.domain, boot, seed + 2000)
+        results[name]["executed"] = closed_loop.summarise(results[name], executed, replays[_entry_variant(name)],
+                                                          on_table, on_bank)
 
 
 def write_outputs(

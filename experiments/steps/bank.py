@@ -18,13 +18,20 @@ Building runs in ``workers`` background processes (spawned, each loading the sav
 file), so the mission can go on fitting and planning meanwhile; ``workers=0`` builds in this
 process when the result is asked for. Each sequence is rendered from ``(seed, index)`` and
 classified on its own, so the bank does not depend on how it was split among workers.
+
+Jobs of one sweep often need the same missing bank at once: the first takes a lock file beside
+the bank (``<bank>.lock``, holding its host and process id) and builds; the others carry on with
+their own stages and, when they need the bank, wait for its file. A lock whose process is gone
+(same host) is taken over.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import socket
 import sys
+import time
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -158,18 +165,39 @@ class BankBuild:
         self.path = cache_path(cache_dir, self.key)
         self.cached = self.path.is_file()
         self._outputs = load_bank(self.path, self.key) if self.cached else None
+        self._classifier_path = str(classifier_path)
         self._pool: ProcessPoolExecutor | None = None
         self._futures: dict[Future, tuple[int, int, int]] = {}
-        if not self.cached and workers > 0:
-            context = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_load_worker,
-                                             initargs=(str(classifier_path),))
-            self._futures = {self._pool.submit(_classify_in_worker, spec, *task): task for task in _chunks(spec, chunk)}
+        self._lock = self.path.with_name(self.path.name + ".lock")
+        self._holds_lock = not self.cached and _acquire(self._lock)
+        if self._holds_lock and workers > 0:
+            self._start_workers()
+
+    def _start_workers(self) -> None:
+        context = multiprocessing.get_context("spawn")
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=_load_worker,
+                                         initargs=(self._classifier_path,))
+        self._futures = {self._pool.submit(_classify_in_worker, self.spec, *task): task
+                         for task in _chunks(self.spec, self.chunk)}
 
     def result(self, progress: bool = False) -> Tensor:
         """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
+        while self._outputs is None and not self._holds_lock:  # another job builds it: wait for its file
+            if self.path.is_file():
+                self._outputs = load_bank(self.path, self.key)
+            elif _acquire(self._lock):
+                self._holds_lock = True  # the builder is gone: build here
+            else:
+                time.sleep(1.0)
         if self._outputs is not None:
             return self._outputs
+        try:
+            self._outputs = self._build(progress)
+        finally:
+            self._release()
+        return self._outputs
+
+    def _build(self, progress: bool) -> Tensor:
         spec = self.spec
         out = torch.empty(len(spec.classes), spec.sequences, spec.frames, len(spec.classes))
         tasks = _chunks(spec, self.chunk)
@@ -187,10 +215,47 @@ class BankBuild:
                 finally:
                     self._pool.shutdown(cancel_futures=True)
         save_tensors(self.path, _KIND, {"outputs": out}, {"fingerprint": self.key})
-        self._outputs = out
         return out
 
+    def _release(self) -> None:
+        if self._holds_lock:
+            self._lock.unlink(missing_ok=True)
+            self._holds_lock = False
+
     def cancel(self) -> None:
-        """Stop a background build (nothing is written)."""
+        """Stop a background build (nothing is written) and release its lock."""
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
+        self._release()
+
+
+def _acquire(lock: Path) -> bool:
+    """Take ``lock`` (create it holding this host and process id); take over a lock whose process is gone."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    me = f"{socket.gethostname()} {os.getpid()}"
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            if not _stale(lock):
+                return False
+            lock.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(me)
+        return True
+    return False
+
+
+def _stale(lock: Path) -> bool:
+    """Whether ``lock`` was taken by a process of this host that no longer runs."""
+    try:
+        host, pid = lock.read_text().split()
+        if host != socket.gethostname():
+            return False
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except (OSError, ValueError):
+        return False  # unreadable or being written: leave it
+    return False

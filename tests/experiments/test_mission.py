@@ -3,6 +3,8 @@
 import json
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 import torch
@@ -15,6 +17,9 @@ TINY = [
     "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
     "planner.iterations=2", "planner.samples=6", "planner.elites=2",
     "study.rollouts=4", "study.reeval_rollouts=20", "progress=false",
+    "mission.bank.sequences=2", "mission.bank.workers=0", "mission.generative_streams=50",
+    "mission.bootstrap.replicates=2", "mission.bootstrap.rollouts=4",
+    f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}",
 ]
 
 
@@ -26,17 +31,25 @@ def _run(repo_root, *args, multirun=False):
 @pytest.fixture(scope="module")
 def mission_run(tmp_path_factory, repo_root):
     run_dir = tmp_path_factory.mktemp("mission")
-    _run(repo_root, f"hydra.run.dir={run_dir}")
+    _run(repo_root, f"hydra.run.dir={run_dir}", "mission.bank.workers=1")  # the bank built in the background
     return run_dir
 
 
 def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     metrics = json.loads((mission_run / "metrics.json").read_text())
-    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean"}
+    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean", "hbni_generative"}
     for entry in metrics["variants"].values():
         assert {"value", "stderr", "delivered_per_rollout", "wrong_per_rollout", "mean_inference_frames"} <= set(entry)
+        assert {"value", "stderr", "gap_in_stderr", "wrong_per_rollout"} <= set(entry["executed"])
+    assert len(metrics["variants"]["ssbf"]["executed"]["bank_accuracy"]) == 6
+    loop = metrics["closed_loop"]
+    assert loop["planning"] == {"perfect": "exact", "hbni": "empirical", "ssbf": "empirical", "max_of_mean": "empirical",
+                                "hbni_generative": "generative"}
+    assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
+    assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
     report = (mission_run / "report.md").read_text()
-    for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png"):
+    assert "## Closed loop: planned against executed" in report and "The generative planning model is" in report
+    for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png", "closed_loop.png"):
         assert (mission_run / png).stat().st_size > 10_000
         assert f"]({png})" in report
     temper = metrics["hbni_temper"]
@@ -47,7 +60,29 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
     assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
-                             "controller_perfect", "controller_hbni", "controller_ssbf", "controller_max_of_mean"}
+                             "macro_hbni_generative", "controller_perfect", "controller_hbni", "controller_ssbf",
+                             "controller_max_of_mean", "controller_hbni_generative"}
+    generative = MacroObservationModel.load(mission_run / "macro_hbni_generative.safetensors")
+    assert generative.info["generative"] == "posterior predictive" and generative.info["num_streams"] == 50
+
+
+def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, tmp_path, repo_root):
+    _run(repo_root, f"hydra.run.dir={tmp_path}")
+    first = json.loads((mission_run / "metrics.json").read_text())
+    again = json.loads((tmp_path / "metrics.json").read_text())
+    assert again["closed_loop"]["bank"]["cached"] and again["closed_loop"]["bank"]["path"] == first["closed_loop"]["bank"]["path"]
+    for name, entry in first["variants"].items():
+        assert again["variants"][name]["value"] == entry["value"]
+        assert again["variants"][name]["executed"]["value"] == entry["executed"]["value"]
+
+
+def test_generative_planning_model(tmp_path, repo_root):
+    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "mission.planning_model=generative")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["closed_loop"]["planning"] == {"perfect": "exact", "hbni": "generative", "ssbf": "generative",
+                                                  "hbni_empirical": "empirical"}
+    ssbf = MacroObservationModel.load(tmp_path / "macro_ssbf_generative.safetensors")
+    assert ssbf.info["generative"] == "posterior predictive" and "SSBF" in ssbf.info["filter"]
 
 
 def test_load_run_returns_ready_objects(mission_run):
@@ -71,7 +106,7 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     _run(repo_root, f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf", multirun=True)
     for job, variant in (("0", "hbni"), ("1", "ssbf")):
         metrics = json.loads((tmp_path / job / "metrics.json").read_text())
-        assert set(metrics["variants"]) == {"perfect", variant}
+        assert set(metrics["variants"]) == {"perfect", variant} | ({"hbni_generative"} if variant == "hbni" else set())
     report = (tmp_path / "report.md").read_text()
     header = next(line for line in report.splitlines() if line.startswith("| job"))
     assert header.startswith("| job | status | perception | variants.perfect | variants.hbni |")
@@ -101,6 +136,14 @@ def test_unknown_condition_field_is_a_clear_error(tmp_path, repo_root):
            "+mission.conditions.fog=[0.1,0.2]"]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "conditions: unknown field(s) ['fog']" in proc.stderr
+    assert not (tmp_path / "classifier.safetensors").exists()  # rejected before any work
+
+
+def test_unknown_planning_model_is_a_clear_error(tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
+           "mission.planning_model=oracle"]
+    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and "mission.planning_model: expected one of ['empirical', 'generative']" in proc.stderr
     assert not (tmp_path / "classifier.safetensors").exists()  # rejected before any work
 
 

@@ -1,0 +1,149 @@
+"""Closed-loop evaluation: on the tabulation's own streams it agrees with the table-sampled evaluation."""
+
+import math
+
+import pytest
+import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+import hbni_pyro
+from decpomdp.domains.disaster_relief import greedy_controller
+from experiments.steps import closed_loop
+from experiments.steps.planning import score
+from hbni_pyro.generative import sample_outputs
+
+M, FRAMES = 6, 12
+
+
+def _domain(repo_root):
+    domain = OmegaConf.load(repo_root / "conf" / "domain" / "disaster_relief.yaml")
+    domain.wrong_penalty = 1.0
+    return domain
+
+
+def _recorded_streams(per_class: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Correlated streams like a camera's: each stream has its own noise level, and frames come in repeated pairs."""
+    g = torch.Generator().manual_seed(seed)
+    truth = torch.arange(M).repeat_interleave(per_class)
+    theta = torch.rand(truth.numel(), 1, M, generator=g, dtype=torch.float64) * 6 + 0.5
+    half = sample_outputs(theta, truth.unsqueeze(-1).expand(-1, FRAMES // 2), g)
+    return half.repeat_interleave(2, dim=1), truth
+
+
+def _process() -> hbni_pyro.MacroObservationProcess:
+    draws = torch.tensor([[2.0] * M, [3.0] * M, [5.0] * M], dtype=torch.float64)
+
+    class Posterior:  # the surface HBNIFilter reads
+        num_classes = M
+        class_prior = torch.full((M,), 1 / M, dtype=torch.float64)
+
+        def theta_draws(self):
+            return draws
+
+    return hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(Posterior(), temper=0.6), threshold=0.95,
+                                             max_frames=FRAMES)
+
+
+def test_closed_loop_matches_the_table_when_the_bank_is_the_tabulations_streams(repo_root):
+    """Same streams, same process: the executed value equals the table-sampled one within 3 s.e. of their
+    difference (independent rollouts, 2000 each; the two estimate the same expectation)."""
+    streams, truth = _recorded_streams(per_class=10, seed=0)
+    process = _process()
+    table = hbni_pyro.tabulate(process, streams, truth)
+    assert 0.3 < float(table.accuracy.mean()) < 0.97  # a process that errs, so the perception matters
+    ctrl = greedy_controller(2)
+    domain = _domain(repo_root)
+    planned = score(instantiate(domain, perception=table), ctrl, 2000, seed=1)
+    bank = streams.reshape(M, 10, FRAMES, M)  # (C, S, F, C), the bank layout
+    bank_streams, bank_truth = closed_loop.as_streams(bank)
+    assert torch.equal(bank_streams, streams) and torch.equal(bank_truth, truth)
+    replay = hbni_pyro.StreamReplay(process, bank_streams, bank_truth)
+    executed = closed_loop.execute(ctrl, replay, domain, 2000, seed=2)
+    diff_se = math.hypot(planned["stderr"], executed["stderr"])
+    assert abs(executed["value"] - planned["value"]) < 3 * diff_se
+    assert abs(closed_loop.gap(planned, executed)) < 3
+    summary = closed_loop.summarise(planned, executed, replay)
+    torch.testing.assert_close(torch.tensor(summary["bank_accuracy"], dtype=torch.float64), table.accuracy)
+    torch.testing.assert_close(torch.tensor(summary["bank_mean_frames"], dtype=torch.float64), table.mean_frames)
+
+
+def test_closed_loop_departs_from_a_table_of_other_streams(repo_root):
+    """The check has power: a table whose streams are labelled with the wrong class plans a far lower value."""
+    streams, truth = _recorded_streams(per_class=10, seed=0)
+    process = _process()
+    table = hbni_pyro.tabulate(process, streams, (truth + 1) % M)  # every stream filed under the next class
+    ctrl = greedy_controller(2)
+    domain = _domain(repo_root)
+    planned = score(instantiate(domain, perception=table), ctrl, 500, seed=1)
+    executed = closed_loop.execute(ctrl, hbni_pyro.StreamReplay(process, streams, truth), domain, 500, seed=2)
+    assert closed_loop.gap(planned, executed) > 10
+
+
+def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
+    """Bootstrap over sequence indices: zero spread when every sequence is alike, a large one when half of
+    them always fool the filter (their labels name the next class)."""
+    streams, truth = _recorded_streams(per_class=8, seed=3)
+    process = _process()
+    alike = streams.reshape(M, 8, FRAMES, M)[:, :1].expand(M, 8, FRAMES, M)
+    mixed = streams.reshape(M, 8, FRAMES, M).clone()
+    mixed[:, :4] = mixed[:, :4].roll(1, dims=-1)  # class c's outputs point at class c + 1 in sequences 0-3
+    boot = closed_loop.Bootstrap(replicates=12, rollouts=300)
+    ctrl, domain = greedy_controller(2), _domain(repo_root)
+    rollout_se = score(instantiate(domain, perception=hbni_pyro.tabulate(process, *closed_loop.as_streams(alike))),
+                       ctrl, 300, seed=0)["stderr"]
+
+    def replay(bank):
+        return lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(bank[:, idx]))
+
+    none = closed_loop.stream_stderr(ctrl, replay(alike), 8, domain, boot, seed=1)
+    much = closed_loop.stream_stderr(ctrl, replay(mixed), 8, domain, boot, seed=1)
+    assert none < rollout_se and much > 5 * rollout_se
+
+
+def test_report_pieces_and_acceptance():
+    entry = {"value": 5.0, "stderr": 0.1}
+    common = {"stderr": 0.1, "planned_stream_stderr": 0.0, "stream_stderr": 0.0}
+    results = {
+        "perfect": {**entry, "executed": {**common, "value": 5.0, "gap_in_stderr": 0.0, "gap_in_total_stderr": 0.0,
+                                          "wrong_per_rollout": 0.0, "mean_inference_frames": 10.0}},
+        "hbni": {**entry, "executed": {**common, "value": 4.7, "gap_in_stderr": -2.1, "gap_in_total_stderr": -1.5,
+                                       "planned_stream_stderr": 0.1, "wrong_per_rollout": 0.1,
+                                       "mean_inference_frames": 8.0, "bank_accuracy": [0.9] * 6,
+                                       "bank_mean_frames": [8.0] * 6}},
+        "ssbf": {**entry, "executed": {**common, "value": 4.0, "gap_in_stderr": -7.0, "gap_in_total_stderr": -1.9,
+                                       "wrong_per_rollout": 0.5, "mean_inference_frames": 4.0,
+                                       "bank_accuracy": [0.7] * 6, "bank_mean_frames": [4.0] * 6}},
+        "hbni_generative": {**entry, "executed": {**common, "value": 4.6, "gap_in_stderr": -2.8,
+                                                  "gap_in_total_stderr": -2.8, "wrong_per_rollout": 0.1,
+                                                  "mean_inference_frames": 8.0}},
+    }
+    acc = closed_loop.acceptance(results)
+    assert acc["hbni_executed_over_perfect"] == pytest.approx(0.94)
+    assert acc["hbni_executed_beats_ssbf_outside_stderr"] is True
+    assert acc["hbni_minus_ssbf_executed_in_stderr"] == pytest.approx(0.7 / (0.02 ** 0.5))
+    planning = {"perfect": "exact", "hbni": "empirical", "ssbf": "empirical", "hbni_generative": "generative"}
+    lines = closed_loop.report_lines(results, {"hbni": "HBNI"}, planning,
+                                     {"cached": True, "sequences_per_class": 40, "frames": 30, "seed": 3, "path": "x"})
+    text = "\n".join(lines)
+    assert "| HBNI | empirical | 5.000 ± 0.100; 0.100 | 4.700 ± 0.100; 0.000 | -2.1 | -1.5 |" in text
+    assert "The empirical planning model is honest here: gaps hbni -1.5, ssbf -1.9 s.e." in text
+    assert "The generative planning model is not honest here: gaps hbni_generative -2.8 s.e." in text
+    assert closed_loop.gap({"value": 1.0, "stderr": 0.3}, {"value": 0.5, "stderr": 0.4}) == pytest.approx(-1.0)
+    assert closed_loop.gap({"value": 1.0, "stderr": 0.0}, {"value": 0.5, "stderr": 0.3}, 0.4) == pytest.approx(-1.0)
+    assert closed_loop.other_model("empirical") == "generative"
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("planning_model", "learned", "mission.planning_model: expected one of"),
+    ("compare_planning_models", "yes", "mission.compare_planning_models: expected true or false"),
+    ("generative_streams", 0, "mission.generative_streams: expected an int >= 1"),
+])
+def test_bad_loop_settings_are_clear_errors(key, value, message):
+    cfg = OmegaConf.create({"mission": {"planning_model": "empirical", "compare_planning_models": True,
+                                        "generative_streams": 10,
+                                        "bank": {"sequences": 2, "cache_dir": "x", "workers": 0},
+                                        "bootstrap": {"replicates": 4, "rollouts": 10}}})
+    cfg.mission[key] = value
+    with pytest.raises(ValueError, match=message):
+        closed_loop.check_loop_settings(cfg)
