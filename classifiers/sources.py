@@ -5,7 +5,8 @@ Every source iterates over uint8 BGR frames ``(H, W, 3)``, the layout
 its file or device. :func:`open_source` picks the kind from what it is given:
 
 * an existing directory: :class:`FrameFolder`, a flat folder of images read in name order
-  (numbers compared as numbers, so ``frame_2.png`` comes before ``frame_10.png``);
+  (numbers compared as numbers, so ``frame_2.png`` comes before ``frame_10.png``) by
+  :class:`classifiers.data.ImageFolder`;
 * an existing file: :class:`VideoFile`, any container and codec the OpenCV build decodes;
 * an int (or a string of digits that is not a path): :class:`Camera`, a device index.
 
@@ -17,16 +18,15 @@ from __future__ import annotations
 
 import abc
 import os
-import re
 from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-__all__ = ["Camera", "FRAME_EXTENSIONS", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
+from classifiers.data.image_folder import ImageFolder
 
-FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+__all__ = ["Camera", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
 
 
 class FrameSource(abc.ABC):
@@ -109,47 +109,34 @@ class VideoFile(FrameSource):
         return f"VideoFile({str(self.path)!r}, fps={self.fps}, frames={self.num_frames})"
 
 
-def _natural_key(name: str) -> list:
-    """Sort key comparing runs of digits as numbers: ``f2 < f10``."""
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
 class FrameFolder(FrameSource):
-    """The images directly inside a folder (unlabelled, flat), in name order with numbers compared as numbers.
+    """The images directly inside a folder (unlabelled, flat), read by :class:`classifiers.data.ImageFolder`:
+    ``.png``, ``.jpg``, ``.jpeg`` or ``.bmp``, in name order with numbers compared as numbers.
 
     Args:
-        path: the folder; files with other extensions than :data:`FRAME_EXTENSIONS` are ignored.
+        path: the folder.
         fps: nominal frame rate to report (a folder has none of its own).
 
     Raises:
         FileNotFoundError: ``path`` is not a directory.
-        ValueError: no image at the folder's top level (a labelled ``root/<class>/`` folder is
-            named as such: read it with :class:`classifiers.data.ImageFolder`).
+        ValueError: no image in the folder, or it holds ``<class>/`` folders (a labelled folder, not frames).
     """
 
     def __init__(self, path: str | os.PathLike, fps: float | None = None) -> None:
         self.path = Path(path)
         if not self.path.is_dir():
             raise FileNotFoundError(f"source: no such folder {str(self.path)!r}")
-        self.files = sorted((f for f in self.path.iterdir() if f.is_file() and f.suffix.lower() in FRAME_EXTENSIONS),
-                            key=lambda f: _natural_key(f.name))
-        if not self.files:
-            nested = any(d.is_dir() and any(f.suffix.lower() in FRAME_EXTENSIONS for f in d.iterdir())
-                         for d in self.path.iterdir())
-            hint = (" (it holds sub-folders of images: a labelled root/<class>/ folder is read by "
-                    "classifiers.data.ImageFolder)") if nested else ""
-            raise ValueError(f"source: folder {str(self.path)!r} has no {'/'.join(FRAME_EXTENSIONS)} frames{hint}")
+        self._folder = ImageFolder(self.path)
+        if self._folder.labelled:
+            raise ValueError(f"source: {str(self.path)!r} holds <class>/ folders of images, not a flat folder of "
+                             "frames (a labelled folder is read by classifiers.data.ImageFolder)")
+        self.files = [f for f, _ in self._folder.samples]
         self.fps = fps
         self.num_frames = len(self.files)
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        for f in self.files:
-            frame = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-            if frame is None:
-                raise ValueError(f"source: frame {str(f)!r} could not be decoded")
-            if frame.dtype != np.uint8:
-                raise ValueError(f"source: frame {str(f)!r} is {frame.dtype}, expected 8-bit")
-            yield _bgr(frame)
+        for i in range(len(self._folder)):
+            yield self._folder[i][0]
 
     def __repr__(self) -> str:
         return f"FrameFolder({str(self.path)!r}, frames={self.num_frames})"

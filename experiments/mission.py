@@ -110,7 +110,7 @@ def read_settings(cfg: DictConfig) -> Settings:
     variants = list(cfg.perception) if isinstance(cfg.perception, ListConfig) else [str(cfg.perception)]
     temper = None if st.temper == "fit" else float(st.temper)
     return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames),
-                    closed_loop.check_loop_settings(cfg))
+                    closed_loop.read_loop_settings(cfg))
 
 
 def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> FrameClassifier:

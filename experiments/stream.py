@@ -2,8 +2,8 @@
 
 :func:`run` reads as its stages:
 
-1. :func:`check_settings`: the source and the saved models exist, every setting is valid (before
-   anything is loaded).
+1. :func:`read_settings`: the settings, checked before anything is loaded (the source and the
+   saved models exist, every range holds: ``experiments.schemas``).
 2. :func:`load_models`: the saved :class:`~classifiers.FrameClassifier` and
    :class:`~hbni_pyro.HBNIPosterior` (from a finished mission run, ``stream.run``, or from files),
    the posterior's class order and the HBNI temper; the macro-observation process built on them.
@@ -23,20 +23,17 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from omegaconf import DictConfig, ListConfig
+from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
 from classifiers import FrameClassifier
 from classifiers.sources import FrameSource, open_source
-from experiments.artifacts import load_run
+from experiments.artifacts import latest_run, load_run
 from experiments.common import save_figure
 from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
 from experiments.steps.streaming import Segment, classify_frames, macro_observations
 from infra.files import atomic_write_text
-
-ANNOTATIONS = ("video", "strip")
-
 
 class Settings(NamedTuple):
     """The stream's validated settings."""
@@ -75,58 +72,34 @@ class Streamed(NamedTuple):
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
-    settings = check_settings(cfg)
+    settings = read_settings(cfg)
     models = load_models(settings, cfg)
     streamed = stream_frames(settings, models, run_dir)
     return write_outputs(settings, models, streamed, run_dir)
 
 
-def _path(value: Any, key: str) -> Path | None:
-    if value is None:
-        return None
-    path = Path(str(value))
-    if not path.exists():
-        raise FileNotFoundError(f"{key}: no such file or directory {str(path)!r}")
-    return path
+def read_settings(cfg: DictConfig) -> Settings:
+    """The stream's settings from its config (already checked against its schema, ``experiments.schemas``).
 
-
-def _positive_int(value: Any, key: str, optional: bool = False) -> int | None:
-    if optional and value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{key}: expected a positive int{' or null' if optional else ''}, got {value!r}")
-    return value
-
-
-def check_settings(cfg: DictConfig) -> Settings:
-    """Validate ``cfg.stream``; raises ``ValueError``/``FileNotFoundError`` naming the key."""
+    ``stream.run=latest`` is the newest completed mission run under ``outputs/mission``; it is not read
+    when both ``stream.classifier`` and ``stream.posterior`` are given.
+    """
     st = cfg.stream
-    source = st.source
-    if source is None or (isinstance(source, str) and not source.strip()):
-        raise ValueError("stream.source: expected a video file, a folder of frames or a camera index "
-                         "(e.g. stream.source=clip.mp4)")
-    if not isinstance(source, int):
-        source = str(source)
-        if not source.isdigit():
-            _path(source, "stream.source")
-    run, clf, post = _path(st.run, "stream.run"), _path(st.classifier, "stream.classifier"), _path(st.posterior, "stream.posterior")
-    if run is None and (clf is None or post is None):
-        raise ValueError("stream.run: expected a finished mission run, or both stream.classifier and stream.posterior")
-    annotate = tuple(st.annotate) if isinstance(st.annotate, (list, ListConfig)) else (() if st.annotate is None else (st.annotate,))
-    unknown = [a for a in annotate if a not in ANNOTATIONS]
-    if unknown:
-        raise ValueError(f"stream.annotate: expected a subset of {list(ANNOTATIONS)}, got {list(annotate)}")
-    temper = st.temper
-    if temper is not None and (isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1):
-        raise ValueError(f"stream.temper: expected null or a float in (0, 1], got {temper!r}")
-    threshold = st.threshold
-    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0 < threshold <= 1:
-        raise ValueError(f"stream.threshold: expected a probability in (0, 1], got {threshold!r}")
-    classes = None if st.classes is None else [str(c) for c in st.classes]
-    return Settings(source, _positive_int(st.max_input_frames, "stream.max_input_frames", optional=True), run, clf,
-                    post, classes, None if temper is None else float(temper), float(threshold),
-                    _positive_int(st.max_frames, "stream.max_frames"), _positive_int(st.batch, "stream.batch"),
-                    annotate, bool(cfg.progress))
+    source = st.source if isinstance(st.source, int) else str(st.source)
+    run = st.run
+    if run == "latest":
+        try:
+            run = None if st.classifier and st.posterior else latest_run("mission")
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"stream.run: {str(exc).removeprefix('name: ')}") from None
+    return Settings(source, st.max_input_frames, _path(run), _path(st.classifier), _path(st.posterior),
+                    None if st.classes is None else [str(c) for c in st.classes],
+                    None if st.temper is None else float(st.temper), float(st.threshold), int(st.max_frames),
+                    int(st.batch), tuple(st.annotate), bool(cfg.progress))
+
+
+def _path(value: Any) -> Path | None:
+    return None if value is None else Path(str(value))
 
 
 def load_models(settings: Settings, cfg: DictConfig) -> Models:

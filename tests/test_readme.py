@@ -17,7 +17,8 @@ TINY_MISSION = [
     "mission.train_per_class=5", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
     "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
     "planner.iterations=2", "planner.samples=6", "planner.elites=2", "study.rollouts=4", "study.reeval_rollouts=20",
-    "progress=false",
+    "progress=false", "mission.bank.sequences=2", "mission.bank.workers=0", "mission.generative_streams=50",
+    "mission.bootstrap.replicates=2", "mission.bootstrap.rollouts=4",
 ]
 
 
@@ -29,7 +30,8 @@ def test_readme_python_blocks_run_as_written(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     run_dir = tmp_path / "outputs" / "mission" / "2026-01-01_00-00-00"
     subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
-                    *TINY_MISSION], cwd=ROOT, check=True, capture_output=True, env=env)
+                    f"mission.bank.cache_dir={tmp_path / 'banks'}", *TINY_MISSION], cwd=ROOT, check=True,
+                   capture_output=True, env=env)
     script = "\n\n".join(BLOCKS)
     proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]

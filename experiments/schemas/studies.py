@@ -249,9 +249,40 @@ class DPOMDPBenchmarks(Root):
     study: BenchmarkStudy = field(default_factory=BenchmarkStudy)
 
 
+PLANNING_MODELS = ("empirical", "generative")
+
+
+@dataclass
+class BankBlock:
+    """``mission.bank``: the held-out sequences of the closed loop (per class), their cache and builders."""
+
+    sequences: int = 40
+    cache_dir: str = ".cache/banks"
+    workers: int = 1
+
+    def check(self, path: str) -> None:
+        positive_int("sequences", self.sequences, 2)
+        positive_int("workers", self.workers, 0)
+        if not self.cache_dir.strip():
+            raise ValueError("cache_dir: expected a directory for cached output banks")
+
+
+@dataclass
+class BootstrapBlock:
+    """``mission.bootstrap``: stream standard errors by bootstrap over sequence indices."""
+
+    replicates: int = 16
+    rollouts: int = 400
+
+    def check(self, path: str) -> None:
+        positive_int("replicates", self.replicates, 2)
+        positive_int("rollouts", self.rollouts, 2)
+
+
 @dataclass
 class MissionBlock:
-    """``mission``: the perception side of the mission (data sizes, inference threshold, temper, imaging)."""
+    """``mission``: the perception side of the mission (data sizes, inference threshold, temper, imaging),
+    the planning model and the closed loop."""
 
     train_per_class: int = 30
     augment: int = 1
@@ -261,10 +292,16 @@ class MissionBlock:
     threshold: float = 0.95
     temper: Any = "fit"
     conditions: Optional[dict[str, Any]] = None
+    planning_model: str = "empirical"
+    compare_planning_models: bool = True
+    generative_streams: int = 1000
+    bank: BankBlock = field(default_factory=BankBlock)
+    bootstrap: BootstrapBlock = field(default_factory=BootstrapBlock)
 
     def check(self, path: str) -> None:
-        for name in ("train_per_class", "calib_sequences", "char_sequences", "frames"):
+        for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
             positive_int(name, getattr(self, name))
+        one_of("planning_model", self.planning_model, PLANNING_MODELS)
         positive_int("augment", self.augment, 0)
         probability("threshold", self.threshold)
         t = self.temper
@@ -292,6 +329,57 @@ class Mission(Root):
             raise ValueError(f"perception: expected a subset of {list(MISSION_VARIANTS)}, got {chosen}")
 
 
+ANNOTATIONS = ("video", "strip")
+
+
+@dataclass
+class StreamBlock:
+    """``stream``: where frames come from, the saved models, the macro-observation process, the pictures."""
+
+    source: Any = 0  # a video file, a folder of frames or a camera index
+    max_input_frames: Optional[int] = None
+    run: Optional[str] = "latest"  # a mission run directory; latest: the newest completed one under outputs/mission
+    classifier: Optional[str] = None
+    posterior: Optional[str] = None
+    classes: Optional[list[str]] = None
+    temper: Optional[float] = None
+    threshold: float = 0.95
+    max_frames: int = 30
+    batch: int = 8
+    annotate: list[str] = field(default_factory=lambda: list(ANNOTATIONS))
+
+    def check(self, path: str) -> None:
+        from pathlib import Path
+
+        source = self.source
+        if isinstance(source, bool) or not isinstance(source, (str, int)) or (isinstance(source, str) and not source.strip()):
+            raise ValueError(f"source: expected a video file, a folder of frames or a camera index, got {source!r}")
+        if isinstance(source, str) and not source.isdigit() and not Path(source).exists():
+            raise ValueError(f"source: no such video file or folder {source!r}")
+        for name in ("run", "classifier", "posterior"):
+            value = getattr(self, name)
+            if value is not None and not (name == "run" and value == "latest") and not Path(value).exists():
+                raise ValueError(f"{name}: no such file or directory {value!r}")
+        if self.run is None and (self.classifier is None or self.posterior is None):
+            raise ValueError("run: expected a finished mission run (or latest), or both stream.classifier and "
+                             "stream.posterior")
+        if self.max_input_frames is not None:
+            positive_int("max_input_frames", self.max_input_frames)
+        if self.temper is not None:
+            probability("temper", self.temper)
+        probability("threshold", self.threshold)
+        positive_int("max_frames", self.max_frames)
+        positive_int("batch", self.batch)
+        unknown = [a for a in self.annotate if a not in ANNOTATIONS]
+        if unknown:
+            raise ValueError(f"annotate: expected a subset of {list(ANNOTATIONS)}, got {list(self.annotate)}")
+
+
+@dataclass
+class Stream(Root):
+    stream: StreamBlock = field(default_factory=StreamBlock)
+
+
 #: schema of each experiment, by its ``name``
 SCHEMAS: dict[str, type] = {
     "hbni_toy": HBNIToy,
@@ -303,4 +391,5 @@ SCHEMAS: dict[str, type] = {
     "dpomdp_benchmarks": DPOMDPBenchmarks,
     "mission": Mission,
     "mission_full": Mission,
+    "stream": Stream,
 }

@@ -32,10 +32,8 @@ from omegaconf import DictConfig
 import hbni_pyro
 from decpomdp import JointController
 from experiments.common import beats
+from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps.planning import score
-
-PLANNING_MODELS = ("empirical", "generative")
-
 
 class Bootstrap(NamedTuple):
     """Bootstrap over sequence indices: ``replicates`` resampled tables or banks, ``rollouts`` rollouts on each."""
@@ -56,24 +54,12 @@ class LoopSettings(NamedTuple):
     bootstrap: Bootstrap  # stream standard errors
 
 
-def check_loop_settings(cfg: DictConfig) -> LoopSettings:
-    """Validate the closed-loop keys of ``cfg.mission``; raises ``ValueError`` naming the key."""
+def read_loop_settings(cfg: DictConfig) -> LoopSettings:
+    """The closed-loop keys of ``cfg.mission`` (already checked against the mission's schema)."""
     st = cfg.mission
-    if st.planning_model not in PLANNING_MODELS:
-        raise ValueError(f"mission.planning_model: expected one of {list(PLANNING_MODELS)}, got {st.planning_model!r}")
-    if not isinstance(st.compare_planning_models, bool):
-        raise ValueError(f"mission.compare_planning_models: expected true or false, got {st.compare_planning_models!r}")
-    ints = {"mission.generative_streams": (st.generative_streams, 1), "mission.bank.sequences": (st.bank.sequences, 2),
-            "mission.bank.workers": (st.bank.workers, 0), "mission.bootstrap.replicates": (st.bootstrap.replicates, 2),
-            "mission.bootstrap.rollouts": (st.bootstrap.rollouts, 2)}
-    for key, (value, low) in ints.items():
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"{key}: expected an int >= {low}, got {value!r}")
-    if not st.bank.cache_dir:
-        raise ValueError("mission.bank.cache_dir: expected a directory for cached output banks")
-    return LoopSettings(st.planning_model, st.compare_planning_models, st.generative_streams, st.bank.sequences,
-                        Path(os.path.expanduser(str(st.bank.cache_dir))), st.bank.workers,
-                        Bootstrap(st.bootstrap.replicates, st.bootstrap.rollouts))
+    return LoopSettings(str(st.planning_model), bool(st.compare_planning_models), int(st.generative_streams),
+                        int(st.bank.sequences), Path(os.path.expanduser(str(st.bank.cache_dir))), int(st.bank.workers),
+                        Bootstrap(int(st.bootstrap.replicates), int(st.bootstrap.rollouts)))
 
 
 def other_model(planning_model: str) -> str:

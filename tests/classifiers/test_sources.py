@@ -67,9 +67,8 @@ def test_bad_sources_are_clear_errors(tmp_path, frames):
     labelled = tmp_path / "labelled"
     (labelled / "ambulance").mkdir(parents=True)
     cv2.imwrite(str(labelled / "ambulance" / "0.png"), frames[0])
-    with pytest.raises(ValueError, match="labelled root/<class>/ folder is read by classifiers.data.ImageFolder"):
+    with pytest.raises(ValueError, match="holds <class>/ folders of images, not a flat folder of frames"):
         open_source(labelled)
-    (tmp_path / "broken.png").write_bytes(b"\x89PNG not really")
     broken = tmp_path / "only_broken"
     broken.mkdir()
     (broken / "x.png").write_bytes(b"\x89PNG not really")

@@ -1,6 +1,8 @@
 """Closed-loop evaluation: on the tabulation's own streams it agrees with the table-sampled evaluation."""
 
 import math
+import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -134,16 +136,36 @@ def test_report_pieces_and_acceptance():
     assert closed_loop.other_model("empirical") == "generative"
 
 
-@pytest.mark.parametrize("key, value, message", [
-    ("planning_model", "learned", "mission.planning_model: expected one of"),
-    ("compare_planning_models", "yes", "mission.compare_planning_models: expected true or false"),
-    ("generative_streams", 0, "mission.generative_streams: expected an int >= 1"),
+@pytest.mark.parametrize("override, message", [
+    ("mission.planning_model=learned", "mission.planning_model: expected one of ['empirical', 'generative']"),
+    ("mission.generative_streams=0", "mission.generative_streams: expected an int >= 1"),
+    ("mission.bank.sequences=1", "mission.bank.sequences: expected an int >= 2"),
+    ("mission.bank.workers=-1", "mission.bank.workers: expected an int >= 0"),
+    ("mission.bank.cache_dir=' '", "mission.bank.cache_dir: expected a directory"),
+    ("mission.bootstrap.replicates=1", "mission.bootstrap.replicates: expected an int >= 2"),
 ])
-def test_bad_loop_settings_are_clear_errors(key, value, message):
-    cfg = OmegaConf.create({"mission": {"planning_model": "empirical", "compare_planning_models": True,
-                                        "generative_streams": 10,
-                                        "bank": {"sequences": 2, "cache_dir": "x", "workers": 0},
-                                        "bootstrap": {"replicates": 4, "rollouts": 10}}})
-    cfg.mission[key] = value
-    with pytest.raises(ValueError, match=message):
-        closed_loop.check_loop_settings(cfg)
+def test_bad_loop_settings_fail_before_any_work(override, message):
+    from hydra import compose, initialize_config_dir
+
+    from experiments.schemas import check_config, register
+
+    register()
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["experiment=mission", override])
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_config(cfg)
+
+
+def test_loop_settings_are_read_from_the_mission_config():
+    from hydra import compose, initialize_config_dir
+
+    from experiments.schemas import register
+
+    register()
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base="1.3"):
+        full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
+    loop = closed_loop.read_loop_settings(full)
+    assert loop.planning_model == "generative" and loop.bank_sequences == 200 and loop.workers == 1
+    assert loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == Path(".cache/banks")

@@ -12,9 +12,12 @@ import pytest
 import torch
 
 import hbni_pyro
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
 from classifiers import FrameClassifier
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
+from experiments.schemas import check_config, register
 from experiments.steps.streaming import classify_frames, macro_observations
 
 CLASSES = ["police_car", "ambulance", "food_crate"]  # not the classifier's alphabetical order, on purpose
@@ -115,27 +118,45 @@ def test_a_folder_of_frames_gives_the_in_process_segments(tmp_path, saved, repo_
     assert segments[-1].end == 19
 
 
-@pytest.mark.parametrize("override, error, message", [
-    ("stream.source=/no/such/clip.mp4", FileNotFoundError, "stream.source: no such file or directory"),
-    ("stream.source=null", ValueError, "stream.source: expected a video file, a folder of frames or a camera index"),
-    ("stream.classifier=null", ValueError, "stream.run: expected a finished mission run, or both stream.classifier"),
-    ("stream.annotate=[gif]", ValueError, "stream.annotate: expected a subset of ['video', 'strip']"),
-    ("stream.temper=2", ValueError, "stream.temper: expected null or a float in (0, 1]"),
-    ("stream.threshold=0", ValueError, "stream.threshold: expected a probability in (0, 1]"),
-    ("stream.batch=0", ValueError, "stream.batch: expected a positive int"),
-    ("stream.max_input_frames=0", ValueError, "stream.max_input_frames: expected a positive int or null"),
+@pytest.mark.parametrize("override, message", [
+    ("stream.source=/no/such/clip.mp4", "stream.source: no such video file or folder"),
+    ("stream.source=null", "stream.source: expected a video file, a folder of frames or a camera index"),
+    ("stream.run=/no/such/run", "stream.run: no such file or directory"),
+    ("stream.posterior=/no/such.safetensors", "stream.posterior: no such file or directory"),
+    ("stream.annotate=[gif]", "stream.annotate: expected a subset of ['video', 'strip']"),
+    ("stream.temper=2", "stream.temper: expected a probability in (0, 1]"),
+    ("stream.threshold=0", "stream.threshold: expected a probability in (0, 1]"),
+    ("stream.batch=0", "stream.batch: expected an int >= 1"),
+    ("stream.max_input_frames=0", "stream.max_input_frames: expected an int >= 1"),
 ])
-def test_bad_settings_are_clear_errors(saved, override, error, message):
-    """Checked before anything is loaded (the config composed as the entry point receives it)."""
-    from hydra import compose, initialize_config_dir
-
-    from experiments.stream import check_settings
-
+def test_bad_settings_are_clear_errors(saved, override, message):
+    """Checked against the stream's schema before anything is loaded, naming the key."""
     conf = str(Path(__file__).resolve().parents[2] / "conf")
+    register()
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
         cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + [override])
-    with pytest.raises(error, match=re.escape(message)):
-        check_settings(cfg)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_config(cfg)
+
+
+def test_a_wrong_type_fails_while_composing(saved):
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    register()
+    with pytest.raises(ConfigCompositionException), initialize_config_dir(config_dir=conf, version_base="1.3"):
+        compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.batch=many"])
+
+
+def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path, monkeypatch):
+    from experiments.stream import read_settings
+
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    register()
+    with initialize_config_dir(config_dir=conf, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.classifier=null"])
+    check_config(cfg)  # run=latest is found when the stream starts
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FileNotFoundError, match="stream.run: no completed 'mission' run under 'outputs/mission'"):
+        read_settings(cfg)
 
 
 def test_classes_that_are_not_the_classifiers_are_a_clear_error(tmp_path, saved, repo_root):
