@@ -276,11 +276,12 @@ def execute_closed_loop(
 ) -> None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
     streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
-    the stream standard errors of the planned value (an empirical table's sequences ``held``) and of the
-    executed one (the bank's sequences), by bootstrap over sequence indices."""
+    the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
+    executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences."""
     _step(settings.progress, "6/6 executing every policy in closed loop on the held-out bank")
     processes = build_processes(noise, cfg, settings)
     replays = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(bank)) for name, p in processes.items()}
+    pooled = torch.cat([held, bank], dim=1)  # (C, held + bank sequences, F, C)
     boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
     for k, name in tqdm(list(enumerate(results)), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
@@ -292,11 +293,11 @@ def execute_closed_loop(
         process = processes[_entry_variant(name)]
         executed = closed_loop.execute(controller, replays[_entry_variant(name)], cfg.domain, reeval, seed)
         on_bank = closed_loop.stream_stderr(
-            controller, lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(bank[:, idx])),
-            bank.shape[1], cfg.domain, boot, seed + 1000)
+            controller, lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(pooled[:, idx])),
+            pooled.shape[1], bank.shape[1], cfg.domain, boot, seed + 1000)
         on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
-            controller, lambda idx: hbni_pyro.tabulate(process, *closed_loop.as_streams(held[:, idx])),
-            held.shape[1], cfg.domain, boot, seed + 2000)
+            controller, lambda idx: hbni_pyro.tabulate(process, *closed_loop.as_streams(pooled[:, idx])),
+            pooled.shape[1], held.shape[1], cfg.domain, boot, seed + 2000)
         results[name]["executed"] = closed_loop.summarise(results[name], executed, replays[_entry_variant(name)],
                                                           on_table, on_bank)
 

@@ -4,6 +4,10 @@
 * :mod:`experiments.steps.noise`: fit HBNI on labelled classifier outputs.
 * :mod:`experiments.steps.planning`: run G-DICE and the baselines, score controllers on rollouts.
 * :mod:`experiments.steps.planning_figures`: the planning experiments' figures.
+* :mod:`experiments.steps.bank`: the held-out output bank of the closed loop, built once and cached.
+* :mod:`experiments.steps.closed_loop`: planned against executed values, stream standard errors, report.
+* :mod:`experiments.steps.streaming`: frames through the classifier into consecutive macro-observations.
+* :mod:`experiments.steps.annotate`: the annotated video and PNG strip of a macro-observation stream.
 
 Entry points (``conf/experiment/*.yaml`` ``entry``) import these, never each other.
 """

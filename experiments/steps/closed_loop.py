@@ -11,7 +11,10 @@ Two kinds of standard error enter that gap. Rollouts: each value is a Monte Carl
 a table tabulated on 16 recorded sequences per class, or a bank of 40, is itself a sample of
 imaging conditions (sequence ``i`` of every class shares its pose, light and background), so a
 planned or executed value carries the luck of its sequences too. :func:`stream_stderr` measures
-that part by bootstrap over sequence indices; the honesty verdict uses the gap in both together.
+that part by bootstrap: if the planning model is honest, the table's recorded sequences and the
+bank's are draws from one population, so (as in a pooled two-sample test) each value's stream
+standard error is the spread of that policy's value over tables or banks of the same size drawn
+from the pooled sequences. The honesty verdict uses the gap in all four standard errors together.
 A generative table is simulated (1000 streams per class by default): its own simulation error is
 neglected.
 """
@@ -78,11 +81,11 @@ def as_streams(outputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return outputs.reshape(C * S, *outputs.shape[2:]).double(), torch.arange(C).repeat_interleave(S)
 
 
-def stream_stderr(controller: JointController, perception_of: Callable[[torch.Tensor], Any], sequences: int,
+def stream_stderr(controller: JointController, perception_of: Callable[[torch.Tensor], Any], pool: int, size: int,
                   domain: DictConfig, boot: Bootstrap, seed: int) -> float:
-    """Standard error of a policy's value from the finite set of recorded sequences behind its perception.
+    """Standard error of a policy's value from the finite set of ``size`` recorded sequences behind its perception.
 
-    Each replicate resamples ``sequences`` sequence indices with replacement (all classes' sequence ``i``
+    Each replicate draws ``size`` of ``pool`` sequence indices with replacement (all classes' sequence ``i``
     together: they share imaging conditions), builds ``perception_of(indices)`` (a table or a replay) and
     scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
     rollout variance is the streams' share (floored at 0).
@@ -90,7 +93,7 @@ def stream_stderr(controller: JointController, perception_of: Callable[[torch.Te
     g = torch.Generator().manual_seed(seed)
     values, variances = [], []
     for b in range(boot.replicates):
-        idx = torch.randint(sequences, (sequences,), generator=g)
+        idx = torch.randint(pool, (size,), generator=g)
         entry = score(instantiate(domain, perception=perception_of(idx)), controller, boot.rollouts, seed + 1 + b)
         values.append(entry["value"])
         variances.append(entry["stderr"] ** 2)

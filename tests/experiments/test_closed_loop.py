@@ -84,7 +84,7 @@ def test_closed_loop_departs_from_a_table_of_other_streams(repo_root):
 
 def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
     """Bootstrap over sequence indices: zero spread when every sequence is alike, a large one when half of
-    them always fool the filter (their labels name the next class)."""
+    them always fool the filter (their labels name the next class), larger still for values from fewer."""
     streams, truth = _recorded_streams(per_class=8, seed=3)
     process = _process()
     alike = streams.reshape(M, 8, FRAMES, M)[:, :1].expand(M, 8, FRAMES, M)
@@ -98,8 +98,10 @@ def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
     def replay(bank):
         return lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(bank[:, idx]))
 
-    none = closed_loop.stream_stderr(ctrl, replay(alike), 8, domain, boot, seed=1)
-    much = closed_loop.stream_stderr(ctrl, replay(mixed), 8, domain, boot, seed=1)
+    none = closed_loop.stream_stderr(ctrl, replay(alike), 8, 8, domain, boot, seed=1)
+    much = closed_loop.stream_stderr(ctrl, replay(mixed), 8, 8, domain, boot, seed=1)
+    fewer = closed_loop.stream_stderr(ctrl, replay(mixed), 8, 2, domain, boot, seed=1)  # values from 2 sequences
+    assert fewer > much
     assert none < rollout_se and much > 5 * rollout_se
 
 
