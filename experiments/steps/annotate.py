@@ -121,8 +121,8 @@ def strip_figure(segments: Sequence[Segment], beliefs: Sequence[Tensor], thumbs:
     n = len(segments)
     shown = sorted(set(np.linspace(0, n - 1, min(n, max_thumbs)).round().astype(int).tolist())) if n else []
     cols = max(len(shown), 1)
-    fig = plt.figure(figsize=(max(8.0, 1.7 * cols), 5.2))
-    grid = fig.add_gridspec(2, cols, height_ratios=[1.0, 1.15], hspace=0.45)
+    fig = plt.figure(figsize=(max(8.0, 1.7 * cols), 4.4))
+    grid = fig.add_gridspec(2, cols, height_ratios=[1.0, 1.3], hspace=0.15)
     for j, i in enumerate(shown):
         ax = fig.add_subplot(grid[0, j])
         ax.imshow(cv2.cvtColor(thumbs[i], cv2.COLOR_BGR2RGB))

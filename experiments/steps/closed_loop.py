@@ -168,18 +168,30 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dic
     return lines + honesty_lines(results, planning) + [""]
 
 
+HONEST_WITHIN = 3.0
+"""A planning model is called honest when every policy planned on it executes within this many (full) standard
+errors of its planned value: the tolerance this project uses for two Monte Carlo estimates of one quantity."""
+
+
 def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[str]:
-    """Which planning model predicts its policy's executed value (every |full gap| <= 2 s.e.), with the numbers."""
+    """Which planning model predicts its policies' executed values (every |full gap| <= :data:`HONEST_WITHIN`),
+    with the gaps and, per policy, what its table predicted against what the bank gave (accuracy, frames)."""
     out = []
     for model in PLANNING_MODELS:
-        gaps = {name: r["executed"]["gap_in_total_stderr"] for name, r in results.items() if planning.get(name) == model}
-        if not gaps:
+        names = [name for name in results if planning.get(name) == model]
+        if not names:
             continue
-        worst = max(gaps, key=lambda n: abs(gaps[n]))
-        honest = all(abs(g) <= 2 for g in gaps.values())
+        gaps = {name: results[name]["executed"]["gap_in_total_stderr"] for name in names}
+        honest = all(abs(g) <= HONEST_WITHIN for g in gaps.values())
         listed = ", ".join(f"{n} {g:+.1f}" for n, g in gaps.items())
-        out.append(f"- The {model} planning model is {'honest' if honest else 'not honest'} here: gaps {listed} s.e. "
-                   f"(largest |gap| {abs(gaps[worst]):.1f} s.e., {worst}; honest means every |gap| <= 2).")
+        out.append(f"- The **{model}** planning model is **{'honest' if honest else 'not honest'}** here: full gaps "
+                   f"{listed} s.e. (honest: every |gap| <= {HONEST_WITHIN:g}).")
+        for name in names:
+            r, e = results[name], results[name]["executed"]
+            if "macro_accuracy" in r and "bank_accuracy" in e:
+                out.append(f"  - {name}: its table says accuracy {np.mean(r['macro_accuracy']):.3f} after "
+                           f"{np.mean(r['macro_mean_frames']):.1f} frames; on the bank the process gets "
+                           f"{np.mean(e['bank_accuracy']):.3f} after {np.mean(e['bank_mean_frames']):.1f}.")
     return out
 
 

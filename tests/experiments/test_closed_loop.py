@@ -118,9 +118,10 @@ def test_report_pieces_and_acceptance():
         "ssbf": {**entry, "executed": {**common, "value": 4.0, "gap_in_stderr": -7.0, "gap_in_total_stderr": -1.9,
                                        "wrong_per_rollout": 0.5, "mean_inference_frames": 4.0,
                                        "bank_accuracy": [0.7] * 6, "bank_mean_frames": [4.0] * 6}},
-        "hbni_generative": {**entry, "executed": {**common, "value": 4.6, "gap_in_stderr": -2.8,
-                                                  "gap_in_total_stderr": -2.8, "wrong_per_rollout": 0.1,
-                                                  "mean_inference_frames": 8.0}},
+        "hbni_generative": {**entry, "macro_accuracy": [1.0] * 6, "macro_mean_frames": [6.0] * 6,
+                            "executed": {**common, "value": 4.6, "gap_in_stderr": -3.8, "gap_in_total_stderr": -3.2,
+                                         "wrong_per_rollout": 0.1, "mean_inference_frames": 8.0,
+                                         "bank_accuracy": [0.9] * 6, "bank_mean_frames": [9.0] * 6}},
     }
     acc = closed_loop.acceptance(results)
     assert acc["hbni_executed_over_perfect"] == pytest.approx(0.94)
@@ -131,8 +132,9 @@ def test_report_pieces_and_acceptance():
                                      {"cached": True, "sequences_per_class": 40, "frames": 30, "seed": 3, "path": "x"})
     text = "\n".join(lines)
     assert "| HBNI | empirical | 5.000 ± 0.100; 0.100 | 4.700 ± 0.100; 0.000 | -2.1 | -1.5 |" in text
-    assert "The empirical planning model is honest here: gaps hbni -1.5, ssbf -1.9 s.e." in text
-    assert "The generative planning model is not honest here: gaps hbni_generative -2.8 s.e." in text
+    assert "The **empirical** planning model is **honest** here: full gaps hbni -1.5, ssbf -1.9 s.e." in text
+    assert "The **generative** planning model is **not honest** here: full gaps hbni_generative -3.2 s.e." in text
+    assert "hbni_generative: its table says accuracy 1.000 after 6.0 frames; on the bank the process gets 0.900 after 9.0" in text
     assert closed_loop.gap({"value": 1.0, "stderr": 0.3}, {"value": 0.5, "stderr": 0.4}) == pytest.approx(-1.0)
     assert closed_loop.gap({"value": 1.0, "stderr": 0.0}, {"value": 0.5, "stderr": 0.3}, 0.4) == pytest.approx(-1.0)
     assert closed_loop.other_model("empirical") == "generative"

@@ -48,7 +48,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
     assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
     report = (mission_run / "report.md").read_text()
-    assert "## Closed loop: planned against executed" in report and "The generative planning model is" in report
+    assert "## Closed loop: planned against executed" in report and "The **generative** planning model is" in report
     for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png", "closed_loop.png"):
         assert (mission_run / png).stat().st_size > 10_000
         assert f"]({png})" in report
@@ -151,3 +151,26 @@ def test_unknown_perception_variant_is_a_clear_error(tmp_path, repo_root):
     cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}", "perception=oracle"]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "perception: expected a subset of" in proc.stderr
+
+
+def test_stream_runs_a_missions_saved_models(mission_run, tmp_path, repo_root):
+    """experiment=stream with stream.run: the run's classifier, posterior, class order and fitted temper."""
+    import cv2
+
+    from classifiers.data import render_sequence
+
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (320, 240))
+    for frame in render_sequence("medical_crate", 8, "mission", seed=9):
+        writer.write(frame)
+    writer.release()
+    out = tmp_path / "stream"
+    subprocess.run([sys.executable, "-m", "experiments.run", "experiment=stream", f"stream.source={video}",
+                    f"stream.run={mission_run}", "stream.max_frames=5", "stream.annotate=[strip]", "progress=false",
+                    f"hydra.run.dir={out}"], cwd=repo_root, check=True, capture_output=True, text=True)
+    metrics = json.loads((out / "metrics.json").read_text())
+    mission = json.loads((mission_run / "metrics.json").read_text())
+    assert metrics["classes"] == mission["classes"] and metrics["frames"] == 8
+    assert f"temper={mission['hbni_temper']['value']:g}" in metrics["process"]
+    records = (out / "macro_observations.jsonl").read_text().splitlines()
+    assert len(records) == metrics["macro_observations"] >= 2  # 8 frames, at most 5 per macro-observation
