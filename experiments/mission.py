@@ -34,6 +34,7 @@ Writes ``metrics.json``, ``report.md`` with the figures ``values.png``, ``confus
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -279,9 +280,10 @@ def execute_closed_loop(
     the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
     executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences."""
     _step(settings.progress, "6/6 executing every policy in closed loop on the held-out bank")
-    processes = build_processes(noise, cfg, settings)
-    replays = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(bank)) for name, p in processes.items()}
-    pooled = torch.cat([held, bank], dim=1)  # (C, held + bank sequences, F, C)
+    pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
+    C, P = pooled.shape[:2]
+    on_pool = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
+               for name, p in build_processes(noise, cfg, settings).items()}
     boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
     for k, name in tqdm(list(enumerate(results)), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
@@ -290,16 +292,14 @@ def execute_closed_loop(
             executed = closed_loop.execute(controller, None, cfg.domain, reeval, seed)
             results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
             continue
-        process = processes[_entry_variant(name)]
-        executed = closed_loop.execute(controller, replays[_entry_variant(name)], cfg.domain, reeval, seed)
-        on_bank = closed_loop.stream_stderr(
-            controller, lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(pooled[:, idx])),
-            pooled.shape[1], bank.shape[1], cfg.domain, boot, seed + 1000)
+        pool = on_pool[_entry_variant(name)]
+        replay = closed_loop.resampled(pool, C, P, torch.arange(held.shape[1], P))  # the bank
+        executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
+        resample = functools.partial(closed_loop.resampled, pool, C, P)
+        on_bank = closed_loop.stream_stderr(controller, resample, P, bank.shape[1], cfg.domain, boot, seed + 1000)
         on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
-            controller, lambda idx: hbni_pyro.tabulate(process, *closed_loop.as_streams(pooled[:, idx])),
-            pooled.shape[1], held.shape[1], cfg.domain, boot, seed + 2000)
-        results[name]["executed"] = closed_loop.summarise(results[name], executed, replays[_entry_variant(name)],
-                                                          on_table, on_bank)
+            controller, resample, P, held.shape[1], cfg.domain, boot, seed + 2000)
+        results[name]["executed"] = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
 
 
 def write_outputs(

@@ -11,7 +11,8 @@ planned on a table is executed on streams the table never saw.
 The process is a deterministic function of the stream, so every bank stream is run through it once,
 at construction (batched, :meth:`MacroObservationProcess.run_batch`, which equals running each
 stream alone); a draw then replays its stream's result. :meth:`StreamReplay.draw` also says which
-stream each inference used.
+stream each inference used, and :meth:`StreamReplay.subset` replays part of the bank without running
+the process again (a bootstrap over the bank's sequences).
 """
 
 from __future__ import annotations
@@ -53,17 +54,37 @@ class StreamReplay:
         M = process.num_classes
         if ((truth < 0) | (truth >= M)).any():
             raise ValueError(f"true_class: expected classes in [0, {M})")
-        counts = torch.bincount(truth, minlength=M)
-        if (counts == 0).any():
-            raise ValueError(f"true_class: every class needs a stream; none for {(counts == 0).nonzero().flatten().tolist()}")
+        _check_every_class(truth, M)
+        self._setup(process, truth, process.run_batch(streams))
+
+    def _setup(self, process: MacroObservationProcess, truth: Tensor, results: MacroObservationBatch) -> None:
         self.process = process
-        self.num_classes = M
+        self.num_classes = process.num_classes
         self.true_class = truth
-        self.results: MacroObservationBatch = process.run_batch(streams)
-        self._counts = counts
-        order = torch.argsort(truth, stable=True)  # streams grouped by class, bank order within a class
-        self._pool = order
-        self._offset = torch.cumsum(counts, 0) - counts  # first pool position of each class
+        self.results = results
+        self._counts = torch.bincount(truth, minlength=self.num_classes)
+        self._pool = torch.argsort(truth, stable=True)  # streams grouped by class, bank order within a class
+        self._offset = torch.cumsum(self._counts, 0) - self._counts  # first pool position of each class
+
+    def subset(self, index: Any) -> StreamReplay:
+        """A replay of the bank streams ``index`` (long ``(K,)``, repeats allowed): their results, not rerun.
+
+        Raises:
+            TypeError: ``index`` is not a 1-D integer tensor.
+            ValueError: an index out of range, or a class left without a stream.
+        """
+        index = torch.as_tensor(index)
+        if index.is_floating_point() or index.dim() != 1:
+            raise TypeError(f"index: expected a 1-D integer tensor, got dtype {index.dtype} and shape {tuple(index.shape)}")
+        B = self.true_class.shape[0]
+        if index.numel() and (int(index.min()) < 0 or int(index.max()) >= B):
+            raise ValueError(f"index: expected stream indices in [0, {B})")
+        index = index.long()
+        truth = self.true_class[index]
+        _check_every_class(truth, self.num_classes)
+        part = StreamReplay.__new__(StreamReplay)
+        part._setup(self.process, truth, MacroObservationBatch(*(field[index] for field in self.results)))
+        return part
 
     @property
     def streams_per_class(self) -> Tensor:
@@ -99,3 +120,9 @@ class StreamReplay:
 
     def __repr__(self) -> str:
         return f"StreamReplay({self.process!r}, streams per class={self._counts.tolist()})"
+
+
+def _check_every_class(truth: Tensor, num_classes: int) -> None:
+    counts = torch.bincount(truth, minlength=num_classes)
+    if (counts == 0).any():
+        raise ValueError(f"true_class: every class needs a stream; none for {(counts == 0).nonzero().flatten().tolist()}")

@@ -272,7 +272,7 @@ class BootstrapBlock:
     """``mission.bootstrap``: stream standard errors by bootstrap over sequence indices."""
 
     replicates: int = 16
-    rollouts: int = 400
+    rollouts: int = 200
 
     def check(self, path: str) -> None:
         positive_int("replicates", self.replicates, 2)

@@ -14,7 +14,9 @@ planned or executed value carries the luck of its sequences too. :func:`stream_s
 that part by bootstrap: if the planning model is honest, the table's recorded sequences and the
 bank's are draws from one population, so (as in a pooled two-sample test) each value's stream
 standard error is the spread of that policy's value over tables or banks of the same size drawn
-from the pooled sequences. The honesty verdict uses the gap in all four standard errors together.
+from the pooled sequences (a table of some sequences and a replay of them give the same law of
+``(label, frames)``, so both are replays of the process's results on the pooled streams, computed
+once). The honesty verdict uses the gap in all four standard errors together.
 A generative table is simulated (1000 streams per class by default): its own simulation error is
 neglected.
 """
@@ -79,6 +81,17 @@ def as_streams(outputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Outputs ``(C, S, F, C)`` (sequences per class) as streams ``(C * S, F, C)`` float64 and true classes ``(C * S,)``."""
     C, S = outputs.shape[:2]
     return outputs.reshape(C * S, *outputs.shape[2:]).double(), torch.arange(C).repeat_interleave(S)
+
+
+def sequence_streams(sequences: torch.Tensor, num_classes: int, per_class: int) -> torch.Tensor:
+    """Stream indices (in :func:`as_streams` order) of sequences ``sequences (K,)`` of every class: ``(C * K,)``."""
+    return (torch.arange(num_classes)[:, None] * per_class + sequences).reshape(-1)
+
+
+def resampled(replay: hbni_pyro.StreamReplay, num_classes: int, per_class: int,
+              sequences: torch.Tensor) -> hbni_pyro.StreamReplay:
+    """``replay`` restricted to sequences ``sequences`` of every class (streams in :func:`as_streams` order)."""
+    return replay.subset(sequence_streams(sequences, num_classes, per_class))
 
 
 def stream_stderr(controller: JointController, perception_of: Callable[[torch.Tensor], Any], pool: int, size: int,

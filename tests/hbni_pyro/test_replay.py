@@ -85,3 +85,24 @@ def test_bad_input_is_a_clear_error():
         replay.sample(torch.tensor([0.0]), torch.Generator())
     with pytest.raises(TypeError, match="generator: expected a torch.Generator"):
         replay.sample(torch.tensor([0]), 0)
+
+
+def test_a_subset_replays_the_same_results_without_running_the_process_again():
+    streams, truth = _bank(n_per_class=4)
+    replay = hbni_pyro.StreamReplay(_process(), streams, truth)
+    index = torch.tensor([11, 0, 0, 5, 9, 3])  # repeats allowed, classes 2, 0, 0, 1, 2, 0
+    part = replay.subset(index)
+    fresh = hbni_pyro.StreamReplay(_process(), streams[index], truth[index])
+    for a, b in zip(part.results, fresh.results):
+        assert torch.equal(a, b)
+    assert part.streams_per_class.tolist() == [3, 1, 2]
+    g1, g2 = torch.Generator().manual_seed(4), torch.Generator().manual_seed(4)
+    asked = torch.tensor([0, 1, 2, 2, 0])
+    for a, b in zip(part.draw(asked, g1), fresh.draw(asked, g2)):
+        assert torch.equal(a, b)
+    with pytest.raises(ValueError, match=r"index: expected stream indices in \[0, 12\)"):
+        replay.subset(torch.tensor([12]))
+    with pytest.raises(ValueError, match=r"every class needs a stream; none for \[1, 2\]"):
+        replay.subset(torch.tensor([0, 1]))
+    with pytest.raises(TypeError, match="index: expected a 1-D integer tensor"):
+        replay.subset(torch.tensor([0.0]))
