@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import resource
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -59,6 +60,7 @@ from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import run_gdice, score, seed_controller
 from infra.threads import torch_threads
+
 
 class Settings(NamedTuple):
     """The mission's validated settings (checked before any work starts)."""
@@ -338,11 +340,20 @@ def write_outputs(
             "train_snapshots_per_class": int(st.train_per_class), "calibration_frames": int(calib[..., 0].numel()),
             "held_out_streams": int(held.shape[0] * held.shape[1]), "frames_per_stream": settings.frames,
         },
+        "cpu_seconds": _cpu_seconds(),
     }
     cl = metrics["closed_loop"]
     section = closed_loop.report_lines(results, mission_report.LABELS, cl["planning"], cl["bank"])
+    cpu = metrics["cpu_seconds"]
+    section.append(f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers.")
     write_report(run_dir / "report.md", mission_report.report(metrics, list(figures)) + "\n" + "\n".join(section))
     return metrics
+
+
+def _cpu_seconds() -> dict[str, float]:
+    """CPU seconds (user + system) so far of this process and of its finished child processes (bank workers)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"main": own.ru_utime + own.ru_stime, "workers": children.ru_utime + children.ru_stime}
 
 
 def _delivery_rates(entry: dict[str, float]) -> dict[str, float]:
