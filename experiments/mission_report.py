@@ -82,16 +82,18 @@ def value_figure(results: dict[str, dict]) -> plt.Figure:
     axes[0].bar([LABELS[n] for n in names], [results[n]["value"] for n in names],
                 yerr=[results[n]["stderr"] for n in names], capsize=4, color=colors)
     axes[0].set_ylabel("discounted return (mean ± s.e.)")
-    axes[0].set_title("Policy value per perception variant")
+    axes[0].set_title("Planned value per policy (on its planning model)")
     x = np.arange(len(names))
     axes[1].bar(x - 0.2, [results[n]["delivered_per_rollout"] for n in names], 0.4, label="delivered right")
     axes[1].bar(x + 0.2, [results[n]["wrong_per_rollout"] for n in names], 0.4, label="delivered wrong", color="tab:red")
     axes[1].set_xticks(x, [LABELS[n] for n in names])
     axes[1].set_ylabel("objects per mission")
-    axes[1].legend(fontsize=8)
+    axes[1].set_ylim(top=1.3 * max(results[n]["delivered_per_rollout"] for n in names))  # room for the legend
+    axes[1].legend(fontsize=8, ncol=2)
     axes[1].set_title("Deliveries")
     for ax in axes:
         ax.tick_params(axis="x", labelsize=8)
+        plt.setp(ax.get_xticklabels(), rotation=15, ha="right")
     fig.tight_layout()
     return fig
 
