@@ -27,7 +27,6 @@ JSON, with the generator state) let an interrupted run resume to exactly the sam
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from dataclasses import asdict, dataclass, field
@@ -37,13 +36,16 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from infra.tensorfile import load_tensors, save_tensors
+from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
 from decpomdp.evaluate import Evaluator
+from decpomdp.arguments import as_choice, as_float, as_int
+from decpomdp.fingerprint import describe, digest
 
 _KIND = "decpomdp.GDICECheckpoint"
-_VERSION = 1
+_VERSION = 2
 _THRESHOLD_RULES = ("paper", "capped")
+_HISTORY = ("best", "iteration_best", "iteration_mean", "threshold", "kept", "entropy")
 
 
 @dataclass(frozen=True)
@@ -83,26 +85,19 @@ class GDICEConfig:
 
     def __post_init__(self) -> None:
         for name in ("num_nodes", "iterations", "samples", "elites"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+            object.__setattr__(self, name, as_int(name, getattr(self, name), 1))
         if self.elites > self.samples:
             raise ValueError(f"elites: expected <= samples ({self.samples}), got {self.elites}")
-        if not 0.0 < self.alpha <= 1.0:
-            raise ValueError(f"alpha: expected a learning rate in (0, 1], got {self.alpha}")
-        if not 0.0 <= self.injection_weight <= 1.0:
-            raise ValueError(f"injection_weight: expected a weight in [0, 1], got {self.injection_weight}")
-        if not 0.0 <= self.injection_threshold <= 1.0:
-            raise ValueError(f"injection_threshold: expected a value in [0, 1], got {self.injection_threshold}")
-        if not 0.0 <= self.injection_until <= 1.0:
-            raise ValueError(f"injection_until: expected a fraction in [0, 1], got {self.injection_until}")
-        if self.threshold_rule not in _THRESHOLD_RULES:
-            raise ValueError(f"threshold_rule: expected one of {_THRESHOLD_RULES}, got {self.threshold_rule!r}")
-        if not 0.0 <= self.init_weight <= 1.0:
-            raise ValueError(f"init_weight: expected a weight in [0, 1], got {self.init_weight}")
-        w = self.layer_width
-        if w is not None and (not isinstance(w, int) or w < 1 or self.num_nodes < 1 + w or (self.num_nodes - 1) % w):
-            raise ValueError(f"layer_width: expected an int W >= 1 with num_nodes = 1 + W * k (k >= 1), got {w!r}")
+        object.__setattr__(self, "alpha", as_float("alpha", self.alpha, 0.0, 1.0, low_open=True))
+        for name in ("injection_weight", "injection_threshold", "injection_until", "init_weight"):
+            object.__setattr__(self, name, as_float(name, getattr(self, name), 0.0, 1.0))
+        as_choice("threshold_rule", self.threshold_rule, _THRESHOLD_RULES)
+        if self.layer_width is not None:
+            w = as_int("layer_width", self.layer_width, 1)
+            if self.num_nodes < 1 + w or (self.num_nodes - 1) % w:
+                raise ValueError(f"layer_width: expected W with num_nodes = 1 + W * k (k >= 1), got W = {w} "
+                                 f"for num_nodes = {self.num_nodes}")
+            object.__setattr__(self, "layer_width", w)
 
     def transition_mask(self) -> Tensor:
         """bool (Nn, Nn): which next nodes each node may move to."""
@@ -148,8 +143,8 @@ def sample_controllers(action_probs: Tensor, next_probs: Tensor, count: int, gen
     return JointController(act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous())
 
 
-def _frequencies(values: Tensor, categories: int) -> Tensor:
-    """values (N, ...) -> (..., categories) empirical frequencies over the N samples."""
+def elite_frequencies(values: Tensor, categories: int) -> Tensor:
+    """values (N, ...) -> (..., categories) empirical frequencies over the N samples (G-DICE's update target)."""
     return torch.nn.functional.one_hot(values, categories).to(torch.float64).mean(0)
 
 
@@ -185,11 +180,9 @@ class _State:
         self.threshold = -math.inf
         self.best = JointController(torch.zeros(1, a, nn, dtype=torch.long), torch.zeros(1, a, nn, o, dtype=torch.long))
         self.best_value = -math.inf
-        self.history: dict[str, list[float]] = {
-            k: [] for k in ("best", "iteration_best", "iteration_mean", "threshold", "kept", "entropy")
-        }
+        self.history: dict[str, list[float]] = {k: [] for k in _HISTORY}
 
-    def save(self, path: Path, cfg: GDICEConfig, generator: torch.Generator, init_digest: str | None) -> None:
+    def save(self, path: Path, fingerprint: dict, generator: torch.Generator) -> None:
         tensors = {
             "action_probs": self.action_probs,
             "next_probs": self.next_probs,
@@ -197,37 +190,31 @@ class _State:
             "best_next_node": self.best.next_node,
             "generator_state": generator.get_state(),
         }
-        meta = {
-            "version": _VERSION,
-            "config": asdict(cfg),
-            "init": init_digest,
+        finite = lambda x: None if x == -math.inf else x  # noqa: E731
+        state = {
             "iteration": self.iteration,
-            "threshold": None if self.threshold == -math.inf else self.threshold,
-            "best_value": None if self.best_value == -math.inf else self.best_value,
-            "history": self.history,
+            "threshold": finite(self.threshold),
+            "best_value": finite(self.best_value),
+            "history": {k: [finite(v) for v in values] for k, values in self.history.items()},
         }
-        save_tensors(path, _KIND, tensors, meta)
+        save_checkpoint(path, _KIND, _VERSION, fingerprint, tensors, state)
 
     @classmethod
-    def load(cls, path: Path, cfg: GDICEConfig, shape: tuple[int, int, int], generator: torch.Generator,
-             init_digest: str | None) -> _State:
-        tensors, meta = load_tensors(path, _KIND)
-        if meta.get("version") != _VERSION:
-            raise ValueError(f"checkpoint: {str(path)!r} is not a version-{_VERSION} G-DICE checkpoint")
-        if meta.get("config") != asdict(cfg):
-            raise ValueError(f"checkpoint: {str(path)!r} was written with another configuration: {meta.get('config')}")
-        if meta.get("init") != init_digest:
-            raise ValueError(f"checkpoint: {str(path)!r} was written with another warm-start controller (init)")
+    def load(cls, path: Path, fingerprint: dict, cfg: GDICEConfig, shape: tuple[int, int, int],
+             generator: torch.Generator) -> _State:
+        tensors, meta = load_checkpoint(path, _KIND, _VERSION, fingerprint)
         state = cls(*shape, cfg)  # distributions are overwritten below, so no warm start is needed
+        state.iteration = read_count(meta, "iteration", path, cfg.iterations)
+        state.threshold = read_number(meta, "threshold", path)
+        state.best_value = read_number(meta, "best_value", path)
+        state.history = read_history(meta, _HISTORY, state.iteration, path)
         try:
-            if state.action_probs.shape != tensors["action_probs"].shape:
-                raise ValueError("distribution shapes differ from this problem's")
+            for name, like in (("action_probs", state.action_probs), ("next_probs", state.next_probs),
+                               ("best_action", state.best.action), ("best_next_node", state.best.next_node)):
+                if tensors[name].shape != like.shape or tensors[name].dtype != like.dtype:
+                    raise ValueError(f"{name} has shape {tuple(tensors[name].shape)}, expected {tuple(like.shape)}")
             state.action_probs, state.next_probs = tensors["action_probs"], tensors["next_probs"]
             state.best = JointController(tensors["best_action"], tensors["best_next_node"])
-            state.iteration = int(meta["iteration"])
-            state.threshold = -math.inf if meta["threshold"] is None else float(meta["threshold"])
-            state.best_value = -math.inf if meta["best_value"] is None else float(meta["best_value"])
-            state.history = {k: list(v) for k, v in meta["history"].items()}
             generator.set_state(tensors["generator_state"])
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise ValueError(f"checkpoint: {str(path)!r} is inconsistent ({exc})") from None
@@ -273,8 +260,8 @@ def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torc
     if order.numel() > 0:
         state.threshold = float(values[order[-1]])
         elite = ctrl[order]
-        state.action_probs = cfg.alpha * _frequencies(elite.action, m) + (1 - cfg.alpha) * state.action_probs
-        state.next_probs = cfg.alpha * _frequencies(elite.next_node, nn) + (1 - cfg.alpha) * state.next_probs
+        state.action_probs = cfg.alpha * elite_frequencies(elite.action, m) + (1 - cfg.alpha) * state.action_probs
+        state.next_probs = cfg.alpha * elite_frequencies(elite.next_node, nn) + (1 - cfg.alpha) * state.next_probs
     if cfg.injection_weight > 0 and state.iteration < cfg.injection_until * cfg.iterations:
         state.action_probs = _inject(state.action_probs, state.action_uniform, cfg)
         state.next_probs = _inject(state.next_probs, state.next_uniform, cfg)
@@ -318,27 +305,33 @@ def gdice(
             sample is ``init`` itself (extra nodes unreachable).
         reevaluator: if given, scores the final best controller independently (value +- stderr).
         checkpoint: file to write every ``checkpoint_every`` iterations and at the end; if it exists, the
-            run resumes from it (same config required) and reaches exactly the uninterrupted result.
+            run resumes from it and reaches exactly the uninterrupted result. The file records what
+            produced it (sizes, evaluator and problem, config, seed, warm start); resuming it with any of
+            them different raises a ``ValueError`` naming the fields that differ.
         progress: show a tqdm progress bar.
     """
     cfg = GDICEConfig() if config is None else config
     if not isinstance(cfg, GDICEConfig):
         raise TypeError(f"config: expected a GDICEConfig, got {type(cfg).__name__}")
-    for name, value in (("num_agents", num_agents), ("num_actions", num_actions), ("num_obs", num_obs)):
-        if not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+    num_agents, num_actions, num_obs = (as_int(name, value, 1) for name, value in (
+        ("num_agents", num_agents), ("num_actions", num_actions), ("num_obs", num_obs)))
+    seed = as_int("seed", seed)
     if not callable(evaluator):
         raise TypeError(f"evaluator: expected a callable (controller, generator) -> (mean, stderr), got {evaluator!r}")
-    if not isinstance(checkpoint_every, int) or checkpoint_every < 1:
-        raise ValueError(f"checkpoint_every: expected an int >= 1, got {checkpoint_every!r}")
+    checkpoint_every = as_int("checkpoint_every", checkpoint_every, 1)
     _check_init(init, cfg, num_agents, num_actions, num_obs)
-    digest = None if init is None else hashlib.sha256(
-        init.action.numpy().tobytes() + init.next_node.numpy().tobytes()).hexdigest()
-    generator = torch.Generator().manual_seed(int(seed))
+    generator = torch.Generator().manual_seed(seed)
     shape = (num_agents, num_actions, num_obs)
+    fingerprint = {
+        "sizes": {"num_agents": num_agents, "num_actions": num_actions, "num_obs": num_obs},
+        "problem": describe(evaluator),
+        "config": asdict(cfg),
+        "seed": seed,
+        "init": None if init is None else digest(init.action, init.next_node),
+    }
     path = None if checkpoint is None else Path(checkpoint)
     if path is not None and path.exists():
-        state = _State.load(path, cfg, shape, generator, digest)
+        state = _State.load(path, fingerprint, cfg, shape, generator)
     else:
         state = _State(*shape, cfg, init)
     bar = tqdm(total=cfg.iterations, initial=state.iteration, disable=not progress, desc="G-DICE")
@@ -347,7 +340,7 @@ def gdice(
         bar.update(1)
         bar.set_postfix(best=f"{state.best_value:.4g}", kept=int(state.history["kept"][-1]))
         if path is not None and (state.iteration % checkpoint_every == 0 or state.iteration == cfg.iterations):
-            state.save(path, cfg, generator, digest)
+            state.save(path, fingerprint, generator)
     bar.close()
     value = stderr = None
     if reevaluator is not None:

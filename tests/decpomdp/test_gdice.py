@@ -1,15 +1,21 @@
 """G-DICE: improvement over random search, seeded determinism, checkpoint/resume, warm start, threshold rules,
 options and errors."""
 
+import dataclasses
 import math
+import re
 
+import numpy as np
 import pytest
 import torch
 
 from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, sample_controllers
+from infra.tensorfile import load_tensors, save_tensors
 from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value
+from decpomdp.fingerprint import describe
 
 from test_dpomdp_parser import BENCH
+from tiny_problems import dec_tiger
 
 
 @pytest.fixture(scope="module")
@@ -53,28 +59,91 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     full = gdice(evaluator, 2, 3, 2, cfg, seed=3, init=init)
     ckpt = tmp_path / "gdice.safetensors"
     # interrupt the run in its 5th iteration; the last checkpoint holds iteration 4 and the generator state
-    calls = {"n": 0}
-
-    def flaky(ctrl, gen):
-        calls["n"] += 1
-        if calls["n"] == 5:
-            raise KeyboardInterrupt
-        return evaluator(ctrl, gen)
-
     with pytest.raises(KeyboardInterrupt):
-        gdice(flaky, 2, 3, 2, cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
+        gdice(Interrupted(evaluator, 5), 2, 3, 2, cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
     assert ckpt.exists()
-    resumed = gdice(evaluator, 2, 3, 2, cfg, seed=999, init=init, checkpoint=ckpt,
-                    checkpoint_every=2)  # seed comes from the file
+    resumed = gdice(evaluator, 2, 3, 2, cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
     assert resumed.history == full.history
     assert torch.equal(resumed.best.next_node, full.best.next_node) and resumed.best_value == full.best_value
     torch.testing.assert_close(resumed.next_probs, full.next_probs, rtol=0, atol=0)
-    with pytest.raises(ValueError, match="another configuration"):
-        gdice(evaluator, 2, 3, 2, GDICEConfig(num_nodes=3, iterations=4, samples=12, elites=3), checkpoint=ckpt)
+    with pytest.raises(ValueError, match="config.iterations: checkpoint has 6, this run has 4"):
+        gdice(evaluator, 2, 3, 2, dataclasses.replace(cfg, iterations=4), seed=3, init=init, checkpoint=ckpt)
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="is not a readable model file"):
         gdice(evaluator, 2, 3, 2, cfg, init=init, checkpoint=bad)
+
+
+class Interrupted:
+    """Delegates to ``evaluator`` (and describes itself as it) but raises KeyboardInterrupt on call ``at``."""
+
+    def __init__(self, evaluator, at):
+        self.evaluator, self.at, self.calls = evaluator, at, 0
+
+    def fingerprint(self):
+        return describe(self.evaluator)
+
+    def __call__(self, ctrl, gen):
+        self.calls += 1
+        if self.calls == self.at:
+            raise KeyboardInterrupt
+        return self.evaluator(ctrl, gen)
+
+
+def tiger_run(tmp_path, horizon=3, seed=0, **changes):
+    """A Dec-Tiger G-DICE run with a checkpoint in ``tmp_path`` (exact values)."""
+    env = dec_tiger(horizon)
+    cfg = dataclasses.replace(GDICEConfig(num_nodes=2, iterations=2, samples=6, elites=2), **changes.pop("config", {}))
+    sizes = changes.pop("sizes", (2, 3, 2))
+    return gdice(ExactEvaluator(env), *sizes, cfg, seed=seed, checkpoint=tmp_path / "tiger.safetensors", **changes)
+
+
+def test_checkpoint_of_another_run_is_refused(tmp_path):
+    # the reported case: a horizon-3, seed-0 checkpoint resumed by a horizon-4, seed-7 run
+    first = tiger_run(tmp_path, horizon=3, seed=0)
+    with pytest.raises(ValueError, match=r"problem\.env\.horizon: checkpoint has 3\.0, this run has 4\.0.*seed: checkpoint has 0, this run has 7"):
+        tiger_run(tmp_path, horizon=4, seed=7)
+    again = tiger_run(tmp_path, horizon=3, seed=0)  # the same run resumes (here: is already finished)
+    assert again.history == first.history and again.best_value == first.best_value
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"seed": 1}, "seed"),
+    ({"horizon": 4}, "problem.env.horizon"),
+    ({"config": {"alpha": 0.3}}, "config.alpha"),
+    ({"config": {"num_nodes": 3}}, "config.num_nodes"),
+    ({"sizes": (2, 3, 3)}, "sizes.num_obs"),
+    ({"init": JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long)),
+      "config": {"init_weight": 0.5}}, "init"),
+])
+def test_checkpoint_names_each_differing_field(tmp_path, change, field):
+    tiger_run(tmp_path)
+    with pytest.raises(ValueError, match=rf"; {re.escape(field)}: checkpoint has"):
+        try:
+            tiger_run(tmp_path, **change)
+        except RuntimeError as exc:  # a wrong number of observations must not get as far as evaluating
+            raise AssertionError(f"evaluated before checking the checkpoint: {exc}") from None
+
+
+def rewrite_checkpoint(path, **meta_changes):
+    tensors, meta = load_tensors(path, "decpomdp.GDICECheckpoint")
+    meta.update(meta_changes)
+    save_tensors(path, "decpomdp.GDICECheckpoint", tensors, meta)
+
+
+@pytest.mark.parametrize("changes, match", [
+    ({"history": None}, "history = NoneType, expected a dict"),
+    ({"iteration": -1}, "iteration = -1, expected an int in \\[0, 2\\]"),
+    ({"iteration": 7}, "iteration = 7"),
+    ({"iteration": 1}, "history\\['best'\\] inconsistent with 1 recorded iterations"),
+    ({"best_value": "high"}, "best_value = 'high'"),
+    ({"version": 1}, "not a version-2"),
+])
+def test_corrupt_checkpoint_state_is_rejected(tmp_path, changes, match):
+    tiger_run(tmp_path)
+    rewrite_checkpoint(tmp_path / "tiger.safetensors", **changes)
+    with pytest.raises(ValueError, match=match):
+        tiger_run(tmp_path)
 
 
 def test_monte_carlo_evaluation_and_reevaluation(toy_env):
@@ -119,6 +188,28 @@ def test_layered_graph_and_injection():
 def test_config_errors(kwargs, match):
     with pytest.raises(ValueError, match=match):
         GDICEConfig(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"alpha": "0.1"}, "alpha: expected a number, got str '0.1'"),
+    ({"num_nodes": 2.5}, "num_nodes: expected an int"),
+    ({"samples": True}, "samples: expected an int"),
+    ({"layer_width": "3"}, "layer_width: expected an int"),
+])
+def test_config_type_errors(kwargs, match):
+    with pytest.raises(TypeError, match=match):
+        GDICEConfig(**kwargs)
+
+
+def test_numpy_and_torch_scalars_are_numbers():
+    cfg = GDICEConfig(num_nodes=np.int64(3), iterations=torch.tensor(2), samples=np.int32(6), elites=2,
+                      alpha=np.float32(0.25), init_weight=torch.tensor(0.0, dtype=torch.float64))
+    assert cfg == GDICEConfig(num_nodes=3, iterations=2, samples=6, elites=2, alpha=0.25)
+    assert type(cfg.num_nodes) is int and type(cfg.alpha) is float
+    env = dec_tiger(3)
+    a = gdice(ExactEvaluator(env), np.int64(2), torch.tensor(3), np.int16(2), cfg, seed=np.int64(4))
+    b = gdice(ExactEvaluator(env), 2, 3, 2, cfg, seed=4)
+    assert a.history == b.history
 
 
 def test_argument_errors(recycling):
@@ -200,7 +291,7 @@ def test_warm_start_errors(recycling, tmp_path):
     ckpt = tmp_path / "warm.safetensors"
     gdice(ev, 2, 3, 2, cfg, init=init, checkpoint=ckpt)
     other = JointController(init.action, 1 - init.next_node)
-    with pytest.raises(ValueError, match="another warm-start controller"):
+    with pytest.raises(ValueError, match="another run; init: checkpoint has"):
         gdice(ev, 2, 3, 2, cfg, init=other, checkpoint=ckpt)
 
 
