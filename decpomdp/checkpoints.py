@@ -56,9 +56,9 @@ def read_number(meta: dict[str, Any], name: str, path: str | os.PathLike) -> flo
     return float(value)
 
 
-def read_history(meta: dict[str, Any], keys: tuple[str, ...], length: int,
-                 path: str | os.PathLike) -> dict[str, list[float]]:
-    """``meta["history"]``: a dict of ``keys`` to lists of ``length`` numbers (``None`` read as -inf)."""
+def read_history(meta: dict[str, Any], keys: tuple[str, ...], length: int, path: str | os.PathLike,
+                 none: float = -math.inf) -> dict[str, list[float]]:
+    """``meta["history"]``: a dict of ``keys`` to lists of ``length`` numbers (``None`` read as ``none``)."""
     history = meta.get("history")
     if not isinstance(history, dict) or set(history) != set(keys):
         raise ValueError(f"checkpoint: {str(path)!r} has history = {type(history).__name__}, "
@@ -70,5 +70,5 @@ def read_history(meta: dict[str, Any], keys: tuple[str, ...], length: int,
                 v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values):
             raise ValueError(f"checkpoint: {str(path)!r} has history[{key!r}] inconsistent with "
                              f"{length} recorded iterations")
-        out[key] = [-math.inf if v is None else float(v) for v in values]
+        out[key] = [none if v is None else float(v) for v in values]
     return out

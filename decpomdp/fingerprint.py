@@ -43,7 +43,7 @@ def describe(obj: Any) -> dict[str, Any]:
     """Flat description ``{dotted name: JSON value}`` of an evaluator (or any object), see the module doc."""
     out: dict[str, Any] = {}
     _describe(obj, "", out, set(), 0)
-    return json.loads(json.dumps(out))  # the form it takes after a JSON round trip
+    return jsonable(out)
 
 
 def _plain(obj: Any) -> bool:
@@ -77,6 +77,11 @@ def _describe(obj: Any, prefix: str, out: dict[str, Any], seen: set[int], depth:
         for name, value in sorted(vars(obj).items()):
             if not name.startswith("_"):
                 _describe(value, f"{prefix}{name}.", out, seen | {id(obj)}, depth + 1)
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` as it reads back from JSON (tuples become lists), so fingerprints compare before and after saving."""
+    return json.loads(json.dumps(obj))
 
 
 def differences(recorded: Any, current: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:

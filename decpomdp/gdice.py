@@ -40,7 +40,7 @@ from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read
 from decpomdp.controller import JointController
 from decpomdp.evaluate import Evaluator
 from decpomdp.arguments import as_choice, as_float, as_int
-from decpomdp.fingerprint import describe, digest
+from decpomdp.fingerprint import describe, digest, jsonable
 
 _KIND = "decpomdp.GDICECheckpoint"
 _VERSION = 2
@@ -325,7 +325,7 @@ def gdice(
     fingerprint = {
         "sizes": {"num_agents": num_agents, "num_actions": num_actions, "num_obs": num_obs},
         "problem": describe(evaluator),
-        "config": asdict(cfg),
+        "config": jsonable(asdict(cfg)),
         "seed": seed,
         "init": None if init is None else digest(init.action, init.next_node),
     }

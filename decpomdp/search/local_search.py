@@ -1,0 +1,67 @@
+"""One local-search step on the incumbent controller: grow if needed, race the neighbourhood, duel.
+
+1. Count the incumbent's edge traversals on ``visit_rollouts`` rollouts.
+2. If some agent has fewer free (never visited) nodes than ``max_chain`` and the graph has fewer than
+   ``max_nodes`` nodes, add ``grow_nodes`` unreachable nodes (up to ``max_nodes``).
+3. Build the :class:`~decpomdp.search.moves.Neighbourhood`; if it has more than ``candidates`` moves,
+   take every single edit and a uniform sample of the chains (with replacement) up to ``candidates``.
+4. Race them through ``stages`` and duel the survivors against the incumbent on ``duel_rollouts``
+   fresh rollouts; the best survivor replaces the incumbent if it wins by more than ``z`` standard
+   errors. Under exact scores a step therefore never returns a worse controller.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from decpomdp.controller import JointController
+from decpomdp.search.moves import Neighbourhood, grow
+from decpomdp.search.racing import duel, race
+from decpomdp.search.scoring import Scorer
+
+
+@dataclass
+class StepOutcome:
+    """What a local-search step did.
+
+    Attributes:
+        controller: the incumbent after the step (grown, and replaced if a challenger won).
+        accepted: whether a challenger replaced the incumbent.
+        incumbent_value, challenger_value: duel means of the incumbent and of the best challenger.
+        candidates: moves raced; neighbourhood: moves in the whole neighbourhood.
+    """
+
+    controller: JointController
+    accepted: bool
+    incumbent_value: float
+    challenger_value: float
+    candidates: int
+    neighbourhood: int
+
+
+def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator, *, max_chain: int, max_nodes: int,
+         grow_nodes: int, candidates: int, stages: Sequence[tuple[int, float]], duel_rollouts: int, z: float,
+         edge_rate: float, visit_rollouts: int) -> StepOutcome:
+    """One step (see the module doc)."""
+    visits = scorer.visits(incumbent, visit_rollouts, generator)
+    free = int((visits.sum(-1) == 0)[:, 1:].sum(1).min())
+    if free < max_chain and incumbent.num_nodes < max_nodes and grow_nodes > 0:
+        extra = min(grow_nodes, max_nodes - incumbent.num_nodes)
+        incumbent = grow(incumbent, extra)
+        visits = torch.cat([visits, visits.new_zeros(visits.shape[0], extra, visits.shape[2])], 1)
+    hood = Neighbourhood(incumbent, visits, scorer.num_actions, max_chain, edge_rate)
+    if hood.size == 0:
+        return StepOutcome(incumbent, False, float("nan"), float("nan"), 0, 0)
+    if hood.size <= candidates:
+        index = torch.arange(hood.size)
+    else:
+        sampled = torch.randint(hood.num_singles, hood.size, (max(0, candidates - hood.num_singles),), generator=generator)
+        index = torch.cat([torch.arange(hood.num_singles), sampled])
+    alive, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
+    winner, mean, _ = duel(scorer, incumbent, hood.build(index[alive]), duel_rollouts, z, generator)
+    best = int(mean[1:].argmax())
+    controller = incumbent if winner is None else hood.build(index[alive[winner:winner + 1]])
+    return StepOutcome(controller, winner is not None, float(mean[0]), float(mean[1 + best]), index.numel(), hood.size)

@@ -1,0 +1,238 @@
+"""The cold-start planner: cross-entropy over controller graphs (G-DICE) and local search, in turns.
+
+From no controller at all, the run cycles through ``config.phases``:
+
+* ``"ce"``: a cross-entropy phase (:mod:`decpomdp.search.cross_entropy`): cold (uniform over
+  ``start_nodes`` nodes) the first time when there is no incumbent yet, later warm-started from the
+  incumbent with weight ``ce_init_weight``; after ``ce_iterations`` iterations its elites duel the
+  incumbent (:func:`~decpomdp.search.racing.duel`) and the winner becomes the incumbent;
+* ``"ls"``: local search (:mod:`decpomdp.search.local_search`) until ``ls_patience`` steps in a row
+  find nothing; it grows the graph up to ``num_nodes`` nodes when it needs free nodes for a chain.
+
+The run stops at the first step boundary past ``budget`` rollouts, or after ``patience`` whole cycles
+without an improvement. Every step draws from one generator seeded by ``seed``, and the budget is
+counted in rollouts, so a run is reproducible whatever the machine's load. A checkpoint written after
+any step (with the generator state and every phase's state) resumes to exactly the uninterrupted
+result; it records what produced it and refuses any other run (:mod:`decpomdp.checkpoints`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from tqdm.auto import tqdm
+
+from decpomdp.arguments import as_int
+from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
+from decpomdp.controller import JointController
+from decpomdp.fingerprint import describe, jsonable
+from decpomdp.search import cross_entropy, local_search
+from decpomdp.search.config import PHASES, PlannerConfig
+from decpomdp.search.racing import duel
+from decpomdp.search.scoring import Scorer
+
+_KIND = "decpomdp.PlannerCheckpoint"
+_VERSION = 1
+HISTORY = ("phase", "rollouts", "nodes", "incumbent_value", "challenger_value", "accepted")
+_COUNTERS = ("cycle_position", "phase_step", "used", "idle_cycles", "gained")
+
+
+@dataclass
+class PlannerResult:
+    """Outcome of :func:`plan`.
+
+    Attributes:
+        best: the final incumbent (K = 1, searched agents).
+        value, stderr: its mean and standard error in its last duel (fresh rollouts, but the duel
+            that kept it is a selection: re-evaluate independently for an unbiased value).
+        rollouts: rollouts spent.
+        history: per step: ``phase`` (0 cross-entropy iteration, 1 local-search step), ``rollouts`` spent
+            so far, ``nodes`` of the incumbent, ``incumbent_value`` and ``challenger_value`` (duel or
+            iteration scores; NaN where the step had none), ``accepted`` (1 if the incumbent changed).
+    """
+
+    best: JointController
+    value: float
+    stderr: float
+    rollouts: int
+    history: dict[str, list[float]]
+    config: PlannerConfig = field(default_factory=PlannerConfig)
+
+
+class _Run:
+    """Everything a run carries between steps (what a checkpoint stores)."""
+
+    def __init__(self) -> None:
+        self.incumbent: JointController | None = None
+        self.value = self.stderr = math.nan
+        self.ce: cross_entropy.CrossEntropyState | None = None
+        self.cycle_position = self.phase_step = self.used = self.idle_cycles = self.gained = 0
+        self.history: dict[str, list[float]] = {k: [] for k in HISTORY}
+
+    def record(self, phase: str, incumbent_value: float, challenger_value: float, accepted: bool) -> None:
+        for key, value in (("phase", PHASES.index(phase)), ("rollouts", self.used),
+                           ("nodes", 0 if self.incumbent is None else self.incumbent.num_nodes),
+                           ("incumbent_value", incumbent_value), ("challenger_value", challenger_value),
+                           ("accepted", accepted)):
+            self.history[key].append(float(value))
+
+    def tensors(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
+        out = {"generator_state": generator.get_state()}
+        if self.incumbent is not None:
+            out.update(incumbent_action=self.incumbent.action, incumbent_next_node=self.incumbent.next_node)
+        if self.ce is not None:
+            out.update(ce_action_probs=self.ce.action_probs, ce_next_probs=self.ce.next_probs)
+            if self.ce.elites is not None:
+                out.update(ce_elites_action=self.ce.elites.action, ce_elites_next_node=self.ce.elites.next_node)
+        return out
+
+    def save(self, path: Path, fingerprint: dict, generator: torch.Generator) -> None:
+        finite = lambda x: None if not math.isfinite(x) else x  # noqa: E731
+        state = {name: getattr(self, name) for name in _COUNTERS}
+        state.update(value=finite(self.value), stderr=finite(self.stderr),
+                     history={k: [finite(v) for v in values] for k, values in self.history.items()})
+        save_checkpoint(path, _KIND, _VERSION, fingerprint, self.tensors(generator), state)
+
+    @classmethod
+    def load(cls, path: Path, fingerprint: dict, config: PlannerConfig, generator: torch.Generator) -> _Run:
+        tensors, meta = load_checkpoint(path, _KIND, _VERSION, fingerprint)
+        run = cls()
+        limits = {"cycle_position": len(config.phases) - 1, "phase_step": max(config.ce_iterations, config.ls_patience),
+                  "used": 2**62, "idle_cycles": config.patience, "gained": 1}
+        for name in _COUNTERS:
+            setattr(run, name, read_count(meta, name, path, limits[name]))
+        run.value, run.stderr = (_nan_if_none(read_number(meta, name, path)) for name in ("value", "stderr"))
+        history = meta.get("history")
+        length = len(history["phase"]) if isinstance(history, dict) and isinstance(history.get("phase"), list) else -1
+        run.history = read_history(meta, HISTORY, max(length, 0), path, none=math.nan)
+        try:
+            pair = lambda name: JointController(tensors[f"{name}_action"], tensors[f"{name}_next_node"])  # noqa: E731
+            if "incumbent_action" in tensors:
+                run.incumbent = pair("incumbent")
+            if "ce_action_probs" in tensors:
+                run.ce = cross_entropy.CrossEntropyState(tensors["ce_action_probs"], tensors["ce_next_probs"])
+                run.ce.elites = pair("ce_elites") if "ce_elites_action" in tensors else None
+            generator.set_state(tensors["generator_state"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ValueError(f"checkpoint: {str(path)!r} is inconsistent ({exc})") from None
+        return run
+
+
+def _nan_if_none(value: float) -> float:
+    """A saved ``None`` (read as -inf) stands for NaN, "not measured yet"."""
+    return math.nan if value == -math.inf else value
+
+
+def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
+    """One cross-entropy iteration; at the phase's end its elites duel the incumbent.
+
+    Returns: (phase over, incumbent value, best elite score, incumbent replaced).
+    """
+    if run.ce is None:
+        nodes = cfg.start_nodes if run.incumbent is None else run.incumbent.num_nodes
+        weight = 0.0 if run.incumbent is None else cfg.ce_init_weight
+        run.ce = cross_entropy.start_state(run.incumbent, scorer.num_agents, nodes, scorer.num_actions,
+                                           scorer.num_obs, weight)
+    info = cross_entropy.iterate(run.ce, scorer, generator, samples=cfg.ce_samples,
+                                 screen_rollouts=cfg.ce_screen_rollouts, screen_keep=cfg.ce_screen_keep,
+                                 rollouts=cfg.ce_rollouts, elites=cfg.ce_elites, memory=cfg.ce_memory,
+                                 alpha=cfg.ce_alpha)
+    run.phase_step += 1
+    if run.phase_step < cfg.ce_iterations:
+        return False, math.nan, info["best"], False
+    elites = run.ce.elites
+    if run.incumbent is None:  # the cold phase: its best elite on fresh rollouts becomes the incumbent
+        mean, se = scorer(elites, cfg.duel_rollouts, generator)
+        top = int(mean.argmax())
+        run.incumbent, run.value, run.stderr = elites[top], float(mean[top]), float(se[top])
+        accepted = True
+    else:
+        winner, mean, se = duel(scorer, run.incumbent, elites, cfg.duel_rollouts, cfg.duel_z, generator)
+        accepted = winner is not None
+        pick = 0 if winner is None else winner + 1
+        run.value, run.stderr = float(mean[pick]), float(se[pick])
+        if accepted:
+            run.incumbent = elites[winner]
+    run.ce = None
+    return True, run.value, info["best"], accepted
+
+
+def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
+    """One local-search step.
+
+    Returns: (phase over: ``ls_patience`` failures in a row, incumbent and challenger duel means, accepted).
+    """
+    if run.incumbent is None:  # no cross-entropy phase: node 0 runs MA 0 forever
+        run.incumbent = JointController(torch.zeros(1, scorer.num_agents, cfg.start_nodes, dtype=torch.long),
+                                        torch.zeros(1, scorer.num_agents, cfg.start_nodes, scorer.num_obs, dtype=torch.long))
+    out = local_search.step(run.incumbent, scorer, generator, max_chain=cfg.ls_chain, max_nodes=cfg.num_nodes,
+                            grow_nodes=cfg.grow_nodes, candidates=cfg.ls_candidates, stages=cfg.ls_stages,
+                            duel_rollouts=cfg.duel_rollouts, z=cfg.duel_z, edge_rate=cfg.edge_rate,
+                            visit_rollouts=cfg.visit_rollouts)
+    run.incumbent = out.controller
+    run.value = out.challenger_value if out.accepted else out.incumbent_value
+    run.phase_step = 0 if out.accepted else run.phase_step + 1
+    return run.phase_step >= cfg.ls_patience, out.incumbent_value, out.challenger_value, out.accepted
+
+
+def plan(
+    scorer: Scorer,
+    config: PlannerConfig | None = None,
+    seed: int = 0,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: int = 1,
+    progress: bool = False,
+) -> PlannerResult:
+    """Plan a controller from scratch (see the module doc).
+
+    Args:
+        scorer: scores controllers of the searched agents (:class:`~decpomdp.search.scoring.RolloutScorer`
+            or :class:`~decpomdp.search.scoring.ExactScorer`).
+        config: the settings (default :class:`PlannerConfig`).
+        seed: seeds the one generator of the run.
+        checkpoint: file written every ``checkpoint_every`` steps and at the end; if it exists, the run
+            resumes from it. It records what produced it (sizes, scorer and problem, config, seed);
+            resuming it with any of them different raises a ``ValueError`` naming the fields.
+        progress: show a progress bar over the rollout budget.
+    """
+    cfg = PlannerConfig() if config is None else config
+    if not isinstance(cfg, PlannerConfig):
+        raise TypeError(f"config: expected a PlannerConfig, got {type(cfg).__name__}")
+    for name in ("num_agents", "num_actions", "num_obs"):
+        as_int(f"scorer.{name}", getattr(scorer, name, None), 1)
+    if not callable(scorer) or not callable(getattr(scorer, "visits", None)):
+        raise TypeError(f"scorer: expected a Scorer (callable with a visits method), got {type(scorer).__name__}")
+    seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
+    generator = torch.Generator().manual_seed(seed)
+    fingerprint = {"sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
+                   "problem": describe(scorer), "config": jsonable(asdict(cfg)), "seed": seed}
+    path = None if checkpoint is None else Path(checkpoint)
+    run = _Run.load(path, fingerprint, cfg, generator) if path is not None and path.exists() else _Run()
+    steps = {"ce": _ce_step, "ls": _ls_step}
+    bar = tqdm(total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout")
+    while run.used < cfg.budget and run.idle_cycles < cfg.patience:
+        before = scorer.rollouts_used
+        phase = cfg.phases[run.cycle_position]
+        over, incumbent_value, challenger_value, accepted = steps[phase](run, scorer, cfg, generator)
+        spent = scorer.rollouts_used - before
+        run.used += spent
+        run.record(phase, incumbent_value, challenger_value, accepted)
+        run.gained = int(run.gained or accepted)
+        if over:
+            run.phase_step = 0
+            run.cycle_position = (run.cycle_position + 1) % len(cfg.phases)
+            if run.cycle_position == 0:
+                run.idle_cycles = 0 if run.gained else run.idle_cycles + 1
+                run.gained = 0
+        bar.update(min(spent, max(cfg.budget - bar.n, 0)))
+        bar.set_postfix(phase=phase, value=f"{run.value:.4g}", nodes=run.incumbent.num_nodes if run.incumbent else 0)
+        if path is not None and (len(run.history["phase"]) % checkpoint_every == 0):
+            run.save(path, fingerprint, generator)
+    bar.close()
+    if path is not None:
+        run.save(path, fingerprint, generator)
+    return PlannerResult(run.incumbent, run.value, run.stderr, run.used, run.history, cfg)

@@ -1,0 +1,57 @@
+"""Racing: screen many candidates on few rollouts, spend more rollouts on the contenders, then a duel.
+
+:func:`race` runs successive stages ``(rollouts, keep)``: every surviving candidate is scored on
+``rollouts`` fresh rollouts and the best ``keep`` of them (a fraction in (0, 1), at least ``minimum``,
+or a count >= 1) go on. Scores of different stages are independent, so a candidate that was lucky in
+one stage is scored afresh in the next; the survivors of the last stage are returned best first.
+
+:func:`duel` then scores the incumbent and the survivors on the same number of fresh rollouts and
+names the best survivor if it beats the incumbent by more than ``z`` standard errors of the
+difference (for exact scores, standard error 0, any strict improvement wins).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from decpomdp.controller import JointController
+from decpomdp.search.scoring import Scorer
+
+
+def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
+         stages: Sequence[tuple[int, float]], generator: torch.Generator, minimum: int = 4) -> tuple[Tensor, Tensor]:
+    """Race candidates ``0 .. count - 1`` (built on demand by ``build(indices)``) through ``stages``.
+
+    Returns:
+        the surviving indices, long (S,), best first, and their last-stage scores, float64 (S,).
+    """
+    alive = torch.arange(count)
+    scores = torch.zeros(count, dtype=torch.float64)
+    for rollouts, keep in stages:
+        per = max(1, 200_000 // rollouts)  # candidates per batched simulation
+        scores = torch.cat([scorer(build(alive[i:i + per]), rollouts, generator)[0]
+                            for i in range(0, alive.numel(), per)])
+        kept = int(keep) if keep >= 1 else max(minimum, math.ceil(keep * alive.numel()))
+        order = torch.sort(scores, descending=True, stable=True).indices[:kept]
+        alive, scores = alive[order], scores[order]
+    return alive, scores
+
+
+def duel(scorer: Scorer, incumbent: JointController, challengers: JointController, rollouts: int, z: float,
+         generator: torch.Generator) -> tuple[int | None, Tensor, Tensor]:
+    """Score ``incumbent`` (K = 1) and ``challengers`` on ``rollouts`` fresh rollouts each.
+
+    Returns:
+        the index of the best challenger if it beats the incumbent by more than ``z`` standard errors
+        of the difference (and by more than 0), else None; the means and standard errors (1 + C,),
+        incumbent first.
+    """
+    mean, se = scorer(JointController.cat([incumbent, challengers]), rollouts, generator)
+    best = int(mean[1:].argmax()) + 1
+    gap = float(mean[best] - mean[0])
+    sd = float((se[best] ** 2 + se[0] ** 2) ** 0.5)
+    return (best - 1 if gap > 0 and gap > z * sd else None), mean, se
