@@ -45,7 +45,7 @@ class PlannerConfig:
 
     phases: tuple[str, ...] = ("ce", "ls")
     budget: int = 40_000_000
-    patience: int = 2
+    patience: int = 3
     num_nodes: int = 24
     start_nodes: int = 1
     grow_nodes: int = 4
@@ -61,7 +61,7 @@ class PlannerConfig:
     ls_chain: int = 3
     ls_candidates: int = 30_000
     ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 4)))
-    ls_patience: int = 2
+    ls_patience: int = 3
     duel_rollouts: int = 4000
     duel_z: float = 2.0
     edge_rate: float = 0.01

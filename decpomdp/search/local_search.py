@@ -4,7 +4,8 @@
 2. If some agent has fewer free (never visited) nodes than ``max_chain`` and the graph has fewer than
    ``max_nodes`` nodes, add ``grow_nodes`` unreachable nodes (up to ``max_nodes``).
 3. Build the :class:`~decpomdp.search.moves.Neighbourhood`; if it has more than ``candidates`` moves,
-   take every single edit and a uniform sample of the chains (with replacement) up to ``candidates``.
+   take every single edit and sample chains up to ``candidates`` (with replacement; sites in proportion
+   to how often their edge is traversed, see :meth:`~decpomdp.search.moves.Neighbourhood.sample_chains`).
 4. Race them through ``stages`` and duel the survivors against the incumbent on ``duel_rollouts``
    fresh rollouts; the best survivor replaces the incumbent if it wins by more than ``z`` standard
    errors. Under exact scores a step therefore never returns a worse controller.
@@ -58,8 +59,7 @@ def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator,
     if hood.size <= candidates:
         index = torch.arange(hood.size)
     else:
-        sampled = torch.randint(hood.num_singles, hood.size, (max(0, candidates - hood.num_singles),), generator=generator)
-        index = torch.cat([torch.arange(hood.num_singles), sampled])
+        index = torch.cat([torch.arange(hood.num_singles), hood.sample_chains(candidates - hood.num_singles, generator)])
     alive, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
     winner, mean, _ = duel(scorer, incumbent, hood.build(index[alive]), duel_rollouts, z, generator)
     best = int(mean[1:].argmax())

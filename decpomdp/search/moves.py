@@ -65,6 +65,8 @@ class Neighbourhood:
         self.singles = torch.cat([self._singles(o) for o in owners])
         self.sites = torch.cat([torch.cat([torch.full((int(self.edited[o].sum()), 1), o), self.edited[o].nonzero()], 1)
                                 for o in owners])
+        rate = torch.cat([(visits[o] if o != _TEAM else visits.sum(0))[self.edited[o]] for o in owners])
+        self.site_rate = rate.to(torch.float64)
         lengths = torch.arange(1, max_chain + 1)
         per_length = torch.zeros(len(self.sites), max_chain, dtype=torch.long)
         for o in owners:
@@ -75,6 +77,22 @@ class Neighbourhood:
         self.site_end = per_length.sum(1).cumsum(0)
         self.num_singles = len(self.singles)
         self.size = self.num_singles + (int(self.site_end[-1]) if len(self.sites) else 0)
+
+    def sample_chains(self, count: int, generator: torch.Generator) -> Tensor:
+        """``count`` chain moves (indices in [num_singles, size)): a site with probability proportional to how
+        often its edge is traversed, a chain length uniform among those the site allows, then a chain of
+        that length uniformly (MAs and exit)."""
+        if self.size == self.num_singles or count <= 0:
+            return torch.zeros(0, dtype=torch.long)
+        site = torch.multinomial(self.site_rate * (self.per_length.sum(1) > 0), count, replacement=True,
+                                 generator=generator)
+        lengths = self.per_length[site]  # (C, L)
+        length = torch.multinomial((lengths > 0).to(torch.float64), 1, generator=generator).squeeze(1)
+        size = lengths.gather(1, length[:, None]).squeeze(1)
+        within = (torch.rand(count, generator=generator, dtype=torch.float64) * size).long().clamp_(max=size - 1)
+        starts = torch.cat([torch.zeros(count, 1, dtype=torch.long), lengths.cumsum(1)], 1).gather(1, length[:, None])
+        site_start = torch.cat([torch.zeros(1, dtype=torch.long), self.site_end])[site]
+        return self.num_singles + site_start + starts.squeeze(1) + within
 
     @property
     def free_nodes(self) -> int:

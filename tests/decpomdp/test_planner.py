@@ -322,3 +322,19 @@ def test_cross_entropy_memory_and_warm_start(toy_env):
     iterate(state, scorer, g, samples=10, screen_rollouts=2, screen_keep=0.5, rollouts=4, elites=3, memory=2, alpha=0.5)
     assert scorer.rollouts_used - before == 10 * 2 + 5 * 4 + 2 * 4  # screen, contenders, memory re-scored
     torch.testing.assert_close(state.action_probs.sum(-1), torch.ones(2, 3, dtype=torch.float64))
+
+
+def test_chain_sampling_follows_traffic():
+    # two edges: (node 0, obs 0) traversed 9 times as often as (node 0, obs 1); every sampled index is a chain
+    ctrl = JointController(torch.zeros(1, 1, 4, dtype=torch.long), torch.zeros(1, 1, 4, 2, dtype=torch.long))
+    visits = torch.zeros(1, 4, 2, dtype=torch.float64)
+    visits[0, 0] = torch.tensor([0.9, 0.1])
+    hood = Neighbourhood(ctrl, visits, 3, 2, 0.01)
+    g = torch.Generator().manual_seed(0)
+    idx = hood.sample_chains(20_000, g)
+    assert bool(((idx >= hood.num_singles) & (idx < hood.size)).all())
+    built = hood.build(idx)
+    on_first = (built.next_node[:, 0, 0, 0] != 0).double().mean().item()
+    assert on_first == pytest.approx(0.9, abs=4 * (0.09 / 20_000) ** 0.5)  # binomial, 4 standard errors
+    length_two = (built.next_node[:, 0, 1, 0] == 2).double().mean().item()  # first free node moves on to the second
+    assert length_two == pytest.approx(0.5, abs=4 * (0.25 / 20_000) ** 0.5)

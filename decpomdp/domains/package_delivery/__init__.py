@@ -12,7 +12,7 @@ from decpomdp.domains.package_delivery.rules import (
     NODE_NAMES, BASE1, BASE2, RENDEZVOUS, DEST1, DEST2, ACTION_NAMES, GO_B1, GO_B2, GO_R, GO_D1, GO_D2,
     JGO_D1, JGO_D2, PICK, JPICK, PUT, JPUT, TRUCK, WAIT, SMALL, LARGE, OBS_NAMES, MEAN_DURATION, TARGET_NODE,
     PACKAGES, ARRIVAL, DURATION_NOISE, MIN_NOISE_FACTOR, FAIL_DURATION, JOINT_MAS, DROP_MAS, COUNTERS,
-    Rewards, preconditions_hold,
+    REFERENCE_SUCCESSORS, Rewards, preconditions_hold,
 )
 
 __all__ = [
@@ -20,5 +20,5 @@ __all__ = [
     "DEST2", "ACTION_NAMES", "GO_B1", "GO_B2", "GO_R", "GO_D1", "GO_D2", "JGO_D1", "JGO_D2", "PICK", "JPICK",
     "PUT", "JPUT", "TRUCK", "WAIT", "SMALL", "LARGE", "OBS_NAMES", "MEAN_DURATION", "TARGET_NODE", "PACKAGES",
     "ARRIVAL", "DURATION_NOISE", "MIN_NOISE_FACTOR", "FAIL_DURATION", "JOINT_MAS", "DROP_MAS", "COUNTERS",
-    "Rewards", "preconditions_hold",
+    "REFERENCE_SUCCESSORS", "Rewards", "preconditions_hold",
 ]

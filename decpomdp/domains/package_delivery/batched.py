@@ -17,8 +17,8 @@ from decpomdp.core import DecPOSMDP
 from infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
-    ACTION_NAMES, BASE1, COUNTERS, DROP_MAS, FAIL_DURATION, JOINT_MAS, JPICK, JPUT, MEAN_DURATION, MIN_NOISE_FACTOR,
-    OBS_NAMES, PICK, TARGET_NODE, WAIT, Rewards, preconditions_hold,
+    ACTION_NAMES, BASE1, COUNTERS, DROP_MAS, FAIL_DURATION, GO_B1, JOINT_MAS, JPICK, JPUT, MEAN_DURATION,
+    MIN_NOISE_FACTOR, OBS_NAMES, PICK, PUT, REFERENCE_SUCCESSORS, TARGET_NODE, WAIT, Rewards, preconditions_hold,
 )
 
 _N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
@@ -50,6 +50,9 @@ def _start_tables() -> dict[str, Tensor]:
 
 
 _START = _start_tables()
+_SUCCESSOR = torch.zeros(_N_MA * _N_MA, dtype=torch.uint8)  # [previous MA * 13 + MA]: may follow (successor_rule)
+for _prev, _nexts in REFERENCE_SUCCESSORS.items():
+    _SUCCESSOR[[_prev * _N_MA + n for n in _nexts]] = 1
 
 
 def _flags(mas) -> Tensor:
@@ -84,6 +87,8 @@ class PackageDelivery(DecPOSMDP):
             (the reference's accounting) instead of once per package.
         solo_joint: let one robot run a joint MA alone when its partner is not there (the
             reference's rule; off by default: large packages need both robots).
+        successor_rule: the reference's allowed successors, and its failed put-downs that still pay
+            (see :mod:`.rules`; off by default).
     """
 
     num_agents = 2
@@ -101,19 +106,21 @@ class PackageDelivery(DecPOSMDP):
         truck_reward: float = 1.0,
         large_reward_per_robot: bool = True,
         solo_joint: bool = False,
+        successor_rule: bool = False,
     ) -> None:
         self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
         self.horizon = as_float("horizon", horizon, 0.0, low_open=True)
         self.joint_wait = as_float("joint_wait", joint_wait, 0.0, low_open=True)
         self.rewards = Rewards(as_float("small_reward", small_reward), as_float("large_reward", large_reward),
                                as_float("truck_reward", truck_reward), bool(large_reward_per_robot))
-        self.solo_joint = bool(solo_joint)
+        self.solo_joint, self.successor_rule = bool(solo_joint), bool(successor_rule)
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
 
     def __repr__(self) -> str:
         return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
-                f"large_reward_per_robot={self.rewards.large_per_robot}, solo_joint={self.solo_joint})")
+                f"large_reward_per_robot={self.rewards.large_per_robot}, solo_joint={self.solo_joint}, "
+                f"truck_reward={self.rewards.truck}, successor_rule={self.successor_rule})")
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
         """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
@@ -143,15 +150,18 @@ class PackageDelivery(DecPOSMDP):
         return arrival[torch.randint(0, len(arrival), (count,), generator=generator)]
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
-        return {
+        state = {
             "loc": torch.full((batch, 2), BASE1, dtype=torch.int32),
             "load": torch.zeros(batch, 2, dtype=torch.int32),
             "base": self.sample_packages(2 * batch, generator).view(batch, 2),
-            "ma": torch.full((batch, 2), WAIT, dtype=torch.int32),
+            "ma": torch.full((batch, 2), GO_B1 if self.successor_rule else WAIT, dtype=torch.int32),
             "ok": torch.zeros(batch, 2, dtype=torch.bool),
             "waiting": torch.zeros(batch, 2, dtype=torch.bool),
             **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
         }
+        if self.successor_rule:  # a put-down that failed by the successor rule alone, paying when it ends
+            state["pays"] = torch.zeros(batch, 2, dtype=torch.bool)
+        return state
 
     def start(self, state, agents, actions, t, end_time, generator):
         loc, load, actions = state["loc"], state["load"], actions.to(torch.int32)
@@ -163,10 +173,12 @@ class PackageDelivery(DecPOSMDP):
         if drafted is not None:
             actions = drafted
             flags = lookup(_START["flags"], situation + actions) * agents_u8
-        index = situation + actions
+        mean = lookup(_START["mean"], situation + actions)
+        if self.successor_rule:
+            flags, mean = self._successors(state, agents_u8, actions, flags, mean)
         noise = torch.randn(actions.shape, generator=generator).mul_(rules.DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
         noise.mul_(flags & _NOISY).add_(1.0)
-        finish = torch.addcmul(pair(t), lookup(_START["mean"], index), noise)
+        finish = torch.addcmul(pair(t), mean, noise)
         ok, joint, solo_pick = (flags >> 1) & 1, (flags >> 2) & 1, (flags >> 3) & 1
         both_pick = solo_pick[:, 0] & solo_pick[:, 1]
         if any_true(both_pick):
@@ -187,6 +199,20 @@ class PackageDelivery(DecPOSMDP):
             changed = agents_u8 | joined
         # finish is finite wherever t is; end_time may be infinite (rows a simulation froze)
         return torch.where(changed.view(torch.bool), finish, end_time)
+
+    @staticmethod
+    def _successors(state: dict[str, Tensor], agents: Tensor, actions: Tensor, flags: Tensor,
+                    mean: Tensor) -> tuple[Tensor, Tensor]:
+        """``successor_rule``: starting MAs that may not follow the previous MA fail (flags 0, mean
+        ``FAIL_DURATION``); a put-down failing by this rule alone is marked to pay when it ends.
+
+        ``agents`` (the starting robots) and ``flags`` are uint8 (B, 2); ``flags`` imply ``agents``.
+        """
+        allowed = lookup(_SUCCESSOR, state["ma"] * _N_MA + actions) | (agents ^ 1)
+        drop = ((actions - PUT) * (actions - JPUT) == 0).to(torch.uint8)
+        pays = (flags >> 1) & 1 & (allowed ^ 1) & drop
+        state["pays"] = ((as_u8(state["pays"]) & (agents ^ 1)) | pays).view(torch.bool)
+        return flags * allowed, select(allowed, mean, torch.full_like(mean, FAIL_DURATION))
 
     @staticmethod
     def _draft(state: dict[str, Tensor], agents: Tensor, actions: Tensor, joint_ok: Tensor) -> Tensor | None:
@@ -266,6 +292,9 @@ class PackageDelivery(DecPOSMDP):
         load = state["load"]
         reward = torch.zeros(agents.shape[0], dtype=torch.float64)
         dropped = (kind >> 1) & 1
+        if self.successor_rule:  # failed put-downs that still pay
+            dropped = dropped | (as_u8(state["pays"]) & agents)
+            state["pays"] = (as_u8(state["pays"]) & (agents ^ 1)).view(torch.bool)
         if any_true(dropped):
             index = (ma * _N_LOC + loc) * _N_LOAD + load
             table = self._complete_tables

@@ -49,7 +49,14 @@ Choices where the paper and reference are silent or differ (documented constants
   that two robots cannot take one package: when both start a pick-up at the same base at once,
   robot 0 takes the package and robot 1's pick-up fails;
 * the partner is "present" at a base when it is located there and not travelling away;
-* the first MA is chosen in controller node 0 before any observation.
+* the first MA is chosen in controller node 0 before any observation;
+* ``successor_rule=True`` (off by default) adds two rules of the reference simulator: an MA that is
+  not an allowed successor of the robot's previous MA (``REFERENCE_SUCCESSORS``; the previous MA is the
+  one last started, failed or not, and go-to-Base1 at the start) fails, and a put-down or joint
+  put-down that fails by this rule alone (its own preconditions hold) still delivers and pays when it
+  ends, as in the reference, which pays any put-down whose robot holds a package of the right size at
+  its destination when the MA ends, failed or not (repository 7thStringofZhef/G-DICE, file
+  "Original G-DICE/@Domain/Domain.m", lines 286-302 and 424-425).
 
 State (batch first): ``loc`` (B, 2) node of each robot (updated when a go-to MA completes);
 ``load`` (B, 2) carried package (0: none, else ``1 + package code``); ``base`` (B, 2) package code
@@ -128,6 +135,15 @@ JOINT_MAS = (JGO_D1, JGO_D2, JPICK, JPUT)
 DROP_MAS = (PUT, JPUT, TRUCK)
 #: per-rollout counters kept in the state, long (B,)
 COUNTERS = ("delivered", "delivered_large", "wrong")
+#: MAs allowed to follow each MA in the reference simulator (its ``allowableChildTMAsIdxsTemp``, repository
+#: 7thStringofZhef/G-DICE, file "Original G-DICE/@Domain/Domain.m", lines 60, 68, 76, 84, 92, 104, 112,
+#: 125, 133, 146, 154, 166 and 178); used by ``successor_rule``
+REFERENCE_SUCCESSORS = {
+    GO_B1: (GO_B2, GO_R, PICK, JPICK), GO_B2: (GO_B1, GO_R, PICK, JPICK), GO_R: (GO_B1, GO_B2, TRUCK),
+    GO_D1: (GO_B1, GO_B2, PUT), GO_D2: (GO_B1, GO_B2, PUT), JGO_D1: (JPUT,), JGO_D2: (JPUT,),
+    PICK: (GO_R, GO_D1, GO_D2), JPICK: (JGO_D1, JGO_D2), PUT: (GO_B1, GO_B2), JPUT: (GO_B1, GO_B2),
+    TRUCK: (GO_B1, GO_B2), WAIT: (WAIT,),
+}
 
 
 def preconditions_hold(loc: int, load: int, here: int, ma: int) -> bool:
