@@ -1,9 +1,10 @@
 """Fingerprinted checkpoints: tensors + JSON state that refuse to resume any run but the one that wrote them.
 
 A checkpoint file holds named tensors and a JSON header with its format ``version``, the writing run's
-``fingerprint`` (see :mod:`decpomdp.fingerprint`) and the run's counters and histories. Loading checks,
-in this order, that the file is a ``kind`` checkpoint of this ``version``, that its fingerprint equals
-this run's (else a ``ValueError`` names each differing field), and then reads counters and histories
+``fingerprint`` (:mod:`infra.fingerprint`; its ``problem`` entry from :mod:`decpomdp.identity`) and the
+run's counters and histories. Loading checks, in this order, that the file is a ``kind`` checkpoint of
+this ``version``, that its fingerprint equals this run's (else a ``ValueError`` names the first field
+that differs), and then reads counters and histories
 through :func:`read_count` and :func:`read_history`, which reject missing, mistyped or inconsistent
 entries with a message naming the entry.
 """
@@ -18,7 +19,7 @@ from typing import Any
 from torch import Tensor
 
 from infra.tensorfile import load_tensors, save_tensors
-from decpomdp.fingerprint import check_same_run
+from infra.fingerprint import check_fingerprint
 
 
 def save_checkpoint(path: str | os.PathLike, kind: str, version: int, fingerprint: dict[str, Any],
@@ -34,7 +35,7 @@ def load_checkpoint(path: str | os.PathLike, kind: str, version: int,
     if meta.get("version") != version:
         raise ValueError(f"checkpoint: {str(path)!r} is not a version-{version} {kind} checkpoint "
                          f"(version {meta.get('version')!r})")
-    check_same_run(str(path), meta.get("fingerprint"), fingerprint)
+    check_fingerprint(meta.get("fingerprint"), fingerprint, "checkpoint", path)
     return tensors, meta
 
 

@@ -39,8 +39,9 @@ from tqdm.auto import tqdm
 from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
 from decpomdp.evaluate import Evaluator
-from decpomdp.arguments import as_choice, as_float, as_int
-from decpomdp.fingerprint import describe, digest, jsonable
+from infra.checks import as_float, as_int
+from decpomdp.identity import describe
+from infra.fingerprint import digest
 
 _KIND = "decpomdp.GDICECheckpoint"
 _VERSION = 2
@@ -91,7 +92,8 @@ class GDICEConfig:
         object.__setattr__(self, "alpha", as_float("alpha", self.alpha, 0.0, 1.0, low_open=True))
         for name in ("injection_weight", "injection_threshold", "injection_until", "init_weight"):
             object.__setattr__(self, name, as_float(name, getattr(self, name), 0.0, 1.0))
-        as_choice("threshold_rule", self.threshold_rule, _THRESHOLD_RULES)
+        if self.threshold_rule not in _THRESHOLD_RULES:
+            raise ValueError(f"threshold_rule: expected one of {_THRESHOLD_RULES}, got {self.threshold_rule!r}")
         if self.layer_width is not None:
             w = as_int("layer_width", self.layer_width, 1)
             if self.num_nodes < 1 + w or (self.num_nodes - 1) % w:
@@ -325,7 +327,7 @@ def gdice(
     fingerprint = {
         "sizes": {"num_agents": num_agents, "num_actions": num_actions, "num_obs": num_obs},
         "problem": describe(evaluator),
-        "config": jsonable(asdict(cfg)),
+        "config": asdict(cfg),
         "seed": seed,
         "init": None if init is None else digest(init.action, init.next_node),
     }

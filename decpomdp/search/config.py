@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from decpomdp.arguments import as_choice, as_float, as_int
+from infra.checks import as_float, as_int
 
 PHASES = ("ce", "ls")
 
@@ -68,8 +68,8 @@ class PlannerConfig:
     visit_rollouts: int = 500
 
     def __post_init__(self) -> None:
-        phases = tuple(as_choice("phases", p, PHASES) for p in _sequence("phases", self.phases))
-        if not phases:
+        phases = _sequence("phases", self.phases)
+        if not phases or any(p not in PHASES for p in phases):
             raise ValueError(f"phases: expected a non-empty sequence of {PHASES}, got {self.phases!r}")
         object.__setattr__(self, "phases", phases)
         for name, low in (("budget", 1), ("patience", 1), ("num_nodes", 1), ("start_nodes", 1), ("grow_nodes", 0),

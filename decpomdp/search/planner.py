@@ -26,10 +26,10 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from decpomdp.arguments import as_int
+from infra.checks import as_int
 from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
-from decpomdp.fingerprint import describe, jsonable
+from decpomdp.identity import describe
 from decpomdp.search import cross_entropy, local_search
 from decpomdp.search.config import PHASES, PlannerConfig
 from decpomdp.search.racing import duel
@@ -209,7 +209,7 @@ def plan(
     seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
     generator = torch.Generator().manual_seed(seed)
     fingerprint = {"sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
-                   "problem": describe(scorer), "config": jsonable(asdict(cfg)), "seed": seed}
+                   "problem": describe(scorer), "config": asdict(cfg), "seed": seed}
     path = None if checkpoint is None else Path(checkpoint)
     run = _Run.load(path, fingerprint, cfg, generator) if path is not None and path.exists() else _Run()
     steps = {"ce": _ce_step, "ls": _ls_step}

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from decpomdp.arguments import as_int
+from infra.checks import as_int
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.rollouts import shared

@@ -12,7 +12,7 @@ import torch
 from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, sample_controllers
 from infra.tensorfile import load_tensors, save_tensors
 from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value
-from decpomdp.fingerprint import describe
+from decpomdp.identity import describe
 
 from test_dpomdp_parser import BENCH
 from tiny_problems import dec_tiger
@@ -66,7 +66,7 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     assert resumed.history == full.history
     assert torch.equal(resumed.best.next_node, full.best.next_node) and resumed.best_value == full.best_value
     torch.testing.assert_close(resumed.next_probs, full.next_probs, rtol=0, atol=0)
-    with pytest.raises(ValueError, match="config.iterations: checkpoint has 6, this run has 4"):
+    with pytest.raises(ValueError, match="another run: config.iterations was 6 there, is 4 here"):
         gdice(evaluator, 2, 3, 2, dataclasses.replace(cfg, iterations=4), seed=3, init=init, checkpoint=ckpt)
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")
@@ -90,6 +90,10 @@ class Interrupted:
         return self.evaluator(ctrl, gen)
 
 
+LISTEN = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
+OPEN = JointController(torch.ones(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
+
+
 def tiger_run(tmp_path, horizon=3, seed=0, **changes):
     """A Dec-Tiger G-DICE run with a checkpoint in ``tmp_path`` (exact values)."""
     env = dec_tiger(horizon)
@@ -101,7 +105,7 @@ def tiger_run(tmp_path, horizon=3, seed=0, **changes):
 def test_checkpoint_of_another_run_is_refused(tmp_path):
     # the reported case: a horizon-3, seed-0 checkpoint resumed by a horizon-4, seed-7 run
     first = tiger_run(tmp_path, horizon=3, seed=0)
-    with pytest.raises(ValueError, match=r"problem\.env\.horizon: checkpoint has 3\.0, this run has 4\.0.*seed: checkpoint has 0, this run has 7"):
+    with pytest.raises(ValueError, match=r"another run: problem\.env\.horizon was 3\.0 there, is 4\.0 here"):
         tiger_run(tmp_path, horizon=4, seed=7)
     again = tiger_run(tmp_path, horizon=3, seed=0)  # the same run resumes (here: is already finished)
     assert again.history == first.history and again.best_value == first.best_value
@@ -113,12 +117,14 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     ({"config": {"alpha": 0.3}}, "config.alpha"),
     ({"config": {"num_nodes": 3}}, "config.num_nodes"),
     ({"sizes": (2, 3, 3)}, "sizes.num_obs"),
-    ({"init": JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long)),
-      "config": {"init_weight": 0.5}}, "init"),
+    ({"init": LISTEN}, "init"),
 ])
 def test_checkpoint_names_each_differing_field(tmp_path, change, field):
-    tiger_run(tmp_path)
-    with pytest.raises(ValueError, match=rf"; {re.escape(field)}: checkpoint has"):
+    warm = {"config": {"init_weight": 0.5}}  # both runs warm-started, from different controllers
+    tiger_run(tmp_path, **(warm | {"init": OPEN} if field == "init" else {}))
+    if field == "init":
+        change = change | warm
+    with pytest.raises(ValueError, match=rf"another run: {re.escape(field)} was "):
         try:
             tiger_run(tmp_path, **change)
         except RuntimeError as exc:  # a wrong number of observations must not get as far as evaluating
@@ -191,7 +197,7 @@ def test_config_errors(kwargs, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"alpha": "0.1"}, "alpha: expected a number, got str '0.1'"),
+    ({"alpha": "0.1"}, r"alpha: expected a number, got '0.1' \(str\)"),
     ({"num_nodes": 2.5}, "num_nodes: expected an int"),
     ({"samples": True}, "samples: expected an int"),
     ({"layer_width": "3"}, "layer_width: expected an int"),
@@ -291,7 +297,7 @@ def test_warm_start_errors(recycling, tmp_path):
     ckpt = tmp_path / "warm.safetensors"
     gdice(ev, 2, 3, 2, cfg, init=init, checkpoint=ckpt)
     other = JointController(init.action, 1 - init.next_node)
-    with pytest.raises(ValueError, match="another run; init: checkpoint has"):
+    with pytest.raises(ValueError, match="another run: init was "):
         gdice(ev, 2, 3, 2, cfg, init=other, checkpoint=ckpt)
 
 

@@ -249,7 +249,7 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at):
     ({"seed": 4}, "seed"),
     ({"config": {"ce_alpha": 0.5}}, "config.ce_alpha"),
     ({"horizon": 12.0}, "problem.scorer.env.horizon"),
-    ({"shared": True}, "sizes.num_agents"),
+    ({"shared": True}, "problem.scorer.shared"),
 ])
 def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ckpt = tmp_path / "plan.safetensors"
@@ -260,13 +260,13 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
         return plan(Interrupt(RolloutScorer(env, shared=shared), 10**9), cfg, seed=seed, checkpoint=ckpt)
 
     run()
-    with pytest.raises(ValueError, match=rf"another run; (.*; )?{re.escape(field)}: checkpoint has"):
+    with pytest.raises(ValueError, match=rf"another run: {re.escape(field)} was "):
         run(**change)
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
     ({"phases": ()}, ValueError, "phases: expected a non-empty"),
-    ({"phases": ("ce", "anneal")}, ValueError, "phases: expected one of"),
+    ({"phases": ("ce", "anneal")}, ValueError, r"phases: expected a non-empty sequence of \(.ce., .ls.\), got \(.ce., .anneal.\)"),
     ({"phases": "ce"}, TypeError, "phases: expected a sequence"),
     ({"budget": 0}, ValueError, "budget: expected an int >= 1"),
     ({"budget": "lots"}, TypeError, "budget: expected an int"),
