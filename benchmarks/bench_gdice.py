@@ -1,51 +1,92 @@
-"""G-DICE at the paper's package-delivery settings: wall time and value reached.
+"""G-DICE at the paper's package-delivery budget against the cold-start planner: time and value reached.
 
-N_n = 13, N_k = 100, N_s = 100, N_b = 10, alpha = 0.1, 80 rollouts per evaluation (all 100 x 80
-rollouts of an iteration in one batched simulation). The floor is 2 minutes on 2 cores. The best
-controller is re-evaluated on 1000 independent rollouts. For reference in the same process, the
-script also times one iteration's evaluation on a tabular problem (Dec-Tiger, horizon 50, same batch).
+Three runs on package delivery, every robot running one shared controller (as in the reference study):
 
-    python benchmarks/bench_gdice.py [--seed 0] [--iterations 100]
+1. the paper's G-DICE (N_n = 13, N_k = 100, N_s = 100, N_b = 10, alpha = 0.1, 80 rollouts per sample:
+   800,000 rollouts);
+2. the cold-start planner (:mod:`decpomdp.search`) held to the same 800,000 rollouts;
+3. the cold-start planner at its default budget (``conf/planner/cold.yaml``).
+
+Each best controller is re-evaluated on ``--reeval`` rollouts the search never saw. Times are process
+CPU time and wall time of this process; on a shared machine the wall time also counts other jobs, so
+the ratio of CPU times is the comparison to read. For reference in the same process, the script also
+times one G-DICE iteration's evaluation on a tabular problem (the shipped Dec-Tiger, horizon 50, same
+batch of 100 x 80 rollouts).
+
+    python benchmarks/bench_gdice.py [--seed 0] [--reeval 4000] [--skip-default]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
 
-from decpomdp import GDICEConfig, MonteCarloEvaluator, gdice, random_controllers
-from decpomdp.domains import PackageDelivery
+from decpomdp import GDICEConfig, MonteCarloEvaluator, evaluate, gdice, random_controllers
+from decpomdp.domains import PackageDelivery, SharedControllerEvaluator, shared
 from decpomdp.dpomdp import TabularDecPOSMDP
+from decpomdp.search import PlannerConfig, RolloutScorer, plan
+
+PAPER_ROLLOUTS = 100 * 100 * 80
+
+
+def default_planner() -> PlannerConfig:
+    """The planner settings of ``conf/planner/cold.yaml``."""
+    from pathlib import Path
+
+    with initialize_config_dir(config_dir=str(Path(__file__).resolve().parents[1] / "conf" / "planner"),
+                               version_base=None):
+        return instantiate(compose(config_name="cold"))
+
+
+def timed(fn):
+    cpu, wall = time.process_time(), time.perf_counter()
+    out = fn()
+    return out, time.process_time() - cpu, time.perf_counter() - wall
+
+
+def tiger_iteration_cpu(seed: int) -> float:
+    """CPU seconds of one G-DICE iteration's evaluation on Dec-Tiger (horizon 50, 100 samples x 80 rollouts)."""
+    tiger = TabularDecPOSMDP.from_problem("dectiger", gamma=0.99, horizon=50)
+    gen = torch.Generator().manual_seed(seed)
+    ctrl = random_controllers(100, 2, 13, tiger.num_actions, tiger.num_obs, gen)
+    return timed(lambda: MonteCarloEvaluator(tiger, 80)(ctrl, gen))[1]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--iterations", type=int, default=100)
+    parser.add_argument("--reeval", type=int, default=4000)
+    parser.add_argument("--skip-default", action="store_true", help="skip the planner at its default budget")
     args = parser.parse_args()
-    torch.set_num_threads(1)  # tensors of ~8000 rollouts: intra-op threads only add overhead on a shared machine
+    torch.set_num_threads(1)  # batches of ~8000 rollouts: intra-op threads only add overhead on a shared machine
     env = PackageDelivery()
-    cfg = GDICEConfig(num_nodes=13, iterations=args.iterations, samples=100, elites=10, alpha=0.1)
-    start = time.perf_counter()
-    result = gdice(MonteCarloEvaluator(env, 80), env.num_agents, env.num_actions, env.num_obs, cfg, seed=args.seed,
-                   reevaluator=MonteCarloEvaluator(env, 1000), progress=True)
-    elapsed = time.perf_counter() - start
-    print(f"package delivery G-DICE (N_n=13, N_k={args.iterations}, N_s=100, N_b=10, 80 rollouts): {elapsed:.1f} s "
-          f"(floor 120 s: {'met' if elapsed <= 120 else 'NOT met'}; {120 / elapsed:.2f}x under the floor)")
-    print(f"best sampled value {result.best_value:.3f}; re-evaluated on 1000 rollouts: "
-          f"{result.value:.3f} +- {result.stderr:.3f}")
-    per_iter = elapsed / args.iterations
-    tiger = TabularDecPOSMDP.from_problem("dectiger", gamma=0.99, horizon=50)
-    ev = MonteCarloEvaluator(tiger, 80)
-    gen = torch.Generator().manual_seed(args.seed)
-    ctrl = random_controllers(100, 2, 13, tiger.num_actions, tiger.num_obs, gen)
-    t0 = time.perf_counter()
-    ev(ctrl, gen)
-    tab = time.perf_counter() - t0
-    print(f"one G-DICE iteration: package delivery {per_iter:.3f} s vs Dec-Tiger horizon 50 "
-          f"(8000 rollouts, 50 events) {tab:.3f} s; ratio {per_iter / tab:.2f}")
+    reeval = lambda ctrl: evaluate(env, shared(ctrl, 2), args.reeval, torch.Generator().manual_seed(args.seed + 99))  # noqa: E731
+
+    rows = []
+    paper = GDICEConfig(num_nodes=13, iterations=100, samples=100, elites=10, alpha=0.1)
+    res, cpu, wall = timed(lambda: gdice(SharedControllerEvaluator(env, 80), 1, env.num_actions, env.num_obs, paper,
+                                         seed=args.seed, progress=True))
+    rows.append(("paper G-DICE", PAPER_ROLLOUTS, cpu, wall, *reeval(res.best)))
+    default = default_planner()
+    runs = [("cold-start planner, paper budget", dataclasses.replace(default, budget=PAPER_ROLLOUTS))]
+    if not args.skip_default:
+        runs.append(("cold-start planner, default budget", default))
+    for name, cfg in runs:
+        out, cpu, wall = timed(lambda: plan(RolloutScorer(env, shared=True), cfg, seed=args.seed, progress=True))
+        rows.append((name, out.rollouts, cpu, wall, *reeval(out.best)))
+    ref = rows[0][2]
+    print(f"\npackage delivery, shared controller, seed {args.seed}; values re-evaluated on {args.reeval} fresh rollouts")
+    print(f"| run | rollouts | CPU s | wall s | CPU / paper G-DICE | value +- s.e. |\n|---|---|---|---|---|---|")
+    for name, rollouts, cpu, wall, mean, se in rows:
+        print(f"| {name} | {rollouts:,} | {cpu:.1f} | {wall:.1f} | {cpu / ref:.2f} | {float(mean):.3f} +- {float(se):.3f} |")
+    tab = tiger_iteration_cpu(args.seed)
+    print(f"one G-DICE iteration (CPU s): package delivery {ref / paper.iterations:.3f} vs Dec-Tiger horizon 50 "
+          f"(8000 rollouts, 50 events) {tab:.3f}; ratio {ref / paper.iterations / tab:.2f}")
 
 
 if __name__ == "__main__":

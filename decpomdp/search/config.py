@@ -34,6 +34,7 @@ class PlannerConfig:
         ce_alpha: learning rate of the update, in (0, 1].
         ce_init_weight: weight of the incumbent in a warm phase's initial distributions, in [0, 1).
         ls_chain: longest chain insertion (0: single edits only).
+        ls_team: also make every move with all agents at once (team moves; no effect with one agent).
         ls_candidates: most moves raced per local-search step (chains are sampled beyond it).
         ls_stages: racing stages ``(rollouts, keep)`` of a step; ``keep`` < 1 is a fraction, else a count.
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
@@ -59,6 +60,7 @@ class PlannerConfig:
     ce_alpha: float = 0.2
     ce_init_weight: float = 0.7
     ls_chain: int = 3
+    ls_team: bool = True
     ls_candidates: int = 30_000
     ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 4)))
     ls_patience: int = 3
@@ -91,6 +93,8 @@ class PlannerConfig:
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
         object.__setattr__(self, "ls_stages", _stages(self.ls_stages))
+        if not isinstance(self.ls_team, bool):
+            raise TypeError(f"ls_team: expected a bool, got {self.ls_team!r}")
 
     @property
     def paper_budget(self) -> int:

@@ -42,6 +42,7 @@ class Neighbourhood:
         num_actions: |MA|.
         max_chain: longest chain insertion (0 disables chains).
         edge_rate: least traversals per rollout for an edge to be edited.
+        team: include team moves (every agent at once; only with several agents).
 
     Attributes:
         singles: long (S, 5) rows ``(kind, owner, node, obs, value)``: kind 0 sets node's MA to value,
@@ -51,13 +52,13 @@ class Neighbourhood:
     """
 
     def __init__(self, controller: JointController, visits: Tensor, num_actions: int, max_chain: int,
-                 edge_rate: float) -> None:
+                 edge_rate: float, team: bool = True) -> None:
         self.controller, self.m, self.max_chain = controller[0], num_actions, max_chain
         agents = controller.num_agents
         visited = visits.sum(-1) > 0
         visited[:, 0] = True
         edges = (visits >= edge_rate) & visited[..., None]
-        owners = list(range(agents)) + ([_TEAM] if agents > 1 else [])
+        owners = list(range(agents)) + ([_TEAM] if agents > 1 and team else [])
         # per owner: visited nodes, edited edges, free nodes of each agent it moves
         self.visited = {o: visited[o] if o != _TEAM else visited.any(0) for o in owners}
         self.edited = {o: edges[o] if o != _TEAM else edges.any(0) for o in owners}

@@ -78,6 +78,12 @@ def test_neighbourhood_is_every_move_once():
     assert len(got) == len(set(got)) == hood.size  # every move once
     assert set(got) == expected
     assert hood.free_nodes == 2
+    solo = Neighbourhood(JointController(act, nxt), visits, mas, 2, 0.01, team=False)  # no team moves
+    built_solo = solo.build(torch.arange(solo.size))
+    solo_keys = {key(built_solo.action[i], built_solo.next_node[i]) for i in range(solo.size)}
+    assert solo_keys < set(got) and all(
+        int(((torch.tensor(k[0]).view(2, 5) != a0) | (torch.tensor(k[1]).view(2, 5, 3) != n0).any(-1)).any(1).sum()) == 1
+        for k in solo_keys)  # every move without teams changes exactly one agent's graph
     # a chain index taken on its own builds the same controller as in the full enumeration
     some = torch.tensor([hood.size - 1, hood.num_singles, 3])
     part = hood.build(some)
@@ -285,6 +291,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ({"duel_z": -1}, ValueError, "duel_z"),
     ({"edge_rate": math.nan}, ValueError, "edge_rate"),
     ({"ls_chain": -1}, ValueError, "ls_chain"),
+    ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
 ])
 def test_config_errors(kwargs, error, match):
     with pytest.raises(error, match=match):
