@@ -1,12 +1,15 @@
-"""G-DICE on health-aware disaster relief against the greedy policy, Monte Carlo search and random controllers.
+"""Planning on health-aware disaster relief: the cold-start planner, G-DICE cold and seeded, baselines.
 
-The team shares one controller (``study.shared_controller``). Two G-DICE runs are reported: the
-cold start (``planner``) and "G-DICE seeded with the hand-written policy" (``planner`` overridden by
-``study.seeded``, warm-started from robot 0's greedy controller). Every reported policy is
-re-evaluated on ``study.reeval_rollouts`` independent rollouts, with per-rollout counts of
-objects delivered right, wrong deliveries, inferences, inference frames and repairs. Writes
-``metrics.json``, ``value_vs_iteration.png`` (cold), ``value_vs_iteration_seeded.png``,
-``comparison.png``, ``counters.png``, ``best_controller.safetensors`` (seeded) and
+Side by side: the cold-start planner (``cold_planner``, :mod:`decpomdp.search`, one controller per
+robot or shared: ``study.cold_shared_controller``), the paper's G-DICE from uniform distributions
+(``planner``), "G-DICE seeded with the hand-written policy" (``planner`` overridden by
+``study.seeded``, warm-started from the greedy controller), the greedy controller, Monte Carlo search
+and random controllers (G-DICE's team: ``study.shared_controller``). Every reported policy is
+re-evaluated on ``study.reeval_rollouts`` independent rollouts, with per-rollout counts of objects
+delivered right, wrong deliveries, inferences, inference frames and repairs. Writes ``metrics.json``,
+``report.md`` (the table), ``comparison.png``, ``counters.png``, ``planner_progress.png``,
+``value_vs_iteration.png`` (cold G-DICE), ``value_vs_iteration_seeded.png`` and the controllers
+``best_controller_planner.safetensors``, ``best_controller.safetensors`` (seeded) and
 ``best_controller_cold.safetensors``.
 """
 
@@ -23,9 +26,11 @@ from omegaconf import DictConfig
 
 from decpomdp import GDICEConfig
 from decpomdp.domains.disaster_relief import greedy_controller
+from decpomdp.search import PlannerConfig
 from experiments.common import beats, save_figure
-from experiments.steps.planning import run_baselines, run_gdice, run_seeded, score
-from experiments.steps.planning_figures import bar_figure, history_figure
+from experiments.report import write_report
+from experiments.steps.planning import run_baselines, run_cold, run_gdice, run_seeded, score
+from experiments.steps.planning_figures import bar_figure, comparison_table, history_figure, planner_figure
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 
@@ -36,6 +41,12 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     env = instantiate(cfg.domain)
     config: GDICEConfig = instantiate(cfg.planner)
     reeval = int(study.reeval_rollouts)
+
+    cold_cfg: PlannerConfig = instantiate(cfg.cold_planner)
+    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller), seed + 600,
+                                                    bool(cfg.progress), reeval)
+    planner_best.save(run_dir / "best_controller_planner.safetensors")
+    save_figure(planner_figure(planner.history, "Cold-start planner on disaster relief"), run_dir / "planner_progress.png")
 
     result, best, seconds = run_gdice(env, config, study, seed, bool(cfg.progress))
     best.save(run_dir / "best_controller_cold.safetensors")
@@ -48,12 +59,18 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                 run_dir / "value_vs_iteration_seeded.png")
     baselines = run_baselines(env, config, study, seed + 300)
     greedy = score(env, greedy_policy, reeval, seed + 400)
-    entries = {"G-DICE seeded": seeded_score, "G-DICE": gdice_score, "greedy": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
-               "random": baselines["random"]}
+    entries = {"cold-start planner": planner_score, "G-DICE": gdice_score, "G-DICE seeded": seeded_score, "greedy": greedy,
+               "Monte Carlo search": baselines["monte_carlo_search"], "random": baselines["random"]}
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")
+    write_report(run_dir / "report.md", "\n".join([
+        "# Disaster relief: planners side by side", "", f"Perception: {env.perception!r}. Every controller "
+        f"re-evaluated on {reeval} rollouts that its search never saw.", "", *comparison_table(entries)]) + "\n")
     save_figure(_counters_figure({k: v for k, v in entries.items() if k != "random"}), run_dir / "counters.png")
 
     return {
+        "planner_cold_start": planner_score,
+        "planner_cold_start_history": planner.history,
+        "planner_cold_start_config": dataclasses.asdict(cold_cfg),
         "domain": repr(env),
         "planner": dataclasses.asdict(config),
         "shared_controller": bool(study.shared_controller),
@@ -64,7 +81,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "gdice_seeded": seeded_score,
         "gdice_seeded_history": seeded.history,
         "baselines": {**baselines, "greedy": greedy},
-        "acceptance": {"gdice_beats_greedy": beats(gdice_score, greedy),
+        "acceptance": {"planner_beats_greedy": beats(planner_score, greedy),
+                       "planner_at_least_greedy": planner_score["value"] >= greedy["value"],
+                       "gdice_beats_greedy": beats(gdice_score, greedy),
                        "gdice_beats_monte_carlo_search": beats(gdice_score, baselines["monte_carlo_search"]),
                        "seeded_gdice_beats_greedy": beats(seeded_score, greedy),
                        "seeded_gdice_beats_monte_carlo_search": beats(seeded_score, baselines["monte_carlo_search"])},

@@ -37,7 +37,7 @@ from decpomdp.search.scoring import Scorer
 
 _KIND = "decpomdp.PlannerCheckpoint"
 _VERSION = 1
-HISTORY = ("phase", "rollouts", "nodes", "incumbent_value", "challenger_value", "accepted")
+HISTORY = ("phase", "rollouts", "nodes", "value", "challenger_value", "accepted")
 _COUNTERS = ("cycle_position", "phase_step", "used", "idle_cycles", "gained")
 
 
@@ -51,8 +51,10 @@ class PlannerResult:
             that kept it is a selection: re-evaluate independently for an unbiased value).
         rollouts: rollouts spent.
         history: per step: ``phase`` (0 cross-entropy iteration, 1 local-search step), ``rollouts`` spent
-            so far, ``nodes`` of the incumbent, ``incumbent_value`` and ``challenger_value`` (duel or
-            iteration scores; NaN where the step had none), ``accepted`` (1 if the incumbent changed).
+            so far, ``nodes`` of the incumbent, ``value`` (the incumbent's duel mean after the step; NaN
+            for a cross-entropy iteration that ends no phase), ``challenger_value`` (the best challenger's
+            duel mean, or the best elite's score in a cross-entropy iteration) and ``accepted`` (1 if the
+            incumbent changed).
     """
 
     best: JointController
@@ -73,11 +75,10 @@ class _Run:
         self.cycle_position = self.phase_step = self.used = self.idle_cycles = self.gained = 0
         self.history: dict[str, list[float]] = {k: [] for k in HISTORY}
 
-    def record(self, phase: str, incumbent_value: float, challenger_value: float, accepted: bool) -> None:
+    def record(self, phase: str, value: float, challenger_value: float, accepted: bool) -> None:
         for key, value in (("phase", PHASES.index(phase)), ("rollouts", self.used),
                            ("nodes", 0 if self.incumbent is None else self.incumbent.num_nodes),
-                           ("incumbent_value", incumbent_value), ("challenger_value", challenger_value),
-                           ("accepted", accepted)):
+                           ("value", value), ("challenger_value", challenger_value), ("accepted", accepted)):
             self.history[key].append(float(value))
 
     def tensors(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
@@ -130,7 +131,7 @@ def _nan_if_none(value: float) -> float:
 def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
     """One cross-entropy iteration; at the phase's end its elites duel the incumbent.
 
-    Returns: (phase over, incumbent value, best elite score, incumbent replaced).
+    Returns: (phase over, the incumbent's value after the phase or NaN, best elite score, incumbent replaced).
     """
     if run.ce is None:
         nodes = cfg.start_nodes if run.incumbent is None else run.incumbent.num_nodes
@@ -164,7 +165,8 @@ def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
 def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
     """One local-search step.
 
-    Returns: (phase over: ``ls_patience`` failures in a row, incumbent and challenger duel means, accepted).
+    Returns: (phase over: ``ls_patience`` failures in a row, the incumbent's duel mean after the step, the best
+    challenger's, accepted).
     """
     if run.incumbent is None:  # no cross-entropy phase: node 0 runs MA 0 forever
         run.incumbent = JointController(torch.zeros(1, scorer.num_agents, cfg.start_nodes, dtype=torch.long),
@@ -176,7 +178,7 @@ def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1
-    return run.phase_step >= cfg.ls_patience, out.incumbent_value, out.challenger_value, out.accepted
+    return run.phase_step >= cfg.ls_patience, run.value, out.challenger_value, out.accepted
 
 
 def plan(
@@ -217,10 +219,10 @@ def plan(
     while run.used < cfg.budget and run.idle_cycles < cfg.patience:
         before = scorer.rollouts_used
         phase = cfg.phases[run.cycle_position]
-        over, incumbent_value, challenger_value, accepted = steps[phase](run, scorer, cfg, generator)
+        over, value, challenger_value, accepted = steps[phase](run, scorer, cfg, generator)
         spent = scorer.rollouts_used - before
         run.used += spent
-        run.record(phase, incumbent_value, challenger_value, accepted)
+        run.record(phase, value, challenger_value, accepted)
         run.gained = int(run.gained or accepted)
         if over:
             run.phase_step = 0

@@ -87,12 +87,14 @@ class PlanningStudy:
 class BaselineStudy(PlanningStudy):
     """A planning ``study`` that also runs baselines and a G-DICE run seeded with the greedy controller.
 
-    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run.
+    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run;
+    ``cold_shared_controller`` whether the cold-start planner searches one controller for the team.
     """
 
     random_controllers: int = 1000
     seeded: dict[str, Any] = field(default_factory=dict)
     select_rollouts: int = 1000
+    cold_shared_controller: bool = False
 
     def check(self, path: str) -> None:
         super().check(path)

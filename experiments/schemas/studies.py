@@ -12,6 +12,7 @@ from experiments.schemas.targets import target_schema
 
 ClassifierBlock = target_schema("classifiers.FrameClassifier")
 PlannerBlock = target_schema("decpomdp.GDICEConfig")
+ColdPlannerBlock = target_schema("decpomdp.search.PlannerConfig")
 DisasterReliefBlock = target_schema("decpomdp.domains.DisasterRelief", runtime=("perception",))
 PackageDeliveryBlock = target_schema("decpomdp.domains.PackageDelivery")
 
@@ -149,9 +150,10 @@ class PackageStudy(BaselineStudy):
 
 @dataclass
 class PlanningExperiment(Root):
-    """A planning experiment with baselines and a run seeded from the greedy controller."""
+    """A planning experiment: the cold-start planner, G-DICE cold and seeded from the greedy controller, baselines."""
 
     planner: Any = field(default_factory=PlannerBlock)
+    cold_planner: Any = field(default_factory=ColdPlannerBlock)
     study: BaselineStudy = field(default_factory=BaselineStudy)
 
     def check(self, path: str) -> None:
@@ -159,9 +161,24 @@ class PlanningExperiment(Root):
 
 
 @dataclass
+class PaperComparison:
+    """``reference``: the paper's G-DICE on the reference-rules preset of package delivery (and on this domain)."""
+
+    domain: Any = field(default_factory=PackageDeliveryBlock)
+    planner: Any = field(default_factory=PlannerBlock)
+    rollouts: int = 80
+    runs: int = 3
+
+    def check(self, path: str) -> None:
+        positive_int("rollouts", self.rollouts, 2)
+        positive_int("runs", self.runs)
+
+
+@dataclass
 class PackageDeliveryExperiment(PlanningExperiment):
     domain: Any = field(default_factory=PackageDeliveryBlock)
     study: PackageStudy = field(default_factory=PackageStudy)
+    reference: PaperComparison = field(default_factory=PaperComparison)
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Planning steps: G-DICE runs, baselines and scores of controllers on independent rollouts.
+"""Planning steps: G-DICE runs, the cold-start planner, baselines and scores on independent rollouts.
 
 Shared by the package-delivery, disaster-relief and mission experiments. A team either shares
 one controller (every robot runs agent 0's FSC; searched as a one-agent controller) or gives each
@@ -16,6 +16,7 @@ import torch
 from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, random_controllers
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains import SharedControllerEvaluator, rollout_counters, shared
+from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, plan
 
 
 def search_setup(env: DecPOSMDP, rollouts: int, shared_controller: bool):
@@ -48,6 +49,48 @@ def run_gdice(
     tic = time.perf_counter()
     result = gdice(evaluator, agents, env.num_actions, env.num_obs, config, seed=seed, init=init, progress=progress)
     return result, to_joint(result.best), time.perf_counter() - tic
+
+
+def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, seed: int, progress: bool,
+             reeval_rollouts: int) -> tuple[PlannerResult, JointController, dict[str, Any]]:
+    """The cold-start planner from scratch: (result, best joint controller, score entry).
+
+    The entry holds the value re-evaluated on ``reeval_rollouts`` fresh rollouts (seed ``seed + 10``),
+    the rollouts spent, and process CPU and wall seconds of the search.
+    """
+    scorer = RolloutScorer(env, shared=shared_controller)
+    cpu, wall = time.process_time(), time.perf_counter()
+    result = plan(scorer, config, seed=seed, progress=progress)
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    best = scorer.team(result.best)
+    entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,
+             **score(env, best, reeval_rollouts, seed + 10)}
+    return result, best, entry
+
+
+def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: GDICEConfig, rollouts: int, runs: int, seed: int,
+                     reeval_rollouts: int, progress: bool) -> dict[str, Any]:
+    """The paper's G-DICE (``config``), one controller shared by both robots, on ``env`` and on ``preset``.
+
+    Runs ``runs`` seeds on each domain. The paper reports the best *sampled* value (a maximum over
+    noisy ``rollouts``-rollout scores), so both that and the value re-evaluated on ``reeval_rollouts``
+    fresh rollouts are kept, per run and averaged (mean and its standard error over the runs).
+    """
+    out: dict[str, Any] = {}
+    for name, domain in (("this_domain", env), ("preset", preset)):
+        sampled, values, stderrs = [], [], []
+        for r in range(runs):
+            res = gdice(SharedControllerEvaluator(domain, rollouts), 1, domain.num_actions, domain.num_obs, config,
+                        seed=seed + r, progress=progress)
+            entry = score(domain, shared(res.best, domain.num_agents), reeval_rollouts, seed + 100 + r)
+            sampled.append(res.best_value)
+            values.append(entry["value"])
+            stderrs.append(entry["stderr"])
+        spread = lambda xs: float(torch.tensor(xs).std() / len(xs) ** 0.5) if len(xs) > 1 else float("nan")  # noqa: E731
+        out[name] = {"domain": repr(domain), "best_sampled": sampled, "values": values, "stderrs": stderrs,
+                     "best_sampled_mean": sum(sampled) / runs, "best_sampled_stderr": spread(sampled),
+                     "value": sum(values) / runs, "stderr": spread(values)}
+    return out
 
 
 def seed_controller(policy: JointController, shared_controller: bool) -> JointController:

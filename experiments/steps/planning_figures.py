@@ -1,4 +1,4 @@
-"""Figures of the planning experiments: values of policies, G-DICE learning curves."""
+"""Figures and tables of the planning experiments: values of policies, G-DICE and planner learning curves."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ def bar_figure(entries: dict[str, dict[str, float]], title: str, reference: dict
     """Bar chart of value +- stderr per policy (optionally with dashed reference lines)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     names = list(entries)
+    colors = ["tab:red", "tab:blue", "tab:orange", "tab:green", "tab:gray", "tab:purple", "tab:brown"]
     ax.bar(names, [entries[n]["value"] for n in names], yerr=[entries[n]["stderr"] for n in names], capsize=4,
-           color=["tab:blue", "tab:orange", "tab:green", "tab:gray", "tab:purple"][: len(names)])
+           color=[colors[i % len(colors)] for i in range(len(names))])
     for label, value in (reference or {}).items():
         ax.axhline(value, ls="--", lw=1, color="k", alpha=0.5)
         ax.text(-0.45, value, label, va="bottom", ha="left", fontsize=8)
@@ -34,3 +35,31 @@ def history_figure(history: dict[str, list[float]], title: str) -> plt.Figure:
     ax.set_title(title)
     ax.legend()
     return fig
+
+
+def planner_figure(history: dict[str, list[float]], title: str) -> plt.Figure:
+    """The cold-start planner's incumbent value (its duel mean on fresh rollouts) against rollouts spent."""
+    fig, ax = plt.subplots(figsize=(6.5, 3.8))
+    points = [(r / 1e6, v, p) for r, v, p in zip(history["rollouts"], history["value"], history["phase"]) if v == v]
+    if points:
+        x, v, phase = zip(*points)
+        ax.step(x, v, where="post", color="k", lw=1, label="incumbent")
+        for which, label, color in ((0, "after a cross-entropy phase", "tab:orange"), (1, "after a local-search step", "tab:blue")):
+            sel = [(a, b) for a, b, p in points if p == which]
+            if sel:
+                ax.plot(*zip(*sel), ".", color=color, label=label)
+    ax.set_xlabel("rollouts spent (millions)")
+    ax.set_ylabel("value on fresh rollouts")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def comparison_table(entries: dict[str, dict[str, float]]) -> list[str]:
+    """Markdown rows: each policy's re-evaluated value +- s.e., and its search cost where it has one."""
+    rows = ["| policy | value ± s.e. | search rollouts | search CPU s |", "|---|---|---|---|"]
+    for name, e in entries.items():
+        rollouts = f"{e['rollouts']:,}" if "rollouts" in e else "–"
+        cpu = f"{e['cpu_seconds']:.0f}" if "cpu_seconds" in e else "–"
+        rows.append(f"| {name} | {e['value']:.3f} ± {e['stderr']:.3f} | {rollouts} | {cpu} |")
+    return rows

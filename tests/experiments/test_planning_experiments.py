@@ -11,7 +11,13 @@ from decpomdp import JointController
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["planner.iterations=2", "planner.samples=6", "planner.elites=2", "planner.num_nodes=4", "study.rollouts=3",
-        "study.reeval_rollouts=5", "study.random_controllers=4", "study.select_rollouts=4", "progress=false"]
+        "study.reeval_rollouts=5", "study.random_controllers=4", "study.select_rollouts=4", "progress=false",
+        "cold_planner.budget=3000", "cold_planner.patience=1", "cold_planner.num_nodes=6", "cold_planner.ce_iterations=2",
+        "cold_planner.ce_samples=10", "cold_planner.ce_elites=2", "cold_planner.ce_memory=1", "cold_planner.ce_rollouts=4",
+        "cold_planner.ce_screen_rollouts=2", "cold_planner.ls_candidates=40", "cold_planner.ls_stages=[[2,0.5],[4,2]]",
+        "cold_planner.duel_rollouts=20", "cold_planner.visit_rollouts=10"]
+REFERENCE = ["reference.planner.iterations=2", "reference.planner.samples=6", "reference.planner.elites=2",
+             "reference.rollouts=3", "reference.runs=2"]
 
 
 def run(name: str, tmp_path: Path, *overrides: str) -> dict:
@@ -22,16 +28,27 @@ def run(name: str, tmp_path: Path, *overrides: str) -> dict:
 
 def test_package_delivery(tmp_path):
     metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]",
-                  "study.seeded.iterations=2")
-    for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png"):
+                  "study.seeded.iterations=2", *REFERENCE)
+    for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png",
+                "planner_progress.png"):
         assert (tmp_path / png).stat().st_size > 0
+    check_planner(metrics, tmp_path, agents=1)
+    paper = metrics["paper_comparison"]
+    assert paper["paper_best_sampled"] == 14.44 and "successor_rule=True" in paper["preset"]["domain"]
+    assert "successor_rule=False" in paper["this_domain"]["domain"]
+    for entry in (paper["preset"], paper["this_domain"]):
+        assert len(entry["best_sampled"]) == len(entry["values"]) == 2
+        assert entry["value"] == pytest.approx(sum(entry["values"]) / 2)
+    report = (tmp_path / "report.md").read_text()
+    assert "cold-start planner" in report and "reference-rules preset" in report and "14.44" in report
     assert len(metrics["gdice_history"]["best"]) == 2
     check_seeded(metrics, tmp_path, num_nodes=14)
     assert set(metrics["alpha_sweep"]) == {"0.1", "0.3"}
     assert metrics["baselines"]["monte_carlo_search"]["budget"] == 12
     assert metrics["baselines"]["greedy"]["value"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 2
-    assert set(metrics["acceptance"]) == {"gdice_at_least_14.4", "mcs_at_most_third_of_gdice",
+    assert set(metrics["acceptance"]) == {"planner_at_least_greedy", "planner_at_least_14.4",
+                                          "gdice_at_least_14.4", "mcs_at_most_third_of_gdice",
                                           "seeded_gdice_at_least_14.4", "mcs_at_most_third_of_seeded_gdice"}
 
 
@@ -40,16 +57,19 @@ def test_disaster_relief(tmp_path):
     for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "comparison.png", "counters.png"):
         assert (tmp_path / png).stat().st_size > 0
     check_seeded(metrics, tmp_path, num_nodes=8)
+    check_planner(metrics, tmp_path, agents=3)
     greedy = metrics["baselines"]["greedy"]
     assert greedy["delivered_per_rollout"] > 0 and greedy["inference_frames_per_rollout"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 3
-    assert set(metrics["acceptance"]) == {"gdice_beats_greedy", "gdice_beats_monte_carlo_search",
+    assert set(metrics["acceptance"]) == {"planner_beats_greedy", "planner_at_least_greedy",
+                                          "gdice_beats_greedy", "gdice_beats_monte_carlo_search",
                                           "seeded_gdice_beats_greedy", "seeded_gdice_beats_monte_carlo_search"}
 
 
 @pytest.mark.parametrize("name", ["package_delivery", "disaster_relief"])
 def test_same_seed_same_numbers(tmp_path, name):
-    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.iterations=2"] if name == "package_delivery" else []
+    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.iterations=2", *REFERENCE] \
+        if name == "package_delivery" else []
     a = run(name, tmp_path / "a", "seed=3", *extra)
     b = run(name, tmp_path / "b", "seed=3", *extra)
     assert without_timings(a) == without_timings(b)
@@ -65,7 +85,17 @@ def check_seeded(metrics: dict, run_dir: Path, num_nodes: int) -> None:
     assert JointController.load(run_dir / "best_controller_cold.safetensors").num_nodes == 4
 
 
+def check_planner(metrics: dict, run_dir: Path, agents: int) -> None:
+    """The cold-start planner's run: its budget, history, score and saved controller (the team's)."""
+    entry = metrics["planner_cold_start"]
+    assert entry["rollouts"] > 0 and entry["cpu_seconds"] >= 0 and entry["stderr"] >= 0
+    assert metrics["planner_cold_start_config"]["budget"] == 3000
+    assert metrics["planner_cold_start_history"]["rollouts"][-1] == entry["rollouts"]
+    saved = JointController.load(run_dir / "best_controller_planner.safetensors")
+    assert saved.num_agents == (2 if agents == 1 else agents) and saved.num_nodes == entry["nodes"] <= 6
+
+
 def without_timings(obj):
     if isinstance(obj, dict):
-        return {k: without_timings(v) for k, v in obj.items() if k != "seconds"}
+        return {k: without_timings(v) for k, v in obj.items() if k not in ("seconds", "cpu_seconds")}
     return [without_timings(v) for v in obj] if isinstance(obj, list) else obj

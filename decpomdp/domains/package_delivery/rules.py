@@ -56,7 +56,7 @@ Choices where the paper and reference are silent or differ (documented constants
   put-down that fails by this rule alone (its own preconditions hold) still delivers and pays when it
   ends, as in the reference, which pays any put-down whose robot holds a package of the right size at
   its destination when the MA ends, failed or not (repository 7thStringofZhef/G-DICE, file
-  "Original G-DICE/@Domain/Domain.m", lines 286-302 and 424-425).
+  "Original G-DICE/@Domain/Domain.m", lines 269, 286-300 and 415-416).
 
 State (batch first): ``loc`` (B, 2) node of each robot (updated when a go-to MA completes);
 ``load`` (B, 2) carried package (0: none, else ``1 + package code``); ``base`` (B, 2) package code

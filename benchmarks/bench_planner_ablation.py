@@ -1,0 +1,108 @@
+"""What each part of the cold-start planner contributes: the planner with one part removed at a time.
+
+Every variant runs from scratch on the same rollout budget and seed, and its best controller is
+re-evaluated on ``--reeval`` rollouts the search never saw. Variants (``conf/planner/cold.yaml`` with
+one change):
+
+* ``full``: the planner as configured;
+* ``no local search``: cross-entropy phases only (``phases: [ce]``);
+* ``no cross-entropy``: local search only, from node 0 running MA 0 (``phases: [ls]``);
+* ``no chains``: local search with single edits only (``ls_chain: 0``);
+* ``no team moves``: every move by one robot (``ls_team: false``; no effect with a shared controller);
+* ``no racing``: local search scores every move on 128 rollouts (as many moves as the racing budget
+  pays for), cross-entropy scores every sample on 80 (90 samples, the racing budget);
+* ``no elite memory``: ``ce_memory: 0``;
+* ``13 nodes``: the paper's node count instead of growing to 24;
+* ``G-DICE``: the paper's algorithm (13 nodes, 100 samples, 10 elites, alpha 0.1, 80 rollouts per
+  sample) run for as many iterations as the budget pays for.
+
+Prints a markdown table (value +- s.e., rollouts, CPU seconds) and writes it as JSON to ``--out``.
+
+    python benchmarks/bench_planner_ablation.py --domain package_delivery [--budget 20000000] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from decpomdp import GDICEConfig, gdice
+from decpomdp.domains import DisasterRelief, PackageDelivery, SharedControllerEvaluator, rollout_counters, shared
+from decpomdp.evaluate import MonteCarloEvaluator
+from decpomdp.search import PlannerConfig, RolloutScorer, plan
+from infra.files import atomic_write_text
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_gdice import default_planner  # noqa: E402
+
+VARIANTS = {
+    "full": {},
+    "no local search": {"phases": ("ce",)},
+    "no cross-entropy": {"phases": ("ls",)},
+    "no chains": {"ls_chain": 0},
+    "no team moves": {"ls_team": False},
+    "no racing": {"ls_stages": ((128, 4),), "ls_candidates": 6450, "ce_screen_rollouts": 0, "ce_samples": 90},
+    "no elite memory": {"ce_memory": 0},
+    "13 nodes": {"num_nodes": 13},
+}
+DOMAINS = {"package_delivery": (PackageDelivery, True), "disaster_relief": (DisasterRelief, False)}
+
+
+def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, seed: int, reeval: int) -> dict:
+    cpu = time.process_time()
+    if name == "G-DICE":
+        paper = GDICEConfig(num_nodes=13, iterations=max(1, cfg.budget // (100 * 80)), samples=100, elites=10, alpha=0.1)
+        evaluator = SharedControllerEvaluator(env, 80) if shared_controller else MonteCarloEvaluator(env, 80)
+        agents = 1 if shared_controller else env.num_agents
+        best, rollouts = gdice(evaluator, agents, env.num_actions, env.num_obs, paper, seed=seed).best, paper.iterations * 8000
+    else:
+        scorer = RolloutScorer(env, shared=shared_controller)
+        out = plan(scorer, cfg, seed=seed)
+        best, rollouts = out.best, out.rollouts
+    cpu = time.process_time() - cpu
+    team = shared(best, env.num_agents) if shared_controller else best
+    returns, _ = rollout_counters(env, team, reeval, torch.Generator().manual_seed(seed + 12345))
+    return {"variant": name, "value": float(returns.mean()), "stderr": float(returns.std() / reeval**0.5),
+            "rollouts": rollouts, "cpu_seconds": cpu, "nodes": best.num_nodes}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--domain", choices=sorted(DOMAINS), default="package_delivery")
+    parser.add_argument("--budget", type=int, default=None, help="rollouts per run (default: the planner's)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--reeval", type=int, default=4000)
+    parser.add_argument("--variants", nargs="*", default=[*VARIANTS, "G-DICE"])
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    make, shared_controller = DOMAINS[args.domain]
+    env = make()
+    base = default_planner()
+    if args.budget is not None:
+        base = dataclasses.replace(base, budget=args.budget)
+    rows = []
+    for name in args.variants:
+        cfg = dataclasses.replace(base, **VARIANTS.get(name, {}))
+        rows.append(run_variant(env, shared_controller, name, cfg, args.seed, args.reeval))
+        r = rows[-1]
+        print(f"{args.domain} | {name} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} s",
+              flush=True)
+    print(f"\n{args.domain}, budget {base.budget:,} rollouts, seed {args.seed}, values on {args.reeval} fresh rollouts")
+    print("| variant | value +- s.e. | rollouts | CPU s |\n|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['variant']} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} |")
+    if args.out is not None:
+        atomic_write_text(args.out, json.dumps({"domain": args.domain, "budget": base.budget, "seed": args.seed,
+                                                "rows": rows}, indent=2) + "\n")
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
