@@ -35,6 +35,7 @@ class PlannerConfig:
         ce_init_weight: weight of the incumbent in a warm phase's initial distributions, in [0, 1).
         ls_chain: longest chain insertion (0: single edits only).
         ls_team: also make every move with all agents at once (team moves; no effect with one agent).
+        ls_compose: also duel the racing survivors' changes merged into one move.
         ls_candidates: most moves raced per local-search step (chains are sampled beyond it).
         ls_stages: racing stages ``(rollouts, keep)`` of a step; ``keep`` < 1 is a fraction, else a count.
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
@@ -61,8 +62,9 @@ class PlannerConfig:
     ce_init_weight: float = 0.7
     ls_chain: int = 3
     ls_team: bool = True
+    ls_compose: bool = True
     ls_candidates: int = 30_000
-    ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 4)))
+    ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 6)))
     ls_patience: int = 3
     duel_rollouts: int = 4000
     duel_z: float = 2.0
@@ -93,8 +95,9 @@ class PlannerConfig:
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
         object.__setattr__(self, "ls_stages", _stages(self.ls_stages))
-        if not isinstance(self.ls_team, bool):
-            raise TypeError(f"ls_team: expected a bool, got {self.ls_team!r}")
+        for name in ("ls_team", "ls_compose"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
 
     @property
     def paper_budget(self) -> int:

@@ -174,7 +174,7 @@ def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
     out = local_search.step(run.incumbent, scorer, generator, max_chain=cfg.ls_chain, max_nodes=cfg.num_nodes,
                             grow_nodes=cfg.grow_nodes, candidates=cfg.ls_candidates, stages=cfg.ls_stages,
                             duel_rollouts=cfg.duel_rollouts, z=cfg.duel_z, edge_rate=cfg.edge_rate,
-                            visit_rollouts=cfg.visit_rollouts, team=cfg.ls_team)
+                            visit_rollouts=cfg.visit_rollouts, team=cfg.ls_team, compose=cfg.ls_compose)
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1

@@ -292,6 +292,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ({"edge_rate": math.nan}, ValueError, "edge_rate"),
     ({"ls_chain": -1}, ValueError, "ls_chain"),
     ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
+    ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
 ])
 def test_config_errors(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -345,3 +346,31 @@ def test_chain_sampling_follows_traffic():
     assert on_first == pytest.approx(0.9, abs=4 * (0.09 / 20_000) ** 0.5)  # binomial, 4 standard errors
     length_two = (built.next_node[:, 0, 1, 0] == 2).double().mean().item()  # first free node moves on to the second
     assert length_two == pytest.approx(0.5, abs=4 * (0.25 / 20_000) ** 0.5)
+
+
+class Matches:
+    """A synthetic exact scorer: a controller's value is how many of its entries equal ``target``'s."""
+
+    num_agents, num_actions, num_obs = 1, 3, 2
+
+    def __init__(self, target):
+        self.target, self.rollouts_used = target, 0
+
+    def __call__(self, ctrl, rollouts, generator):
+        hits = (ctrl.action == self.target.action).flatten(1).sum(1) + (ctrl.next_node == self.target.next_node).flatten(1).sum(1)
+        return hits.to(torch.float64), torch.zeros(ctrl.num_controllers, dtype=torch.float64)
+
+    def visits(self, ctrl, rollouts, generator):
+        return torch.ones(1, ctrl.num_nodes, 2, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("compose, gain", [(True, 6.0), (False, 1.0)])
+def test_composite_move_lands_independent_improvements_at_once(compose, gain):
+    target = JointController(torch.tensor([[[2, 1, 0]]]), torch.tensor([[[[1, 2], [0, 0], [2, 1]]]]))
+    start = JointController(torch.zeros(1, 1, 3, dtype=torch.long), torch.zeros(1, 1, 3, 2, dtype=torch.long))
+    scorer = Matches(target)
+    out = local_search.step(start, scorer, torch.Generator(), max_chain=0, max_nodes=3, grow_nodes=0, candidates=1000,
+                            stages=[(2, 8)], duel_rollouts=2, z=2.0, edge_rate=0.0, visit_rollouts=1, compose=compose)
+    # 6 single edits move an entry to the target (2 MAs, 4 edges), each gaining 1 on its own entry: merged, they
+    # land in one step; the 2 other survivors gain nothing
+    assert out.accepted and scorer(out.controller, 2, None)[0].item() == scorer(start, 2, None)[0].item() + gain
