@@ -19,9 +19,10 @@ then the policy executed with the actual filter on held-out frames.
    generative planning model); :func:`planning_models` gives each variant the one
    ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
 5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain, search a
-   controller with G-DICE (seeded with the hand-written greedy controller when
-   ``planner.init_weight > 0``), and re-evaluate it, and the greedy controller itself, on
-   independent rollouts: the planned value.
+   controller from scratch with the cold-start planner (``planning: cold``, settings ``cold_planner``;
+   no hand-written controller) or with G-DICE (``planning: gdice``, settings ``planner``, seeded with
+   the hand-written greedy controller when ``planner.init_weight > 0``), and re-evaluate it, and the
+   greedy controller itself, on independent rollouts: the planned value.
 6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
    answered by that variant's process on a fresh bank stream of the true class: the executed value,
    and its gap to the planned one in standard errors.
@@ -47,7 +48,7 @@ from tqdm.auto import tqdm
 import hbni_pyro
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions
-from decpomdp import GDICEConfig, JointController
+from decpomdp import JointController
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import mission_report
 from experiments.artifacts import save_artifact
@@ -58,7 +59,7 @@ from experiments.steps import closed_loop
 from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
-from experiments.steps.planning import run_gdice, score, seed_controller
+from experiments.steps.planning import run_cold, run_gdice, score, seed_controller
 from infra.threads import torch_threads
 
 
@@ -242,13 +243,15 @@ def _entry_variant(name: str) -> str:
 def plan(
     models: dict[str, hbni_pyro.MacroObservationModel], cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> tuple[dict[str, dict], dict[str, dict]]:
-    """Stage 5: a G-DICE controller per perception variant and for perfect perception (saved as
-    ``controller_<variant>``), each re-evaluated on independent rollouts beside the greedy controller.
+    """Stage 5: a controller per perception variant and for perfect perception (saved as
+    ``controller_<variant>``), found by the cold-start planner (``planning: cold``) or G-DICE
+    (``planning: gdice``), each re-evaluated on independent rollouts beside the greedy controller.
 
-    Returns the score entry and the G-DICE history of every variant.
+    Returns the score entry and the search history of every variant.
     """
-    _step(settings.progress, "5/6 planning with G-DICE on the disaster-relief domain")
-    planner: GDICEConfig = instantiate(cfg.planner)
+    cold = cfg.planning == "cold"
+    _step(settings.progress, f"5/6 planning with {'the cold-start planner' if cold else 'G-DICE'} on the disaster-relief domain")
+    planner = instantiate(cfg.cold_planner if cold else cfg.planner)
     study, seed, reeval = cfg.study, settings.seed, int(cfg.study.reeval_rollouts)
     results: dict[str, Any] = {}
     histories = {}
@@ -256,11 +259,16 @@ def plan(
         for k, name in enumerate(("perfect", *models)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
-            init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
-            result, best, seconds = run_gdice(env, planner, study, seed + 10 * k, settings.progress, init=init)
+            if cold:
+                result, best, entry = run_cold(env, planner, bool(study.cold_shared_controller), seed + 10 * k,
+                                               settings.progress, reeval)
+                entry["search_seconds"] = entry.pop("seconds")
+            else:
+                init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
+                result, best, seconds = run_gdice(env, planner, study, seed + 10 * k, settings.progress, init=init)
+                entry = score(env, best, reeval, seed + 10 * k + 5)
+                entry.update(best_sampled=result.best_value, search_seconds=seconds)
             save_artifact(run_dir, f"controller_{name}", best)
-            entry = score(env, best, reeval, seed + 10 * k + 5)
-            entry.update(best_sampled=result.best_value, search_seconds=seconds)
             hand = score(env, greedy, reeval, seed + 10 * k + 6)
             entry["greedy"] = {key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")}
             entry.update(_delivery_rates(entry))
@@ -333,7 +341,8 @@ def write_outputs(
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
-        "planner": dataclasses.asdict(instantiate(cfg.planner)),
+        "planning": cfg.planning,
+        "planner": dataclasses.asdict(instantiate(cfg.cold_planner if cfg.planning == "cold" else cfg.planner)),
         "wrong_penalty": float(cfg.domain.wrong_penalty),
         "frame_period": float(cfg.domain.frame_period),
         "sizes": {

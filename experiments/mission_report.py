@@ -132,7 +132,18 @@ def frames_figure(models: dict[str, hbni_pyro.MacroObservationModel]) -> plt.Fig
 
 
 def curves_figure(histories: dict[str, dict]) -> plt.Figure:
+    """Learning curves: the cold-start planner's incumbent value against rollouts, or G-DICE's per iteration."""
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
+    if all("value" in h for h in histories.values()):
+        for name, h in histories.items():
+            points = [(r / 1e6, v) for r, v in zip(h["rollouts"], h["value"]) if v == v]
+            if points:
+                ax.step(*zip(*points), where="post", label=LABELS[name])
+        ax.set_xlabel("rollouts spent (millions)")
+        ax.set_ylabel("incumbent value on fresh rollouts")
+        ax.set_title("Cold-start planner learning curves")
+        ax.legend(fontsize=8)
+        return fig
     for name, h in histories.items():
         its = np.arange(1, len(h["best"]) + 1)
         line, = ax.plot(its, h["best"], label=f"{LABELS[name]}: best so far")

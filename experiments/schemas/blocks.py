@@ -70,9 +70,14 @@ class HBNIBlock:
 
 @dataclass
 class PlanningStudy:
-    """``study`` of the planning experiments: how controllers are searched and scored."""
+    """``study`` of the planning experiments: how controllers are searched and scored.
+
+    ``shared_controller``: G-DICE searches one controller the whole team runs; ``cold_shared_controller``:
+    the same for the cold-start planner.
+    """
 
     shared_controller: bool = False
+    cold_shared_controller: bool = False
     rollouts: int = 80
     reeval_rollouts: int = 1000
     threads: int = 1
@@ -87,14 +92,12 @@ class PlanningStudy:
 class BaselineStudy(PlanningStudy):
     """A planning ``study`` that also runs baselines and a G-DICE run seeded with the greedy controller.
 
-    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run;
-    ``cold_shared_controller`` whether the cold-start planner searches one controller for the team.
+    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run.
     """
 
     random_controllers: int = 1000
     seeded: dict[str, Any] = field(default_factory=dict)
     select_rollouts: int = 1000
-    cold_shared_controller: bool = False
 
     def check(self, path: str) -> None:
         super().check(path)

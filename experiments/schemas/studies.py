@@ -333,13 +333,16 @@ MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
 @dataclass
 class Mission(Root):
     classifier: Any = field(default_factory=ClassifierBlock)
+    planning: str = "cold"  # "cold": the cold-start planner (cold_planner); "gdice": G-DICE (planner)
     planner: Any = field(default_factory=PlannerBlock)
+    cold_planner: Any = field(default_factory=ColdPlannerBlock)
     domain: Any = field(default_factory=DisasterReliefBlock)
     perception: Any = field(default_factory=lambda: list(MISSION_VARIANTS))
     mission: MissionBlock = field(default_factory=MissionBlock)
     study: PlanningStudy = field(default_factory=PlanningStudy)
 
     def check(self, path: str) -> None:
+        one_of("planning", self.planning, ("cold", "gdice"))
         chosen = [self.perception] if isinstance(self.perception, str) else list(self.perception)
         unknown = [v for v in chosen if v not in MISSION_VARIANTS]
         if unknown or not chosen:
