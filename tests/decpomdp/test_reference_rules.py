@@ -68,3 +68,18 @@ def test_successor_table_matches_the_reference():
     free = simulate(PackageDelivery(), pd.greedy_controller(), 500, g).mean().item()
     ruled = simulate(PackageDelivery(successor_rule=True), pd.greedy_controller(), 500, g).mean().item()
     assert ruled < free
+
+
+def test_reference_pickup_lets_one_robot_deliver_a_large_package(exact):
+    exact(3)  # every package large, bound for Dest1
+    # pick up (a large package: taken, 1 unit), go to Dest1 carrying it (3), joint put-down (not a successor
+    # of go-to-Dest1: fails, 1 unit, but pays 3 to the robot holding the large package at its destination),
+    # back to Base1 (3): 3 every 8 units for robot 0 alone
+    ctrl = cycle([pd.PICK, pd.GO_D1, pd.JPUT, pd.GO_B1], [pd.WAIT])
+    preset = dict(successor_rule=True, solo_joint=True, truck_reward=0.0)
+    assert run(ctrl, reference_pickup=True, **preset) == (pytest.approx(discounted(range(5, 51, 8), 3.0)), 6)
+    assert run(ctrl, **preset) == (0.0, 0)  # a solo pick-up of a large package fails without the rule
+    assert pd.preconditions_hold(pd.BASE1, 0, 3, pd.PICK, reference_pickup=True)
+    assert not pd.preconditions_hold(pd.BASE1, 0, 3, pd.PICK)
+    assert pd.preconditions_hold(pd.BASE1, 4, 0, pd.GO_D1, reference_pickup=True)  # moving with a large load
+    assert "reference_pickup=True" in repr(PackageDelivery(reference_pickup=True))

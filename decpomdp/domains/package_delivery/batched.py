@@ -28,8 +28,8 @@ _COUNT_BITS, _COUNT_MASK = 8, 255  # counters packed in one int32 per event (at 
 _NOISY, _OK, _JOINT_OK, _SOLO_PICK_OK = 1, 2, 4, 8  # bits (_NOISY first: ``flags & _NOISY`` is 0 or 1) of the start table's ``flags``
 
 
-def _start_tables() -> dict[str, Tensor]:
-    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma``.
+def _start_tables(reference_pickup: bool) -> dict[str, Tensor]:
+    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma`` (preconditions with or without ``reference_pickup``).
 
     ``flags`` (uint8) holds bits ``_OK`` (preconditions hold), ``_JOINT_OK`` (a joint MA whose
     preconditions hold), ``_SOLO_PICK_OK`` (a pick-up whose preconditions hold) and ``_NOISY`` (the
@@ -42,14 +42,14 @@ def _start_tables() -> dict[str, Tensor]:
         for load in range(_N_LOAD):
             for here in range(_N_PKG):
                 for ma in range(_N_MA):
-                    ok = preconditions_hold(loc, load, here, ma)
+                    ok = preconditions_hold(loc, load, here, ma, reference_pickup)
                     flags[i] = ok * (_OK + _JOINT_OK * (ma in JOINT_MAS) + _SOLO_PICK_OK * (ma == PICK) + _NOISY * (ma != WAIT))
                     mean[i] = float(MEAN_DURATION[ma, loc]) if ok else FAIL_DURATION
                     i += 1
     return {"flags": flags, "mean": mean}
 
 
-_START = _start_tables()
+_START = {rule: _start_tables(rule) for rule in (False, True)}  # by reference_pickup
 _SUCCESSOR = torch.zeros(_N_MA * _N_MA, dtype=torch.uint8)  # [previous MA * 13 + MA]: may follow (successor_rule)
 for _prev, _nexts in REFERENCE_SUCCESSORS.items():
     _SUCCESSOR[[_prev * _N_MA + n for n in _nexts]] = 1
@@ -89,6 +89,8 @@ class PackageDelivery(DecPOSMDP):
             reference's rule; off by default: large packages need both robots).
         successor_rule: the reference's allowed successors, and its failed put-downs that still pay
             (see :mod:`.rules`; off by default).
+        reference_pickup: the reference's loading rules: a pick-up takes a package of any size, moves
+            accept any load (see :mod:`.rules`; off by default).
     """
 
     num_agents = 2
@@ -107,6 +109,7 @@ class PackageDelivery(DecPOSMDP):
         large_reward_per_robot: bool = True,
         solo_joint: bool = False,
         successor_rule: bool = False,
+        reference_pickup: bool = False,
     ) -> None:
         self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
         self.horizon = as_float("horizon", horizon, 0.0, low_open=True)
@@ -114,13 +117,16 @@ class PackageDelivery(DecPOSMDP):
         self.rewards = Rewards(as_float("small_reward", small_reward), as_float("large_reward", large_reward),
                                as_float("truck_reward", truck_reward), bool(large_reward_per_robot))
         self.solo_joint, self.successor_rule = bool(solo_joint), bool(successor_rule)
+        self.reference_pickup = bool(reference_pickup)
+        self._start = _START[self.reference_pickup]
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
 
     def __repr__(self) -> str:
         return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
                 f"large_reward_per_robot={self.rewards.large_per_robot}, solo_joint={self.solo_joint}, "
-                f"truck_reward={self.rewards.truck}, successor_rule={self.successor_rule})")
+                f"truck_reward={self.rewards.truck}, successor_rule={self.successor_rule}, "
+                f"reference_pickup={self.reference_pickup})")
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
         """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
@@ -168,12 +174,12 @@ class PackageDelivery(DecPOSMDP):
         agents_u8 = as_u8(agents)
         here = self._here(state)
         situation = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA  # the table index without the MA
-        flags = lookup(_START["flags"], situation + actions) * agents_u8
+        flags = lookup(self._start["flags"], situation + actions) * agents_u8
         drafted = self._draft(state, agents_u8, actions, (flags >> 2) & 1)
         if drafted is not None:
             actions = drafted
-            flags = lookup(_START["flags"], situation + actions) * agents_u8
-        mean = lookup(_START["mean"], situation + actions)
+            flags = lookup(self._start["flags"], situation + actions) * agents_u8
+        mean = lookup(self._start["mean"], situation + actions)
         if self.successor_rule:
             flags, mean = self._successors(state, agents_u8, actions, flags, mean)
         noise = torch.randn(actions.shape, generator=generator).mul_(rules.DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
