@@ -82,4 +82,6 @@ def test_reference_pickup_lets_one_robot_deliver_a_large_package(exact):
     assert pd.preconditions_hold(pd.BASE1, 0, 3, pd.PICK, reference_pickup=True)
     assert not pd.preconditions_hold(pd.BASE1, 0, 3, pd.PICK)
     assert pd.preconditions_hold(pd.BASE1, 4, 0, pd.GO_D1, reference_pickup=True)  # moving with a large load
+    assert pd.preconditions_hold(pd.BASE1, 1, 3, pd.PICK, reference_pickup=True)  # a loaded robot picks up anew
+    assert not pd.preconditions_hold(pd.BASE1, 1, 0, pd.PICK)
     assert "reference_pickup=True" in repr(PackageDelivery(reference_pickup=True))

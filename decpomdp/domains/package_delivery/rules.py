@@ -58,11 +58,12 @@ Choices where the paper and reference are silent or differ (documented constants
   its destination when the MA ends, failed or not (repository 7thStringofZhef/G-DICE, file
   "Original G-DICE/@Domain/Domain.m", lines 269, 286-300 and 415-416);
 * ``reference_pickup=True`` (off by default) adds the reference's loading rules: a pick-up or joint
-  pick-up by an empty robot takes whatever package waits at its base, whatever its size, and go-to
-  MAs accept any load. The reference loads the base's package into the robot when it chooses a
-  pick-up, before it checks the size, and a size mismatch only fails the MA (the package stays loaded;
-  Domain.m lines 351-356 and 366-367); the base gets a new package when the robot next starts an MA
-  other than wait (line 369), here at once; and it has no load preconditions on moves.
+  pick-up takes whatever package waits at the robot's base, whatever its size, replacing anything the
+  robot carried, and go-to MAs accept any load. The reference loads the base's package into the robot
+  when it chooses a pick-up, overwriting its load, before it checks the size, and a size mismatch only
+  fails the MA (the package stays loaded; Domain.m lines 351-356 and 366-367); the base gets a new
+  package when the robot next starts an MA other than wait (line 369), here at once; and it has no
+  load preconditions on moves.
 
 State (batch first): ``loc`` (B, 2) node of each robot (updated when a go-to MA completes);
 ``load`` (B, 2) carried package (0: none, else ``1 + package code``); ``base`` (B, 2) package code
@@ -156,7 +157,8 @@ def preconditions_hold(loc: int, load: int, here: int, ma: int, reference_pickup
     """Whether a robot at ``loc`` with ``load``, seeing package ``here`` at its base, may start ``ma``.
 
     Only the robot's own state is checked; a joint MA also needs its partner (see the module doc).
-    With ``reference_pickup`` (see the module doc) go-to MAs accept any load and a (joint) pick-up any size.
+    With ``reference_pickup`` (see the module doc) go-to MAs accept any load, and a (joint) pick-up any
+    package by a robot carrying anything.
     """
     if ma == WAIT:
         return True
@@ -168,7 +170,7 @@ def preconditions_hold(loc: int, load: int, here: int, ma: int, reference_pickup
     if ma in (JGO_D1, JGO_D2, JPUT):
         return size == LARGE
     if ma in (PICK, JPICK):
-        return size == 0 and (reference_pickup or PACKAGES[here][0] == (SMALL if ma == PICK else LARGE))
+        return reference_pickup or (size == 0 and PACKAGES[here][0] == (SMALL if ma == PICK else LARGE))
     return size == SMALL  # put down, place on truck
 
 
