@@ -52,6 +52,11 @@ def save_figure(fig: plt.Figure, path: str | os.PathLike, dpi: int = 120) -> Pat
     return atomic_write_bytes(path, buf.getvalue())
 
 
+def ratio(numerator: float, denominator: float) -> float:
+    """``numerator / denominator``, NaN when the denominator is 0 (a reference that earned nothing)."""
+    return numerator / denominator if denominator else float("nan")
+
+
 def beats(entry: dict[str, float], other: dict[str, float]) -> bool:
     """Whether ``entry``'s value beats ``other``'s by a margin outside both standard errors.
 

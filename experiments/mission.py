@@ -52,7 +52,7 @@ from decpomdp import JointController
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import mission_report
 from experiments.artifacts import save_artifact
-from experiments.common import beats, save_figure
+from experiments.common import beats, ratio, save_figure
 from experiments.report import write_report
 from experiments.schemas.studies import MISSION_VARIANTS
 from experiments.steps import closed_loop
@@ -386,16 +386,12 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "hbni" not in results:
         return out
     h = results["hbni"]
-    out["hbni_over_perfect"] = _ratio(h["value"], results["perfect"]["value"])
+    out["hbni_over_perfect"] = ratio(h["value"], results["perfect"]["value"])
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]
             out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)
-            out[f"hbni_minus_{other}_in_stderr"] = _ratio(h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
+            out[f"hbni_minus_{other}_in_stderr"] = ratio(h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
     if "ssbf" in results:
         out["hbni_wrong_rate_below_ssbf"] = h["wrong_rate"] < results["ssbf"]["wrong_rate"]
     return out
-
-
-def _ratio(a: float, b: float) -> float:
-    return a / b if b else float("nan")

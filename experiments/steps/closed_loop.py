@@ -36,7 +36,7 @@ from omegaconf import DictConfig
 
 import hbni_pyro
 from decpomdp import JointController
-from experiments.common import beats
+from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps.planning import score
 
@@ -148,12 +148,13 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "hbni" not in results or "executed" not in results["hbni"]:
         return {}
     h = results["hbni"]["executed"]
-    out: dict[str, Any] = {"hbni_executed_over_perfect": h["value"] / results["perfect"]["executed"]["value"]}
+    out: dict[str, Any] = {"hbni_executed_over_perfect": ratio(h["value"], results["perfect"]["executed"]["value"])}
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]
             out[f"hbni_executed_beats_{other}_outside_stderr"] = beats(h, o)
-            out[f"hbni_minus_{other}_executed_in_stderr"] = (h["value"] - o["value"]) / (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+            out[f"hbni_minus_{other}_executed_in_stderr"] = ratio(h["value"] - o["value"],
+                                                                  (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
     return out
 
 
