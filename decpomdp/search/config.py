@@ -33,8 +33,12 @@ class PlannerConfig:
         ce_memory: elites carried to the next iteration and re-scored there (0: no memory).
         ce_alpha: learning rate of the update, in (0, 1].
         ce_init_weight: weight of the incumbent in a warm phase's initial distributions, in [0, 1).
+        ce_reactive: cross-entropy phases search reactive controllers (tied edges: the next node depends on
+            the last observation only, see :mod:`decpomdp.search.cross_entropy`) while the incumbent is
+            reactive (the cold phase always); after local search has untied it, phases search whole graphs.
         ls_chain: longest chain insertion (0: single edits only).
         ls_team: also make every move with all agents at once (team moves; no effect with one agent).
+        ls_copy: also move by copying one agent's whole graph onto another (no effect with one agent).
         ls_compose: also duel the racing survivors' changes merged into one move.
         ls_candidates: most moves raced per local-search step (chains are sampled beyond it).
         ls_stages: racing stages ``(rollouts, keep)`` of a step; ``keep`` < 1 is a fraction, else a count.
@@ -60,9 +64,11 @@ class PlannerConfig:
     ce_memory: int = 5
     ce_alpha: float = 0.2
     ce_init_weight: float = 0.7
+    ce_reactive: bool = False
     ls_chain: int = 3
     ls_team: bool = True
     ls_compose: bool = True
+    ls_copy: bool = True
     ls_candidates: int = 30_000
     ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 6)))
     ls_patience: int = 3
@@ -95,7 +101,7 @@ class PlannerConfig:
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
         object.__setattr__(self, "ls_stages", _stages(self.ls_stages))
-        for name in ("ls_team", "ls_compose"):
+        for name in ("ls_team", "ls_compose", "ls_copy", "ce_reactive"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
 

@@ -49,7 +49,8 @@ class StepOutcome:
 
 def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator, *, max_chain: int, max_nodes: int,
          grow_nodes: int, candidates: int, stages: Sequence[tuple[int, float]], duel_rollouts: int, z: float,
-         edge_rate: float, visit_rollouts: int, team: bool = True, compose: bool = True) -> StepOutcome:
+         edge_rate: float, visit_rollouts: int, team: bool = True, compose: bool = True,
+         copy: bool = False) -> StepOutcome:
     """One step (see the module doc)."""
     visits = scorer.visits(incumbent, visit_rollouts, generator)
     free = int((visits.sum(-1) == 0)[:, 1:].sum(1).min())
@@ -57,7 +58,7 @@ def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator,
         extra = min(grow_nodes, max_nodes - incumbent.num_nodes)
         incumbent = grow(incumbent, extra)
         visits = torch.cat([visits, visits.new_zeros(visits.shape[0], extra, visits.shape[2])], 1)
-    hood = Neighbourhood(incumbent, visits, scorer.num_actions, max_chain, edge_rate, team)
+    hood = Neighbourhood(incumbent, visits, scorer.num_actions, max_chain, edge_rate, team, copy)
     if hood.size == 0:
         return StepOutcome(incumbent, False, float("nan"), float("nan"), 0, 0)
     if hood.size <= candidates:

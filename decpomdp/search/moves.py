@@ -5,6 +5,8 @@ per rollout, :meth:`~decpomdp.search.scoring.Scorer.visits`), the moves are
 
 * **action edits**: a visited node ``x`` (or node 0) runs another MA;
 * **edge edits**: after observing ``o`` in node ``x``, the agent moves to another visited node;
+* **agent copies** (with several agents): agent ``b``'s whole graph becomes a copy of agent ``a``'s, so
+  a behaviour one robot has learnt reaches a robot stuck elsewhere in one move;
 * **chain insertions** of length ``l <= max_chain``: the edge ``(x, o)`` is redirected into ``l`` free
   (never visited) nodes ``u_1 .. u_l`` with MAs ``b_1 .. b_l``; ``u_j`` moves to ``u_{j+1}`` whatever
   it observes and ``u_l`` moves to an exit node, any visited node. A chain adds a whole behaviour
@@ -43,16 +45,18 @@ class Neighbourhood:
         max_chain: longest chain insertion (0 disables chains).
         edge_rate: least traversals per rollout for an edge to be edited.
         team: include team moves (every agent at once; only with several agents).
+        copy: include agent copies (only with several agents).
 
     Attributes:
         singles: long (S, 5) rows ``(kind, owner, node, obs, value)``: kind 0 sets node's MA to value,
-            kind 1 sets edge (node, obs) to value; owner is an agent or -1 (every agent).
+            kind 1 sets edge (node, obs) to value, kind 2 copies agent ``value``'s graph onto agent
+            ``owner`` (node and obs -1); owner is an agent or -1 (every agent).
         sites: long (E, 3) rows ``(owner, node, obs)``, the edges chains are inserted on.
         size: number of moves.
     """
 
     def __init__(self, controller: JointController, visits: Tensor, num_actions: int, max_chain: int,
-                 edge_rate: float, team: bool = True) -> None:
+                 edge_rate: float, team: bool = True, copy: bool = False) -> None:
         self.controller, self.m, self.max_chain = controller[0], num_actions, max_chain
         agents = controller.num_agents
         visited = visits.sum(-1) > 0
@@ -63,7 +67,7 @@ class Neighbourhood:
         self.visited = {o: visited[o] if o != _TEAM else visited.any(0) for o in owners}
         self.edited = {o: edges[o] if o != _TEAM else edges.any(0) for o in owners}
         self.free = [(~visited[a]).nonzero().squeeze(1) for a in range(agents)]
-        self.singles = torch.cat([self._singles(o) for o in owners])
+        self.singles = torch.cat([self._singles(o) for o in owners] + ([self._copies()] if copy else []))
         self.sites = torch.cat([torch.cat([torch.full((int(self.edited[o].sum()), 1), o), self.edited[o].nonzero()], 1)
                                 for o in owners])
         rate = torch.cat([(visits[o] if o != _TEAM else visits.sum(0))[self.edited[o]] for o in owners])
@@ -119,6 +123,13 @@ class Neighbourhood:
         edits = torch.stack([torch.ones_like(x), torch.full_like(x, owner), x, o, y], 1)
         return torch.cat([acts[keep], edits[differs]])
 
+    def _copies(self) -> Tensor:
+        """Copy moves ``(2, b, -1, -1, a)`` for every ordered pair of agents whose graphs differ."""
+        ctrl = self.controller
+        pairs = [(b, a) for b in range(ctrl.num_agents) for a in range(ctrl.num_agents) if a != b and not (
+            torch.equal(ctrl.action[0, a], ctrl.action[0, b]) and torch.equal(ctrl.next_node[0, a], ctrl.next_node[0, b]))]
+        return torch.tensor([(2, b, -1, -1, a) for b, a in pairs], dtype=torch.long).view(-1, 5)
+
     def build(self, index: Tensor) -> JointController:
         """The controllers of moves ``index`` (long (C,), values in [0, size))."""
         c = index.numel()
@@ -133,6 +144,9 @@ class Neighbourhood:
                 act, edge = mine & (kind == 0), mine & (kind == 1)
                 action[rows[act], a, x[act]] = v[act]
                 next_node[rows[edge], a, x[edge], o[edge]] = v[edge]
+                copied = (owner == a) & (kind == 2)
+                action[rows[copied], a] = self.controller.action[0, v[copied]]
+                next_node[rows[copied], a] = self.controller.next_node[0, v[copied]]
         if bool((~single).any()):
             rows = (~single).nonzero().squeeze(1)
             self._chains(action, next_node, rows, index[rows] - self.num_singles)

@@ -5,7 +5,9 @@ From no controller at all, the run cycles through ``config.phases``:
 * ``"ce"``: a cross-entropy phase (:mod:`decpomdp.search.cross_entropy`): cold (uniform over
   ``start_nodes`` nodes) the first time when there is no incumbent yet, later warm-started from the
   incumbent with weight ``ce_init_weight``; after ``ce_iterations`` iterations its elites duel the
-  incumbent (:func:`~decpomdp.search.racing.duel`) and the winner becomes the incumbent;
+  incumbent (:func:`~decpomdp.search.racing.duel`) and the winner becomes the incumbent. With
+  ``ce_reactive``, a phase searches reactive controllers (tied edges) while the incumbent is reactive
+  (the cold phase always): a reactive start, refined by whole-graph phases once local search unties it;
 * ``"ls"``: local search (:mod:`decpomdp.search.local_search`) until ``ls_patience`` steps in a row
   find nothing; it grows the graph up to ``num_nodes`` nodes when it needs free nodes for a chain.
 
@@ -137,7 +139,8 @@ def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
         nodes = cfg.start_nodes if run.incumbent is None else run.incumbent.num_nodes
         weight = 0.0 if run.incumbent is None else cfg.ce_init_weight
         run.ce = cross_entropy.start_state(run.incumbent, scorer.num_agents, nodes, scorer.num_actions,
-                                           scorer.num_obs, weight)
+                                           scorer.num_obs, weight, reactive=cfg.ce_reactive and (
+                                               run.incumbent is None or cross_entropy.is_reactive(run.incumbent)))
     info = cross_entropy.iterate(run.ce, scorer, generator, samples=cfg.ce_samples,
                                  screen_rollouts=cfg.ce_screen_rollouts, screen_keep=cfg.ce_screen_keep,
                                  rollouts=cfg.ce_rollouts, elites=cfg.ce_elites, memory=cfg.ce_memory,
@@ -174,7 +177,8 @@ def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
     out = local_search.step(run.incumbent, scorer, generator, max_chain=cfg.ls_chain, max_nodes=cfg.num_nodes,
                             grow_nodes=cfg.grow_nodes, candidates=cfg.ls_candidates, stages=cfg.ls_stages,
                             duel_rollouts=cfg.duel_rollouts, z=cfg.duel_z, edge_rate=cfg.edge_rate,
-                            visit_rollouts=cfg.visit_rollouts, team=cfg.ls_team, compose=cfg.ls_compose)
+                            visit_rollouts=cfg.visit_rollouts, team=cfg.ls_team, compose=cfg.ls_compose,
+                            copy=cfg.ls_copy)
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1

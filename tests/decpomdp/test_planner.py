@@ -155,14 +155,17 @@ def test_local_search_never_worsens_under_exact_values():
             ctrl, value = out.controller, new
 
 
-def test_planner_reaches_the_dec_tiger_optimum():
-    # exact scores make the run deterministic: from a cold 3-node cross-entropy phase, local search (team
-    # chains: both agents listen again, or open, together) and warm cross-entropy phases climb to the optimum
+@pytest.mark.parametrize("seed", range(6))
+def test_planner_reaches_the_dec_tiger_optimum(seed):
+    # exact scores make each run deterministic: from a cold 3-node cross-entropy phase, local search (team
+    # chains: both agents listen again, or open, together) and warm cross-entropy phases climb to the optimum.
+    # With these settings every one of seeds 0-39 reaches it (with 50 samples per iteration and patience 1,
+    # only about half do: the claim is about the settings, not a lucky seed)
     env = dec_tiger(3)
-    cfg = PlannerConfig(phases=("ce", "ls"), budget=10**9, patience=1, num_nodes=7, start_nodes=3, ce_iterations=20,
-                        ce_samples=50, ce_screen_rollouts=0, ce_rollouts=2, ce_elites=5, ce_memory=2, ls_chain=2,
+    cfg = PlannerConfig(phases=("ce", "ls"), budget=10**9, patience=3, num_nodes=7, start_nodes=3, ce_iterations=20,
+                        ce_samples=200, ce_screen_rollouts=0, ce_rollouts=2, ce_elites=10, ce_memory=2, ls_chain=2,
                         ls_candidates=5000, ls_stages=((2, 8),), duel_rollouts=2, edge_rate=0.0)
-    res = plan(ExactScorer(ExactEvaluator(env)), cfg, seed=0)
+    res = plan(ExactScorer(ExactEvaluator(env)), cfg, seed=seed)
     assert res.value == pytest.approx(exact_value(env, res.best).item())
     assert res.value == pytest.approx(DEC_TIGER_OPTIMUM[3], abs=1e-4)
     duels = [v for v in res.history["value"] if not math.isnan(v)]
@@ -238,6 +241,18 @@ class Interrupt:
         return self.scorer.visits(ctrl, rollouts, generator)
 
 
+class Recorder(Interrupt):
+    """A scorer that delegates to ``scorer`` and keeps every controller batch it scores (``scored``)."""
+
+    def __init__(self, scorer):
+        super().__init__(scorer, 0)
+        self.scored = []
+
+    def __call__(self, ctrl, rollouts, generator):
+        self.scored.append(ctrl)
+        return self.scorer(ctrl, rollouts, generator)
+
+
 @pytest.mark.parametrize("at", [1, 3, 9, 20])  # before any checkpoint, in the cold cross-entropy phase, later
 def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at):
     cfg = small_config()
@@ -293,6 +308,8 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ({"ls_chain": -1}, ValueError, "ls_chain"),
     ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
     ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
+    ({"ls_copy": 0}, TypeError, "ls_copy: expected a bool"),
+    ({"ce_reactive": "true"}, TypeError, "ce_reactive: expected a bool"),
 ])
 def test_config_errors(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -330,6 +347,57 @@ def test_cross_entropy_memory_and_warm_start(toy_env):
     iterate(state, scorer, g, samples=10, screen_rollouts=2, screen_keep=0.5, rollouts=4, elites=3, memory=2, alpha=0.5)
     assert scorer.rollouts_used - before == 10 * 2 + 5 * 4 + 2 * 4  # screen, contenders, memory re-scored
     torch.testing.assert_close(state.action_probs.sum(-1), torch.ones(2, 3, dtype=torch.float64))
+
+
+def test_reactive_cross_entropy_ties_the_edges(toy_env):
+    # a reactive state has one next-node distribution per (agent, observation): every sample's edges out of
+    # all nodes agree, the update is the elites' frequencies of that shared row, and the planner's cold
+    # reactive phase therefore returns a reactive incumbent
+    state = start_state(None, 2, 3, 3, 2, 0.0, reactive=True)
+    assert state.reactive and state.next_probs.shape == (2, 2, 3)
+    g = torch.Generator().manual_seed(0)
+    ctrl = state.sample(50, g)
+    assert torch.equal(ctrl.next_node, ctrl.next_node[:, :, :1].expand_as(ctrl.next_node))
+    state.update(ctrl[:4], 0.5)
+    freq = torch.nn.functional.one_hot(ctrl.next_node[:4, :, 0], 3).to(torch.float64).mean(0)
+    torch.testing.assert_close(state.next_probs, 0.5 * freq + 0.5 / 3)
+    assert state.elites.num_controllers == 4
+    untied = JointController(ctrl.action[:1], ctrl.next_node[:1].clone())
+    untied.next_node[0, 0, 1, 0] = (untied.next_node[0, 0, 0, 0] + 1) % 3
+    with pytest.raises(ValueError, match="reactive"):
+        start_state(untied, 2, 3, 3, 2, 0.5, reactive=True)
+    warm = start_state(ctrl[:1], 2, 3, 3, 2, 0.7, reactive=True)  # around a reactive incumbent
+    torch.testing.assert_close(warm.next_probs, 0.3 / 3 + 0.7 * torch.nn.functional.one_hot(
+        ctrl.next_node[0, :, 0], 3).to(torch.float64))
+    for reactive in (True, False):  # a planner of cross-entropy phases only samples reactive controllers iff asked
+        scorer = Recorder(toy_scorer(toy_env))
+        plan(scorer, small_config(phases=("ce",), ce_reactive=reactive, start_nodes=3, ce_iterations=3), seed=1)
+        tied = [bool((c.next_node == c.next_node[:, :, :1]).all()) for c in scorer.scored]
+        assert all(tied) == reactive and len(tied) > 9 and any(tied) == reactive  # cold and warm phases
+
+
+def test_copy_moves_copy_one_agent_onto_another():
+    g = torch.Generator().manual_seed(2)
+    act = torch.randint(0, 4, (1, 3, 4), generator=g)
+    nxt = torch.randint(0, 4, (1, 3, 4, 2), generator=g)
+    act[0, 2], nxt[0, 2] = act[0, 1], nxt[0, 1]  # agents 1 and 2 alike: no copy between them
+    visits = torch.ones(3, 4, 2, dtype=torch.float64)
+    plain = Neighbourhood(JointController(act, nxt), visits, 4, 1, 0.01)
+    hood = Neighbourhood(JointController(act, nxt), visits, 4, 1, 0.01, copy=True)
+    assert hood.size == plain.size + 4  # 0 <- 1, 0 <- 2, 1 <- 0, 2 <- 0
+    built = hood.build(torch.arange(hood.size))
+    copies = {(b, a) for i in range(hood.size) for b in range(3) for a in range(3) if a != b
+              and torch.equal(built.action[i, b], act[0, a]) and torch.equal(built.next_node[i, b], nxt[0, a])
+              and not torch.equal(built.action[i], act[0])}
+    assert {(0, 1), (0, 2), (1, 0), (2, 0)} <= copies
+    rows = hood.singles[hood.singles[:, 0] == 2]
+    for kind, b, _, _, a in rows.tolist():  # a copy changes agent b only, into agent a
+        one = hood.build(torch.tensor([int((hood.singles == torch.tensor([kind, b, -1, -1, a])).all(1).nonzero())]))
+        others = [c for c in range(3) if c != b]
+        assert torch.equal(one.action[0, b], act[0, a]) and torch.equal(one.next_node[0, b], nxt[0, a])
+        assert torch.equal(one.action[0, others], act[0, others]) and torch.equal(one.next_node[0, others], nxt[0, others])
+    single = JointController(act[:, :1], nxt[:, :1])
+    assert Neighbourhood(single, visits[:1], 4, 1, 0.01, copy=True).size == Neighbourhood(single, visits[:1], 4, 1, 0.01).size
 
 
 def test_chain_sampling_follows_traffic():
