@@ -1,10 +1,12 @@
 """What each part of the cold-start planner contributes: the planner with one part removed at a time.
 
 Every variant runs from scratch on the same rollout budget and seed, and its best controller is
-re-evaluated on ``--reeval`` rollouts the search never saw. Variants (``conf/planner/cold.yaml`` with
-one change):
+re-evaluated on ``--reeval`` rollouts the search never saw. Variants (the domain's experiment's
+``cold_planner``, ``conf/planner/cold.yaml`` with the experiment's overrides, with one change):
 
 * ``full``: the planner as configured;
+* ``no agent copies``: ``ls_copy: false`` (no effect with a shared controller);
+* ``reactive start``: ``ce_reactive: true`` with a 9-node cold start (``start_nodes: 9``);
 * ``no local search``: cross-entropy phases only (``phases: [ce]``);
 * ``no cross-entropy``: local search only, from node 0 running MA 0 (``phases: [ls]``);
 * ``no chains``: local search with single edits only (``ls_chain: 0``);
@@ -26,23 +28,26 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
 
 from decpomdp import GDICEConfig, gdice
 from decpomdp.domains import DisasterRelief, PackageDelivery, SharedControllerEvaluator, rollout_counters, shared
 from decpomdp.evaluate import MonteCarloEvaluator
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
+from experiments.schemas import register
 from infra.files import atomic_write_text
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_gdice import default_planner  # noqa: E402
+CONF = Path(__file__).resolve().parents[1] / "conf"
 
 VARIANTS = {
     "full": {},
+    "no agent copies": {"ls_copy": False},
+    "reactive start": {"ce_reactive": True, "start_nodes": 9},
     "no local search": {"phases": ("ce",)},
     "no cross-entropy": {"phases": ("ls",)},
     "no chains": {"ls_chain": 0},
@@ -52,6 +57,13 @@ VARIANTS = {
     "13 nodes": {"num_nodes": 13},
 }
 DOMAINS = {"package_delivery": (PackageDelivery, True), "disaster_relief": (DisasterRelief, False)}
+
+
+def experiment_planner(domain: str) -> PlannerConfig:
+    """The ``cold_planner`` of ``experiment=<domain>`` (``conf/planner/cold.yaml`` and the experiment's overrides)."""
+    register()
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        return instantiate(compose(config_name="config", overrides=[f"experiment={domain}"]).cold_planner)
 
 
 def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, seed: int, reeval: int) -> dict:
@@ -84,7 +96,7 @@ def main() -> None:
     torch.set_num_threads(1)
     make, shared_controller = DOMAINS[args.domain]
     env = make()
-    base = default_planner()
+    base = experiment_planner(args.domain)
     if args.budget is not None:
         base = dataclasses.replace(base, budget=args.budget)
     rows = []

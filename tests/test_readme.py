@@ -19,7 +19,7 @@ TINY_MISSION = [
     "planner.iterations=2", "planner.samples=6", "planner.elites=2", "study.rollouts=4", "study.reeval_rollouts=20",
     "progress=false", "mission.bank.sequences=2", "mission.bank.workers=0", "mission.generative_streams=50",
     "mission.bootstrap.replicates=2", "mission.bootstrap.rollouts=4",
-    "cold_planner.budget=3000", "cold_planner.patience=1", "cold_planner.num_nodes=6", "cold_planner.ce_iterations=2",
+    "cold_planner.budget=3000", "cold_planner.patience=1", "cold_planner.num_nodes=6", "cold_planner.start_nodes=3", "cold_planner.ce_iterations=2",
     "cold_planner.ce_samples=10", "cold_planner.ce_elites=2", "cold_planner.ce_memory=1", "cold_planner.ce_rollouts=4",
     "cold_planner.ce_screen_rollouts=2", "cold_planner.ls_candidates=40", "cold_planner.ls_stages=[[2,0.5],[4,2]]",
     "cold_planner.duel_rollouts=20", "cold_planner.visit_rollouts=10",
