@@ -77,11 +77,11 @@ def main() -> None:
     if not args.skip_default:
         runs.append(("cold-start planner, default budget", default))
     for name, cfg in runs:
-        out, cpu, wall = timed(lambda: plan(RolloutScorer(env, shared=True), cfg, seed=args.seed, progress=True))
+        out, cpu, wall = timed(lambda cfg=cfg: plan(RolloutScorer(env, shared=True), cfg, seed=args.seed, progress=True))
         rows.append((name, out.rollouts, cpu, wall, *reeval(out.best)))
     ref = rows[0][2]
     print(f"\npackage delivery, shared controller, seed {args.seed}; values re-evaluated on {args.reeval} fresh rollouts")
-    print(f"| run | rollouts | CPU s | wall s | CPU / paper G-DICE | value +- s.e. |\n|---|---|---|---|---|---|")
+    print("| run | rollouts | CPU s | wall s | CPU / paper G-DICE | value +- s.e. |\n|---|---|---|---|---|---|")
     for name, rollouts, cpu, wall, mean, se in rows:
         print(f"| {name} | {rollouts:,} | {cpu:.1f} | {wall:.1f} | {cpu / ref:.2f} | {float(mean):.3f} +- {float(se):.3f} |")
     tab = tiger_iteration_cpu(args.seed)

@@ -148,7 +148,8 @@ def test_local_search_never_worsens_under_exact_values():
         value = exact_value(env, ctrl).item()
         for _ in range(4):
             out = local_search.step(ctrl, scorer, g, max_chain=2, max_nodes=6, grow_nodes=2, candidates=500,
-                                    stages=[(2, 0.1), (2, 3)], duel_rollouts=2, z=2.0, edge_rate=0.0, visit_rollouts=1)
+                                    stages=[(2, 0.1), (2, 3)], duel_rollouts=2, z=2.0, edge_rate=0.0, visit_rollouts=1,
+                                    copy=True)
             new = exact_value(env, out.controller).item()
             assert new > value if out.accepted else new == pytest.approx(value, abs=1e-12)
             assert out.incumbent_value == pytest.approx(value)
