@@ -254,9 +254,10 @@ class Recorder(Interrupt):
         return self.scorer(ctrl, rollouts, generator)
 
 
-@pytest.mark.parametrize("at", [1, 3, 9, 20])  # before any checkpoint, in the cold cross-entropy phase, later
-def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at):
-    cfg = small_config()
+@pytest.mark.parametrize("at, reactive", [(1, False), (3, False), (9, False), (20, False), (3, True), (9, True)])
+def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive):
+    # before any checkpoint, in the cold cross-entropy phase, later; a reactive phase's tied state too
+    cfg = small_config(ce_reactive=reactive, start_nodes=3 if reactive else 2)
     full = plan(Interrupt(toy_scorer(toy_env), 10**9), cfg, seed=3)
     ckpt = tmp_path / "plan.safetensors"
     with pytest.raises(KeyboardInterrupt):
