@@ -278,6 +278,21 @@ def _step(state: _State, evaluator: Evaluator, cfg: GDICEConfig, generator: torc
     state.iteration += 1
 
 
+def _fingerprint(evaluator: Evaluator, shape: tuple[int, int, int], cfg: GDICEConfig, seed: int,
+                 init: JointController | None) -> dict:
+    """What a checkpoint records of the run that wrote it, after checking the evaluator and warm start."""
+    if not callable(evaluator):
+        raise TypeError(f"evaluator: expected a callable (controller, generator) -> (mean, stderr), got {evaluator!r}")
+    _check_init(init, cfg, *shape)
+    return {
+        "sizes": dict(zip(("num_agents", "num_actions", "num_obs"), shape)),
+        "problem": describe(evaluator),
+        "config": asdict(cfg),
+        "seed": seed,
+        "init": None if init is None else digest(init.action, init.next_node),
+    }
+
+
 def gdice(
     evaluator: Evaluator,
     num_agents: int,
@@ -315,22 +330,12 @@ def gdice(
     cfg = GDICEConfig() if config is None else config
     if not isinstance(cfg, GDICEConfig):
         raise TypeError(f"config: expected a GDICEConfig, got {type(cfg).__name__}")
-    num_agents, num_actions, num_obs = (as_int(name, value, 1) for name, value in (
+    shape = tuple(as_int(name, value, 1) for name, value in (
         ("num_agents", num_agents), ("num_actions", num_actions), ("num_obs", num_obs)))
     seed = as_int("seed", seed)
-    if not callable(evaluator):
-        raise TypeError(f"evaluator: expected a callable (controller, generator) -> (mean, stderr), got {evaluator!r}")
     checkpoint_every = as_int("checkpoint_every", checkpoint_every, 1)
-    _check_init(init, cfg, num_agents, num_actions, num_obs)
+    fingerprint = _fingerprint(evaluator, shape, cfg, seed, init)
     generator = torch.Generator().manual_seed(seed)
-    shape = (num_agents, num_actions, num_obs)
-    fingerprint = {
-        "sizes": {"num_agents": num_agents, "num_actions": num_actions, "num_obs": num_obs},
-        "problem": describe(evaluator),
-        "config": asdict(cfg),
-        "seed": seed,
-        "init": None if init is None else digest(init.action, init.next_node),
-    }
     path = None if checkpoint is None else Path(checkpoint)
     if path is not None and path.exists():
         state = _State.load(path, fingerprint, cfg, shape, generator)

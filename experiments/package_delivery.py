@@ -33,11 +33,11 @@ from omegaconf import DictConfig
 
 from decpomdp import GDICEConfig
 from decpomdp.domains.package_delivery import greedy_controller
-from decpomdp.search import PlannerConfig
 from experiments.common import save_figure
 from experiments.report import write_report
-from experiments.steps.planning import paper_comparison, run_baselines, run_cold, run_gdice, run_seeded, score
-from experiments.steps.planning_figures import bar_figure, comparison_table, history_figure, planner_figure
+from experiments.steps.planner_comparison import compare_planners
+from experiments.steps.planning import paper_comparison, run_gdice, score
+from experiments.steps.planning_figures import bar_figure, comparison_table
 
 PAPER = {"gdice_best_sampled": 14.44, "mmcs": 4.53, "monte_carlo_search": 2.07}
 
@@ -48,22 +48,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     env = instantiate(cfg.domain)
     config: GDICEConfig = instantiate(cfg.planner)
     reeval = int(study.reeval_rollouts)
-
-    cold_cfg: PlannerConfig = instantiate(cfg.cold_planner)
-    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller), seed + 600,
-                                                    bool(cfg.progress), reeval)
-    planner_best.save(run_dir / "best_controller_planner.safetensors")
-    save_figure(planner_figure(planner.history, "Cold-start planner on package delivery"), run_dir / "planner_progress.png")
-
-    result, best, seconds = run_gdice(env, config, study, seed, bool(cfg.progress))
-    best.save(run_dir / "best_controller_cold.safetensors")
-    gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
-    save_figure(history_figure(result.history, "G-DICE on package delivery"), run_dir / "value_vs_iteration.png")
-    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_controller(), seed + 500,
-                                                   bool(cfg.progress))
-    seeded_best.save(run_dir / "best_controller.safetensors")
-    save_figure(history_figure(seeded.history, "G-DICE seeded with the hand-written policy, package delivery"),
-                run_dir / "value_vs_iteration_seeded.png")
+    entries, metrics = compare_planners(cfg, env, greedy_controller(), "package delivery", run_dir)
 
     sweep = {}
     for k, alpha in enumerate(study.alpha_sweep):
@@ -73,42 +58,28 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                              "seconds": secs, **score(env, ctrl, reeval, seed + 200 + k)}
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
-    baselines = run_baselines(env, config, study, seed + 300)
-    greedy = score(env, greedy_controller(), reeval, seed + 400)
     ref = cfg.reference
     paper = paper_comparison(env, instantiate(ref.domain), instantiate(ref.planner), int(ref.rollouts), int(ref.runs),
                              seed + 700, reeval, bool(cfg.progress))
-    entries = {"cold-start planner": planner_score, "G-DICE": gdice_score, "G-DICE seeded": seeded_score,
-               "greedy (hand)": greedy, "Monte Carlo search": baselines["monte_carlo_search"], "random": baselines["random"]}
     save_figure(bar_figure(entries, "Package delivery: re-evaluated values",
                            {"paper G-DICE 14.44": PAPER["gdice_best_sampled"], "paper MCS 2.07": PAPER["monte_carlo_search"]}),
                 run_dir / "baselines.png")
     write_report(run_dir / "report.md", _report(entries, paper, reeval))
-    mcs_value = baselines["monte_carlo_search"]["value"]
+    planner_value, greedy = metrics["planner_cold_start"]["value"], metrics["baselines"]["greedy"]["value"]
+    gdice_value, seeded_value = metrics["gdice"]["value"], metrics["gdice_seeded"]["value"]
+    mcs_value = metrics["baselines"]["monte_carlo_search"]["value"]
     return {
-        "planner_cold_start": planner_score,
-        "planner_cold_start_history": planner.history,
-        "planner_cold_start_config": dataclasses.asdict(cold_cfg),
+        **metrics,
         "paper_comparison": {"paper_best_sampled": PAPER["gdice_best_sampled"], **paper},
-        "domain": repr(env),
-        "planner": dataclasses.asdict(config),
-        "shared_controller": bool(study.shared_controller),
-        "rollouts_per_evaluation": int(study.rollouts),
-        "reeval_rollouts": reeval,
-        "gdice": gdice_score,
-        "gdice_history": result.history,
-        "gdice_seeded": seeded_score,
-        "gdice_seeded_history": seeded.history,
         "alpha_sweep": sweep,
-        "baselines": {**baselines, "greedy": greedy},
         "paper": PAPER,
         "acceptance": {
-            "planner_at_least_greedy": planner_score["value"] >= greedy["value"],
-            "planner_at_least_14.4": planner_score["value"] >= 14.4,
-            "gdice_at_least_14.4": gdice_score["value"] >= 14.4,
-            "mcs_at_most_third_of_gdice": mcs_value <= gdice_score["value"] / 3,
-            "seeded_gdice_at_least_14.4": seeded_score["value"] >= 14.4,
-            "mcs_at_most_third_of_seeded_gdice": mcs_value <= seeded_score["value"] / 3,
+            "planner_at_least_greedy": planner_value >= greedy,
+            "planner_at_least_14.4": planner_value >= 14.4,
+            "gdice_at_least_14.4": gdice_value >= 14.4,
+            "mcs_at_most_third_of_gdice": mcs_value <= gdice_value / 3,
+            "seeded_gdice_at_least_14.4": seeded_value >= 14.4,
+            "mcs_at_most_third_of_seeded_gdice": mcs_value <= seeded_value / 3,
         },
     }
 

@@ -1,0 +1,89 @@
+"""The side-by-side planner comparison that the package-delivery and disaster-relief experiments share.
+
+On one domain: the cold-start planner (``cold_planner``), the paper's G-DICE from uniform
+distributions (``planner``), G-DICE seeded with a hand-written policy (``study.seeded``), that
+policy itself, Monte Carlo search and random controllers; every controller re-evaluated on
+``study.reeval_rollouts`` independent rollouts. Saves the three searched controllers and their
+progress figures into the run folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from decpomdp import GDICEConfig, JointController
+from decpomdp.core import DecPOSMDP
+from decpomdp.search import PlannerConfig
+from experiments.common import save_figure
+from experiments.steps.planning import (
+    run_baselines,
+    run_cold,
+    run_gdice,
+    run_seeded,
+    score,
+)
+from experiments.steps.planning_figures import history_figure, planner_figure
+
+
+class Comparison(NamedTuple):
+    """``entries``: name -> score entry, in report order; ``metrics``: the ``metrics.json`` fields."""
+
+    entries: dict[str, dict[str, Any]]
+    metrics: dict[str, Any]
+
+
+def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointController, title: str,
+                     run_dir: Path) -> Comparison:
+    """Run every planner and baseline of the comparison on ``env`` (seeds offset from ``cfg.seed``).
+
+    Writes ``best_controller_planner.safetensors`` (cold-start planner), ``best_controller_cold``
+    (G-DICE), ``best_controller`` (seeded G-DICE), ``planner_progress.png``,
+    ``value_vs_iteration.png`` and ``value_vs_iteration_seeded.png``; ``title`` names the domain in
+    the figures.
+    """
+    study, seed, progress = cfg.study, int(cfg.seed), bool(cfg.progress)
+    config: GDICEConfig = instantiate(cfg.planner)
+    cold_cfg: PlannerConfig = instantiate(cfg.cold_planner)
+    reeval = int(study.reeval_rollouts)
+
+    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller), seed + 600,
+                                                    progress, reeval)
+    planner_best.save(run_dir / "best_controller_planner.safetensors")
+    save_figure(planner_figure(planner.history, f"Cold-start planner on {title}"), run_dir / "planner_progress.png")
+
+    result, best, seconds = run_gdice(env, config, study, seed, progress)
+    best.save(run_dir / "best_controller_cold.safetensors")
+    gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
+    save_figure(history_figure(result.history, f"G-DICE on {title}"), run_dir / "value_vs_iteration.png")
+
+    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, seed + 500, progress)
+    seeded_best.save(run_dir / "best_controller.safetensors")
+    save_figure(history_figure(seeded.history, f"G-DICE seeded with the hand-written policy, {title}"),
+                run_dir / "value_vs_iteration_seeded.png")
+
+    baselines = run_baselines(env, config, study, seed + 300)
+    greedy = score(env, greedy_policy, reeval, seed + 400)
+    entries = {"cold-start planner": planner_score, "G-DICE": gdice_score, "G-DICE seeded": seeded_score,
+               "greedy (hand-written)": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
+               "random": baselines["random"]}
+    metrics = {
+        "planner_cold_start": planner_score,
+        "planner_cold_start_history": planner.history,
+        "planner_cold_start_config": dataclasses.asdict(cold_cfg),
+        "domain": repr(env),
+        "planner": dataclasses.asdict(config),
+        "shared_controller": bool(study.shared_controller),
+        "rollouts_per_evaluation": int(study.rollouts),
+        "reeval_rollouts": reeval,
+        "gdice": gdice_score,
+        "gdice_history": result.history,
+        "gdice_seeded": seeded_score,
+        "gdice_seeded_history": seeded.history,
+        "baselines": {**baselines, "greedy": greedy},
+    }
+    return Comparison(entries, metrics)
