@@ -10,7 +10,8 @@ filter                    per-frame feature        posterior after N frames
 :class:`VotingFilter`     one-hot vote             vote counts / N
 :class:`MaxOfMeanFilter`  ``o``                    mean output
 :class:`SSBF`             ``log o``                ``∝ p_m * prod_i o_i,m / p_m``
-:class:`HBNIFilter`       ``log o``                ``∝ p_m * E_theta prod_i Dir(o_i; theta_m e_m + 1)^tau``
+:class:`HBNIFilter`       ``log o`` (or ``ilr o``  ``∝ p_m * E_draws p(o_1:N | c = m)^tau`` under the fitted noise model
+                          and its square)
 ========================  ======================  ===============================================
 
 The streaming path (:meth:`StreamingFilter.update`) adds one feature to the running sum;
@@ -33,12 +34,9 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
+from hbni_pyro.evidence import EVIDENCE
 from infra.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
-
-_CHUNK_ELEMENTS = 1 << 16
-"""Largest number of (class, prefix, draw) log-likelihood terms the marginal HBNI filter builds at once
-(512 KiB of doubles, so each chunk's passes stay in cache)."""
 
 
 def decide(probs: Tensor) -> Tensor:
@@ -53,26 +51,19 @@ def decide(probs: Tensor) -> Tensor:
     return probs.argmax(-1)
 
 
-def _logsumexp_in_order(x: Tensor) -> Tensor:
-    """``logsumexp`` over the last dim, summing in index order whatever the batch shape.
-
-    ``torch.logsumexp`` may split a reduction across threads differently for different batch
-    sizes; ``cumsum`` always adds in order, so one stream and a batch of streams agree exactly.
-    """
-    top = x.amax(-1, keepdim=True)
-    # Terms below exp(-700) cannot change a sum that is >= 1; clamping them keeps exp and the
-    # sum off the slow subnormal path.
-    return top.squeeze(-1) + (x - top).clamp_min_(-700.0).exp_().cumsum(-1)[..., -1].log()
-
-
 class StreamingFilter:
     """Base class: a streaming filter with a batched twin.
 
-    Subclasses define :meth:`features` (per-frame ``(..., M) -> (..., M)``) and
-    :meth:`posterior` (running feature sum and frame count ``-> (..., M)`` class probabilities).
+    Subclasses define :meth:`features` (per-frame ``(..., M) -> (..., F)``) and
+    :meth:`posterior` (running feature sum and frame count ``-> (..., M)`` class probabilities);
+    ``F = feature_size`` (``M`` unless a subclass says otherwise).
     """
 
     num_classes: int
+
+    @property
+    def feature_size(self) -> int:
+        return self.num_classes
 
     def __init__(self, num_classes: int) -> None:
         if isinstance(num_classes, bool) or not isinstance(num_classes, int) or num_classes < 2:
@@ -85,12 +76,12 @@ class StreamingFilter:
         raise NotImplementedError
 
     def posterior(self, stats: Tensor, counts: Tensor) -> Tensor:
-        """Class probabilities ``(..., M)`` from feature sums ``(..., M)`` over ``counts (...)`` frames."""
+        """Class probabilities ``(..., M)`` from feature sums ``(..., F)`` over ``counts (...)`` frames."""
         raise NotImplementedError
 
     def reset(self) -> None:
         """Forget the stream seen so far."""
-        self._stats = torch.zeros(self.num_classes, dtype=DTYPE)
+        self._stats = torch.zeros(self.feature_size, dtype=DTYPE)
         self._count = 0
 
     @property
@@ -109,7 +100,7 @@ class StreamingFilter:
         return self.posterior(self._stats.unsqueeze(0), count.unsqueeze(0))[0]
 
     def statistics(self, obs: Any) -> tuple[Tensor, Tensor]:
-        """Validated ``obs (B, N, M)`` -> running feature sums ``(B, N, M)`` and counts ``(N,)`` = 1..N."""
+        """Validated ``obs (B, N, M)`` -> running feature sums ``(B, N, F)`` and counts ``(N,)`` = 1..N."""
         obs = as_outputs(obs, self.num_classes, name="obs", min_dim=3)
         if obs.dim() != 3:
             raise ValueError(f"obs: expected shape (B, N, M), got {tuple(obs.shape)}")
@@ -185,37 +176,39 @@ class _Posterior(Protocol):
     def theta_draws(self) -> Tensor: ...
 
 
-class HBNIFilter(_LogLinearFilter):
-    """Class filter under the HBNI noise model with a fitted noise posterior.
+class HBNIFilter(StreamingFilter):
+    """Class filter under a fitted HBNI noise model (any variant of :data:`hbni_pyro.variants.MODELS`).
 
     Args:
-        posterior: anything with ``theta_draws() -> (S, M)``, ``class_prior (M,)`` and
-            ``num_classes`` (an :class:`hbni_pyro.HBNIPosterior`).
+        posterior: an :class:`hbni_pyro.HBNIPosterior` (its ``model`` picks the likelihood), or
+            anything with ``theta_draws() -> (S, M)``, ``class_prior (M,)`` and ``num_classes``
+            (taken as the paper's model).
         mode: ``"marginal"`` (default) averages the whole-sequence likelihood over the draws,
-            ``P(c = m | o_1:N) ∝ p_m * mean_s prod_i Dir(o_i; theta_m^(s) e_m + 1)``, in log space
-            with logsumexp. ``"plugin"`` uses the per-class posterior **median** of theta (the
-            paper's cheaper variant; the median rather than the mean because a theta posterior
-            fitted on a few outputs is right-skewed and its mean is pulled up by the tail).
-            Marginal is the default because it is the Bayesian answer and the better calibrated
-            one: with few training outputs theta is uncertain, and the plug-in's certainty about
-            theta makes its class posteriors overconfident, so a macro-observation process that
-            stops at 0.95 stops sooner and is right less often (on the paper's toy with 15
-            training outputs: 98.2 % vs 96.1 % right on the noisiest class). The price: on a long
-            stream the average is dominated by the few draws that fit that stream best, so after
-            an unlucky fit a handful of streams stay misclassified that the plug-in gets right
-            (see the ``filtering_error`` study, ``hbni.filter.mode=plugin``).
+            ``P(c = m | o_1:N) ∝ p_m * mean_s p(o_1:N | c = m, draw s)``, in log space with
+            logsumexp. ``"plugin"`` uses one point estimate: the per-class posterior **median** of
+            theta (and of beta) for the frame-level models (the paper's cheaper variant; the median
+            rather than the mean because a theta posterior fitted on a few outputs is right-skewed
+            and its mean is pulled up by the tail), the posterior mean of the looks' means and
+            covariances for the sequence model. Marginal is the default because it is the Bayesian
+            answer and the better calibrated one: with few training outputs theta is uncertain, and
+            the plug-in's certainty about theta makes its class posteriors overconfident, so a
+            macro-observation process that stops at 0.95 stops sooner and is right less often (on
+            the paper's toy with 15 training outputs: 98.2 % vs 96.1 % right on the noisiest class).
+            The price: on a long stream the average is dominated by the few draws that fit that
+            stream best, so after an unlucky fit a handful of streams stay misclassified that the
+            plug-in gets right (see the ``filtering_error`` study, ``hbni.filter.mode=plugin``).
         class_prior: ``(M,)`` class prior; ``None`` takes ``posterior.class_prior``.
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
             draws (``None`` = all); its cost is ``O(draws)`` per frame and class.
-        temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood. HBNI's outputs are i.i.d.
-            given the class; the frames of one camera sequence are not (the same view, light and
-            background persist), so ``N`` of them carry about as much evidence as ``tau * N``
-            independent outputs. ``1`` is the paper's filter; :func:`hbni_pyro.fit_temper` fits
-            ``tau`` on labelled sequences.
+        temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood (all statistics scaled by
+            ``tau``). The frame-level models treat outputs as i.i.d.; the frames of one camera
+            sequence are not (the same view, light and background persist), so ``N`` of them carry
+            about as much evidence as ``tau * N`` independent outputs. ``1`` is the model's own
+            filter; :func:`hbni_pyro.fit_temper` fits ``tau`` on labelled sequences. The sequence
+            model integrates each sequence's look out instead and needs no temper.
 
-    Both modes have the sufficient statistic ``sum_i log o_i`` and ``N``:
-    ``sum_i log Dir(o_i; theta_m e_m + 1)
-    = N (lgamma(M + theta_m) - lgamma(1 + theta_m)) + theta_m sum_i log o_i,m``.
+    The frame-level models have the sufficient statistic ``sum_i log o_i`` and ``N``; the sequence
+    model ``sum_i ilr(o_i)``, ``sum_i ilr(o_i) ilr(o_i)^T`` and ``N``.
     """
 
     MODES = ("marginal", "plugin")
@@ -235,47 +228,78 @@ class HBNIFilter(_LogLinearFilter):
             raise ValueError(f"num_draws: expected a positive int or None, got {num_draws!r}")
         if isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1:
             raise ValueError(f"temper: expected a float in (0, 1], got {temper!r}")
-        draws = getattr(posterior, "theta_draws", None)
-        if not callable(draws):
-            raise TypeError(
-                f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}"
-            )
-        theta = torch.as_tensor(draws(), dtype=DTYPE).contiguous()  # torch's median misreads stride-0 views
-        if theta.dim() != 2 or theta.shape[0] < 1 or theta.shape[1] < 2:
-            raise ValueError(f"posterior: theta_draws() must have shape (S, M), got {tuple(theta.shape)}")
-        if not torch.isfinite(theta).all() or (theta <= 0).any():
-            raise ValueError("posterior: theta draws must be finite and > 0")
+        self.model = getattr(posterior, "model", "paper")
+        draws = _checked_draws(posterior, self.model)
         if class_prior is None:
             class_prior = getattr(posterior, "class_prior", None)
-        super().__init__(theta.shape[1], class_prior)
+        num_classes = (draws["loc"].shape[1] if self.model == "sequence" else draws["theta"].shape[1])
+        self.class_prior = as_class_prior(class_prior, num_classes)
+        self._log_prior = self.class_prior.log()
         self.mode = mode
         self.temper = float(temper)
         if mode == "plugin":
-            theta = theta.median(0).values.unsqueeze(0)
-        elif num_draws is not None and num_draws < theta.shape[0]:
-            theta = theta[torch.linspace(0, theta.shape[0] - 1, num_draws, dtype=DTYPE).round().long()]
-        self.theta = theta
-        """``(S, M)`` noise parameters used (``S = 1`` in plugin mode)."""
-        offset = torch.lgamma(self.num_classes + theta) - torch.lgamma(1 + theta)
-        # (M, 1, S), contiguous over draws so every (M, k, S) term tensor reduces over its inner dim
-        self._offset = offset.T.contiguous().unsqueeze(1)
-        self._theta = theta.T.contiguous().unsqueeze(1)
+            draws = _point_estimate(draws, self.model)
+        elif num_draws is not None and num_draws < len(next(iter(draws.values()))):
+            total = len(next(iter(draws.values())))
+            picks = torch.linspace(0, total - 1, num_draws, dtype=DTYPE).round().long()
+            draws = {k: v[picks] for k, v in draws.items()}
+        self.draws = draws
+        """The draws used, site -> ``(S, ...)`` (``S = 1`` in plugin mode)."""
+        self._evidence = EVIDENCE[self.model](draws)
+        super().__init__(num_classes)
 
-    def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
+    @property
+    def theta(self) -> Tensor:
+        """``(S, M)`` noise parameters used by a frame-level model (``S = 1`` in plugin mode)."""
+        return self.draws["theta"]
+
+    @property
+    def feature_size(self) -> int:
+        return self._evidence.feature_size
+
+    def features(self, obs: Tensor) -> Tensor:
+        return self._evidence.features(obs)
+
+    def posterior(self, stats: Tensor, counts: Tensor) -> Tensor:
         batch = stats.shape[:-1]
-        stats = self.temper * stats.reshape(-1, self.num_classes).T.contiguous().unsqueeze(-1)  # (M, K, 1)
-        counts = self.temper * counts.expand(batch).reshape(1, -1, 1)  # (1, K, 1)
-        offset, theta = self._offset, self._theta
-        num_draws = theta.shape[-1]
-        chunk = max(1, _CHUNK_ELEMENTS // (num_draws * self.num_classes))
-        out = torch.empty(self.num_classes, stats.shape[1], dtype=DTYPE)
+        stats = self.temper * stats.reshape(-1, stats.shape[-1])
+        counts = self.temper * counts.expand(batch).reshape(-1)
         with single_thread():  # torch splits even small cumsums across threads; the hand-offs cost more
-            for start in range(0, stats.shape[1], chunk):
-                end = start + chunk
-                terms = torch.addcmul(counts[:, start:end] * offset, theta, stats[:, start:end])  # (M, k, S)
-                out[:, start:end] = _logsumexp_in_order(terms)
-        return (out - math.log(num_draws)).T.reshape(*batch, self.num_classes)
+            log_ev = self._evidence.log_evidence(stats, counts)
+        return torch.softmax(self._log_prior + log_ev, -1).reshape(*batch, self.num_classes)
 
     def __repr__(self) -> str:
-        return (f"HBNIFilter(num_classes={self.num_classes}, mode={self.mode!r}, draws={self.theta.shape[0]}, "
-                f"temper={self.temper:g})")
+        return (f"HBNIFilter(model={self.model!r}, num_classes={self.num_classes}, mode={self.mode!r}, "
+                f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g})")
+
+
+def _checked_draws(posterior: Any, model: str) -> dict[str, Tensor]:
+    """The posterior's pooled draws as float64, checked: finite, concentrations > 0, covariances SPD."""
+    if model == "paper" or not callable(getattr(posterior, "draws", None)):
+        fn = getattr(posterior, "theta_draws", None)
+        if not callable(fn):
+            raise TypeError(f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}")
+        draws = {"theta": fn()}
+    else:
+        draws = posterior.draws()
+    draws = {k: torch.as_tensor(v, dtype=DTYPE).contiguous() for k, v in draws.items()}  # torch's median misreads stride-0 views
+    for name, x in draws.items():
+        if not torch.isfinite(x).all():
+            raise ValueError(f"posterior: {name} draws must be finite")
+    if "theta" in draws:
+        theta = draws["theta"]
+        if theta.dim() != 2 or theta.shape[0] < 1 or theta.shape[1] < 2:
+            raise ValueError(f"posterior: theta_draws() must have shape (S, M), got {tuple(theta.shape)}")
+        if (theta <= 0).any() or ("beta" in draws and (draws["beta"] <= 0).any()):
+            raise ValueError("posterior: theta draws must be finite and > 0")
+    for name in ("between", "within"):
+        if name in draws and torch.linalg.cholesky_ex(draws[name]).info.any():
+            raise ValueError(f"posterior: every {name} draw must be a positive-definite covariance")
+    return draws
+
+
+def _point_estimate(draws: dict[str, Tensor], model: str) -> dict[str, Tensor]:
+    """One plug-in draw: medians of the concentrations, means of the sequence model's parameters."""
+    if model == "sequence":
+        return {k: v.mean(0, keepdim=True) for k, v in draws.items()}
+    return {k: v.median(0).values.unsqueeze(0) for k, v in draws.items()}

@@ -1,15 +1,16 @@
-"""Fitting the HBNI noise model: the paper's vectorised MH kernel, or Pyro NUTS as the reference.
+"""Fitting an HBNI noise model: the vectorised MH kernels, or Pyro NUTS as the reference.
 
 ``fit`` fits one dataset; ``fit_many`` fits many same-sized datasets in one vectorised MH
 program (one block of chains per dataset), which is how a study that refits the model on
-dozens of training sets stays fast.
+dozens of training sets, or a simulation-based calibration, stays fast. ``model`` picks the
+variant (:data:`hbni_pyro.variants.MODELS`); the ``sequence`` model needs ``sequence_ids``.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
-from typing import Any
+from typing import Any, Callable
 
 import pyro
 import torch
@@ -17,23 +18,31 @@ from pyro import poutine
 from pyro.infer import MCMC, NUTS, infer_discrete
 from torch import Tensor
 
-from hbni_pyro.kernels import HBNIMetropolis
+from hbni_pyro.confusion_model import confusion_model, off_diagonal
+from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.model import HyperPrior, hbni_model
-from hbni_pyro.posterior import HBNIPosterior, posterior_from_draws
-from infra.threads import single_thread
-from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs
+from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
+from hbni_pyro.sequence_model import SequenceStats, sequence_model, sequence_stats
+from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs, as_sequence_ids
+from hbni_pyro.variants import SEQUENCE_MODELS, check_model
 from infra.checks import as_int
+from infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
 DEFAULT_CHAINS = {"mh": 16, "nuts": 2}
 """Chains per dataset when ``num_chains=None``: MH chains cost almost nothing extra (they share
 one tensor program), NUTS chains run one after another on these CPUs."""
 
+_KERNELS = {"paper": HBNIMetropolis, "confusion": ConfusionMetropolis, "sequence": SequenceMetropolis}
+_PYRO_MODELS: dict[str, Callable] = {"paper": hbni_model, "confusion": confusion_model, "sequence": sequence_model}
+
 
 def fit(
     obs: Any,
     labels: Any = None,
     *,
+    model: str = "paper",
+    sequence_ids: Any = None,
     method: str = "mh",
     num_chains: int | None = None,
     num_samples: int = 1000,
@@ -44,13 +53,17 @@ def fit(
     class_prior: Any = None,
     jit: bool = True,
 ) -> HBNIPosterior:
-    """Infer per-class noise ``theta`` (and ``kappa``, ``gamma``) from classifier outputs.
+    """Infer a noise model's posterior from classifier outputs.
 
     Args:
         obs: ``(N, M)`` classifier outputs, rows on the simplex (exact zeros are floored).
-        labels: ``(N,)`` true classes, ``-1`` where unknown; ``None`` means all unknown.
-        method: ``"mh"`` (the paper's sampler, vectorised over chains) or ``"nuts"`` (Pyro NUTS
-            with the classes enumerated out, labels recovered by ``infer_discrete``).
+        labels: ``(N,)`` true classes, ``-1`` where unknown; ``None`` means all unknown. Under the
+            sequence model a sequence's outputs share one label.
+        model: ``"paper"`` (default), ``"confusion"`` or ``"sequence"``.
+        sequence_ids: ``(N,)`` integer id of each output's sequence (required by the sequence
+            model, ignored by the others).
+        method: ``"mh"`` (the vectorised kernels) or ``"nuts"`` (Pyro NUTS on the Pyro model with
+            the classes enumerated out, labels recovered by ``infer_discrete``).
         num_chains: chains (``None`` = ``DEFAULT_CHAINS[method]``).
         num_samples, warmup_steps: post-warm-up draws per chain and warm-up iterations.
         seed: same seed, same draws.
@@ -66,17 +79,22 @@ def fit(
     if x.dim() != 2:
         raise ValueError(f"obs: expected shape (N, M), got {tuple(x.shape)}; use fit_many for a stack of datasets")
     y = None if labels is None else as_labels(labels, x.shape[0], x.shape[1])
+    model = check_model(model)
+    ids = _sequence_ids(model, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
+    settings = dict(chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p)
     if method == "mh":
-        return _fit_mh(x.unsqueeze(0), None if y is None else y.unsqueeze(0), chains, num_samples, warmup_steps, seed, progress, hp, p)[0]
-    return _fit_nuts(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p, jit)
+        return _fit_mh(model, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
+    return _fit_nuts(model, x, y, ids, jit=jit, **settings)
 
 
 def fit_many(
     obs_sets: Any,
     labels: Any = None,
     *,
+    model: str = "paper",
+    sequence_ids: Any = None,
     num_chains: int | None = None,
     num_samples: int = 1000,
     warmup_steps: int = 500,
@@ -87,8 +105,9 @@ def fit_many(
 ) -> list[HBNIPosterior]:
     """Fit ``D`` independent datasets ``obs_sets (D, N, M)`` with MH in one vectorised run.
 
-    ``labels`` is ``None`` or ``(D, N)`` with -1 for unknown. Returns ``D`` posteriors, each with
-    ``num_chains`` chains; dataset ``d``'s chains see only dataset ``d``.
+    ``labels`` is ``None`` or ``(D, N)`` with -1 for unknown; ``sequence_ids (N,)`` is shared by the
+    datasets. Returns ``D`` posteriors, each with ``num_chains`` chains; dataset ``d``'s chains see
+    only dataset ``d``.
     """
     x = as_outputs(obs_sets, min_dim=3, name="obs_sets")
     if x.dim() != 3:
@@ -98,9 +117,29 @@ def fit_many(
         y = torch.stack([as_labels(row, x.shape[1], x.shape[2], name=f"labels[{d}]") for d, row in enumerate(torch.as_tensor(labels))])
         if y.shape[0] != x.shape[0]:
             raise ValueError(f"labels: expected {x.shape[0]} rows to match obs_sets, got {y.shape[0]}")
+    model = check_model(model)
+    ids = _sequence_ids(model, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
-    return _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p)
+    return _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
+
+
+def _sequence_ids(model: str, sequence_ids: Any, num_obs: int, labels: Tensor | None) -> Tensor | None:
+    """Validated ids remapped to ``0..K-1`` (``None`` for frame-level models); labels must agree within a sequence."""
+    if model not in SEQUENCE_MODELS:
+        return None
+    if sequence_ids is None:
+        raise ValueError(f"sequence_ids: the {model!r} model needs the sequence id of every output, got None")
+    ids = as_sequence_ids(sequence_ids, num_obs)
+    for d, row in enumerate([] if labels is None else labels):
+        high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long).scatter_reduce(0, ids, row, "amax", include_self=False)
+        low = torch.full_like(high, -1).scatter_reduce(0, ids, row, "amin", include_self=False)
+        mixed = (high != low).nonzero()
+        if mixed.numel():
+            k = int(mixed[0])
+            raise ValueError(f"labels: sequence {k} of dataset {d} mixes labels {sorted(set(row[ids == k].tolist()))}; "
+                             "the outputs of one sequence share one label (or all -1)")
+    return ids
 
 
 def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, num_classes):
@@ -115,75 +154,113 @@ def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperpr
     return hp, as_class_prior(class_prior, num_classes), chains, *sizes, as_int("seed", seed)
 
 
-def _fit_mh(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
+def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
+    num_seq = int(ids.max()) + 1
+    labels = torch.full(x.shape[:2], -1, dtype=torch.long) if y is None else y
+    per_set = [sequence_stats(x[d], ids, labels[d], num_seq) for d in range(x.shape[0])]
+    return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
+
+
+def _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
     D, N, M = x.shape
-    kernel = HBNIMetropolis(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
+    kernel = _KERNELS[model](num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
+    args = (_stacked_stats(x, y, ids),) if model in SEQUENCE_MODELS else (x, y)
     start = time.perf_counter()
     with single_thread():
-        mcmc.run(x.repeat_interleave(chains, 0), None if y is None else y.repeat_interleave(chains, 0))
+        mcmc.run(*args)
     seconds = time.perf_counter() - start
     draws = {k: v[0].transpose(0, 1) for k, v in mcmc.get_samples(group_by_chain=True).items()}
-    label_probs = kernel.label_probs.reshape(D, chains, N, M).mean(1)
+    label_probs = kernel.label_probs if ids is None else kernel.label_probs[:, ids]
     diag = kernel.diagnostics()
     info = {
         "method": "mh", "num_chains": chains, "num_samples": num_samples, "warmup_steps": warmup_steps,
-        "seed": seed, "seconds": seconds, "datasets_in_run": D,
-        "acceptance_rate": diag["acceptance rate"], "step_size_theta": diag["step size theta"],
+        "seed": seed, "seconds": seconds, "datasets_in_run": D, "acceptance_rate": diag["acceptance rate"],
     }
+    if "step size theta" in diag:
+        info["step_size_theta"] = diag["step size theta"]
     return [
-        posterior_from_draws(
-            draws["theta"].reshape(D, chains, num_samples, M)[d],
-            draws["kappa"].reshape(D, chains, num_samples)[d],
-            draws["gamma"].reshape(D, chains, num_samples)[d],
-            p, hp, label_probs=label_probs[d], info=info,
+        posterior_from_samples(
+            {k: v.reshape((D, chains) + v.shape[1:])[d] for k, v in draws.items()}, p, hp, model,
+            label_probs=label_probs[d], info=info,
         )
         for d in range(D)
     ]
 
 
-def _fit_nuts(x, y, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
+def _fit_nuts(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
+    args = _nuts_args(model, x, y, ids)
     pyro.set_rng_seed(seed)
-    kernel = NUTS(hbni_model, max_plate_nesting=1, jit_compile=jit, ignore_jit_warnings=True)
+    kernel = NUTS(_PYRO_MODELS[model], max_plate_nesting=2 if model == "confusion" else 1, jit_compile=jit, ignore_jit_warnings=True)
     start = time.perf_counter()
     with warnings.catch_warnings(), single_thread():
         warnings.filterwarnings("ignore", message="num_chains=.*more than available_cpu")
         mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, num_chains=chains, disable_progbar=not progress)
-        mcmc.run(x, y, p, hp)
+        mcmc.run(*args, p, hp)
     seconds = time.perf_counter() - start
-    draws = mcmc.get_samples(group_by_chain=True)
+    raw = mcmc.get_samples(group_by_chain=True)
     divergences = mcmc.diagnostics().get("divergences", {})
     info = {
         "method": "nuts", "num_chains": chains, "num_samples": num_samples, "warmup_steps": warmup_steps,
-        "seed": seed, "seconds": seconds, "jit": jit,
-        "divergences": int(sum(len(v) for v in divergences.values())),
+        "seed": seed, "seconds": seconds, "jit": jit, "divergences": int(sum(len(v) for v in divergences.values())),
     }
-    label_probs = recover_label_probs(draws, x, y, p, hp, seed=seed)
-    return posterior_from_draws(draws["theta"], draws["kappa"], draws["gamma"], p, hp, label_probs=label_probs, info=info)
+    label_probs = recover_label_probs(_PYRO_MODELS[model], args, raw, p, hp, seed=seed)
+    if ids is not None:
+        label_probs = label_probs[ids]
+    return posterior_from_samples(nuts_sites(model, raw), p, hp, model, label_probs=label_probs, info=info)
+
+
+def _nuts_args(model: str, x: Tensor, y: Tensor | None, ids: Tensor | None) -> tuple:
+    """The Pyro model's data arguments: ``(obs, labels)``, or padded sequences ``(obs, mask, labels)``."""
+    if model not in SEQUENCE_MODELS:
+        return (x, y)
+    num_seq, M = int(ids.max()) + 1, x.shape[1]
+    order = torch.argsort(ids, stable=True)
+    counts = torch.bincount(ids, minlength=num_seq)
+    pos = torch.arange(len(ids)) - torch.repeat_interleave(counts.cumsum(0) - counts, counts)
+    padded = torch.full((num_seq, int(counts.max()), M), 1.0 / M, dtype=x.dtype)
+    padded[ids[order], pos] = x[order]
+    mask = torch.zeros(padded.shape[:2], dtype=torch.bool)
+    mask[ids[order], pos] = True
+    labels = None if y is None else torch.full((num_seq,), -1, dtype=torch.long).scatter_(0, ids, y)
+    return (padded, mask, labels)
+
+
+def nuts_sites(model: str, raw: dict[str, Tensor]) -> dict[str, Tensor]:
+    """The posterior sites of ``model`` from the Pyro program's sampled sites ``(chains, draws, ...)``."""
+    if model == "paper":
+        return {k: raw[k] for k in ("theta", "kappa", "gamma")}
+    if model == "confusion":
+        beta = off_diagonal((raw["beta_loc"][..., None, None] + raw["beta_scale"][..., None, None] * raw["beta_raw"]).exp())
+        return {"theta": raw["theta"], "beta": beta, **{k: raw[k] for k in ("kappa", "gamma", "beta_loc", "beta_scale")}}
+    outer = {k[: -len("_tril")]: v @ v.transpose(-1, -2) for k, v in raw.items() if k.endswith("_tril")}
+    return {"loc": raw["loc"], **outer, **{k: v for k, v in raw.items() if k.endswith("_pooling")}}
 
 
 def recover_label_probs(
-    draws: dict[str, Tensor], obs: Tensor, labels: Tensor | None, class_prior: Tensor, hyperprior: HyperPrior,
+    model_fn: Callable, args: tuple, draws: dict[str, Tensor], class_prior: Tensor, hyperprior: HyperPrior,
     max_draws: int = 100, seed: int = 0,
 ) -> Tensor:
-    """Posterior class probabilities ``(N, M)`` of the training outputs, by ``infer_discrete``.
+    """Posterior class probabilities of the training units (outputs, or sequences) by ``infer_discrete``.
 
     For up to ``max_draws`` evenly spaced continuous draws, the classes are sampled from their
-    exact conditional (``temperature=1``) and their frequencies returned; labelled rows are one-hot.
+    exact conditional (``temperature=1``) and their frequencies returned; labelled units are one-hot.
+    ``args`` are the Pyro model's data arguments, whose last entry is the labels (or ``None``).
     """
-    N, M = obs.shape
+    labels = args[-1]
+    units, M = args[0].shape[0], args[0].shape[-1]
     flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in draws.items()}
-    total = flat["theta"].shape[0]
+    total = next(iter(flat.values())).shape[0]
     picks = torch.linspace(0, total - 1, min(max_draws, total)).round().long()
-    known = torch.zeros(N, dtype=torch.bool) if labels is None else labels >= 0
-    counts = torch.zeros(N, M, dtype=DTYPE)
+    known = torch.zeros(units, dtype=torch.bool) if labels is None else labels >= 0
+    counts = torch.zeros(units, M, dtype=DTYPE)
     if known.any():
         counts[known] = torch.nn.functional.one_hot(labels[known], M).to(DTYPE) * len(picks)
     if (~known).any():
         pyro.set_rng_seed(seed)
         for i in picks.tolist():
-            conditioned = poutine.condition(hbni_model, data={k: v[i] for k, v in flat.items()})
-            sampler = infer_discrete(conditioned, first_available_dim=-2, temperature=1)
-            trace = poutine.trace(sampler).get_trace(obs, labels, class_prior, hyperprior)
-            counts[~known] += torch.nn.functional.one_hot(trace.nodes["c"]["value"], M).to(DTYPE)
+            conditioned = poutine.condition(model_fn, data={k: v[i] for k, v in flat.items()})
+            sampler = infer_discrete(conditioned, first_available_dim=-3, temperature=1)
+            trace = poutine.trace(sampler).get_trace(*args, class_prior, hyperprior)
+            counts[~known] += torch.nn.functional.one_hot(trace.nodes["c"]["value"].reshape(-1), M).to(DTYPE)
     return counts / len(picks)

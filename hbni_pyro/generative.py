@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from hbni_pyro.density import helmert_basis
 from hbni_pyro.validation import DTYPE
 
 
@@ -67,3 +68,30 @@ def sample_outputs(theta: Tensor, classes: Tensor, generator: torch.Generator) -
     x = torch.where(one_hot.bool(), g.unsqueeze(-1), x)
     x = x.clamp_min(torch.finfo(DTYPE).tiny)
     return x / x.sum(-1, keepdim=True)
+
+
+def sample_dirichlet(alpha: Tensor, generator: torch.Generator) -> Tensor:
+    """One draw of ``Dir(alpha)`` per row of ``alpha (..., M)`` (normalised gammas, any ``alpha > 0``)."""
+    x = gamma_variates(torch.as_tensor(alpha, dtype=DTYPE), 1.0, generator).clamp_min(torch.finfo(DTYPE).tiny)
+    return x / x.sum(-1, keepdim=True)
+
+
+def sample_gaussian(loc: Tensor, cov: Tensor, generator: torch.Generator) -> Tensor:
+    """``N(loc, cov)`` draws for batches ``loc (..., d)``, ``cov (..., d, d)``."""
+    loc, cov = torch.as_tensor(loc, dtype=DTYPE), torch.as_tensor(cov, dtype=DTYPE)
+    z = torch.randn(torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE)
+    return loc + (torch.linalg.cholesky(cov) @ z.unsqueeze(-1)).squeeze(-1)
+
+
+def sample_sequences(loc: Tensor, between: Tensor, within: Tensor, classes: Tensor, num_frames: int,
+                     generator: torch.Generator) -> Tensor:
+    """Output sequences from the sequence-aware model: ``(K, num_frames, M)`` for ``classes (K,)``.
+
+    Each sequence draws its look ``mu_k ~ N(loc[c_k], between[c_k])``, then its frames'
+    log-ratio coordinates ``y ~ N(mu_k, within)``, mapped to the simplex by ``softmax(H^T y)``.
+    ``loc (M, d)``, ``between (M, d, d)``, ``within (d, d)`` (or ``(K, 1, d, d)``: one per sequence).
+    """
+    classes = torch.as_tensor(classes, dtype=torch.long)
+    look = sample_gaussian(loc[classes], between[classes], generator)
+    y = sample_gaussian(look.unsqueeze(-2).expand(look.shape[:-1] + (num_frames, look.shape[-1])), within, generator)
+    return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1), -1).clamp_min(torch.finfo(DTYPE).tiny)

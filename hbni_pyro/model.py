@@ -22,25 +22,51 @@ import pyro.distributions as dist
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.density import DirichletOutputs, concentrations, gamma_log_prob, lifted_dirichlet_log_prob
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
 
 
 @dataclass(frozen=True)
 class HyperPrior:
-    """Shape-scale hyperparameters: ``kappa ~ Ga(beta, eta)``, ``gamma ~ Ga(nu, omega)``.
+    """Hyperparameters of every noise model (each model reads its own fields).
 
-    The defaults put the prior mean of kappa at 2 and of gamma at 10, so the implied prior
-    on each ``theta_m`` has mean 20, median about 10 and a 90 % range of about 0.16 to 73:
-    from a class whose outputs are nearly uniform on the simplex to a near-perfect one, a
-    weakly informative prior over the whole range a CNN's per-class noise can take.
+    Paper's model (and the confusion-aware model's lifts): shape-scale
+    ``kappa ~ Ga(beta, eta)``, ``gamma ~ Ga(nu, omega)``, ``theta_m ~ Ga(kappa, gamma)``. The defaults
+    put the prior mean of kappa at 2 and of gamma at 10, so the implied prior on each ``theta_m``
+    has mean 20, median about 10 and a 90 % range of about 0.16 to 73: from a class whose outputs
+    are nearly uniform on the simplex to a near-perfect one, a weakly informative prior over the
+    whole range a CNN's per-class noise can take.
+
+    Confusion-aware model: off-diagonal concentrations ``log beta_cj ~ N(beta_loc, beta_scale^2)``
+    with ``beta_loc ~ N(0, offdiag_loc_sd^2)`` and ``beta_scale ~ HalfNormal(offdiag_scale_sd)``.
+    The prior is centred on the paper's ``beta_cj = 1`` and shrinks all confusions towards one
+    shared level.
+
+    Sequence-aware model, on the ``d = M - 1`` log-ratio coordinates of an output:
+    class means ``m_c ~ N(look_vertex * u_c, look_sd^2 I)`` (``u_c`` the unit direction of vertex
+    ``c``: the prior says class c's outputs lean towards class c). The spread of a class's sequence
+    looks ``B_c ~ InvWishart(lam + d + 1, lam B)`` is pooled towards a shared
+    ``B ~ Wishart(d + between_df, between_scale / (d + between_df) I)`` (mean ``between_scale I``) with
+    ``lam ~ LogNormal(log between_pooling_median, between_pooling_sd)``, worth that many pseudo-sequences.
+    Frames scatter around their look with one covariance for all classes,
+    ``W ~ InvWishart(d + 1 + within_df, within_df * within_scale * I)`` (mean ``within_scale I``).
     """
 
     beta: float = 2.0
     eta: float = 1.0
     nu: float = 2.0
     omega: float = 5.0
+    offdiag_loc_sd: float = 2.0
+    offdiag_scale_sd: float = 1.0
+    look_vertex: float = 1.5
+    look_sd: float = 2.0
+    between_scale: float = 0.5
+    between_df: float = 2.0
+    between_pooling_median: float = 10.0
+    between_pooling_sd: float = 1.0
+    within_scale: float = 0.5
+    within_df: float = 2.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -75,18 +101,24 @@ def hbni_model(
     gamma = pyro.sample("gamma", dist.Gamma(obs.new_tensor(h.nu), obs.new_tensor(1.0 / h.omega)))
     with pyro.plate("classes", num_classes):
         theta = pyro.sample("theta", dist.Gamma(kappa, 1.0 / gamma))
-    eye = torch.eye(num_classes, dtype=obs.dtype)
-    known = torch.zeros(num_obs, dtype=torch.bool) if labels is None else labels >= 0
+    observe_outputs(obs, labels, p, concentrations(theta))
+
+
+def observe_outputs(obs: Tensor, labels: Tensor | None, class_prior: Tensor, alpha: Tensor) -> None:
+    """The output sites shared by the frame-level models: ``o_i ~ Dir(alpha[c_i])``, ``c_i ~ Cat(p)``.
+
+    Labelled outputs observe their class in the ``labelled`` plate; the rest have ``c`` marked
+    for parallel enumeration in the ``unlabelled`` plate (at dim -1).
+    """
+    known = torch.zeros(obs.shape[0], dtype=torch.bool) if labels is None else labels >= 0
     if known.any():
-        obs_k, lab_k = obs[known], labels[known]
-        with pyro.plate("labelled", obs_k.shape[0]):
-            c = pyro.sample("c_labelled", dist.Categorical(p), obs=lab_k)
-            pyro.sample("o_labelled", dist.Dirichlet(theta[c].unsqueeze(-1) * eye[c] + 1), obs=obs_k)
+        with pyro.plate("labelled", int(known.sum()), dim=-1):
+            c = pyro.sample("c_labelled", dist.Categorical(class_prior), obs=labels[known])
+            pyro.sample("o_labelled", DirichletOutputs(alpha[c]), obs=obs[known])
     if (~known).any():
-        obs_u = obs[~known]
-        with pyro.plate("unlabelled", obs_u.shape[0]):
-            c = pyro.sample("c", dist.Categorical(p), infer={"enumerate": "parallel"})
-            pyro.sample("o", dist.Dirichlet(theta[c].unsqueeze(-1) * eye[c] + 1), obs=obs_u)
+        with pyro.plate("unlabelled", int((~known).sum()), dim=-1):
+            c = pyro.sample("c", dist.Categorical(class_prior), infer={"enumerate": "parallel"})
+            pyro.sample("o", DirichletOutputs(alpha[c]), obs=obs[~known])
 
 
 def log_joint(

@@ -1,4 +1,4 @@
-"""``HBNIPosterior``: posterior draws of the HBNI noise model, their summary, storage and predictive."""
+"""``HBNIPosterior``: posterior draws of an HBNI noise model, their summary, storage and predictive."""
 
 from __future__ import annotations
 
@@ -11,13 +11,22 @@ import torch
 from pyro.ops.stats import effective_sample_size, split_gelman_rubin
 from torch import Tensor
 
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro.density import concentrations
+from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.model import HyperPrior
 from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
+from hbni_pyro.variants import MODELS, check_model, site_shapes
 
 _KIND = "hbni_pyro.HBNIPosterior"
-_SITES = ("theta", "kappa", "gamma")
+
+
+def _num_classes(model: str, samples: dict[str, Tensor]) -> int:
+    key = "loc" if model == "sequence" else "theta"
+    if key not in samples:
+        raise ValueError(f"samples: missing sites [{key!r}], expected {list(site_shapes(model, 2))} for model {model!r}")
+    x = samples[key]
+    return x.shape[-2] if model == "sequence" and x.dim() >= 2 else x.shape[-1]
 
 
 @dataclass
@@ -25,11 +34,13 @@ class HBNIPosterior:
     """Posterior draws by chain.
 
     Attributes:
-        samples: ``{"theta": (chains, draws, M), "kappa": (chains, draws), "gamma": (chains, draws)}``.
+        samples: site -> ``(chains, draws, *site shape)``; the sites of each model are in
+            :func:`hbni_pyro.variants.site_shapes` (paper: ``theta (M,)``, ``kappa``, ``gamma``).
         class_prior: ``(M,)`` class prior ``p`` used in the fit.
         hyperprior: the :class:`HyperPrior` used in the fit.
         label_probs: ``(N, M)`` posterior probability of each training output's class, or ``None``.
         info: JSON-serialisable fit metadata (method, settings, sampler diagnostics).
+        model: the noise model, one of :data:`hbni_pyro.variants.MODELS` (default ``"paper"``).
     """
 
     samples: dict[str, Tensor]
@@ -37,32 +48,42 @@ class HBNIPosterior:
     hyperprior: HyperPrior = field(default_factory=HyperPrior)
     label_probs: Tensor | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    model: str = "paper"
 
     def __post_init__(self) -> None:
-        missing = [k for k in _SITES if k not in self.samples]
+        check_model(self.model)
+        shapes = site_shapes(self.model, _num_classes(self.model, self.samples))
+        missing = [k for k in shapes if k not in self.samples]
         if missing:
-            raise ValueError(f"samples: missing sites {missing}, expected {list(_SITES)}")
-        theta = self.samples["theta"]
-        if theta.dim() != 3:
-            raise ValueError(f"samples['theta']: expected shape (chains, draws, M), got {tuple(theta.shape)}")
-        for k in ("kappa", "gamma"):
-            if self.samples[k].shape != theta.shape[:2]:
-                raise ValueError(f"samples[{k!r}]: expected shape {tuple(theta.shape[:2])}, got {tuple(self.samples[k].shape)}")
+            raise ValueError(f"samples: missing sites {missing}, expected {list(shapes)} for model {self.model!r}")
+        first = next(iter(shapes))
+        lead = self.samples[first].shape[:2]
+        if self.samples[first].dim() != 2 + len(shapes[first]):
+            raise ValueError(f"samples[{first!r}]: expected shape (chains, draws, *{shapes[first]}), got {tuple(self.samples[first].shape)}")
+        for k, shape in shapes.items():
+            if tuple(self.samples[k].shape) != tuple(lead) + shape:
+                raise ValueError(f"samples[{k!r}]: expected shape {tuple(lead) + shape}, got {tuple(self.samples[k].shape)}")
 
     @property
     def num_classes(self) -> int:
-        return self.samples["theta"].shape[-1]
+        return _num_classes(self.model, self.samples)
 
     @property
     def num_chains(self) -> int:
-        return self.samples["theta"].shape[0]
+        return next(iter(self.samples.values())).shape[0]
 
     @property
     def num_draws(self) -> int:
-        return self.samples["theta"].shape[1]
+        return next(iter(self.samples.values())).shape[1]
+
+    def draws(self) -> dict[str, Tensor]:
+        """Every site's draws pooled over chains, ``(chains * draws, *site shape)``."""
+        return {k: v.reshape((-1,) + v.shape[2:]) for k, v in self.samples.items()}
 
     def theta_draws(self) -> Tensor:
-        """All draws of theta pooled over chains, ``(chains * draws, M)``."""
+        """All draws of theta pooled over chains, ``(chains * draws, M)`` (frame-level models only)."""
+        if "theta" not in self.samples:
+            raise ValueError(f"theta_draws: the {self.model!r} model has no theta; use draws()")
         return self.samples["theta"].reshape(-1, self.num_classes)
 
     def theta_point(self, estimate: str = "mean") -> Tensor:
@@ -75,11 +96,12 @@ class HBNIPosterior:
         raise ValueError(f"estimate: expected 'mean' or 'median', got {estimate!r}")
 
     def summary(self, prob: float = 0.9) -> dict[str, dict[str, float]]:
-        """Per scalar parameter (``theta[0]``, ..., ``kappa``, ``gamma``): mean, sd, 5 % and 95 %
-        quantiles (for ``prob=0.9``), ESS and split R-hat, computed with ``pyro.ops.stats``."""
+        """Per scalar parameter (``theta[0]``, ..., ``kappa``, ``gamma``; matrices entry by entry, the
+        off-diagonal of ``beta`` and the upper triangle of covariances): mean, sd, the central
+        ``prob`` interval's quantiles (``q5``, ``q95`` for 0.9), ESS and split R-hat (``pyro.ops.stats``)."""
         lo, hi = (1 - prob) / 2, (1 + prob) / 2
         out: dict[str, dict[str, float]] = {}
-        for name, x in self._scalar_sites().items():
+        for name, x in self.scalar_sites().items():
             flat = x.reshape(-1)
             q = torch.quantile(flat, torch.tensor([lo, hi], dtype=flat.dtype))
             rhat = split_gelman_rubin(x, chain_dim=0, sample_dim=1) if self.num_draws >= 4 else torch.tensor(float("nan"))
@@ -93,46 +115,78 @@ class HBNIPosterior:
             }
         return out
 
-    def _scalar_sites(self) -> dict[str, Tensor]:
-        sites = {f"theta[{m}]": self.samples["theta"][..., m] for m in range(self.num_classes)}
-        sites["kappa"] = self.samples["kappa"]
-        sites["gamma"] = self.samples["gamma"]
+    def scalar_sites(self) -> dict[str, Tensor]:
+        """Every free scalar of the posterior as ``(chains, draws)``, named ``site[i, j]``."""
+        sites: dict[str, Tensor] = {}
+        for name, x in self.samples.items():
+            shape = x.shape[2:]
+            for index in torch.cartesian_prod(*(torch.arange(n) for n in shape)).reshape(-1, len(shape)).tolist() if shape else [[]]:
+                if not _free_entry(name, index):
+                    continue
+                label = f"{name}[{', '.join(map(str, index))}]" if index else name
+                sites[label] = x[(slice(None), slice(None), *index)]
         return sites
 
     def sample_outputs(self, true_class: int, n: int, seed: int = 0) -> Tensor:
-        """Posterior-predictive classifier outputs ``(n, M)`` for class ``true_class``.
-
-        Each output uses its own theta drawn uniformly from the pooled posterior draws.
-        """
-        if not (isinstance(true_class, int) and 0 <= true_class < self.num_classes):
-            raise ValueError(f"true_class: expected an int in [0, {self.num_classes}), got {true_class!r}")
-        if not (isinstance(n, int) and n >= 1):
+        """Posterior-predictive classifier outputs ``(n, M)`` for class ``true_class``, each from its own
+        posterior draw (and, under the sequence model, its own sequence)."""
+        self._check_class(true_class)
+        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n: expected a positive int, got {n!r}")
+        return self.sample_streams(true_class, n, 1, seed)[:, 0]
+
+    def sample_streams(self, true_class: int, num_streams: int, num_frames: int, seed: int = 0) -> Tensor:
+        """Posterior-predictive output streams ``(num_streams, num_frames, M)`` of new class-``true_class`` objects.
+
+        Each stream takes one posterior draw; its frames are then i.i.d. given it (frame-level
+        models) or share one new look (the sequence model).
+        """
+        self._check_class(true_class)
+        for name, v in (("num_streams", num_streams), ("num_frames", num_frames)):
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise ValueError(f"{name}: expected a positive int, got {v!r}")
         g = torch.Generator().manual_seed(seed)
-        draws = self.theta_draws()
-        idx = torch.randint(draws.shape[0], (n,), generator=g)
-        return sample_outputs(draws[idx], torch.full((n,), true_class, dtype=torch.long), g)
+        draws = self.draws()
+        first = next(iter(draws.values()))
+        idx = torch.randint(first.shape[0], (num_streams,), generator=g)
+        classes = torch.full((num_streams, num_frames), true_class, dtype=torch.long)
+        if self.model == "paper":
+            return sample_outputs(draws["theta"][idx].unsqueeze(1), classes, g)
+        if self.model == "confusion":
+            alpha = concentrations(draws["theta"][idx], draws["beta"][idx])[:, true_class]
+            return sample_dirichlet(alpha.unsqueeze(1).expand(num_streams, num_frames, -1), g)
+        return sample_sequences(draws["loc"][idx, true_class], draws["between"][idx, true_class],
+                                draws["within"][idx].unsqueeze(1), torch.arange(num_streams), num_frames, g)
+
+    def _check_class(self, true_class: int) -> None:
+        if not (isinstance(true_class, int) and not isinstance(true_class, bool) and 0 <= true_class < self.num_classes):
+            raise ValueError(f"true_class: expected an int in [0, {self.num_classes}), got {true_class!r}")
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write draws and metadata to one safetensors file, atomically."""
-        tensors = dict(self.samples)
+        tensors = {k: v.clone() for k, v in self.samples.items()}  # one buffer each, even if two sites share memory
         tensors["class_prior"] = self.class_prior
         if self.label_probs is not None:
             tensors["label_probs"] = self.label_probs
-        meta = {"version": 1, "hyperprior": self.hyperprior.as_dict(), "info": self.info}
+        meta = {"version": 2, "model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info}
         return save_tensors(path, _KIND, tensors, meta)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "HBNIPosterior":
         """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
         tensors, meta = load_tensors(path, _KIND)
+        model = meta.get("model", "paper")
+        if model not in MODELS:
+            raise ValueError(f"{path}: unknown noise model {model!r} in saved {_KIND}, expected one of {MODELS}")
         try:
+            num_classes = _num_classes(model, tensors)
             return cls(
-                samples={k: tensors[k] for k in _SITES},
+                samples={k: tensors[k] for k in site_shapes(model, num_classes)},
                 class_prior=tensors["class_prior"],
                 hyperprior=HyperPrior(**meta["hyperprior"]),
                 label_probs=tensors.get("label_probs"),
                 info=meta.get("info", {}),
+                model=model,
             )
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
@@ -145,21 +199,31 @@ class HBNIPosterior:
             raise ImportError("to_arviz() needs arviz: pip install arviz") from exc
         return arviz.from_dict(
             posterior={k: v.numpy() for k, v in self.samples.items()},
-            dims={"theta": ["class"]},
-            coords={"class": list(range(self.num_classes))},
+            dims={"theta": ["class"], "beta": ["class", "class_to"], "loc": ["class", "coord"]},
+            coords={"class": list(range(self.num_classes)), "class_to": list(range(self.num_classes)),
+                    "coord": list(range(self.num_classes - 1))},
         )
 
     def __repr__(self) -> str:
-        means = ", ".join(f"{float(v):.3g}" for v in self.theta_point())
-        return (
-            f"HBNIPosterior(M={self.num_classes}, chains={self.num_chains}, draws={self.num_draws}, "
-            f"theta mean=[{means}], method={self.info.get('method')!r})"
-        )
+        head = f"HBNIPosterior(model={self.model!r}, M={self.num_classes}, chains={self.num_chains}, draws={self.num_draws}"
+        if "theta" in self.samples:
+            head += ", theta mean=[" + ", ".join(f"{float(v):.3g}" for v in self.theta_point()) + "]"
+        return head + f", method={self.info.get('method')!r})"
 
 
-def posterior_from_draws(
-    theta: Tensor, kappa: Tensor, gamma: Tensor, class_prior: Tensor, hyperprior: HyperPrior, **kwargs: Any
+def _free_entry(name: str, index: list[int]) -> bool:
+    """Whether entry ``index`` of site ``name`` is a free parameter (not ``beta``'s fixed diagonal,
+    not a covariance's mirrored lower triangle)."""
+    if name == "beta":
+        return index[0] != index[1]
+    if name in ("between", "between_mean", "within"):
+        return index[-2] <= index[-1]
+    return True
+
+
+def posterior_from_samples(
+    samples: dict[str, Tensor], class_prior: Tensor, hyperprior: HyperPrior, model: str = "paper", **kwargs: Any
 ) -> HBNIPosterior:
     """Build a posterior from ``(chains, draws, ...)`` tensors, cast to float64."""
-    samples = {"theta": theta.to(DTYPE), "kappa": kappa.to(DTYPE), "gamma": gamma.to(DTYPE)}
-    return HBNIPosterior(samples, class_prior.to(DTYPE), hyperprior, **kwargs)
+    samples = {k: v.to(DTYPE) for k, v in samples.items()}
+    return HBNIPosterior(samples, class_prior.to(DTYPE), hyperprior, model=model, **kwargs)

@@ -130,3 +130,15 @@ def as_class_prior(prior: Any, num_classes: int, *, name: str = "class_prior") -
     if abs(float(p.sum()) - 1) > SIMPLEX_ATOL:
         raise ValueError(f"{name}: expected entries summing to 1, got sum {float(p.sum()):.6g}")
     return p / p.sum()
+
+
+def as_sequence_ids(ids: Any, num_obs: int, *, name: str = "sequence_ids") -> Tensor:
+    """Validate sequence ids ``(N,)`` (non-negative integers) and renumber them ``0..K-1`` in order of first id."""
+    x = torch.as_tensor(ids)
+    if x.is_floating_point() or x.dtype not in _INT_DTYPES:
+        raise TypeError(f"{name}: expected integer sequence ids, got dtype {x.dtype}")
+    if x.shape != (num_obs,):
+        raise ValueError(f"{name}: expected shape ({num_obs},) to match obs, got {tuple(x.shape)}")
+    if (x < 0).any():
+        raise ValueError(f"{name}: entry {int((x < 0).nonzero()[0])} is negative, expected ids >= 0")
+    return torch.unique(x.long(), return_inverse=True)[1]

@@ -1,9 +1,14 @@
-"""Pure update steps of the HBNI Metropolis-Hastings sampler, vectorised over chains.
+"""Pure update steps of the paper's Metropolis-Hastings sampler, vectorised over chains.
 
 Every function takes the current state and data, draws from an explicit generator and
-returns the new values and per-element acceptance indicators; nothing is mutated.
-Shapes: ``C`` chains, ``N`` outputs, ``M`` classes. The data may be shared by all chains
-(``(1, N, M)``) or differ per chain (``(C, N, M)``, used to fit many datasets at once).
+returns the new values and per-element acceptance indicators; nothing is mutated. Shapes:
+any leading batch ``...`` (chains, or datasets x chains), ``N`` unlabelled outputs, ``M``
+classes; data broadcast against the state (one dataset shared by every chain, or one each).
+
+Labelled outputs never enter a step one by one: their per-class sufficient statistics
+(``known_counts``, ``known_sums``) are computed once and added to those of the outputs whose
+class the chain currently assigns. The class move runs over the unlabelled outputs in blocks
+of :data:`CHUNK` rows, so its temporaries stay small however many outputs there are.
 """
 
 from __future__ import annotations
@@ -13,11 +18,15 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from hbni_pyro.density import class_log_lik, lifted_block_log_prob
 from hbni_pyro.model import HyperPrior
+
+CHUNK = 1 << 14
+"""Unlabelled outputs per block of the class move."""
 
 
 class MHState(NamedTuple):
-    """Sampler state: ``c (C, N)`` long, ``log_theta (C, M)``, ``log_kappa (C,)``, ``log_gamma (C,)``."""
+    """Sampler state: ``c (..., N)`` long, ``log_theta (..., M)``, ``log_kappa (...)``, ``log_gamma (...)``."""
 
     c: Tensor
     log_theta: Tensor
@@ -26,59 +35,86 @@ class MHState(NamedTuple):
 
 
 class MHData(NamedTuple):
-    """Fixed inputs: log outputs, label mask, class prior and the class proposal weights."""
+    """Fixed inputs: unlabelled log outputs, label mask, class prior, the class proposal weights and
+    the labelled outputs' per-class statistics."""
 
-    log_obs: Tensor  # (1 or C, N, M)
-    labels: Tensor  # (1 or C, N) long, -1 where unknown
+    log_obs: Tensor  # (..., N, M) outputs whose class moves (rows with a label keep it)
+    labels: Tensor  # (..., N) long, -1 where unknown
     log_prior: Tensor  # (M,)
-    log_proposal: Tensor  # (1 or C, N, M) log w_i: where a class move proposes to go
-    proposal_cdf: Tensor  # (1 or C, N, M) cumulative sums of w_i
+    log_proposal: Tensor  # (..., N, M) log w_i: where a class move proposes to go
+    proposal_cdf: Tensor  # (..., N, M) cumulative sums of w_i
+    known_counts: Tensor | float = 0.0  # (..., M) labelled outputs per class (outside log_obs)
+    known_sums: Tensor | float = 0.0  # (..., M, M) row c: sum of the log outputs labelled c
 
 
-def class_log_lik(log_theta: Tensor, log_obs: Tensor) -> Tensor:
-    """``(C, N, M)`` log Dir(o_i; theta_m e_m + 1) for every chain, output and class."""
-    theta = log_theta.exp().unsqueeze(-2)
-    num_classes = log_obs.shape[-1]
-    return torch.lgamma(num_classes + theta) - torch.lgamma(1 + theta) + theta * log_obs
+def class_log_lik_rows(log_theta: Tensor, log_obs: Tensor, beta: Tensor | None = None) -> Tensor:
+    """``(..., N, M)`` log Dir(o_i; alpha_m) for every chain, output and class (``beta=None``: the paper's model)."""
+    return class_log_lik(1.0, log_obs, log_theta.exp(), beta)
 
 
-def update_classes(state: MHState, data: MHData, stay_prob: float, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def update_classes(
+    state: MHState, data: MHData, stay_prob: float, generator: torch.Generator, beta: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
     """One MH move for every unknown ``c_i`` in parallel (they are independent given theta).
 
     Proposal: ``q(c' | c) = stay_prob * 1[c' = c] + (1 - stay_prob) * w_{i c'}``, which keeps
     the current class with probability at least ``stay_prob``. For ``c' != c`` the Hastings
-    ratio ``q(c | c') / q(c' | c) = w_{i c} / w_{i c'}`` corrects its asymmetry.
+    ratio ``q(c | c') / q(c' | c) = w_{i c} / w_{i c'}`` corrects its asymmetry. ``beta`` gives
+    the confusion-aware model's off-diagonal concentrations (``None``: the paper's model).
 
     Returns:
-        new ``c (C, N)`` and ``accepted (C, N)`` bool (false where labelled or where it stayed).
+        new ``c (..., N)`` and ``accepted (..., N)`` bool (false where labelled or where it stayed).
     """
     c = state.c
     shape = c.shape
-    move = torch.rand(shape, generator=generator, dtype=data.log_obs.dtype) >= stay_prob
-    cdf = data.proposal_cdf
-    u = torch.rand(shape, generator=generator, dtype=cdf.dtype).unsqueeze(-1) * cdf[..., -1:]
-    proposal = (u > cdf).sum(-1).clamp_max(cdf.shape[-1] - 1)
-    lik = class_log_lik(state.log_theta, data.log_obs) + data.log_prior
-    log_w = data.log_proposal.expand(shape + (-1,))
-    cur, new = c.unsqueeze(-1), proposal.unsqueeze(-1)
-    log_ratio = (lik.gather(-1, new) - lik.gather(-1, cur) + log_w.gather(-1, cur) - log_w.gather(-1, new)).squeeze(-1)
-    log_u = torch.rand(shape, generator=generator, dtype=cdf.dtype).log()
-    accepted = move & (log_u < log_ratio) & (data.labels < 0) & (proposal != c)
-    return torch.where(accepted, proposal, c), accepted
+    dtype = data.log_prior.dtype
+    move = torch.rand(shape, generator=generator, dtype=dtype) >= stay_prob
+    u = torch.rand(shape, generator=generator, dtype=dtype)
+    log_u = torch.rand(shape, generator=generator, dtype=dtype).log()
+    new_c, accepted = torch.empty_like(c), torch.empty(shape, dtype=torch.bool)
+    for start in range(0, shape[-1], CHUNK):
+        rows = slice(start, start + CHUNK)
+        cdf = data.proposal_cdf[..., rows, :]
+        proposal = (u[..., rows].unsqueeze(-1) * cdf[..., -1:] > cdf).sum(-1).clamp_max(cdf.shape[-1] - 1)
+        lik = class_log_lik_rows(state.log_theta, data.log_obs[..., rows, :], beta) + data.log_prior
+        log_w = data.log_proposal[..., rows, :].expand(lik.shape)
+        cur, new = c[..., rows].unsqueeze(-1), proposal.unsqueeze(-1)
+        log_ratio = (lik.gather(-1, new) - lik.gather(-1, cur) + log_w.gather(-1, cur) - log_w.gather(-1, new)).squeeze(-1)
+        ok = move[..., rows] & (log_u[..., rows] < log_ratio) & (data.labels[..., rows] < 0) & (proposal != c[..., rows])
+        new_c[..., rows] = torch.where(ok, proposal, c[..., rows])
+        accepted[..., rows] = ok
+    return new_c, accepted
 
 
-def sufficient_stats(c: Tensor, log_obs: Tensor) -> tuple[Tensor, Tensor]:
-    """Per chain and class: ``counts (C, M)`` of outputs assigned, and ``sum log o_{i m}`` over them."""
-    one_hot = torch.nn.functional.one_hot(c, log_obs.shape[-1]).to(log_obs.dtype)
-    return one_hot.sum(-2), (one_hot * log_obs).sum(-2)
+def sufficient_stats(c: Tensor, log_obs: Tensor, full: bool = False) -> tuple[Tensor, Tensor]:
+    """Per chain and class: ``counts (..., M)`` of outputs assigned, and their log-output sums.
+
+    Returns the sums of each class's own entry ``sum_{i: c_i = m} log o_{i m}`` ``(..., M)``, or
+    with ``full=True`` the whole rows ``(..., M, M)`` (row ``m``: ``sum_{i: c_i = m} log o_i``).
+    """
+    num_classes = log_obs.shape[-1]
+    batch = torch.broadcast_shapes(c.shape[:-1], log_obs.shape[:-2])
+    counts = torch.zeros(batch + (num_classes,), dtype=log_obs.dtype)
+    sums = torch.zeros(batch + ((num_classes, num_classes) if full else (num_classes,)), dtype=log_obs.dtype)
+    for start in range(0, c.shape[-1], CHUNK):
+        cc = c[..., start : start + CHUNK].expand(batch + (-1,))
+        block = log_obs[..., start : start + CHUNK, :]
+        counts.scatter_add_(-1, cc, torch.ones_like(cc, dtype=log_obs.dtype))
+        if full:
+            one_hot = torch.nn.functional.one_hot(cc, num_classes).to(log_obs.dtype)
+            sums += one_hot.transpose(-1, -2) @ block
+        else:
+            sums.scatter_add_(-1, cc, block.expand(batch + block.shape[-2:]).gather(-1, cc.unsqueeze(-1)).squeeze(-1))
+    return counts, sums
 
 
 def theta_log_target(log_theta: Tensor, counts: Tensor, sum_log: Tensor, kappa: Tensor, gamma: Tensor) -> Tensor:
-    """Unnormalised ``log p(log theta_m | c, o, kappa, gamma)`` per class ``(C, M)`` (Jacobian included)."""
-    theta = log_theta.exp()
-    num_classes = log_theta.shape[-1]
-    lik = counts * (torch.lgamma(num_classes + theta) - torch.lgamma(1 + theta)) + theta * sum_log
-    return lik + kappa.unsqueeze(-1) * log_theta - theta / gamma.unsqueeze(-1)
+    """Unnormalised ``log p(log theta_m | c, o, kappa, gamma)`` per class ``(..., M)`` (Jacobian included).
+
+    ``sum_log (..., M)`` holds each class's own-entry sums (see :func:`sufficient_stats`).
+    """
+    lik = lifted_block_log_prob(counts, sum_log, log_theta.exp(), log_theta.shape[-1])
+    return lik + kappa.unsqueeze(-1) * log_theta - log_theta.exp() / gamma.unsqueeze(-1)
 
 
 def update_theta(
@@ -87,12 +123,15 @@ def update_theta(
     """Gaussian random walk on every ``log theta_m`` in parallel (independent given c, kappa, gamma).
 
     Args:
-        step: ``(C, M)`` proposal standard deviations on the log scale.
+        step: ``(..., M)`` proposal standard deviations on the log scale.
 
     Returns:
-        new ``log_theta (C, M)`` and ``accepted (C, M)`` bool.
+        new ``log_theta (..., M)`` and ``accepted (..., M)`` bool.
     """
     counts, sum_log = sufficient_stats(state.c, data.log_obs)
+    counts = counts + data.known_counts
+    known = data.known_sums
+    sum_log = sum_log + (known.diagonal(dim1=-2, dim2=-1) if isinstance(known, Tensor) else known)
     kappa, gamma = state.log_kappa.exp(), state.log_gamma.exp()
     proposal = state.log_theta + step * torch.randn(step.shape, generator=generator, dtype=step.dtype)
     log_ratio = theta_log_target(proposal, counts, sum_log, kappa, gamma) - theta_log_target(
@@ -103,7 +142,7 @@ def update_theta(
 
 
 def hyper_log_target(log_kappa: Tensor, log_gamma: Tensor, log_theta: Tensor, hp: HyperPrior) -> Tensor:
-    """Unnormalised ``log p(log kappa, log gamma | theta)`` per chain ``(C,)`` (Jacobians included)."""
+    """Unnormalised ``log p(log kappa, log gamma | theta)`` per chain ``(...)`` (Jacobians included)."""
     kappa, gamma = log_kappa.exp(), log_gamma.exp()
     num_classes = log_theta.shape[-1]
     theta_terms = kappa * log_theta.sum(-1) - log_theta.exp().sum(-1) / gamma
@@ -117,10 +156,10 @@ def update_hyper(
     """Joint Gaussian random walk on ``(log kappa, log gamma)``.
 
     Args:
-        chol: ``(C, 2, 2)`` lower Cholesky factor of each chain's proposal covariance.
+        chol: ``(..., 2, 2)`` lower Cholesky factor of each chain's proposal covariance.
 
     Returns:
-        new ``log_kappa (C,)``, ``log_gamma (C,)`` and ``accepted (C,)`` bool.
+        new ``log_kappa (...)``, ``log_gamma (...)`` and ``accepted (...)`` bool.
     """
     eps = torch.randn(chol.shape[:-1], generator=generator, dtype=chol.dtype)
     delta = (chol @ eps.unsqueeze(-1)).squeeze(-1)

@@ -32,7 +32,7 @@ def test_kernel_runs_under_pyro_mcmc_with_chain_batch_and_diagnostics():
     assert set(kernel.logging()) == {"acc. c", "acc. theta", "acc. hyper"}
     # Robbins-Monro warm-up drives the 1-D theta moves towards acceptance 0.44.
     assert 0.25 < diag["acceptance rate"]["theta"] < 0.65
-    torch.testing.assert_close(kernel.label_probs.sum(-1), torch.ones(7, 15, dtype=torch.float64))
+    torch.testing.assert_close(kernel.label_probs.sum(-1), torch.ones(1, 15, dtype=torch.float64))
 
 
 def test_kernel_is_deterministic_given_seed():
@@ -52,7 +52,7 @@ def test_labelled_outputs_keep_their_class():
     labels = torch.tensor([0] * 5 + [-1] * 10)
     kernel = HBNIMetropolis(num_chains=3, seed=0)
     MCMC(kernel, num_samples=40, warmup_steps=10, disable_progbar=True).run(obs, labels)
-    torch.testing.assert_close(kernel.label_probs[:, :5, 0], torch.ones(3, 5, dtype=torch.float64))
+    torch.testing.assert_close(kernel.label_probs[:, :5, 0], torch.ones(1, 5, dtype=torch.float64))
 
 
 @pytest.mark.parametrize("kwargs, match", [({"num_chains": 0}, "num_chains"), ({"stay_prob": 1.0}, "stay_prob")])

@@ -1,0 +1,126 @@
+"""How much a stream's outputs so far support each class, averaged over a noise model's posterior draws.
+
+One class per noise model, all with the same surface for :class:`hbni_pyro.HBNIFilter`:
+``features(obs)`` is the per-frame statistic whose running sum the filter keeps, and
+``log_evidence(stats, counts)`` is ``log mean_s p(o_1:n | c, draw s)`` ``(K, M)`` for ``K``
+blocks of outputs given their summed features and frame counts. The likelihood terms are
+those of :mod:`hbni_pyro.density`; the draws are averaged in log space, summing in index
+order (:func:`logsumexp_in_order`) so that one stream and a batch of streams agree exactly.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from hbni_pyro.density import class_log_lik, ilr, lifted_normaliser, look_basis, look_log_marginal, within_log_prob
+
+_CHUNK_ELEMENTS = 1 << 16
+"""Largest number of (block, class, draw) terms built at once (512 KiB of doubles, so each chunk's
+passes stay in cache)."""
+
+
+def logsumexp_in_order(x: Tensor) -> Tensor:
+    """``logsumexp`` over the last dim, summing in index order whatever the batch shape.
+
+    ``torch.logsumexp`` may split a reduction across threads differently for different batch
+    sizes; ``cumsum`` always adds in order, so one stream and a batch of streams agree exactly.
+    """
+    top = x.amax(-1, keepdim=True)
+    # Terms below exp(-700) cannot change a sum that is >= 1; clamping them keeps exp and the
+    # sum off the slow subnormal path.
+    return top.squeeze(-1) + (x - top).clamp_min_(-700.0).exp_().cumsum(-1)[..., -1].log()
+
+
+def _chunks(num_rows: int, per_row: int) -> range:
+    return range(0, num_rows, max(1, _CHUNK_ELEMENTS // per_row))
+
+
+class PaperEvidence:
+    """The paper's model: per-frame feature ``log o``; draws ``theta (S, M)``."""
+
+    def __init__(self, draws: dict[str, Tensor]) -> None:
+        theta = draws["theta"]
+        self.num_classes = theta.shape[1]
+        self.feature_size = self.num_classes
+        # (M, 1, S), contiguous over draws so every (M, k, S) term tensor reduces over its inner dim
+        self._offset = lifted_normaliser(theta, self.num_classes).T.contiguous().unsqueeze(1)
+        self._theta = theta.T.contiguous().unsqueeze(1)
+
+    def features(self, obs: Tensor) -> Tensor:
+        return obs.log()
+
+    def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
+        M, S = self.num_classes, self._theta.shape[-1]
+        stats = stats.T.contiguous().unsqueeze(-1)  # (M, K, 1)
+        counts = counts.reshape(1, -1, 1)
+        out = torch.empty(M, stats.shape[1], dtype=stats.dtype)
+        for start in _chunks(stats.shape[1], S * M):
+            end = start + max(1, _CHUNK_ELEMENTS // (S * M))
+            terms = torch.addcmul(counts[:, start:end] * self._offset, self._theta, stats[:, start:end])  # (M, k, S)
+            out[:, start:end] = logsumexp_in_order(terms)
+        return (out - math.log(S)).T
+
+
+class ConfusionEvidence:
+    """The confusion-aware model: per-frame feature ``log o``; draws ``theta (S, M)``, ``beta (S, M, M)``."""
+
+    def __init__(self, draws: dict[str, Tensor]) -> None:
+        self.theta, self.beta = draws["theta"], draws["beta"]
+        self.num_classes = self.theta.shape[1]
+        self.feature_size = self.num_classes
+
+    def features(self, obs: Tensor) -> Tensor:
+        return obs.log()
+
+    def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
+        S, M = self.theta.shape
+        out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
+        step = max(1, _CHUNK_ELEMENTS // (S * M))
+        for start in _chunks(stats.shape[0], S * M):
+            rows = slice(start, start + step)
+            terms = class_log_lik(counts[rows], stats[rows], self.theta, self.beta)  # (S, k, M)
+            out[rows] = logsumexp_in_order(terms.permute(1, 2, 0))
+        return out - math.log(S)
+
+
+class SequenceEvidence:
+    """The sequence-aware model: per-frame features ``y = ilr(o)`` and ``y y^T`` (flattened); draws
+    ``loc (S, M, d)``, ``between (S, M, d, d)``, ``within (S, d, d)``. Each sequence's look is
+    integrated out exactly: the evidence of ``n`` frames is that of their mean look under
+    ``N(loc_c, between_c + within / n)`` times the frames' scatter term under ``within`` (the same
+    for every class, but not for every draw)."""
+
+    def __init__(self, draws: dict[str, Tensor]) -> None:
+        loc, between, within = draws["loc"], draws["between"], draws["within"]
+        S, self.num_classes, self.dim = loc.shape
+        self.feature_size = self.dim + self.dim**2
+        self._basis, self._lam, self._logdet = look_basis(between, within.unsqueeze(1))  # (S, M, d, d), (S, M, d), (S, 1)
+        self._basis_loc = (self._basis @ loc.unsqueeze(-1)).squeeze(-1)  # (S, M, d)
+        self._within_prec = torch.linalg.inv(within).reshape(S, -1)  # (S, d d)
+
+    def features(self, obs: Tensor) -> Tensor:
+        y = ilr(obs)
+        return torch.cat([y, (y.unsqueeze(-1) * y.unsqueeze(-2)).flatten(-2)], -1)
+
+    def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
+        S, M, d = self._basis.shape[0], self.num_classes, self.dim
+        mean_y = stats[:, :d] / counts.unsqueeze(-1)
+        scatter = stats[:, d:] - counts[:, None] * (mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)).flatten(-2)  # (K, d d)
+        flat_basis = self._basis.reshape(S * M * d, d)
+        out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
+        step = max(1, _CHUNK_ELEMENTS // (S * M * d))
+        for start in _chunks(stats.shape[0], S * M * d):
+            rows = slice(start, start + step)
+            k = mean_y[rows].shape[0]
+            resid = (flat_basis @ mean_y[rows].T).reshape(S, M, d, k).permute(3, 0, 1, 2) - self._basis_loc  # (k, S, M, d)
+            n = counts[rows][:, None, None]
+            trace = (scatter[rows] @ self._within_prec.T).unsqueeze(-1)  # (k, S, 1): tr(W^-1 scatter) by one matmul
+            terms = look_log_marginal(n, resid, self._lam, self._logdet) + within_log_prob(n, trace, self._logdet, d)
+            out[rows] = logsumexp_in_order(terms.transpose(1, 2))
+        return out - math.log(S)
+
+
+EVIDENCE = {"paper": PaperEvidence, "confusion": ConfusionEvidence, "sequence": SequenceEvidence}

@@ -1,0 +1,170 @@
+"""Pure update steps of the sequence-aware model's sampler, vectorised over chains.
+
+The model (:mod:`hbni_pyro.sequence_model`) is conditionally conjugate, so every block but the
+pooling is drawn from its exact conditional (an MH move whose proposal is the conditional,
+accepted with probability 1); the pooling moves by a Gaussian random walk on its log with the
+class spreads integrated out, after which they are drawn anew. Sequences enter only through
+their statistics (:class:`~hbni_pyro.sequence_model.SequenceStats`).
+
+Shapes: state ``(..., K)`` classes, ``(..., K, d)`` looks, ``(..., M, d)`` class means,
+``(..., M, d, d)`` class spreads, ``(..., d, d)`` shared covariances; statistics broadcast
+against the state's batch.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from hbni_pyro.density import look_basis, look_log_marginal, normal_log_prob
+from hbni_pyro.sequence_model import SequenceStats, look_residuals
+from hbni_pyro.wishart import logdet_spd, sample_wishart
+
+
+class SequenceState(NamedTuple):
+    """``c (..., K)``, ``look (..., K, d)``, ``loc (..., M, d)``, ``between (..., M, d, d)``,
+    ``between_mean (..., d, d)``, ``log_pooling (...)``, ``within (..., d, d)``."""
+
+    c: Tensor
+    look: Tensor
+    loc: Tensor
+    between: Tensor
+    between_mean: Tensor
+    log_pooling: Tensor
+    within: Tensor
+
+
+def gaussian_draw(prec: Tensor, rhs: Tensor, generator: torch.Generator) -> Tensor:
+    """Draw from ``N(prec^-1 rhs, prec^-1)`` for batches of precisions ``(..., d, d)`` and ``rhs (..., d)``."""
+    tril = torch.linalg.cholesky(prec)
+    mean = torch.cholesky_solve(rhs.unsqueeze(-1), tril).squeeze(-1)
+    z = torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
+    return mean + torch.linalg.solve_triangular(tril.transpose(-1, -2), z.unsqueeze(-1), upper=True).squeeze(-1)
+
+
+def draw_wishart_given(df: Tensor, scale_inv: Tensor, generator: torch.Generator) -> Tensor:
+    """A ``Wishart(df, scale_inv^-1)`` draw: the conditional of a precision whose prior and data
+    give the inverse scale ``scale_inv (..., d, d)``."""
+    return sample_wishart(df, torch.linalg.cholesky(torch.linalg.inv(scale_inv)), generator)
+
+
+def class_log_probs(stats: SequenceStats, state: SequenceState, log_prior: Tensor) -> Tensor:
+    """``(..., K, M)`` unnormalised ``log p(c_k = m | frames, params)`` with the look integrated out
+    (the frames' scatter term is the same for every class and drops out)."""
+    basis, lam, logdet = look_basis(state.between, state.within.unsqueeze(-3))
+    look = look_log_marginal(stats.count[..., None], look_residuals(basis, stats.mean_y, state.loc), lam.unsqueeze(-3),
+                             logdet.unsqueeze(-2))
+    return log_prior + look
+
+
+def _per_sequence(table: Tensor, c: Tensor) -> Tensor:
+    """Row ``c_k`` of a per-class ``table (..., M, *shape)`` for every sequence: ``(..., K, *shape)``."""
+    index = c.reshape(c.shape + (1,) * (table.dim() - c.dim())).expand(c.shape + table.shape[c.dim():])
+    return table.gather(c.dim() - 1, index)
+
+
+def update_classes_and_looks(
+    state: SequenceState, stats: SequenceStats, log_prior: Tensor, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Exact blocked draw of every ``(c_k, mu_k)``: ``c_k`` from ``p(c_k | frames)`` (labelled ones
+    kept), then ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)``, ``P = B_c^-1 + n W^-1``."""
+    logits = class_log_probs(stats, state, log_prior)
+    u = torch.rand(logits.shape[:-1] + (1,), generator=generator, dtype=logits.dtype)
+    cdf = torch.softmax(logits, -1).cumsum(-1)
+    drawn = (u * cdf[..., -1:] > cdf).sum(-1).clamp_max(logits.shape[-1] - 1)
+    c = torch.where(stats.labels >= 0, stats.labels, drawn)
+    pb = _per_sequence(torch.linalg.inv(state.between), c)
+    pw = torch.linalg.inv(state.within).unsqueeze(-3)
+    prec = pb + stats.count[..., None, None] * pw
+    rhs = (pb @ _per_sequence(state.loc, c).unsqueeze(-1)).squeeze(-1) + (pw @ stats.sum_y.unsqueeze(-1)).squeeze(-1)
+    return c, gaussian_draw(prec, rhs, generator)
+
+
+def class_totals(c: Tensor, values: Tensor, num_classes: int) -> tuple[Tensor, Tensor]:
+    """``counts (..., M)`` of sequences per class and ``sum_{k: c_k = m} values_k`` ``(..., M, *value shape)``."""
+    one_hot = torch.nn.functional.one_hot(c, num_classes).to(values.dtype)  # (..., K, M)
+    flat = values.reshape(values.shape[: c.dim()] + (-1,))
+    sums = one_hot.transpose(-1, -2) @ flat
+    return one_hot.sum(-2), sums.reshape(sums.shape[:-1] + values.shape[c.dim():])
+
+
+def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generator: torch.Generator) -> Tensor:
+    """Exact draw of the class means: ``N(prior_mean, prior_sd^2 I)`` prior, looks ``N(m_c, B_c)``."""
+    num_classes, d = state.loc.shape[-2:]
+    counts, look_sums = class_totals(state.c, state.look, num_classes)
+    prec_between = torch.linalg.inv(state.between)
+    prec = torch.eye(d, dtype=state.loc.dtype) / prior_sd**2 + counts[..., None, None] * prec_between
+    rhs = prior_mean / prior_sd**2 + (prec_between @ look_sums.unsqueeze(-1)).squeeze(-1)
+    return gaussian_draw(prec, rhs, generator)
+
+
+def between_data(state: SequenceState) -> tuple[Tensor, Tensor]:
+    """Per class: the number of sequences and the scatter of their looks about the class mean."""
+    dev = state.look - _per_sequence(state.loc, state.c)
+    return class_totals(state.c, dev.unsqueeze(-1) * dev.unsqueeze(-2), state.loc.shape[-2])
+
+
+def within_data(state: SequenceState, stats: SequenceStats) -> tuple[Tensor, Tensor]:
+    """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``,
+    ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]``."""
+    mu, s1 = state.look, stats.sum_y
+    outer = s1.unsqueeze(-1) * mu.unsqueeze(-2)
+    scatter = stats.sum_yy - outer - outer.transpose(-1, -2) + stats.count[..., None, None] * mu.unsqueeze(-1) * mu.unsqueeze(-2)
+    return stats.count.sum(-1), scatter.sum(-3)
+
+
+def draw_within(state: SequenceState, stats: SequenceStats, df0: float, psi0: Tensor, generator: torch.Generator) -> Tensor:
+    """Exact draw of the frames' covariance ``W``: ``InvWishart(df0, psi0)`` prior, frames ``N(mu_k, W)``."""
+    frames, scatter = within_data(state, stats)
+    df = (df0 + frames).expand(state.log_pooling.shape)
+    return torch.linalg.inv(draw_wishart_given(df, psi0 + scatter, generator))
+
+
+def pooling_log_target(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, median: float, sd: float) -> Tensor:
+    """Unnormalised ``log p(log pool | looks, class means, B)`` with every class spread integrated out.
+
+    ``S_c ~ InvWishart(nu, pool * S)`` (``nu = pool + d + 1``) is conjugate to ``n_c`` Gaussian
+    vectors with scatter ``R_c``, whose marginal is ``|pool S|^(nu/2) Gamma_d((nu + n_c)/2) /
+    (Gamma_d(nu/2) |pool S + R_c|^((nu + n_c)/2))`` up to factors free of ``pool``. Moving ``pool``
+    with the class covariances integrated out, then drawing them anew, mixes far better than moving
+    it given them. ``N(log median, sd^2)`` prior on ``log pool``.
+    """
+    d = mean.shape[-1]
+    pool = log_pool.exp()[..., None]
+    nu = pool + d + 1
+    psi = pool[..., None, None] * mean.unsqueeze(-3)
+    terms = 0.5 * nu * logdet_spd(psi) - 0.5 * (nu + counts) * logdet_spd(psi + scatter)
+    terms = terms + torch.mvlgamma(0.5 * (nu + counts), d) - torch.mvlgamma(0.5 * nu, d)
+    return terms.sum(-1) + normal_log_prob(log_pool, math.log(median), sd)
+
+
+def update_pooling(
+    log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, median: float, sd: float, step: Tensor,
+    generator: torch.Generator,
+) -> tuple[Tensor, Tensor]:
+    """Gaussian random walk on ``log pool`` (class covariances integrated out); returns it and ``accepted``."""
+    proposal = log_pool + step * torch.randn(log_pool.shape, generator=generator, dtype=log_pool.dtype)
+    args = (mean, counts, scatter, median, sd)
+    ratio = pooling_log_target(proposal, *args) - pooling_log_target(log_pool, *args)
+    ok = torch.rand(log_pool.shape, generator=generator, dtype=log_pool.dtype).log() < ratio
+    return torch.where(ok, proposal, log_pool), ok
+
+
+def draw_class_covs(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, generator: torch.Generator) -> Tensor:
+    """Exact draw of the class covariances: ``InvWishart(pool + d + 1, pool S)`` prior, data ``(counts, scatter)``."""
+    d = mean.shape[-1]
+    pool = log_pool.exp()
+    psi = pool[..., None, None, None] * mean.unsqueeze(-3) + scatter
+    return torch.linalg.inv(draw_wishart_given(pool.unsqueeze(-1) + d + 1 + counts, psi, generator))
+
+
+def draw_shared_mean(log_pool: Tensor, covs: Tensor, df0: float, scale0_inv: Tensor, generator: torch.Generator) -> Tensor:
+    """Exact draw of a shared covariance ``S``: its ``Wishart(df0, scale0)`` prior is conjugate to
+    ``S_c ~ InvWishart(pool + d + 1, pool S)``."""
+    num_classes, d = covs.shape[-3], covs.shape[-1]
+    pool = log_pool.exp()
+    df = df0 + num_classes * (pool + d + 1)
+    return draw_wishart_given(df, scale0_inv + pool[..., None, None] * torch.linalg.inv(covs).sum(-3), generator)
