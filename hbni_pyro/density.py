@@ -114,8 +114,20 @@ def class_log_lik(count: Tensor | float, sum_log: Tensor, theta: Tensor, beta: T
     count = count.unsqueeze(-1) if count.dim() else count
     if beta is None:
         return lifted_block_log_prob(count, sum_log, theta.unsqueeze(-2), theta.shape[-1])
-    alpha = concentrations(theta, beta)
-    return count * dirichlet_normaliser(alpha).unsqueeze(-2) + sum_log @ (alpha - 1).transpose(-1, -2)
+    return block_log_lik(count, sum_log, *dirichlet_terms(concentrations(theta, beta)))
+
+
+def dirichlet_terms(alpha: Tensor) -> tuple[Tensor, Tensor]:
+    """The two parameter terms of (*) for concentration rows ``alpha (..., M, M)``: the normalisers
+    ``(..., M)`` and the exponents ``alpha - 1`` ``(..., M, M)`` (computed once, reused for every block)."""
+    return dirichlet_normaliser(alpha), alpha - 1
+
+
+def block_log_lik(count: Tensor, sum_log: Tensor, normaliser: Tensor, exponent: Tensor) -> Tensor:
+    """(*) from :func:`dirichlet_terms` for ``K`` blocks under ``C`` concentration rows (e.g. classes,
+    or draws x classes flattened): ``count (..., K, 1)``, ``sum_log (..., K, M)``, ``normaliser (..., C)``,
+    ``exponent (..., C, M)`` -> ``(..., K, C)``."""
+    return count * normaliser.unsqueeze(-2) + sum_log @ exponent.transpose(-1, -2)
 
 
 def assigned_log_lik(counts: Tensor, sums: Tensor, theta: Tensor, beta: Tensor | None = None) -> Tensor:

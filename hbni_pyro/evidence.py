@@ -15,7 +15,9 @@ import math
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import class_log_lik, ilr, lifted_normaliser, look_basis, look_log_marginal, within_log_prob
+from hbni_pyro.density import (
+    block_log_lik, concentrations, dirichlet_terms, ilr, lifted_normaliser, look_basis, look_log_marginal, within_log_prob,
+)
 
 _CHUNK_ELEMENTS = 1 << 16
 """Largest number of (block, class, draw) terms built at once (512 KiB of doubles, so each chunk's
@@ -68,21 +70,23 @@ class ConfusionEvidence:
     """The confusion-aware model: per-frame feature ``log o``; draws ``theta (S, M)``, ``beta (S, M, M)``."""
 
     def __init__(self, draws: dict[str, Tensor]) -> None:
-        self.theta, self.beta = draws["theta"], draws["beta"]
-        self.num_classes = self.theta.shape[1]
+        self.num_classes = draws["theta"].shape[1]
         self.feature_size = self.num_classes
+        self._normaliser, self._exponent = dirichlet_terms(concentrations(draws["theta"], draws["beta"]))  # (S, M), (S, M, M)
 
     def features(self, obs: Tensor) -> Tensor:
         return obs.log()
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
-        S, M = self.theta.shape
+        S, M = self._normaliser.shape
         out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
         step = max(1, _CHUNK_ELEMENTS // (S * M))
+        normaliser, exponent = self._normaliser.reshape(S * M), self._exponent.reshape(S * M, M)  # draws x classes as rows
         for start in _chunks(stats.shape[0], S * M):
             rows = slice(start, start + step)
-            terms = class_log_lik(counts[rows], stats[rows], self.theta, self.beta)  # (S, k, M)
-            out[rows] = logsumexp_in_order(terms.permute(1, 2, 0))
+            k = stats[rows].shape[0]
+            terms = block_log_lik(counts[rows].unsqueeze(-1), stats[rows], normaliser, exponent).reshape(k, S, M)
+            out[rows] = logsumexp_in_order(terms.transpose(1, 2))
         return out - math.log(S)
 
 

@@ -199,7 +199,9 @@ class HBNIFilter(StreamingFilter):
             plug-in gets right (see the ``filtering_error`` study, ``hbni.filter.mode=plugin``).
         class_prior: ``(M,)`` class prior; ``None`` takes ``posterior.class_prior``.
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
-            draws (``None`` = all); its cost is ``O(draws)`` per frame and class.
+            draws; its cost is ``O(draws)`` per frame and class. ``None`` = the model's
+            :attr:`DEFAULT_DRAWS`: all draws, except at most 2000 under the sequence model, whose
+            cost per draw is ``M - 1`` times the paper's (2000 draws keep a frame under 2 ms).
         temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood (all statistics scaled by
             ``tau``). The frame-level models treat outputs as i.i.d.; the frames of one camera
             sequence are not (the same view, light and background persist), so ``N`` of them carry
@@ -212,6 +214,7 @@ class HBNIFilter(StreamingFilter):
     """
 
     MODES = ("marginal", "plugin")
+    DEFAULT_DRAWS = {"paper": None, "confusion": None, "sequence": 2000}
 
     def __init__(
         self,
@@ -237,6 +240,7 @@ class HBNIFilter(StreamingFilter):
         self._log_prior = self.class_prior.log()
         self.mode = mode
         self.temper = float(temper)
+        num_draws = self.DEFAULT_DRAWS[self.model] if num_draws is None else num_draws
         if mode == "plugin":
             draws = _point_estimate(draws, self.model)
         elif num_draws is not None and num_draws < len(next(iter(draws.values()))):

@@ -188,8 +188,9 @@ def sequence_prior_log_prob(params: dict[str, Tensor], hyperprior: HyperPrior) -
 
 def look_residuals(basis: Tensor, mean_y: Tensor, loc: Tensor) -> Tensor:
     """``A_c (ybar_k - m_c)`` for every sequence and class: ``basis (..., M, d, d)``, ``mean_y (..., K, d)``,
-    ``loc (..., M, d)`` -> ``(..., K, M, d)``."""
-    return (basis.unsqueeze(-4) @ (mean_y.unsqueeze(-2) - loc.unsqueeze(-3)).unsqueeze(-1)).squeeze(-1)
+    ``loc (..., M, d)`` -> ``(..., K, M, d)``, by one matmul (no per-sequence copy of the bases)."""
+    projected = (basis @ mean_y.unsqueeze(-3).transpose(-1, -2)).permute(*range(basis.dim() - 3), -1, -3, -2)
+    return projected - (basis @ loc.unsqueeze(-1)).squeeze(-1).unsqueeze(-3)
 
 
 def sequence_log_lik(stats: SequenceStats, params: dict[str, Tensor], class_prior: Tensor) -> Tensor:

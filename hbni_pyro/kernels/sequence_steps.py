@@ -23,6 +23,9 @@ from hbni_pyro.density import look_basis, look_log_marginal, normal_log_prob
 from hbni_pyro.sequence_model import SequenceStats, look_residuals
 from hbni_pyro.wishart import logdet_spd, sample_wishart
 
+LOOK_CHUNK = 4096
+"""Sequences per block when their looks are drawn."""
+
 
 class SequenceState(NamedTuple):
     """``c (..., K)``, ``look (..., K, d)``, ``loc (..., M, d)``, ``between (..., M, d, d)``,
@@ -66,21 +69,51 @@ def _per_sequence(table: Tensor, c: Tensor) -> Tensor:
     return table.gather(c.dim() - 1, index)
 
 
+def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, generator: torch.Generator) -> Tensor:
+    """Exact draw of every unknown ``c_k`` from ``p(c_k | frames, params)`` (look integrated out);
+    labelled sequences keep their label and cost nothing."""
+    labels = stats.labels.expand(state.c.shape)
+    u = torch.rand(state.c.shape + (1,), generator=generator, dtype=state.loc.dtype)
+    free = (stats.labels < 0).reshape(-1, stats.labels.shape[-1]).any(0).nonzero().squeeze(-1)
+    if not free.numel():
+        return labels.clone()
+    sub = SequenceStats(stats.count[..., free], stats.sum_y[..., free, :], stats.sum_yy[..., free, :, :], stats.labels[..., free])
+    cdf = torch.softmax(class_log_probs(sub, state, log_prior), -1).cumsum(-1)
+    drawn = (u[..., free, :] * cdf[..., -1:] > cdf).sum(-1).clamp_max(cdf.shape[-1] - 1)
+    c = labels.clone()
+    c[..., free] = torch.where(labels[..., free] >= 0, labels[..., free], drawn)
+    return c
+
+
+def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator: torch.Generator) -> Tensor:
+    """Exact draw of every look ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)`` with
+    ``P = B_c^-1 + n W^-1``. ``P`` depends only on the class and the frame count, so it is factored
+    once per (class, distinct count) and gathered per sequence in blocks of :data:`LOOK_CHUNK`."""
+    counts, which = torch.unique(stats.count, return_inverse=True)
+    prec_between = torch.linalg.inv(state.between)  # (..., M, d, d)
+    prec_within = torch.linalg.inv(state.within)  # (..., d, d)
+    prec = prec_between.unsqueeze(-3) + counts[:, None, None] * prec_within[..., None, None, :, :]  # (..., M, U, d, d)
+    cov = torch.linalg.inv(prec)
+    flat_cov, flat_tril = cov.flatten(-4, -3), torch.linalg.cholesky(cov).flatten(-4, -3)  # (..., M * U, d, d)
+    pb_loc = (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1)  # (..., M, d)
+    wy = (prec_within.unsqueeze(-3) @ stats.sum_y.unsqueeze(-1)).squeeze(-1)  # (..., K, d)
+    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype)
+    group = c * counts.shape[0] + which.expand(c.shape)
+    look = torch.empty(z.shape, dtype=z.dtype)
+    for start in range(0, c.shape[-1], LOOK_CHUNK):
+        rows = slice(start, start + LOOK_CHUNK)
+        rhs = _per_sequence(pb_loc, c[..., rows]) + wy[..., rows, :]
+        mean = (_per_sequence(flat_cov, group[..., rows]) @ rhs.unsqueeze(-1)).squeeze(-1)
+        look[..., rows, :] = mean + (_per_sequence(flat_tril, group[..., rows]) @ z[..., rows, :].unsqueeze(-1)).squeeze(-1)
+    return look
+
+
 def update_classes_and_looks(
     state: SequenceState, stats: SequenceStats, log_prior: Tensor, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
-    """Exact blocked draw of every ``(c_k, mu_k)``: ``c_k`` from ``p(c_k | frames)`` (labelled ones
-    kept), then ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)``, ``P = B_c^-1 + n W^-1``."""
-    logits = class_log_probs(stats, state, log_prior)
-    u = torch.rand(logits.shape[:-1] + (1,), generator=generator, dtype=logits.dtype)
-    cdf = torch.softmax(logits, -1).cumsum(-1)
-    drawn = (u * cdf[..., -1:] > cdf).sum(-1).clamp_max(logits.shape[-1] - 1)
-    c = torch.where(stats.labels >= 0, stats.labels, drawn)
-    pb = _per_sequence(torch.linalg.inv(state.between), c)
-    pw = torch.linalg.inv(state.within).unsqueeze(-3)
-    prec = pb + stats.count[..., None, None] * pw
-    rhs = (pb @ _per_sequence(state.loc, c).unsqueeze(-1)).squeeze(-1) + (pw @ stats.sum_y.unsqueeze(-1)).squeeze(-1)
-    return c, gaussian_draw(prec, rhs, generator)
+    """Exact blocked draw of every ``(c_k, mu_k)``: :func:`draw_classes`, then :func:`draw_looks`."""
+    c = draw_classes(state, stats, log_prior, generator)
+    return c, draw_looks(state, stats, c, generator)
 
 
 def class_totals(c: Tensor, values: Tensor, num_classes: int) -> tuple[Tensor, Tensor]:
@@ -102,18 +135,22 @@ def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generat
 
 
 def between_data(state: SequenceState) -> tuple[Tensor, Tensor]:
-    """Per class: the number of sequences and the scatter of their looks about the class mean."""
+    """Per class: the number of sequences and the scatter of their looks about the class mean,
+    accumulated class by class (no per-sequence outer products)."""
+    num_classes = state.loc.shape[-2]
+    one_hot = torch.nn.functional.one_hot(state.c, num_classes).to(state.look.dtype)  # (..., K, M)
     dev = state.look - _per_sequence(state.loc, state.c)
-    return class_totals(state.c, dev.unsqueeze(-1) * dev.unsqueeze(-2), state.loc.shape[-2])
+    scatter = torch.stack([(dev * one_hot[..., m : m + 1]).transpose(-1, -2) @ dev for m in range(num_classes)], -3)
+    return one_hot.sum(-2), scatter
 
 
 def within_data(state: SequenceState, stats: SequenceStats) -> tuple[Tensor, Tensor]:
     """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``,
-    ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]``."""
-    mu, s1 = state.look, stats.sum_y
-    outer = s1.unsqueeze(-1) * mu.unsqueeze(-2)
-    scatter = stats.sum_yy - outer - outer.transpose(-1, -2) + stats.count[..., None, None] * mu.unsqueeze(-1) * mu.unsqueeze(-2)
-    return stats.count.sum(-1), scatter.sum(-3)
+    ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]`` by matrix products over the sequences."""
+    mu = state.look
+    cross = stats.sum_y.transpose(-1, -2) @ mu  # sum_k s_k mu_k^T
+    scatter = stats.sum_yy.sum(-3) - cross - cross.transpose(-1, -2) + (mu * stats.count.unsqueeze(-1)).transpose(-1, -2) @ mu
+    return stats.count.sum(-1), scatter
 
 
 def draw_within(state: SequenceState, stats: SequenceStats, df0: float, psi0: Tensor, generator: torch.Generator) -> Tensor:

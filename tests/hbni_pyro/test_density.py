@@ -58,7 +58,7 @@ def test_hyperprior_rejects_bad_values(field, bad):
 
 from hbni_pyro.density import (  # noqa: E402
     DirichletOutputs, IlrNormalOutputs, assigned_log_lik, class_log_lik, concentrations, helmert_basis, ilr,
-    ilr_log_jacobian, look_basis, look_log_marginal, within_log_prob,
+    ilr_log_jacobian, look_basis, look_log_marginal, scatter_trace, within_log_prob,
 )
 
 
@@ -138,7 +138,7 @@ def test_look_marginal_and_within_term_give_the_joint_gaussian_of_a_sequence():
     ybar = y.mean(0)
     scatter = (y - ybar).T @ (y - ybar)
     ours = look_log_marginal(float(n), basis @ (ybar - m), lam, logdet)
-    ours = ours + within_log_prob(float(n), scatter, torch.linalg.inv(W), logdet)
+    ours = ours + within_log_prob(float(n), scatter_trace(torch.linalg.inv(W), scatter), logdet, d)
     torch.testing.assert_close(ours, ref, rtol=0, atol=1e-9)
     # The basis diagonalises B + W / k for every k.
     for k in (1.0, 7.0):

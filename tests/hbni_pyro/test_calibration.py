@@ -1,0 +1,55 @@
+"""Reliability diagrams, expected calibration error and the macro-observation threshold checks."""
+
+import pytest
+import torch
+
+from hbni_pyro.calibration import binomial_stderr, reliability, stream_reliability, threshold_checks
+from hbni_pyro.filters import SSBF, HBNIFilter
+from hbni_pyro.generative import sample_outputs
+from hbni_pyro.macro import MacroObservationProcess
+
+from hbni_stubs import DT, THETA, DrawsPosterior
+
+
+def test_reliability_by_hand():
+    conf = torch.tensor([0.55, 0.65, 0.95, 0.91, 0.99])
+    right = torch.tensor([True, False, True, True, False])
+    r = reliability(conf, right, num_bins=5, low=0.5)
+    assert r.count.tolist() == [1, 1, 0, 0, 3]
+    torch.testing.assert_close(r.confidence[[0, 1, 4]], torch.tensor([0.55, 0.65, (0.95 + 0.91 + 0.99) / 3], dtype=DT))
+    torch.testing.assert_close(r.accuracy[[0, 1, 4]], torch.tensor([1.0, 0.0, 2 / 3], dtype=DT))
+    assert r.confidence[2].isnan() and r.accuracy[3].isnan()
+    expected = (0.45 + 0.65 + 3 * abs(0.95 - 2 / 3)) / 5
+    assert r.ece == pytest.approx(expected)
+    with pytest.raises(ValueError, match="confidence, correct"):
+        reliability(conf, right[:2])
+
+
+def test_a_filter_that_knows_the_truth_is_calibrated():
+    """HBNI with the true theta on i.i.d. toy streams: its ECE over every prefix is within a few
+    hundredths (Monte Carlo noise of 600 x 10 correlated prefixes)."""
+    g = torch.Generator().manual_seed(0)
+    truth = torch.randint(0, 3, (600,), generator=g)
+    streams = sample_outputs(THETA, truth[:, None].expand(600, 10), g)
+    r = stream_reliability(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), streams, truth)
+    assert r.ece < 0.03 and r.count.sum() == 6000
+    bad = stream_reliability(SSBF(3), streams, truth)  # SSBF treats each output as a likelihood: overconfident
+    assert bad.ece > r.ece
+
+
+def test_threshold_checks_agree_with_the_process():
+    g = torch.Generator().manual_seed(1)
+    truth = torch.randint(0, 3, (200,), generator=g)
+    streams = sample_outputs(THETA, truth[:, None].expand(200, 8), g)
+    f = HBNIFilter(DrawsPosterior(THETA.unsqueeze(0)))
+    checks = threshold_checks(f, streams, truth, thresholds=(0.9, 0.999999), max_frames=4)
+    for t, row in checks.items():
+        batch = MacroObservationProcess(f, float(t), 4).run_batch(streams)
+        emitted = ~batch.timed_out
+        assert row["emitted"] == int(emitted.sum())
+        assert row["emitted_accuracy"] == pytest.approx(float((batch.label == truth)[emitted].double().mean()))
+        assert row["timeout_rate"] == pytest.approx(float(batch.timed_out.double().mean()))
+        assert row["mean_frames"] == pytest.approx(float(batch.frames_used.double().mean()))
+        assert row["emitted_stderr"] == pytest.approx(binomial_stderr(row["emitted_accuracy"], row["emitted"]))
+    assert checks["0.999999"]["timeout_rate"] > checks["0.9"]["timeout_rate"]
+    assert binomial_stderr(0.5, 0) != binomial_stderr(0.5, 0)  # NaN with no trials
