@@ -1,42 +1,52 @@
 """Hierarchical Bayesian Noise Inference (HBNI) for streams of classifier outputs.
 
-Main entry points: :func:`fit` / :func:`fit_many` (posterior over per-class noise),
+Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: ``model="paper"``,
+``"confusion"`` or ``"sequence"``, see :data:`MODELS`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
-:func:`tabulate` from recorded streams, :class:`MacroObservationModel`) and closed-loop perception
-replaying recorded streams through a process (:class:`StreamReplay`).
+:func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
+(:func:`threshold_checks`, :func:`stream_reliability`) and closed-loop perception replaying recorded
+streams through a process (:class:`StreamReplay`).
 
 See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
 
+from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
+from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
 from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.fit import fit, fit_many
-from hbni_pyro.kernels import HBNIMetropolis
+from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize, tabulate
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.replay import StreamReplay
+from hbni_pyro.sequence_model import sequence_model
 from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
+from hbni_pyro.variants import MODELS
 
 __all__ = [
+    "ConfusionMetropolis",
     "HBNIFilter",
     "HBNIMetropolis",
     "HBNIPosterior",
     "HyperPrior",
+    "MODELS",
     "MacroObservationModel",
     "MacroObservationProcess",
     "MaxOfMeanFilter",
     "OUTPUT_FLOOR",
     "SSBF",
+    "SequenceMetropolis",
     "StreamReplay",
     "TemperFit",
     "VotingFilter",
     "as_outputs",
     "characterize",
+    "confusion_model",
     "decide",
     "fit",
     "fit_many",
@@ -45,5 +55,9 @@ __all__ = [
     "hbni_model",
     "lifted_dirichlet_log_prob",
     "log_joint",
+    "reliability",
+    "sequence_model",
+    "stream_reliability",
     "tabulate",
+    "threshold_checks",
 ]

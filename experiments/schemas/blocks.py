@@ -61,11 +61,17 @@ class FilterBlock:
 
 @dataclass
 class HBNIBlock:
-    """``hbni``: hyperprior, fitting settings and filter mode."""
+    """``hbni``: noise model, hyperprior, fitting settings and filter mode."""
 
+    model: str = "paper"
     hyperprior: Any = field(default_factory=HyperPriorBlock)
     fit: FitBlock = field(default_factory=FitBlock)
     filter: FilterBlock = field(default_factory=FilterBlock)
+
+    def check(self, path: str) -> None:
+        from hbni_pyro.variants import MODELS
+
+        one_of("model", self.model, MODELS)
 
 
 @dataclass

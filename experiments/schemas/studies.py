@@ -400,6 +400,80 @@ class Stream(Root):
     stream: StreamBlock = field(default_factory=StreamBlock)
 
 
+@dataclass
+class NoiseToyBlock:
+    theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
+    training_size: int = 15
+    num_training_sets: int = 20
+    num_trials: int = 2000
+    max_len: int = 50
+    filter_draws: int = 1000
+    target: float = 0.01
+
+    def check(self, path: str) -> None:
+        _check_theta("theta", self.theta)
+        for name in ("training_size", "num_training_sets", "num_trials", "max_len", "filter_draws"):
+            positive_int(name, getattr(self, name))
+        if self.training_size % len(self.theta):
+            raise ValueError(f"training_size: expected a multiple of the {len(self.theta)} classes, got {self.training_size}")
+        if self.num_trials % self.num_training_sets:
+            raise ValueError(f"num_trials: expected a multiple of num_training_sets ({self.num_training_sets}), got {self.num_trials}")
+        probability("target", self.target)
+
+
+@dataclass
+class NoiseMissionBlock:
+    train_per_class: int = 30
+    augment: int = 1
+    calib_sequences: int = 20
+    test_sequences: int = 50
+    frames: int = 30
+
+    def check(self, path: str) -> None:
+        for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
+            positive_int(name, getattr(self, name))
+        positive_int("augment", self.augment, 0)
+
+
+@dataclass
+class NoiseStudy:
+    """``study`` of the noise-model comparison."""
+
+    models: list[str] = field(default_factory=lambda: ["paper", "confusion", "sequence"])
+    thresholds: list[float] = field(default_factory=lambda: [0.9, 0.95, 0.99])
+    curve_thresholds: list[float] = field(default_factory=lambda: [0.5, 0.9, 0.95, 0.99])
+    cache_dir: Optional[str] = None
+    toy: NoiseToyBlock = field(default_factory=NoiseToyBlock)
+    mission: NoiseMissionBlock = field(default_factory=NoiseMissionBlock)
+    conditions: dict[str, Any] = field(default_factory=dict)
+    images: Optional[str] = None
+    images_calibration: float = 0.5
+
+    def check(self, path: str) -> None:
+        from hbni_pyro.variants import MODELS
+
+        if not self.models or any(m not in MODELS for m in self.models) or len(set(self.models)) != len(self.models):
+            raise ValueError(f"models: expected distinct models of {list(MODELS)}, got {list(self.models)}")
+        for name in ("thresholds", "curve_thresholds"):
+            values = getattr(self, name)
+            if not values:
+                raise ValueError(f"{name}: expected at least one threshold")
+            for t in values:
+                probability(name, t)
+        for name, overrides in self.conditions.items():
+            _check_conditions(f"conditions.{name}", overrides)
+        if not self.conditions and self.images is None:
+            raise ValueError("conditions: expected at least one imaging condition (or study.images)")
+        if not 0 < self.images_calibration < 1:
+            raise ValueError(f"images_calibration: expected a share in (0, 1), got {self.images_calibration}")
+
+
+@dataclass
+class NoiseModels(Root):
+    classifier: Any = field(default_factory=ClassifierBlock)
+    study: NoiseStudy = field(default_factory=NoiseStudy)
+
+
 #: schema of each experiment, by its ``name``
 SCHEMAS: dict[str, type] = {
     "hbni_toy": HBNIToy,
@@ -412,4 +486,5 @@ SCHEMAS: dict[str, type] = {
     "mission": Mission,
     "mission_full": Mission,
     "stream": Stream,
+    "noise_models": NoiseModels,
 }

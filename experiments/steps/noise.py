@@ -9,14 +9,18 @@ from omegaconf import DictConfig, OmegaConf
 import hbni_pyro
 
 
-def fit_labelled(outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool) -> hbni_pyro.HBNIPosterior:
+def fit_labelled(
+    outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool, model: str | None = None
+) -> hbni_pyro.HBNIPosterior:
     """Fit HBNI on ``outputs (C, S, F, M)``: ``S`` sequences of ``F`` frames of each true class ``c``.
 
-    Uses the ``hbni.fit`` sampler settings and the ``hbni.hyperprior``; every output's class is known.
+    Uses the noise model ``model`` (default ``hbni.model``), the ``hbni.fit`` sampler settings and
+    the ``hbni.hyperprior``; every output's class is known, and so is its sequence.
     """
-    num_classes = outputs.shape[0]
+    num_classes, num_seq, frames = outputs.shape[:3]
     labels = torch.arange(num_classes).view(-1, 1, 1).expand(outputs.shape[:3]).reshape(-1)
+    sequence_ids = torch.arange(num_classes * num_seq).repeat_interleave(frames)
     return hbni_pyro.fit(
-        outputs.reshape(-1, outputs.shape[-1]).double(), labels, **OmegaConf.to_container(hbni.fit),
-        hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress,
+        outputs.reshape(-1, outputs.shape[-1]).double(), labels, model=model or hbni.model, sequence_ids=sequence_ids,
+        **OmegaConf.to_container(hbni.fit), hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress,
     )

@@ -1,0 +1,297 @@
+"""Noise models compared: the paper's, confusion-aware and sequence-aware HBNI against SSBF and max-of-mean.
+
+:func:`run` reads as its stages:
+
+1. :func:`toy_study`: the paper's toy (true theta, unlabelled training sets, i.i.d. trial
+   streams): classification error against the number of outputs for every model, and the
+   smallest N with error at most ``study.toy.target``.
+2. :func:`mission_outputs`: render the disaster-relief objects, train the frame classifier and
+   classify labelled calibration and held-out sequences under each imaging condition
+   (``study.conditions``: the default mission conditions and the in-flight preset), and from
+   a user's image folder (``study.images``). Outputs are cached on disk by their inputs.
+3. :func:`evaluate_condition`, per condition: fit every model on the calibration sequences (the
+   paper's and the confusion-aware model also with the temper fitted on them), then on the
+   held-out sequences score each filter: held-out log score (the mean log posterior of the
+   true class over every prefix), argmax accuracy after all frames, reliability and expected
+   calibration error, and the macro-observation process at each threshold (accuracy of the
+   labels it emits, timeout rate, mean frames).
+4. :func:`acceptance`: the best model (by held-out log score) against the issue's floors.
+
+Writes ``metrics.json``, ``report.md`` (a table per condition), ``toy_error.png``,
+``accuracy_vs_frames.png``, ``reliability.png`` and every fitted posterior (``artifacts.json``).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from tqdm.auto import tqdm
+
+import hbni_pyro
+from classifiers import FrameClassifier
+from classifiers.data import ImageFolder, get_conditions
+from decpomdp.domains.disaster_relief import CLASSES
+from experiments import noise_models_report as report
+from experiments.artifacts import save_artifact
+from experiments.common import save_figure
+from experiments.report import write_report
+from experiments.steps.cache import cached
+from experiments.steps.noise import fit_labelled
+from experiments.steps.perception import sequence_outputs, train_classifier
+from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
+from hbni_pyro.generative import sample_outputs
+from hbni_pyro.validation import DTYPE
+
+BASELINES = ("ssbf", "max_of_mean")
+TEMPERED = ("paper", "confusion")
+"""Frame-level models that also run with the temper fitted on the calibration sequences."""
+
+
+class Settings(NamedTuple):
+    seed: int
+    progress: bool
+    models: list[str]
+    thresholds: list[float]
+    curve: list[float]
+    cache_dir: str | None
+
+
+def run(cfg: DictConfig, run_dir: Path) -> dict:
+    s = read_settings(cfg)
+    torch.manual_seed(s.seed)
+    toy = toy_study(cfg, s, run_dir)
+    data = mission_outputs(cfg, s, run_dir)
+    if cfg.study.images:
+        data["images"] = folder_outputs(cfg, s)
+    conditions = {name: evaluate_condition(name, calib, held, cfg, s, run_dir) for name, (calib, held) in data.items()}
+    metrics = {"toy": toy, "conditions": conditions, "acceptance": acceptance(toy, conditions, s),
+               "settings": OmegaConf.to_container(cfg.study)}
+    figures = {"toy_error.png": report.toy_figure(toy), "accuracy_vs_frames.png": report.curve_figure(conditions),
+               "reliability.png": report.reliability_figure(conditions)}
+    for file, fig in figures.items():
+        save_figure(fig, run_dir / file)
+    write_report(run_dir / "report.md", report.markdown(metrics, list(figures)))
+    if s.progress:
+        tqdm.write(f"[noise_models] wrote {run_dir / 'report.md'}, metrics.json and the figures")
+    return metrics
+
+
+def read_settings(cfg: DictConfig) -> Settings:
+    st = cfg.study
+    return Settings(int(cfg.seed), bool(cfg.progress), list(st.models), [float(t) for t in st.thresholds],
+                    [float(t) for t in st.curve_thresholds], None if st.cache_dir is None else str(st.cache_dir))
+
+
+# -- 1. the paper's toy ---------------------------------------------------------------------------
+
+
+def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
+    """Error against N on the paper's toy for every model and baseline (common random trials).
+
+    Each of ``num_training_sets`` unlabelled training sets (``training_size`` outputs, balanced)
+    is fitted by every model at once (:func:`hbni_pyro.fit_many`) and filters its own block of
+    trials. The sequence model is told which outputs came from one object: each class's outputs
+    of a training set are one sequence (the classes themselves stay unknown).
+    """
+    t = cfg.study.toy
+    theta = torch.tensor(list(t.theta), dtype=DTYPE)
+    M, T, trials, sets, size = len(theta), int(t.max_len), int(t.num_trials), int(t.num_training_sets), int(t.training_size)
+    g = torch.Generator().manual_seed(s.seed)
+    truth = torch.randint(M, (trials,), generator=g)
+    obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
+    classes = torch.arange(M).repeat_interleave(size // M)
+    train = sample_outputs(theta, classes.expand(sets, -1), g)
+    per_set = trials // sets
+    wrong: dict[str, torch.Tensor] = {
+        "ssbf": (hbni_pyro.decide(hbni_pyro.SSBF(M).run(obs)) != truth[:, None]).sum(0),
+        "max_of_mean": (hbni_pyro.decide(hbni_pyro.MaxOfMeanFilter(M).run(obs)) != truth[:, None]).sum(0),
+    }
+    for k, model in enumerate(s.models):
+        fit_kw = {key: v for key, v in OmegaConf.to_container(cfg.hbni.fit).items() if key != "method"}
+        posts = hbni_pyro.fit_many(train, model=model, sequence_ids=classes, **fit_kw, seed=s.seed + 100 * (k + 1),
+                                   progress=False, hyperprior=instantiate(cfg.hbni.hyperprior))
+        save_artifact(run_dir, f"toy_posterior_{model}", posts[0])
+        counts = torch.zeros(T, dtype=torch.long)
+        for d, post in enumerate(posts):
+            rows = slice(d * per_set, (d + 1) * per_set)
+            probs = hbni_pyro.HBNIFilter(post, cfg.hbni.filter.mode, num_draws=int(t.filter_draws)).run(obs[rows])
+            counts += (hbni_pyro.decide(probs) != truth[rows, None]).sum(0)
+        wrong[model] = counts
+    error = {k: v.to(DTYPE) / trials for k, v in wrong.items()}
+    target = float(t.target)
+    crossing = {k: _first_at_most(e, target) for k, e in error.items()}
+    return {"error": error, "crossing_n": crossing, "target": target, "trials": trials, "training_size": size,
+            "training_sets": sets, "true_theta": theta}
+
+
+def _first_at_most(error: torch.Tensor, target: float) -> int | None:
+    hit = (error <= target).nonzero()
+    return int(hit[0]) + 1 if hit.numel() else None
+
+
+# -- 2. classifier outputs ------------------------------------------------------------------------
+
+
+def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """``(calibration, held-out)`` classifier outputs ``(C, S, F, C)`` per imaging condition, from the
+    cache when a run with the same inputs stored them (the classifier is trained only if needed)."""
+    m = cfg.study.mission
+    base = {"classes": list(CLASSES), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True), "seed": s.seed,
+            "train_per_class": int(m.train_per_class), "augment": int(m.augment), "frames": int(m.frames),
+            "calib_sequences": int(m.calib_sequences), "test_sequences": int(m.test_sequences)}
+    clf: list[FrameClassifier] = []
+
+    def classifier() -> FrameClassifier:
+        if not clf:
+            _step(s, "training the frame classifier on training-condition snapshots")
+            clf.append(train_classifier(cfg.classifier, CLASSES, int(m.train_per_class), int(m.augment), s.seed, s.progress))
+            save_artifact(run_dir, "classifier", clf[0])
+        return clf[0]
+
+    out = {}
+    for name, overrides in OmegaConf.to_container(cfg.study.conditions).items():
+        conditions = get_conditions("mission", **(overrides or {}))
+
+        def compute() -> dict[str, torch.Tensor]:
+            _step(s, f"classifying {name} sequences")
+            f = classifier()
+            calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, s.seed + 1, s.progress,
+                                     f"{name} calibration")[0]
+            held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, s.seed + 2, s.progress,
+                                    f"{name} held-out")[0]
+            return {"calibration": calib.double(), "held_out": held.double()}
+
+        tensors, path, hit = cached(s.cache_dir, f"noise_models_{name}", {**base, "conditions": conditions.to_dict()}, compute)
+        if hit:
+            _step(s, f"{name}: classifier outputs from the cache {path}")
+        out[name] = (tensors["calibration"], tensors["held_out"])
+    return out
+
+
+def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Tensor]:
+    """Outputs of a user's image folder: the classifier trained on ``<images>/train/<class>/*``, then
+    every sequence ``<images>/sequences/<class>/<sequence>/*`` (frames in name order, the first
+    ``study.mission.frames`` of each) classified; each class's first ``images_calibration`` share
+    of sequences (in name order) is the calibration set, the rest held out."""
+    root = Path(str(cfg.study.images))
+    frames = int(cfg.study.mission.frames)
+    _step(s, f"training the frame classifier on {root / 'train'}")
+    train = ImageFolder(root / "train")
+    images, idx = train.load()
+    clf: FrameClassifier = instantiate(cfg.classifier)
+    clf.fit(images, [train.classes[i] for i in idx], augment=int(cfg.study.mission.augment), progress=s.progress)
+    seq_root = root / "sequences"
+    classes = sorted(p.name for p in seq_root.iterdir() if p.is_dir()) if seq_root.is_dir() else []
+    if classes != train.classes:
+        raise ValueError(f"study.images: {str(seq_root)!r} must hold one folder per class of {train.classes}, found {classes}")
+    order = [clf.classes_.index(c) for c in classes]
+    per_class = []
+    for name in classes:
+        seqs = sorted(p for p in (seq_root / name).iterdir() if p.is_dir())
+        outs = []
+        for p in tqdm(seqs, desc=f"images {name}", disable=not s.progress):
+            frames_img = ImageFolder(p).load()[0]
+            if len(frames_img) < frames:
+                raise ValueError(f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}")
+            outs.append(clf.predict_proba(frames_img[:frames])[:, order].double())
+        per_class.append(torch.stack(outs) if outs else torch.empty(0))
+    counts = {len(p) for p in per_class}
+    if len(counts) != 1 or 0 in counts or min(counts) < 2:
+        raise ValueError(f"study.images: expected the same number (>= 2) of sequences per class, got {[len(p) for p in per_class]}")
+    outputs = torch.stack(per_class)  # (C, S, F, C)
+    split = max(1, min(outputs.shape[1] - 1, round(float(cfg.study.images_calibration) * outputs.shape[1])))
+    return outputs[:, :split], outputs[:, split:]
+
+
+# -- 3. per condition -----------------------------------------------------------------------------
+
+
+def evaluate_condition(name: str, calib: torch.Tensor, held: torch.Tensor, cfg: DictConfig, s: Settings,
+                       run_dir: Path) -> dict[str, Any]:
+    """Fit every model on the calibration sequences and score every filter on the held-out ones."""
+    _step(s, f"{name}: fitting {', '.join(s.models)} on {calib.shape[1]} calibration sequences per class")
+    C, _, F, M = calib.shape
+    filters = fitted_filters(name, calib, cfg, s, run_dir)
+    streams, truth = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
+    rows = {}
+    for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not s.progress):
+        rows[fname] = score_filter(f, streams, truth, s)
+    frame_acc = float((held.argmax(-1) == torch.arange(C).view(-1, 1, 1)).to(DTYPE).mean())
+    return {"filters": rows, "temper": {k: f.temper for k, f in filters.items() if k.endswith("_tempered")},
+            "sizes": {"calibration_sequences_per_class": calib.shape[1], "held_out_sequences": int(truth.numel()),
+                      "frames": F}, "frame_accuracy": frame_acc}
+
+
+def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
+    """Every model's filter (and the tempered frame-level ones), then the baselines."""
+    C, _, F, M = calib.shape
+    calib_streams, calib_truth = calib.reshape(-1, F, M), torch.arange(C).repeat_interleave(calib.shape[1])
+    mode = cfg.hbni.filter.mode
+    filters: dict[str, Any] = {}
+    for model in s.models:
+        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model)
+        save_artifact(run_dir, f"posterior_{name}_{model}", post)
+        filters[model] = hbni_pyro.HBNIFilter(post, mode)
+        if model in TEMPERED:
+            tau = hbni_pyro.fit_temper(post, calib_streams, calib_truth, mode).temper
+            filters[f"{model}_tempered"] = hbni_pyro.HBNIFilter(post, mode, temper=tau)
+    filters["ssbf"], filters["max_of_mean"] = hbni_pyro.SSBF(M), hbni_pyro.MaxOfMeanFilter(M)
+    return filters
+
+
+def score_filter(f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings) -> dict[str, Any]:
+    """Held-out log score, final accuracy, reliability and the macro-observation checks of one filter."""
+    probs = f.run(streams)
+    true_prob = probs.gather(-1, truth.view(-1, 1, 1).expand(-1, probs.shape[1], 1)).squeeze(-1)
+    final = float((hbni_pyro.decide(probs[:, -1]) == truth).to(DTYPE).mean())
+    rel = stream_reliability(f, streams, truth)
+    return {
+        "log_score": float(true_prob.clamp_min(1e-300).log().mean()),
+        "log_score_stderr": float(true_prob.clamp_min(1e-300).log().mean(1).std() / math.sqrt(len(truth))),
+        "final_accuracy": final, "final_stderr": binomial_stderr(final, len(truth)),
+        "ece": rel.ece, "reliability": {"confidence": rel.confidence, "accuracy": rel.accuracy, "count": rel.count},
+        "thresholds": threshold_checks(f, streams, truth, s.thresholds),
+        "curve": threshold_checks(f, streams, truth, s.curve),
+    }
+
+
+# -- 4. acceptance --------------------------------------------------------------------------------
+
+
+def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> dict[str, Any]:
+    """The issue's floors for the best model of each condition (highest held-out log score)."""
+    out: dict[str, Any] = {"toy": {}}
+    paper_n = toy["crossing_n"].get("paper")
+    for model in s.models:
+        n = toy["crossing_n"][model]
+        out["toy"][model] = {"n": n, "paper_n": paper_n, "within_one_frame": n is not None and paper_n is not None and n <= paper_n + 1}
+    for name, cond in conditions.items():
+        rows = cond["filters"]
+        best = max(s.models, key=lambda m: rows[m]["log_score"])
+        b, ssbf = rows[best], rows["ssbf"]
+        entry: dict[str, Any] = {"best_model": best}
+        for t, row in b["thresholds"].items():
+            entry[f"honest_at_{t}"] = row["emitted_accuracy"] >= float(t) - 0.03
+        at95 = b["thresholds"].get("0.95")
+        if at95:
+            entry["timeouts_at_0.95"] = at95["timeout_rate"]
+            entry["frames_over_ssbf_at_0.95"] = at95["mean_frames"] / ssbf["thresholds"]["0.95"]["mean_frames"]
+            entry["not_timid"] = entry["timeouts_at_0.95"] <= 0.15 and entry["frames_over_ssbf_at_0.95"] <= 1.5
+        if "paper" in rows and best != "paper":
+            p = rows["paper"]
+            se = math.sqrt(b["final_stderr"] ** 2 + p["final_stderr"] ** 2)
+            entry["final_accuracy_gain_over_paper"] = b["final_accuracy"] - p["final_accuracy"]
+            entry["gain_stderr"] = se
+            entry["beats_paper_outside_stderr"] = entry["final_accuracy_gain_over_paper"] > se
+        out[name] = entry
+    return out
+
+
+def _step(s: Settings, message: str) -> None:
+    if s.progress:
+        tqdm.write(f"[noise_models] {message}")
