@@ -24,6 +24,7 @@ Writes ``metrics.json``, ``report.md`` (a table per condition), ``toy_error.png`
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -156,21 +157,23 @@ def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tu
     out = {}
     for name, overrides in OmegaConf.to_container(cfg.study.conditions).items():
         conditions = get_conditions("mission", **(overrides or {}))
-
-        def compute() -> dict[str, torch.Tensor]:
-            _step(s, f"classifying {name} sequences")
-            f = classifier()
-            calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, s.seed + 1, s.progress,
-                                     f"{name} calibration")[0]
-            held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, s.seed + 2, s.progress,
-                                    f"{name} held-out")[0]
-            return {"calibration": calib.double(), "held_out": held.double()}
-
+        compute = partial(_classify_condition, classifier, name, conditions, m, s)
         tensors, path, hit = cached(s.cache_dir, f"noise_models_{name}", {**base, "conditions": conditions.to_dict()}, compute)
         if hit:
             _step(s, f"{name}: classifier outputs from the cache {path}")
         out[name] = (tensors["calibration"], tensors["held_out"])
     return out
+
+
+def _classify_condition(classifier: Any, name: str, conditions: Any, m: DictConfig, s: Settings) -> dict[str, torch.Tensor]:
+    """Render and classify one condition's calibration (seed + 1) and held-out (seed + 2) sequences."""
+    _step(s, f"classifying {name} sequences")
+    f = classifier()
+    calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, s.seed + 1, s.progress,
+                             f"{name} calibration")[0]
+    held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, s.seed + 2, s.progress,
+                            f"{name} held-out")[0]
+    return {"calibration": calib.double(), "held_out": held.double()}
 
 
 def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Tensor]:

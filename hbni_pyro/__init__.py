@@ -19,7 +19,12 @@ from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
 from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
-from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize, tabulate
+from hbni_pyro.macro import (
+    MacroObservationModel,
+    MacroObservationProcess,
+    characterize,
+    tabulate,
+)
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.replay import StreamReplay
@@ -29,17 +34,17 @@ from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 from hbni_pyro.variants import MODELS
 
 __all__ = [
+    "MODELS",
+    "OUTPUT_FLOOR",
+    "SSBF",
     "ConfusionMetropolis",
     "HBNIFilter",
     "HBNIMetropolis",
     "HBNIPosterior",
     "HyperPrior",
-    "MODELS",
     "MacroObservationModel",
     "MacroObservationProcess",
     "MaxOfMeanFilter",
-    "OUTPUT_FLOOR",
-    "SSBF",
     "SequenceMetropolis",
     "StreamReplay",
     "TemperFit",

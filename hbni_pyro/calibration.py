@@ -15,7 +15,8 @@ right a share q of the time. Two views, both on labelled held-out streams:
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor

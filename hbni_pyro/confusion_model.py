@@ -22,7 +22,12 @@ import pyro.distributions as dist
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import class_log_lik, concentrations, gamma_log_prob, normal_log_prob
+from hbni_pyro.density import (
+    class_log_lik,
+    concentrations,
+    gamma_log_prob,
+    normal_log_prob,
+)
 from hbni_pyro.model import HyperPrior, observe_outputs
 
 

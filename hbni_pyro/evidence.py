@@ -16,7 +16,14 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.density import (
-    block_log_lik, concentrations, dirichlet_terms, ilr, lifted_normaliser, look_basis, look_log_marginal, within_log_prob,
+    block_log_lik,
+    concentrations,
+    dirichlet_terms,
+    ilr,
+    lifted_normaliser,
+    look_basis,
+    look_log_marginal,
+    within_log_prob,
 )
 
 _CHUNK_ELEMENTS = 1 << 16

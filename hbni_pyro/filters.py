@@ -28,15 +28,14 @@ row, exact zeros are floored at :data:`hbni_pyro.validation.OUTPUT_FLOOR` and re
 
 from __future__ import annotations
 
-import math
 from typing import Any, Protocol
 
 import torch
 from torch import Tensor
 
 from hbni_pyro.evidence import EVIDENCE
-from infra.threads import single_thread
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
+from infra.threads import single_thread
 
 
 def decide(probs: Tensor) -> Tensor:

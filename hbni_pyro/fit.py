@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import pyro
 import torch
@@ -23,7 +24,13 @@ from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetro
 from hbni_pyro.model import HyperPrior, hbni_model
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
 from hbni_pyro.sequence_model import SequenceStats, sequence_model, sequence_stats
-from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs, as_sequence_ids
+from hbni_pyro.validation import (
+    DTYPE,
+    as_class_prior,
+    as_labels,
+    as_outputs,
+    as_sequence_ids,
+)
 from hbni_pyro.variants import SEQUENCE_MODELS, check_model
 from infra.checks import as_int
 from infra.threads import single_thread
@@ -162,7 +169,7 @@ def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
 
 
 def _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
-    D, N, M = x.shape
+    D = x.shape[0]
     kernel = _KERNELS[model](num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
     args = (_stacked_stats(x, y, ids),) if model in SEQUENCE_MODELS else (x, y)

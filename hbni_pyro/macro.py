@@ -22,9 +22,9 @@ from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs
-from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
 from infra.checks import as_int, as_probability
+from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.MacroObservationModel"
 

@@ -22,7 +22,12 @@ import pyro.distributions as dist
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import DirichletOutputs, concentrations, gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.density import (
+    DirichletOutputs,
+    concentrations,
+    gamma_log_prob,
+    lifted_dirichlet_log_prob,
+)
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
 
@@ -101,7 +106,7 @@ def hbni_model(
     ``c`` marked for parallel enumeration in the ``unlabelled`` plate (``max_plate_nesting=1``).
     Inputs must already be validated (float64, strictly positive rows).
     """
-    num_obs, num_classes = obs.shape
+    num_classes = obs.shape[1]
     p = class_prior if class_prior is not None else obs.new_full((num_classes,), 1.0 / num_classes)
     h = hyperprior
     kappa = pyro.sample("kappa", dist.Gamma(obs.new_tensor(h.beta), obs.new_tensor(1.0 / h.eta)))

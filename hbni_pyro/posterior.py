@@ -14,9 +14,9 @@ from torch import Tensor
 from hbni_pyro.density import concentrations
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.model import HyperPrior
-from infra.tensorfile import load_tensors, save_tensors
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import MODELS, check_model, site_shapes
+from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
 

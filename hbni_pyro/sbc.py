@@ -16,7 +16,12 @@ from torch import Tensor
 
 from hbni_pyro.density import concentrations
 from hbni_pyro.fit import fit_many
-from hbni_pyro.generative import gamma_variates, sample_dirichlet, sample_outputs, sample_sequences
+from hbni_pyro.generative import (
+    gamma_variates,
+    sample_dirichlet,
+    sample_outputs,
+    sample_sequences,
+)
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.sequence_model import hyper_scales, look_prior_mean
 from hbni_pyro.validation import DTYPE

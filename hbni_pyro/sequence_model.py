@@ -39,10 +39,23 @@ from torch import Tensor
 from torch.distributions import constraints
 
 from hbni_pyro.density import (
-    helmert_basis, ilr, ilr_log_jacobian, look_basis, look_log_marginal, normal_log_prob, scatter_trace, within_log_prob,
+    helmert_basis,
+    ilr,
+    ilr_log_jacobian,
+    look_basis,
+    look_log_marginal,
+    normal_log_prob,
+    scatter_trace,
+    within_log_prob,
 )
 from hbni_pyro.model import HyperPrior
-from hbni_pyro.wishart import InvWishartCholesky, WishartCholesky, inv_wishart_log_prob, logdet_spd, wishart_log_prob
+from hbni_pyro.wishart import (
+    InvWishartCholesky,
+    WishartCholesky,
+    inv_wishart_log_prob,
+    logdet_spd,
+    wishart_log_prob,
+)
 
 SITES = ("loc", "between", "between_mean", "between_pooling", "within")
 """Posterior sites: ``loc (M, d)``, ``between (M, d, d)``, ``between_mean (d, d)``, ``between_pooling ()``,

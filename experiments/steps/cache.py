@@ -9,8 +9,9 @@ from the run's (corrupt, or edited by hand) is refused, naming the first field t
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from torch import Tensor
 

@@ -20,12 +20,27 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.generative import gamma_variates
-from hbni_pyro.kernels.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
+from hbni_pyro.kernels.base import (
+    AdaptiveWalk,
+    AdaptiveWalk2D,
+    BatchedKernel,
+    flatten_chains,
+    fraction,
+)
 from hbni_pyro.kernels.confusion_steps import (
-    draw_beta_loc, off_diagonal_logs, split_conc, update_beta_scale, update_concentrations,
+    draw_beta_loc,
+    off_diagonal_logs,
+    split_conc,
+    update_beta_scale,
+    update_concentrations,
 )
 from hbni_pyro.kernels.mh import FrameData
-from hbni_pyro.kernels.mh_steps import MHState, sufficient_stats, update_classes, update_hyper
+from hbni_pyro.kernels.mh_steps import (
+    MHState,
+    sufficient_stats,
+    update_classes,
+    update_hyper,
+)
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 

@@ -21,8 +21,21 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.generative import gamma_variates
-from hbni_pyro.kernels.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
-from hbni_pyro.kernels.mh_steps import MHData, MHState, sufficient_stats, update_classes, update_hyper, update_theta
+from hbni_pyro.kernels.base import (
+    AdaptiveWalk,
+    AdaptiveWalk2D,
+    BatchedKernel,
+    flatten_chains,
+    fraction,
+)
+from hbni_pyro.kernels.mh_steps import (
+    MHData,
+    MHState,
+    sufficient_stats,
+    update_classes,
+    update_hyper,
+    update_theta,
+)
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 

@@ -22,7 +22,13 @@ from torch import Tensor
 
 from hbni_pyro.kernels.base import AdaptiveWalk, BatchedKernel, flatten_chains, fraction
 from hbni_pyro.kernels.sequence_steps import (
-    SequenceState, between_data, draw_class_covs, draw_locs, draw_shared_mean, draw_within, update_classes_and_looks,
+    SequenceState,
+    between_data,
+    draw_class_covs,
+    draw_locs,
+    draw_shared_mean,
+    draw_within,
+    update_classes_and_looks,
     update_pooling,
 )
 from hbni_pyro.model import HyperPrior

@@ -2,13 +2,17 @@
 
 import pytest
 import torch
+from hbni_stubs import DT, THETA, DrawsPosterior
 
-from hbni_pyro.calibration import binomial_stderr, reliability, stream_reliability, threshold_checks
+from hbni_pyro.calibration import (
+    binomial_stderr,
+    reliability,
+    stream_reliability,
+    threshold_checks,
+)
 from hbni_pyro.filters import SSBF, HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationProcess
-
-from hbni_stubs import DT, THETA, DrawsPosterior
 
 
 def test_reliability_by_hand():

@@ -4,8 +4,32 @@ import pyro.distributions as dist
 import pytest
 import torch
 
-from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.density import (
+    DirichletOutputs,
+    IlrNormalOutputs,
+    assigned_log_lik,
+    class_log_lik,
+    concentrations,
+    gamma_log_prob,
+    helmert_basis,
+    ilr,
+    ilr_log_jacobian,
+    lifted_dirichlet_log_prob,
+    look_basis,
+    look_log_marginal,
+    scatter_trace,
+    within_log_prob,
+)
 from hbni_pyro.model import HyperPrior
+from hbni_pyro.wishart import (
+    CholeskyFactorTransform,
+    InvWishartCholesky,
+    WishartCholesky,
+    inv_wishart_log_prob,
+    logdet_spd,
+    sample_wishart,
+    wishart_log_prob,
+)
 
 
 def test_lifted_dirichlet_matches_torch_dirichlet():
@@ -55,11 +79,6 @@ def test_hyperprior_rejects_bad_values(field, bad):
 
 
 # -- the confusion-aware and sequence-aware likelihood terms ------------------------------------
-
-from hbni_pyro.density import (  # noqa: E402
-    DirichletOutputs, IlrNormalOutputs, assigned_log_lik, class_log_lik, concentrations, helmert_basis, ilr,
-    ilr_log_jacobian, look_basis, look_log_marginal, scatter_trace, within_log_prob,
-)
 
 
 def _simplex(n, m, seed):
@@ -146,11 +165,6 @@ def test_look_marginal_and_within_term_give_the_joint_gaussian_of_a_sequence():
 
 
 # -- Wishart densities and the Cholesky-factor distributions -----------------------------------
-
-from hbni_pyro.wishart import (  # noqa: E402
-    CholeskyFactorTransform, InvWishartCholesky, WishartCholesky, inv_wishart_log_prob, logdet_spd, sample_wishart,
-    wishart_log_prob,
-)
 
 
 def _spd(d, seed):

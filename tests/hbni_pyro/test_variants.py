@@ -11,13 +11,22 @@ from pyro import poutine
 from pyro.infer import MCMC, TraceEnum_ELBO
 
 import hbni_pyro
-from hbni_pyro.confusion_model import confusion_log_joint, confusion_model, off_diagonal, off_diagonal_values
+from hbni_pyro.confusion_model import (
+    confusion_log_joint,
+    confusion_model,
+    off_diagonal,
+    off_diagonal_values,
+)
 from hbni_pyro.density import concentrations, ilr, ilr_log_jacobian
 from hbni_pyro.generative import sample_dirichlet, sample_sequences
 from hbni_pyro.kernels import ConfusionMetropolis, SequenceMetropolis
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.sequence_model import (
-    SequenceStats, TwoLevelSequence, sequence_log_joint, sequence_model, sequence_prior_log_prob, sequence_stats,
+    TwoLevelSequence,
+    sequence_log_joint,
+    sequence_model,
+    sequence_prior_log_prob,
+    sequence_stats,
 )
 
 DT = torch.float64
@@ -101,7 +110,7 @@ def test_two_level_sequence_density_is_the_joint_gaussian_of_its_frames():
 
 @pytest.mark.filterwarnings("ignore:TraceEnum_ELBO found no sample sites")
 def test_sequence_log_joint_matches_brute_force_and_pyro_enumeration():
-    obs, classes = sequences(3, 4, seed=3)
+    obs, _ = sequences(3, 4, seed=3)
     mask = torch.ones(3, 4, dtype=torch.bool)
     prior = torch.tensor([0.2, 0.5, 0.3], dtype=DT)
     p = sequence_params()
@@ -164,7 +173,7 @@ def test_confusion_kernel_runs_is_seeded_and_keeps_labels():
 
 
 def test_sequence_kernel_runs_is_seeded_and_keeps_labels():
-    obs, classes = sequences(9, 4)
+    obs, _ = sequences(9, 4)
     labels = torch.tensor([0, -1, 0, 1, -1, 1, 2, 2, -1])
     stats = sequence_stats(hbni_pyro.as_outputs(obs.reshape(-1, 3)), torch.arange(9).repeat_interleave(4), labels.repeat_interleave(4), 9)
 
@@ -221,7 +230,7 @@ def test_sequence_mh_and_nuts_agree():
     """Posterior means of all 15 scalars within 4 Monte Carlo standard errors, and the same class
     probabilities for the unlabelled sequences (within 0.15: NUTS recovers them from 100 draws).
     ``benchmarks/bench_reference.py`` repeats both comparisons with longer NUTS runs."""
-    obs, classes = sequences(6, 3, seed=6)
+    obs, _ = sequences(6, 3, seed=6)
     flat = obs.reshape(-1, 3)
     ids = torch.arange(6).repeat_interleave(3)
     labels = torch.tensor([0, -1, 1, 1, -1, 2]).repeat_interleave(3)
@@ -282,7 +291,7 @@ def test_sequence_model_recovers_its_class_looks():
 
 
 def test_fit_errors_name_the_argument():
-    obs, classes = confusion_data(2)
+    obs, _ = confusion_data(2)
     with pytest.raises(ValueError, match="model: expected one of"):
         hbni_pyro.fit(obs, model="gaussian", progress=False)
     with pytest.raises(ValueError, match="sequence_ids: the 'sequence' model needs"):

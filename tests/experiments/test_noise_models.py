@@ -1,0 +1,144 @@
+"""The noise-model study through the real entry point (tiny settings), its output cache, a user's
+image folder, its config checks, and the one key that switches the mission's noise model."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from classifiers.data import render_images, render_sequence
+from experiments.artifacts import load_run
+from experiments.schemas import check_config, register
+from experiments.steps.cache import cached
+from experiments.steps.noise import fit_labelled
+from hbni_pyro import HBNIPosterior
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+TINY = [
+    "progress=false", "study.mission.train_per_class=5", "study.mission.augment=0", "study.mission.calib_sequences=2",
+    "study.mission.test_sequences=2", "study.mission.frames=4", "study.toy.num_trials=40", "study.toy.num_training_sets=2",
+    "study.toy.max_len=6", "study.toy.filter_draws=50", "hbni.fit.num_chains=2", "hbni.fit.num_samples=30",
+    "hbni.fit.warmup_steps=30", "study.curve_thresholds=[0.5,0.95]", "classifier.cv=2",
+]
+
+
+def _run(repo_root, run_dir, *args):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=noise_models", f"hydra.run.dir={run_dir}", *TINY, *args]
+    return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory, repo_root):
+    root = tmp_path_factory.mktemp("noise_models")
+    _run(repo_root, root / "first", f"study.cache_dir={root / 'cache'}")
+    _run(repo_root, root / "second", f"study.cache_dir={root / 'cache'}")
+    return root
+
+
+def test_study_writes_tables_figures_and_every_posterior(study):
+    metrics = json.loads((study / "first" / "metrics.json").read_text())
+    assert set(metrics["conditions"]) == {"default", "in_flight"}
+    filters = {"paper", "paper_tempered", "confusion", "confusion_tempered", "sequence", "ssbf", "max_of_mean"}
+    for cond in metrics["conditions"].values():
+        assert set(cond["filters"]) == filters
+        for row in cond["filters"].values():
+            assert set(row["thresholds"]) == {"0.9", "0.95", "0.99"} and set(row["curve"]) == {"0.5", "0.95"}
+            assert row["log_score"] <= 0 and 0 <= row["final_accuracy"] <= 1 and 0 <= row["ece"] <= 1
+    assert set(metrics["toy"]["crossing_n"]) == {"paper", "confusion", "sequence", "ssbf", "max_of_mean"}
+    for cond in ("default", "in_flight"):
+        assert metrics["acceptance"][cond]["best_model"] in ("paper", "confusion", "sequence")
+    report = (study / "first" / "report.md").read_text()
+    for png in ("toy_error.png", "accuracy_vs_frames.png", "reliability.png"):
+        assert (study / "first" / png).stat().st_size > 10_000 and f"]({png})" in report
+    assert "## In-flight preset" in report and "## Default mission conditions" in report
+    run = load_run(study / "first")
+    for cond in ("default", "in_flight"):
+        for model in ("paper", "confusion", "sequence"):
+            post = getattr(run, f"posterior_{cond}_{model}")
+            assert isinstance(post, HBNIPosterior) and post.model == model and post.num_classes == 6
+
+
+def test_second_run_reuses_the_cached_outputs_and_gets_the_same_numbers(study):
+    first = json.loads((study / "first" / "metrics.json").read_text())
+    second = json.loads((study / "second" / "metrics.json").read_text())
+    assert first["conditions"] == second["conditions"] and first["toy"] == second["toy"]
+    assert len(list((study / "cache").glob("*.safetensors"))) == 2
+    assert not (study / "second" / "classifier.safetensors").exists(), "the classifier is not retrained when cached"
+
+
+def test_cache_refuses_a_file_written_for_other_inputs(tmp_path):
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"x": torch.arange(3.0)}
+
+    a, path, hit = cached(tmp_path, "k", {"seed": 0, "frames": 4}, compute)
+    b, _, hit_b = cached(tmp_path, "k", {"seed": 0, "frames": 4}, compute)
+    assert not hit and hit_b and len(calls) == 1 and torch.equal(a["x"], b["x"])
+    _, other, _ = cached(tmp_path, "k", {"seed": 1, "frames": 4}, compute)
+    assert other != path and len(calls) == 2  # other inputs, another file
+    other.rename(path)  # a file whose stored fingerprint does not match its name's inputs
+    with pytest.raises(ValueError, match="seed was 1 there, is 0 here"):
+        cached(tmp_path, "k", {"seed": 0, "frames": 4}, compute)
+    assert cached(None, "k", {}, compute)[1] is None
+
+
+def _write_folder(root: Path, classes: list[str]) -> None:
+    for name in classes:
+        for i, img in enumerate(render_images(name, 5, "training", seed=0)):
+            (root / "train" / name).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / "train" / name / f"{i:03d}.png"), img)
+        for s in range(4):
+            seq = root / "sequences" / name / f"seq{s}"
+            seq.mkdir(parents=True)
+            for i, frame in enumerate(render_sequence(name, 5, "mission", seed=3, index=s)):
+                cv2.imwrite(str(seq / f"frame_{i}.png"), frame)
+
+
+def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
+    classes = ["irobot", "quadrotor", "racecar"]
+    _write_folder(tmp_path / "images", classes)
+    _run(repo_root, tmp_path / "run", f"study.images={tmp_path / 'images'}", "study.conditions={}", "study.cache_dir=null",
+         "study.models=[paper,sequence]")
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    cond = metrics["conditions"]["images"]
+    assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
+    assert set(cond["filters"]) == {"paper", "paper_tempered", "sequence", "ssbf", "max_of_mean"}
+
+
+def _compose(*overrides):
+    register()
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.mark.parametrize("override, match", [
+    ("study.models=[paper,gaussian]", "study.models: expected distinct models"),
+    ("study.images_calibration=1.5", "study.images_calibration"),
+    ("study.thresholds=[0.9,1.2]", "study.thresholds"),
+    ("study.toy.training_size=16", "study.toy.training_size"),
+    ("hbni.model=mixture", "hbni.model: expected one of"),
+])
+def test_bad_settings_fail_before_any_work(override, match):
+    with pytest.raises(ValueError, match=match):
+        check_config(_compose("experiment=noise_models", override))
+
+
+@pytest.mark.parametrize("experiment", ["mission", "perception_replay"])
+@pytest.mark.parametrize("model", ["confusion", "sequence"])
+def test_one_key_switches_the_noise_model_of_the_mission_and_the_replay(experiment, model):
+    cfg = _compose(f"experiment={experiment}", f"hbni.model={model}", "hbni.fit.num_chains=2", "hbni.fit.num_samples=20",
+                   "hbni.fit.warmup_steps=20")
+    check_config(cfg)
+    g = torch.Generator().manual_seed(0)
+    outputs = torch.softmax(torch.randn(3, 2, 4, 3, generator=g, dtype=torch.float64) + 2 * torch.eye(3)[:, None, None], -1)
+    post = fit_labelled(outputs, cfg.hbni, seed=0, progress=False)
+    assert post.model == model and post.num_classes == 3
