@@ -197,8 +197,9 @@ def characterise_generative(
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """Stage 4b: the generative planning model of the variants that need it (all of them when
     ``mission.planning_model=generative``, else HBNI when ``mission.compare_planning_models``): each
-    process run on ``mission.generative_streams`` streams per class drawn from HBNI's posterior
-    predictive (a theta draw per stream, i.i.d. outputs given it); saved as ``macro_<variant>_generative``."""
+    process run on ``mission.generative_streams`` streams per class drawn from the posterior predictive
+    of the fitted ``hbni.model`` (a posterior draw per stream; its frames i.i.d. given it under the
+    frame-level models, sharing one look under ``sequence``); saved as ``macro_<variant>_generative``."""
     loop = settings.loop
     needed = settings.variants if loop.planning_model == "generative" else (
         [v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])

@@ -12,7 +12,7 @@ tabulates the joint distribution of ``(label, frames_used)`` given the true clas
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -255,9 +255,11 @@ def characterize(
 
     Args:
         process: the macro-observation process to characterise.
-        generative: where streams come from: an :class:`hbni_pyro.HBNIPosterior` (each stream
-            draws one theta from the posterior draws, then ``max_frames`` outputs given it: the
-            posterior predictive of a new object) or a true theta tensor ``(M,)``.
+        generative: where streams come from: an :class:`hbni_pyro.HBNIPosterior` of any noise
+            model (its posterior predictive of a new object, :meth:`~hbni_pyro.HBNIPosterior.sample_streams`:
+            each stream takes one posterior draw, then ``max_frames`` outputs given it, sharing one
+            look under the sequence model), anything else with ``theta_draws() -> (S, M)`` (taken
+            as the paper's model) or a true theta tensor ``(M,)``.
         num_streams: streams simulated per true class.
         seed: same seed, same table.
         progress: show a progress bar over classes.
@@ -265,14 +267,12 @@ def characterize(
     if not isinstance(process, MacroObservationProcess):
         raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
     num_streams = _positive_int(num_streams, "num_streams")
-    theta_draws, source = _generative_theta(generative, process.num_classes)
+    streams, source = _stream_sampler(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
     g = torch.Generator().manual_seed(seed)
     results = []
     for c in tqdm(range(M), desc="characterize", disable=not progress):
-        theta = theta_draws[torch.randint(theta_draws.shape[0], (num_streams,), generator=g)].unsqueeze(1)
-        classes = torch.full((num_streams, T), c, dtype=torch.long)
-        results.append(process.run_batch(sample_outputs(theta, classes, g)))
+        results.append(process.run_batch(streams(c, num_streams, T, g)))
     truth = torch.arange(M).repeat_interleave(num_streams)
     batch = MacroObservationBatch(*(torch.cat(parts) for parts in zip(*results)))
     info = {"num_streams": num_streams, "seed": seed, "generative": source}
@@ -311,6 +311,29 @@ def _table(process: MacroObservationProcess, batch: MacroObservationBatch, truth
     timed_out = torch.zeros(M, dtype=DTYPE).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
     info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
     return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info)
+
+
+StreamSampler = Callable[[int, int, int, torch.Generator], Tensor]
+"""``(true_class, num_streams, num_frames, generator) -> (num_streams, num_frames, M)`` output streams."""
+
+
+def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, str]:
+    """How :func:`characterize` draws streams from ``generative``, and how its table names the source."""
+    if callable(getattr(generative, "sample_streams", None)) and hasattr(generative, "model"):
+        if generative.num_classes != num_classes:
+            raise ValueError(f"generative: expected a posterior over {num_classes} classes, got {generative.num_classes}")
+
+        def posterior_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
+            return generative.sample_streams(c, n, T, generator=g)
+
+        return posterior_streams, "posterior predictive" + ("" if generative.model == "paper" else f" ({generative.model} model)")
+    theta, source = _generative_theta(generative, num_classes)
+
+    def theta_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
+        draws = theta[torch.randint(theta.shape[0], (n,), generator=g)].unsqueeze(1)
+        return sample_outputs(draws, torch.full((n, T), c, dtype=torch.long), g)
+
+    return theta_streams, source
 
 
 def _generative_theta(generative: Any, num_classes: int) -> tuple[Tensor, str]:

@@ -135,17 +135,22 @@ class HBNIPosterior:
             raise ValueError(f"n: expected a positive int, got {n!r}")
         return self.sample_streams(true_class, n, 1, seed)[:, 0]
 
-    def sample_streams(self, true_class: int, num_streams: int, num_frames: int, seed: int = 0) -> Tensor:
+    def sample_streams(
+        self, true_class: int, num_streams: int, num_frames: int, seed: int = 0, *, generator: torch.Generator | None = None
+    ) -> Tensor:
         """Posterior-predictive output streams ``(num_streams, num_frames, M)`` of new class-``true_class`` objects.
 
         Each stream takes one posterior draw; its frames are then i.i.d. given it (frame-level
-        models) or share one new look (the sequence model).
+        models) or share one new look (the sequence model). ``generator``, when given, is used (and
+        advanced) instead of a new one seeded with ``seed``.
         """
         self._check_class(true_class)
         for name, v in (("num_streams", num_streams), ("num_frames", num_frames)):
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise ValueError(f"{name}: expected a positive int, got {v!r}")
-        g = torch.Generator().manual_seed(seed)
+        if generator is not None and not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
+        g = generator if generator is not None else torch.Generator().manual_seed(seed)
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g)

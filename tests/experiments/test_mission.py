@@ -82,13 +82,19 @@ def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, t
         assert again["variants"][name]["executed"]["value"] == entry["executed"]["value"]
 
 
-def test_generative_planning_model(tmp_path, repo_root):
-    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "mission.planning_model=generative")
+@pytest.mark.parametrize("model, source", [("paper", "posterior predictive"),
+                                           ("sequence", "posterior predictive (sequence model)")])
+def test_generative_planning_model(tmp_path, repo_root, model, source):
+    """Every noise model (hbni.model) simulates the streams of its own posterior predictive for the generative table."""
+    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "mission.planning_model=generative",
+         f"hbni.model={model}")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["closed_loop"]["planning"] == {"perfect": "exact", "hbni": "generative", "ssbf": "generative",
                                                   "hbni_empirical": "empirical"}
     ssbf = MacroObservationModel.load(tmp_path / "macro_ssbf_generative.safetensors")
-    assert ssbf.info["generative"] == "posterior predictive" and "SSBF" in ssbf.info["filter"]
+    assert ssbf.info["generative"] == source and "SSBF" in ssbf.info["filter"]
+    assert HBNIPosterior.load(tmp_path / "posterior.safetensors").model == model
+    assert f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
 
 
 def test_load_run_returns_ready_objects(mission_run):
