@@ -282,9 +282,13 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
             entry[f"honest_at_{t}"] = row["emitted_accuracy"] >= float(t) - 0.03
         at95 = b["thresholds"].get("0.95")
         if at95:
-            entry["timeouts_at_0.95"] = at95["timeout_rate"]
-            entry["frames_over_ssbf_at_0.95"] = at95["mean_frames"] / ssbf["thresholds"]["0.95"]["mean_frames"]
-            entry["not_timid"] = entry["timeouts_at_0.95"] <= 0.15 and entry["frames_over_ssbf_at_0.95"] <= 1.5
+            s95 = ssbf["thresholds"]["0.95"]
+            ratio = at95["mean_frames"] / s95["mean_frames"]
+            entry["timeouts_at_0.95"], entry["timeouts_stderr"] = at95["timeout_rate"], at95["timeout_stderr"]
+            entry["frames_over_ssbf_at_0.95"] = ratio
+            entry["frames_ratio_stderr"] = ratio * math.hypot(at95["frames_stderr"] / at95["mean_frames"],
+                                                              s95["frames_stderr"] / s95["mean_frames"])
+            entry["not_timid"] = entry["timeouts_at_0.95"] <= 0.15 and ratio <= 1.5
         if "paper" in rows and best != "paper":
             p = rows["paper"]
             se = math.sqrt(b["final_stderr"] ** 2 + p["final_stderr"] ** 2)

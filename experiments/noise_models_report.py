@@ -45,8 +45,9 @@ def toy_figure(toy: dict[str, Any]) -> plt.Figure:
     ax.set_ylim(floor, 1)
     ax.set_xlabel("number of outputs N")
     ax.set_ylabel(f"classification error ({toy['trials']} trials)")
-    ax.set_title(f"Paper's toy: θ = {list(np.asarray(toy['true_theta']).round(2))}, {toy['training_size']} unlabelled "
-                 f"training outputs ({toy['training_sets']} sets); N to {toy['target']:.0%} error in the legend", fontsize=9)
+    theta = ", ".join(f"{float(t):g}" for t in toy["true_theta"])
+    ax.set_title(f"Paper's toy: θ = ({theta}), {toy['training_size']} unlabelled training outputs ({toy['training_sets']} "
+                 f"sets); N to {toy['target']:.0%} error in the legend; zero error leaves a gap", fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     return fig
@@ -90,7 +91,7 @@ def reliability_figure(conditions: dict[str, Any]) -> plt.Figure:
         ax.set_ylabel("accuracy")
         ax.set_title(_title(cond), fontsize=10)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     return fig
 
@@ -101,7 +102,7 @@ def _fmt_n(n: Any) -> str:
 
 def condition_table(data: dict[str, Any], thresholds: list[str]) -> list[str]:
     head = "| filter | held-out log score | accuracy after all frames | ECE |" + "".join(
-        f" emitted right at {t} (± s.e.) | timeouts | frames |" for t in thresholds)
+        f" emitted right at {t} | timeouts | frames |" for t in thresholds)
     lines = [head, "|" + "---|" * (4 + 3 * len(thresholds))]
     for name, r in data["filters"].items():
         cells = [f"{_label(name)}", f"{r['log_score']:.3f} ± {r['log_score_stderr']:.3f}",
@@ -109,7 +110,8 @@ def condition_table(data: dict[str, Any], thresholds: list[str]) -> list[str]:
         for t in thresholds:
             v = r["thresholds"][t]
             acc = "-" if v["emitted"] == 0 else f"{v['emitted_accuracy']:.3f} ± {v['emitted_stderr']:.3f}"
-            cells += [acc, f"{v['timeout_rate']:.3f}", f"{v['mean_frames']:.1f}"]
+            cells += [acc, f"{v['timeout_rate']:.3f} ± {v['timeout_stderr']:.3f}",
+                      f"{v['mean_frames']:.1f} ± {v['frames_stderr']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -128,7 +130,7 @@ def markdown(metrics: dict[str, Any], figures: list[str]) -> str:
         lines += [f"## {_title(cond).capitalize()}", "",
                   f"{sz['calibration_sequences_per_class']} labelled calibration sequences per class, "
                   f"{sz['held_out_sequences']} held-out sequences of {sz['frames']} frames; per-frame classifier "
-                  f"accuracy {data['frame_accuracy']:.3f}. Fitted tempers: "
+                  f"accuracy {data['frame_accuracy']:.3f}; every number ± its standard error. Fitted tempers: "
                   + ", ".join(f"{_label(k)} {v:g}" for k, v in data["temper"].items()) + ".", "",
                   *condition_table(data, thresholds), ""]
         a = acc.get(cond, {})

@@ -78,9 +78,10 @@ def threshold_checks(
     """Run the macro-observation process at each threshold on labelled streams ``(B, N, M)``.
 
     Returns, per threshold (key ``f"{t:g}"``): ``emitted_accuracy`` (share of emitted labels
-    that are right) and its binomial ``emitted_stderr``, ``emitted`` (count), ``timeout_rate``,
-    ``mean_frames`` (frames used, a timeout counting the whole budget) and ``overall_accuracy``
-    (the label at the stop, timeouts included, against the truth).
+    that are right) and its binomial ``emitted_stderr``, ``emitted`` (count), ``timeout_rate``
+    and its binomial ``timeout_stderr``, ``mean_frames`` (frames used, a timeout counting the
+    whole budget) and its standard error ``frames_stderr`` (sample sd over ``sqrt(B)``), and
+    ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
     truth = torch.as_tensor(truth).long()
     out: dict[str, dict[str, Any]] = {}
@@ -91,10 +92,12 @@ def threshold_checks(
         right = batch.label == truth
         n = int(emitted.sum())
         acc = float(right[emitted].to(DTYPE).mean()) if n else float("nan")
+        timeouts, frames = float(batch.timed_out.to(DTYPE).mean()), batch.frames_used.to(DTYPE)
         out[f"{t:g}"] = {
             "emitted_accuracy": acc, "emitted_stderr": binomial_stderr(acc, n), "emitted": n,
-            "timeout_rate": float(batch.timed_out.to(DTYPE).mean()),
-            "mean_frames": float(batch.frames_used.to(DTYPE).mean()),
+            "timeout_rate": timeouts, "timeout_stderr": binomial_stderr(timeouts, len(frames)),
+            "mean_frames": float(frames.mean()),
+            "frames_stderr": float(frames.std() / math.sqrt(len(frames))) if len(frames) > 1 else float("nan"),
             "overall_accuracy": float(right.to(DTYPE).mean()),
         }
     return out

@@ -55,5 +55,7 @@ def test_threshold_checks_agree_with_the_process():
         assert row["timeout_rate"] == pytest.approx(float(batch.timed_out.double().mean()))
         assert row["mean_frames"] == pytest.approx(float(batch.frames_used.double().mean()))
         assert row["emitted_stderr"] == pytest.approx(binomial_stderr(row["emitted_accuracy"], row["emitted"]))
+        assert row["timeout_stderr"] == pytest.approx(binomial_stderr(row["timeout_rate"], 200))
+        assert row["frames_stderr"] == pytest.approx(float(batch.frames_used.double().std()) / 200**0.5)
     assert checks["0.999999"]["timeout_rate"] > checks["0.9"]["timeout_rate"]
     assert binomial_stderr(0.5, 0) != binomial_stderr(0.5, 0)  # NaN with no trials

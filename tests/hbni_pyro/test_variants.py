@@ -229,7 +229,7 @@ def test_confusion_mh_and_nuts_agree():
 def test_sequence_mh_and_nuts_agree():
     """Posterior means of all 15 scalars within 4 Monte Carlo standard errors, and the same class
     probabilities for the unlabelled sequences (within 0.15: NUTS recovers them from 100 draws).
-    ``benchmarks/bench_reference.py`` repeats both comparisons with longer NUTS runs."""
+    ``benchmarks/bench_noise_correctness.py`` repeats both comparisons with longer NUTS runs."""
     obs, _ = sequences(6, 3, seed=6)
     flat = obs.reshape(-1, 3)
     ids = torch.arange(6).repeat_interleave(3)
