@@ -114,3 +114,10 @@ def test_an_out_of_range_value_fails_the_check_naming_the_key(name, override, me
     with pytest.raises(ValueError) as info:
         check_config(cfg)
     assert str(info.value).startswith(message), str(info.value)
+
+
+def test_the_mission_plans_seeded_by_default_and_mission_full_from_scratch():
+    """The default main job keeps to minutes with seeded G-DICE; the paper-scale mission plans with no hand-written controller."""
+    assert _compose("experiment=mission").planning == "gdice"
+    full = _compose("experiment=mission_full")
+    assert full.planning == "cold" and full.cold_planner.budget == 20_000_000 and full.cold_planner.ce_reactive

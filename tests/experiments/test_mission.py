@@ -61,8 +61,8 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
     assert f"temper is {temper['value']:g}" in report
     assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
-    assert metrics["planning"] == "cold" and metrics["planner"]["budget"] == 3000  # no hand-written seed
-    assert all(entry["rollouts"] > 0 and "best_sampled" not in entry for entry in metrics["variants"].values())
+    assert metrics["planning"] == "gdice" and metrics["planner"]["init_weight"] == 0.8  # G-DICE seeded with greedy
+    assert all("best_sampled" in entry for entry in metrics["variants"].values())
     assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
     assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
@@ -127,12 +127,12 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith("| [1](1/) | completed | ssbf | ")
 
 
-def test_fixed_temper_preset_conditions_and_gdice_planning(tmp_path, repo_root):
+def test_fixed_temper_preset_conditions_and_cold_planning(tmp_path, repo_root):
     _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
-         "planning=gdice")
+         "planning=cold")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["planning"] == "gdice" and metrics["planner"]["init_weight"] == 0.8  # G-DICE seeded with greedy
-    assert all("best_sampled" in entry for entry in metrics["variants"].values())
+    assert metrics["planning"] == "cold" and metrics["planner"]["budget"] == 3000  # no hand-written seed
+    assert all(entry["rollouts"] > 0 and "best_sampled" not in entry for entry in metrics["variants"].values())
     assert metrics["hbni_temper"] == {"value": 0.5, "fitted": False}
     assert metrics["conditions"]["overrides"] == {}
     assert "temper=0.5" in MacroObservationModel.load(tmp_path / "macro_hbni.safetensors").info["filter"]
