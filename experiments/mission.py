@@ -59,7 +59,7 @@ from experiments.steps import closed_loop
 from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
-from experiments.steps.planning import run_cold, run_gdice, score, seed_controller
+from experiments.steps.planning import delivery_rates, run_cold, run_gdice, score, seed_controller
 from infra.threads import torch_threads
 
 
@@ -272,7 +272,7 @@ def plan(
             save_artifact(run_dir, f"controller_{name}", best)
             hand = score(env, greedy, reeval, seed + 10 * k + 6)
             entry["greedy"] = {key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")}
-            entry.update(_delivery_rates(entry))
+            entry.update(delivery_rates(entry))
             if name != "perfect":
                 entry["macro_accuracy"] = models[name].accuracy.tolist()
                 entry["macro_mean_frames"] = models[name].mean_frames.tolist()
@@ -364,13 +364,6 @@ def _cpu_seconds() -> dict[str, float]:
     """CPU seconds (user + system) so far of this process and of its finished child processes (bank workers)."""
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"main": own.ru_utime + own.ru_stime, "workers": children.ru_utime + children.ru_stime}
-
-
-def _delivery_rates(entry: dict[str, float]) -> dict[str, float]:
-    """Wrong deliveries per delivery and frames per inference, from a score entry's counters."""
-    wrong, right = entry["wrong_per_rollout"], entry["delivered_per_rollout"]
-    return {"wrong_rate": wrong / max(wrong + right, 1e-12),
-            "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)}
 
 
 def _step(progress: bool, message: str) -> None:

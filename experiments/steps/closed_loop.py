@@ -38,7 +38,8 @@ import hbni_pyro
 from decpomdp import JointController
 from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
-from experiments.steps.planning import score
+from experiments.steps.planning import delivery_rates, score
+
 
 class Bootstrap(NamedTuple):
     """Bootstrap over sequence indices: ``replicates`` resampled tables or banks, ``rollouts`` rollouts on each."""
@@ -120,7 +121,7 @@ def execute(controller: JointController, perception: Any, domain: DictConfig, ro
     """
     env = instantiate(domain, perception=perception)
     entry = score(env, controller, rollouts, seed)
-    entry["mean_inference_frames"] = entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)
+    entry["mean_inference_frames"] = delivery_rates(entry)["mean_inference_frames"]
     return entry
 
 

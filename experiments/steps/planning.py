@@ -37,6 +37,13 @@ def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int)
     return out
 
 
+def delivery_rates(entry: dict[str, float]) -> dict[str, float]:
+    """Wrong deliveries per delivery and frames per inference, from a disaster-relief score entry's counters."""
+    wrong, right = entry["wrong_per_rollout"], entry["delivered_per_rollout"]
+    return {"wrong_rate": wrong / max(wrong + right, 1e-12),
+            "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)}
+
+
 def run_gdice(
     env, config: GDICEConfig, study, seed: int, progress: bool, init: JointController | None = None
 ) -> tuple[Any, JointController, float]:
