@@ -1,6 +1,7 @@
 """The cold-start planner: cross-entropy over controller graphs (G-DICE) and local search, in turns.
 
-From no controller at all, the run cycles through ``config.phases``:
+From no controller at all (or from a warm-start controller ``init``), the run cycles through
+``config.phases``:
 
 * ``"ce"``: a cross-entropy phase (:mod:`decpomdp.search.cross_entropy`): cold (uniform over
   ``start_nodes`` nodes) the first time when there is no incumbent yet, later warm-started from the
@@ -125,6 +126,21 @@ class _Run:
         return run
 
 
+def _check_init(init: JointController | None, scorer: Scorer, max_nodes: int) -> None:
+    """Validate a warm-start controller against the searched agents' sizes."""
+    if init is None:
+        return
+    if not isinstance(init, JointController):
+        raise TypeError(f"init: expected a JointController, got {type(init).__name__}")
+    k, a, nodes = init.action.shape
+    if k != 1 or a != scorer.num_agents or init.num_obs != scorer.num_obs or nodes > max_nodes:
+        raise ValueError(f"init: expected one controller of {scorer.num_agents} agents, at most {max_nodes} nodes "
+                         f"(config.num_nodes) and {scorer.num_obs} observations, got action {tuple(init.action.shape)}, "
+                         f"next_node {tuple(init.next_node.shape)}")
+    if bool((init.action >= scorer.num_actions).any()):
+        raise ValueError(f"init: actions must lie in [0, {scorer.num_actions})")
+
+
 def _nan_if_none(value: float) -> float:
     """A saved ``None`` (read as -inf) stands for NaN, "not measured yet"."""
     return math.nan if value == -math.inf else value
@@ -192,8 +208,9 @@ def plan(
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: int = 1,
     progress: bool = False,
+    init: JointController | None = None,
 ) -> PlannerResult:
-    """Plan a controller from scratch (see the module doc).
+    """Plan a controller from scratch, or from ``init`` (see the module doc).
 
     Args:
         scorer: scores controllers of the searched agents (:class:`~decpomdp.search.scoring.RolloutScorer`
@@ -204,6 +221,9 @@ def plan(
             resumes from it. It records what produced it (sizes, scorer and problem, config, seed);
             resuming it with any of them different raises a ``ValueError`` naming the fields.
         progress: show a progress bar over the rollout budget.
+        init: the first incumbent (K = 1, the searched agents, at most ``config.num_nodes`` nodes), for
+            instance a plan of a related problem; ``None`` starts from no controller. Its first phase is
+            then warm: cross-entropy starts from it with weight ``ce_init_weight``, local search edits it.
     """
     cfg = PlannerConfig() if config is None else config
     if not isinstance(cfg, PlannerConfig):
@@ -213,11 +233,17 @@ def plan(
     if not callable(scorer) or not callable(getattr(scorer, "visits", None)):
         raise TypeError(f"scorer: expected a Scorer (callable with a visits method), got {type(scorer).__name__}")
     seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
+    _check_init(init, scorer, cfg.num_nodes)
     generator = torch.Generator().manual_seed(seed)
     fingerprint = {"sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
-                   "problem": describe(scorer), "config": asdict(cfg), "seed": seed}
+                   "problem": describe(scorer), "config": asdict(cfg), "seed": seed,
+                   "init": None if init is None else describe(init)}
     path = None if checkpoint is None else Path(checkpoint)
-    run = _Run.load(path, fingerprint, cfg, generator) if path is not None and path.exists() else _Run()
+    if path is not None and path.exists():
+        run = _Run.load(path, fingerprint, cfg, generator)
+    else:
+        run = _Run()
+        run.incumbent = None if init is None else JointController(init.action.clone(), init.next_node.clone())
     steps = {"ce": _ce_step, "ls": _ls_step}
     bar = tqdm(total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout")
     while run.used < cfg.budget and run.idle_cycles < cfg.patience:

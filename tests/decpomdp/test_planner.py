@@ -268,6 +268,51 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive)
     assert torch.equal(resumed.best.action, full.best.action) and torch.equal(resumed.best.next_node, full.best.next_node)
 
 
+def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
+    # from a warm-start controller, local search and warm cross-entropy phases (each ending in a duel against
+    # the incumbent) keep the incumbent unless a challenger beats it: under exact scores, never worse than init
+    env = dec_tiger(3)
+    g = torch.Generator().manual_seed(1)
+    cfg = PlannerConfig(phases=("ls", "ce"), budget=10**9, patience=1, num_nodes=5, ce_iterations=3, ce_samples=40,
+                        ce_screen_rollouts=0, ce_rollouts=2, ce_elites=5, ce_memory=1, ls_chain=1, ls_candidates=300,
+                        ls_stages=((2, 4),), duel_rollouts=2, edge_rate=0.0)
+    for _ in range(3):
+        init = JointController(torch.randint(0, 3, (1, 2, 3), generator=g), torch.randint(0, 3, (1, 2, 3, 2), generator=g))
+        res = plan(ExactScorer(ExactEvaluator(env)), cfg, seed=0, init=init)
+        start = exact_value(env, init).item()
+        assert res.value == pytest.approx(exact_value(env, res.best).item())
+        assert res.value >= start - 1e-12
+        assert res.history["phase"][0] == 1.0  # the cycle's first phase (local search) edits init from step one
+    ones = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
+    budget_one = dataclasses.replace(cfg, phases=("ls",), budget=1)
+    first = plan(ExactScorer(ExactEvaluator(env)), budget_one, seed=0, init=ones)
+    assert first.history["value"][0] == pytest.approx(exact_value(env, first.best).item())
+
+
+def test_warm_start_errors_and_fingerprint(tmp_path, toy_env):
+    scorer = toy_scorer(toy_env)
+    good = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
+    with pytest.raises(TypeError, match="init: expected a JointController"):
+        plan(scorer, small_config(), init="greedy")
+    with pytest.raises(ValueError, match=r"init: expected one controller of 2 agents, at most 4 nodes"):
+        plan(scorer, small_config(), init=JointController(torch.zeros(1, 2, 5, dtype=torch.long),
+                                                          torch.zeros(1, 2, 5, 2, dtype=torch.long)))
+    with pytest.raises(ValueError, match="init: expected one controller of 2 agents"):
+        plan(scorer, small_config(), init=good[0:1].__class__(good.action[:, :1], good.next_node[:, :1]))
+    with pytest.raises(ValueError, match=r"init: actions must lie in \[0, 3\)"):
+        plan(scorer, small_config(), init=JointController(torch.full((1, 2, 2), 3), torch.zeros(1, 2, 2, 2, dtype=torch.long)))
+    ckpt = tmp_path / "warm.safetensors"
+    cfg = small_config(budget=2000)
+    a = plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt, init=good)
+    b = plan(toy_scorer(toy_env), cfg, seed=3, init=good)
+    assert a.history == b.history  # seeded determinism from a warm start
+    other = JointController(torch.ones(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
+    with pytest.raises(ValueError, match="another run: init.action was "):
+        plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt, init=other)
+    with pytest.raises(ValueError, match="another run: init"):
+        plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt)
+
+
 @pytest.mark.parametrize("change, field", [
     ({"seed": 4}, "seed"),
     ({"config": {"ce_alpha": 0.5}}, "config.ce_alpha"),
