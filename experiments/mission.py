@@ -19,10 +19,12 @@ then the policy executed with the actual filter on held-out frames.
    generative planning model); :func:`planning_models` gives each variant the one
    ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
 5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain, search a
-   controller from scratch with the cold-start planner (``planning: cold``, settings ``cold_planner``;
-   no hand-written controller) or with G-DICE (``planning: gdice``, settings ``planner``, seeded with
-   the hand-written greedy controller when ``planner.init_weight > 0``), and re-evaluate it, and the
-   greedy controller itself, on independent rollouts: the planned value.
+   controller with the cold-start planner (``planning: cold``; no hand-written controller): perfect
+   perception from scratch (settings ``cold_planner``), then each perception variant from that plan
+   (``warm_start: true``, settings ``warm_planner``) or from scratch too (``warm_start: false``); or
+   with G-DICE (``planning: gdice``, settings ``planner``, seeded with the hand-written greedy
+   controller when ``planner.init_weight > 0``). Each controller, and the greedy controller itself,
+   is re-evaluated on independent rollouts: the planned value.
 6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
    answered by that variant's process on a fresh bank stream of the true class: the executed value,
    and its gap to the planned one in standard errors.
@@ -37,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import resource
+import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -63,6 +66,26 @@ from experiments.steps.planning import delivery_rates, run_cold, run_gdice, scor
 from infra.threads import torch_threads
 
 
+class StageClock:
+    """Wall and CPU seconds of the main process per stage; a stage lasts until the next one starts."""
+
+    def __init__(self, progress: bool) -> None:
+        self.progress = progress
+        self.marks: list[tuple[str, float, float]] = []  # (stage, wall, CPU) at its start
+
+    def start(self, stage: str, message: str) -> None:
+        """Begin ``stage`` (ending the previous one) and print ``message`` when showing progress."""
+        self.marks.append((stage, time.perf_counter(), time.process_time()))
+        if self.progress:
+            tqdm.write(f"[mission] {message}")
+
+    def seconds(self) -> dict[str, dict[str, float]]:
+        """``{stage: {"wall": s, "cpu": s}}`` up to now."""
+        ends = [mark[1:] for mark in self.marks[1:]] + [(time.perf_counter(), time.process_time())]
+        return {stage: {"wall": wall_end - wall, "cpu": cpu_end - cpu}
+                for (stage, wall, cpu), (wall_end, cpu_end) in zip(self.marks, ends)}
+
+
 class Settings(NamedTuple):
     """The mission's validated settings (checked before any work starts)."""
 
@@ -73,6 +96,7 @@ class Settings(NamedTuple):
     overrides: dict[str, Any]  # imaging overrides of the `mission` preset
     frames: int
     loop: closed_loop.LoopSettings  # planning model, generative streams, held-out bank
+    clock: StageClock
 
 
 class Outputs(NamedTuple):
@@ -101,7 +125,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         generative = characterise_generative(noise, cfg, settings, run_dir)
         models = planning_models(empirical, generative, settings)
         results, histories = plan(models, cfg, settings, run_dir)
-        execute_closed_loop(bank.result(settings.progress), outputs.held_out, noise, results, cfg, settings, run_dir)
+        settings.clock.start("bank_wait", "waiting for the held-out bank")
+        banked = bank.result(settings.progress)
+        execute_closed_loop(banked, outputs.held_out, noise, results, cfg, settings, run_dir)
     finally:
         bank.cancel()
     return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank)
@@ -114,12 +140,12 @@ def read_settings(cfg: DictConfig) -> Settings:
     variants = list(cfg.perception) if isinstance(cfg.perception, ListConfig) else [str(cfg.perception)]
     temper = None if st.temper == "fit" else float(st.temper)
     return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames),
-                    closed_loop.read_loop_settings(cfg))
+                    closed_loop.read_loop_settings(cfg), StageClock(bool(cfg.progress)))
 
 
 def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> FrameClassifier:
     """Stage 1: the frame classifier, trained on training-condition snapshots (saved as ``classifier``)."""
-    _step(settings.progress, "1/6 training the frame classifier on training-condition snapshots")
+    settings.clock.start("train", "1/6 training the frame classifier on training-condition snapshots")
     st = cfg.mission
     clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), settings.seed,
                            settings.progress)
@@ -135,13 +161,14 @@ def start_bank(clf: FrameClassifier, settings: Settings, run_dir: Path) -> BankB
                     loop.bank_sequences, settings.frames)
     bank = BankBuild(spec, clf, run_dir / "classifier.safetensors", loop.cache_dir, loop.workers)
     how = "found in the cache" if bank.cached else f"building with {loop.workers} background worker(s)"
-    _step(settings.progress, f"held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
+    if settings.progress:
+        tqdm.write(f"[mission] held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
     return bank
 
 
 def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings) -> Outputs:
     """Stage 2: classifier outputs of the calibration and held-out mission-condition sequences."""
-    _step(settings.progress, "2/6 classifying mission-condition frames")
+    settings.clock.start("classify", "2/6 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
     calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, seed + 1, progress,
@@ -153,7 +180,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
 
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
     """Stage 3: HBNI fitted on the labelled calibration outputs (saved as ``posterior``), and its temper."""
-    _step(settings.progress, "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
+    settings.clock.start("fit", "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
     posterior = fit_labelled(calib, cfg.hbni, settings.seed, settings.progress)
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
@@ -169,7 +196,7 @@ def characterise_processes(
     noise: Noise, held: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """Stage 4: each variant's macro-observation table on the held-out streams (saved as ``macro_<variant>``)."""
-    _step(settings.progress, "4/6 characterising the macro-observation processes on held-out streams")
+    settings.clock.start("characterise", "4/6 characterising the macro-observation processes on held-out streams")
     M = len(CLASSES)
     streams = held.reshape(-1, settings.frames, M)
     truth = torch.arange(M).repeat_interleave(held.shape[1])
@@ -204,7 +231,7 @@ def characterise_generative(
     needed = settings.variants if loop.planning_model == "generative" else (
         [v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])
     if needed:
-        _step(settings.progress, f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
+        settings.clock.start("characterise_generative", f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
     processes = build_processes(noise, cfg, settings)
     models = {}
     for k, name in enumerate(needed):
@@ -251,19 +278,24 @@ def plan(
     Returns the score entry and the search history of every variant.
     """
     cold = cfg.planning == "cold"
-    _step(settings.progress, f"5/6 planning with {'the cold-start planner' if cold else 'G-DICE'} on the disaster-relief domain")
+    settings.clock.start("plan", f"5/6 planning with {'the cold-start planner' if cold else 'G-DICE'} on the disaster-relief domain")
     planner = instantiate(cfg.cold_planner if cold else cfg.planner)
+    warm = instantiate(cfg.warm_planner) if cold and cfg.warm_start else None
     study, seed, reeval = cfg.study, settings.seed, int(cfg.study.reeval_rollouts)
     results: dict[str, Any] = {}
     histories = {}
+    start = None  # with warm_start: the perfect-perception plan every perception variant starts from
     with torch_threads(int(study.threads)):
         for k, name in enumerate(("perfect", *models)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
             if cold:
-                result, best, entry = run_cold(env, planner, bool(study.cold_shared_controller), seed + 10 * k,
-                                               settings.progress, reeval)
+                result, best, entry = run_cold(env, planner if start is None else warm, bool(study.cold_shared_controller),
+                                               seed + 10 * k, settings.progress, reeval, init=start)
                 entry["search_seconds"] = entry.pop("seconds")
+                entry["started_from"] = "scratch" if start is None else "perfect"
+                if warm is not None and name == "perfect":
+                    start = result.best
             else:
                 init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
                 result, best, seconds = run_gdice(env, planner, study, seed + 10 * k, settings.progress, init=init)
@@ -290,7 +322,7 @@ def execute_closed_loop(
     streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
     the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
     executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences."""
-    _step(settings.progress, "6/6 executing every policy in closed loop on the held-out bank")
+    settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
     C, P = pooled.shape[:2]
     on_pool = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
@@ -323,7 +355,8 @@ def write_outputs(
         "values.png": mission_report.value_figure(results),
         "confusion.png": mission_report.confusion_figure(models),
         "frames.png": mission_report.frames_figure(models),
-        "learning_curves.png": mission_report.curves_figure(histories),
+        "learning_curves.png": mission_report.curves_figure(histories, {
+            name: results["perfect"]["rollouts"] for name, r in results.items() if r.get("started_from") == "perfect"}),
         "closed_loop.png": closed_loop.figure(results, mission_report.LABELS),
     }
     for file, fig in figures.items():
@@ -344,6 +377,7 @@ def write_outputs(
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
         "planning": cfg.planning,
         "planner": dataclasses.asdict(instantiate(cfg.cold_planner if cfg.planning == "cold" else cfg.planner)),
+        "warm_planner": dataclasses.asdict(instantiate(cfg.warm_planner)) if cfg.planning == "cold" and cfg.warm_start else None,
         "wrong_penalty": float(cfg.domain.wrong_penalty),
         "frame_period": float(cfg.domain.frame_period),
         "sizes": {
@@ -351,11 +385,14 @@ def write_outputs(
             "held_out_streams": int(held.shape[0] * held.shape[1]), "frames_per_stream": settings.frames,
         },
         "cpu_seconds": _cpu_seconds(),
+        "stage_seconds": settings.clock.seconds(),
     }
     cl = metrics["closed_loop"]
     section = closed_loop.report_lines(results, mission_report.LABELS, cl["planning"], cl["bank"])
     cpu = metrics["cpu_seconds"]
-    section.append(f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers.")
+    section.append(f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers. "
+                   "Per stage of the main process (wall / CPU s): " + ", ".join(
+                       f"{stage} {t['wall']:.0f} / {t['cpu']:.0f}" for stage, t in metrics["stage_seconds"].items()) + ".")
     write_report(run_dir / "report.md", mission_report.report(metrics, list(figures)) + "\n" + "\n".join(section))
     return metrics
 
@@ -364,11 +401,6 @@ def _cpu_seconds() -> dict[str, float]:
     """CPU seconds (user + system) so far of this process and of its finished child processes (bank workers)."""
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"main": own.ru_utime + own.ru_stime, "workers": children.ru_utime + children.ru_stime}
-
-
-def _step(progress: bool, message: str) -> None:
-    if progress:
-        tqdm.write(f"[mission] {message}")
 
 
 def _frame_accuracy(outputs: torch.Tensor) -> dict[str, float]:

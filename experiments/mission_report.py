@@ -43,8 +43,22 @@ def _overrides(overrides: dict) -> str:
     return " with " + ", ".join(f"{k} = {v}" for k, v in overrides.items()) if overrides else ""
 
 
+def _planning_line(metrics: dict) -> str:
+    """How the policies were searched."""
+    if metrics["planning"] == "gdice":
+        seed = " seeded with the greedy controller" if metrics["planner"].get("init_weight", 0) > 0 else " from scratch"
+        return f"Policies searched with G-DICE{seed} for each perception variant and re-evaluated on independent rollouts."
+    if metrics.get("warm_planner"):
+        return (f"Policies searched with no hand-written controller: the cold-start planner planned perfect perception "
+                f"from scratch ({metrics['planner']['budget'] / 1e6:g}M rollouts), then refined that plan for each perception "
+                f"variant ({metrics['warm_planner']['budget'] / 1e6:g}M rollouts each); every policy is re-evaluated on "
+                "independent rollouts.")
+    return (f"Policies searched from scratch with the cold-start planner ({metrics['planner']['budget'] / 1e6:g}M rollouts "
+            "each) and re-evaluated on independent rollouts.")
+
+
 def report(metrics: dict, figures: list[str]) -> str:
-    rows = ["| perception | G-DICE value (± s.e.) | delivered / run | wrong / run | wrong rate | mean inference frames "
+    rows = ["| perception | planned value (± s.e.) | delivered / run | wrong / run | wrong rate | mean inference frames "
             "| greedy policy value (± s.e.) |", "|---|---|---|---|---|---|---|"]
     for name, r in metrics["variants"].items():
         rows.append(
@@ -63,7 +77,7 @@ def report(metrics: dict, figures: list[str]) -> str:
     how = "fitted by log score on the labelled calibration sequences" if temper["fitted"] else "set in the config"
     lines = [
         "# Mission report: disaster relief on semantic macro-observations", "",
-        "Policies searched with G-DICE for each perception variant and re-evaluated on independent rollouts.",
+        _planning_line(metrics),
         f"Frames: the `mission` imaging preset{_overrides(metrics['conditions']['overrides'])}.", "",
         *rows, "", "Macro-observation processes characterised on held-out classifier output streams:", "", *macro, "",
         f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as independent).", "",
@@ -131,12 +145,16 @@ def frames_figure(models: dict[str, hbni_pyro.MacroObservationModel]) -> plt.Fig
     return fig
 
 
-def curves_figure(histories: dict[str, dict]) -> plt.Figure:
-    """Learning curves: the cold-start planner's incumbent value against rollouts, or G-DICE's per iteration."""
+def curves_figure(histories: dict[str, dict], offsets: dict[str, float] | None = None) -> plt.Figure:
+    """Learning curves: the cold-start planner's incumbent value against rollouts, or G-DICE's per iteration.
+
+    ``offsets``: rollouts spent before a run started (a run warm-started from another run's plan continues its curve).
+    """
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     if all("value" in h for h in histories.values()):
+        offsets = offsets or {}
         for name, h in histories.items():
-            points = [(r / 1e6, v) for r, v in zip(h["rollouts"], h["value"]) if v == v]
+            points = [((offsets.get(name, 0) + r) / 1e6, v) for r, v in zip(h["rollouts"], h["value"]) if v == v]
             if points:
                 ax.step(*zip(*points), where="post", label=LABELS[name])
         ax.set_xlabel("rollouts spent (millions)")

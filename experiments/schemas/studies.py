@@ -336,6 +336,8 @@ class Mission(Root):
     planning: str = "cold"  # "cold": the cold-start planner (cold_planner); "gdice": G-DICE (planner)
     planner: Any = field(default_factory=PlannerBlock)
     cold_planner: Any = field(default_factory=ColdPlannerBlock)
+    warm_start: bool = True  # planning=cold: perception variants start from the perfect-perception plan
+    warm_planner: Any = field(default_factory=ColdPlannerBlock)  # the planner settings of those warm starts
     domain: Any = field(default_factory=DisasterReliefBlock)
     perception: Any = field(default_factory=lambda: list(MISSION_VARIANTS))
     mission: MissionBlock = field(default_factory=MissionBlock)

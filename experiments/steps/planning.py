@@ -59,15 +59,17 @@ def run_gdice(
 
 
 def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, seed: int, progress: bool,
-             reeval_rollouts: int) -> tuple[PlannerResult, JointController, dict[str, Any]]:
-    """The cold-start planner from scratch: (result, best joint controller, score entry).
+             reeval_rollouts: int, init: JointController | None = None
+             ) -> tuple[PlannerResult, JointController, dict[str, Any]]:
+    """The cold-start planner, from scratch or from ``init`` (searched agents): (result, best joint controller,
+    score entry).
 
     The entry holds the value re-evaluated on ``reeval_rollouts`` fresh rollouts (seed ``seed + 10``),
     the rollouts spent, and process CPU and wall seconds of the search.
     """
     scorer = RolloutScorer(env, shared=shared_controller)
     cpu, wall = time.process_time(), time.perf_counter()
-    result = plan(scorer, config, seed=seed, progress=progress)
+    result = plan(scorer, config, seed=seed, progress=progress, init=init)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     best = scorer.team(result.best)
     entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,

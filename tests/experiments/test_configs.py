@@ -54,6 +54,7 @@ TYPE_ERRORS = [
     ("dpomdp_benchmarks", "study.caps.iterations=x", "study.caps.iterations"),
     ("mission", "mission.threshold=abc", "mission.threshold"),
     ("mission", "domain.num_agents=two", "domain.num_agents"),
+    ("mission", "warm_start=maybe", "warm_start"),
 ]
 
 
@@ -102,6 +103,7 @@ RANGE_ERRORS = [
     ("mission", "mission.frames=0", "mission.frames: expected an int >= 1"),
     ("mission", "+mission.conditions.fog=[0.1,0.2]", "mission.conditions: unknown field(s) ['fog']"),
     ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'ssbf', 'max_of_mean']"),
+    ("mission", "warm_planner.budget=0", "warm_planner.budget: expected an int >= 1"),
     ("mission", "study.threads=0", "study.threads: expected an int >= 1"),
     ("mission", "+mission.foo=1", "mission.foo: Key 'foo' not in 'MissionBlock'"),
     ("mission_full", "planner.num_nodes=0", "planner.num_nodes: expected an int >= 1"),
@@ -116,8 +118,12 @@ def test_an_out_of_range_value_fails_the_check_naming_the_key(name, override, me
     assert str(info.value).startswith(message), str(info.value)
 
 
-def test_the_mission_plans_seeded_by_default_and_mission_full_from_scratch():
-    """The default main job keeps to minutes with seeded G-DICE; the paper-scale mission plans with no hand-written controller."""
-    assert _compose("experiment=mission").planning == "gdice"
+def test_the_mission_plans_with_no_hand_written_controller():
+    """The default main job plans perfect perception from scratch and each variant from that plan; the paper-scale
+    mission plans every variant from scratch."""
+    main = _compose("experiment=mission")
+    assert main.planning == "cold" and main.warm_start and main.cold_planner.ce_reactive
+    assert main.warm_planner.phases == ["ls"]
     full = _compose("experiment=mission_full")
-    assert full.planning == "cold" and full.cold_planner.budget == 20_000_000 and full.cold_planner.ce_reactive
+    assert full.planning == "cold" and not full.warm_start and full.cold_planner.budget == 20_000_000
+    assert full.cold_planner.ce_reactive and full.cold_planner.ls_candidates == 30_000

@@ -11,20 +11,9 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
+from mission_tiny import TINY_MISSION
 
-TINY = [
-    "mission.train_per_class=5", "mission.augment=0", "mission.calib_sequences=1", "mission.char_sequences=2",
-    "mission.frames=5", "hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40",
-    "planner.iterations=2", "planner.samples=6", "planner.elites=2",
-    "study.rollouts=4", "study.reeval_rollouts=20", "progress=false",
-    "mission.bank.sequences=2", "mission.bank.workers=0", "mission.generative_streams=50",
-    "mission.bootstrap.replicates=2", "mission.bootstrap.rollouts=4",
-    f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}",
-    "cold_planner.budget=3000", "cold_planner.patience=1", "cold_planner.num_nodes=6", "cold_planner.start_nodes=3", "cold_planner.ce_iterations=2",
-    "cold_planner.ce_samples=10", "cold_planner.ce_elites=2", "cold_planner.ce_memory=1", "cold_planner.ce_rollouts=4",
-    "cold_planner.ce_screen_rollouts=2", "cold_planner.ls_candidates=40", "cold_planner.ls_stages=[[2,0.5],[4,2]]",
-    "cold_planner.duel_rollouts=20", "cold_planner.visit_rollouts=10",
-]
+TINY = [*TINY_MISSION, f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"]
 
 
 def _run(repo_root, *args, multirun=False):
@@ -61,8 +50,14 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
     assert f"temper is {temper['value']:g}" in report
     assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
-    assert metrics["planning"] == "gdice" and metrics["planner"]["init_weight"] == 0.8  # G-DICE seeded with greedy
-    assert all("best_sampled" in entry for entry in metrics["variants"].values())
+    assert metrics["planning"] == "cold" and metrics["planner"]["budget"] == 3000  # no hand-written seed
+    assert metrics["warm_planner"]["budget"] == 1000
+    started = {name: entry["started_from"] for name, entry in metrics["variants"].items()}
+    assert started == {"perfect": "scratch", "hbni": "perfect", "ssbf": "perfect", "max_of_mean": "perfect",
+                       "hbni_generative": "perfect"}
+    assert all(entry["rollouts"] > 0 and "best_sampled" not in entry for entry in metrics["variants"].values())
+    assert set(metrics["stage_seconds"]) == {"train", "classify", "fit", "characterise", "characterise_generative", "plan",
+                                             "bank_wait", "closed_loop"}
     assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
     assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
@@ -127,12 +122,17 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith("| [1](1/) | completed | ssbf | ")
 
 
-def test_fixed_temper_preset_conditions_and_cold_planning(tmp_path, repo_root):
+@pytest.mark.parametrize("planning", ["planning=gdice", "warm_start=false"])
+def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, planning):
     _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
-         "planning=cold")
+         planning)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["planning"] == "cold" and metrics["planner"]["budget"] == 3000  # no hand-written seed
-    assert all(entry["rollouts"] > 0 and "best_sampled" not in entry for entry in metrics["variants"].values())
+    if planning == "planning=gdice":  # G-DICE seeded with the greedy controller
+        assert metrics["planning"] == "gdice" and metrics["planner"]["init_weight"] == 0.8
+        assert all("best_sampled" in entry for entry in metrics["variants"].values())
+    else:  # every variant from scratch
+        assert metrics["planning"] == "cold" and metrics["warm_planner"] is None
+        assert {entry["started_from"] for entry in metrics["variants"].values()} == {"scratch"}
     assert metrics["hbni_temper"] == {"value": 0.5, "fitted": False}
     assert metrics["conditions"]["overrides"] == {}
     assert "temper=0.5" in MacroObservationModel.load(tmp_path / "macro_hbni.safetensors").info["filter"]
