@@ -29,8 +29,9 @@ from hbni_pyro.kernels.base import (
     fraction,
 )
 from hbni_pyro.kernels.mh_steps import (
-    MHData,
     MHState,
+    alias_draw,
+    frame_data,
     sufficient_stats,
     update_classes,
     update_hyper,
@@ -59,25 +60,20 @@ class FrameData:
         fixed = ~self.free
         counts, sums = sufficient_stats(labels[:, fixed], obs[:, fixed].log(), full=True)
         self.num_classes = M
-        obs_free = obs[:, self.free]
-        weights = 0.5 * obs_free + 0.5 / M
-        self.data = MHData(
-            obs_free.log().unsqueeze(1), labels[:, self.free].unsqueeze(1), log_prior, weights.log().unsqueeze(1),
-            weights.cumsum(-1).unsqueeze(1), counts.unsqueeze(1), sums.unsqueeze(1),
-        )
+        self.data = frame_data(obs[:, self.free].unsqueeze(1), labels[:, self.free].unsqueeze(1), log_prior,
+                               counts.unsqueeze(1), sums.unsqueeze(1))
         self.label_counts = torch.zeros(D, int(self.free.sum()), M, dtype=DTYPE)
 
     def initial_classes(self, batch: tuple[int, int], generator: torch.Generator) -> Tensor:
         """``(D, Cp, N_free)`` classes drawn from the proposal weights (given labels kept)."""
-        cdf = self.data.proposal_cdf
-        u = torch.rand(batch + (cdf.shape[-2], 1), generator=generator, dtype=DTYPE) * cdf[..., -1:]
-        c0 = (u > cdf).sum(-1).clamp_max(self.num_classes - 1)
-        return torch.where(self.data.labels >= 0, self.data.labels, c0)
+        d = self.data
+        c0 = alias_draw(d.alias_prob, d.alias, torch.rand(batch + d.labels.shape[-1:], generator=generator, dtype=DTYPE))
+        return torch.where(d.labels >= 0, d.labels, c0)
 
     def record(self, c: Tensor) -> None:
         """Add the current classes ``(D, Cp, N_free)`` of every chain to the label counts."""
         index = c.transpose(1, 2)
-        self.label_counts.scatter_add_(-1, index, torch.ones(index.shape, dtype=DTYPE))
+        self.label_counts.scatter_add_(-1, index, torch.ones((), dtype=DTYPE).expand(index.shape))
 
     def label_probs(self, draws: int, chains: int) -> Tensor:
         """``(D, N, M)`` posterior frequency of each row's class (labelled rows one-hot)."""

@@ -8,7 +8,15 @@ from pyro.infer import MCMC
 
 from hbni_pyro.generative import gamma_variates, sample_outputs
 from hbni_pyro.kernels import HBNIMetropolis
-from hbni_pyro.kernels.mh_steps import MHData, MHState, update_classes, update_hyper, update_theta
+from hbni_pyro.kernels.mh_steps import (
+    MHState,
+    alias_draw,
+    alias_tables,
+    frame_data,
+    update_classes,
+    update_hyper,
+    update_theta,
+)
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import as_outputs
 
@@ -55,6 +63,65 @@ def test_labelled_outputs_keep_their_class():
     torch.testing.assert_close(kernel.label_probs[:, :5, 0], torch.ones(1, 5, dtype=torch.float64))
 
 
+@pytest.mark.parametrize("num_classes", [2, 3, 10])
+def test_alias_tables_reproduce_their_weights_exactly(num_classes):
+    """Column ``k`` is drawn with ``(prob[k] + sum_{j: alias[j] = k} (1 - prob[j])) / M``: that closed
+    form must give back the weights (random rows, near-zero entries, ties, one-hot and uniform rows)."""
+    g = torch.Generator().manual_seed(num_classes)
+    w = torch.rand(4, 50, num_classes, generator=g, dtype=torch.float64) ** 4
+    w[0, 0] = 1.0
+    w[0, 1] = 0.0
+    w[0, 1, 0] = 1.0
+    w[0, 2, :] = torch.arange(num_classes) % 2 + 1e-9
+    w = w / w.sum(-1, keepdim=True)
+    prob, alias = alias_tables(w)
+    assert ((prob >= 0) & (prob <= 1)).all() and ((alias >= 0) & (alias < num_classes)).all()
+    implied = (prob + torch.zeros_like(prob).scatter_add_(-1, alias, 1 - prob)) / num_classes
+    torch.testing.assert_close(implied, w, rtol=0, atol=1e-12)
+
+
+def test_alias_draw_frequencies_match_the_weights():
+    """400 000 draws from one row: each class frequency within 4.5 binomial standard errors."""
+    g = torch.Generator().manual_seed(1)
+    w = torch.tensor([0.5, 0.02, 0.3, 0.0, 0.18], dtype=torch.float64)
+    n = 400_000
+    draws = alias_draw(*alias_tables(w), torch.rand(n, generator=g, dtype=torch.float64))
+    freq = torch.bincount(draws, minlength=5).double() / n
+    se = (w * (1 - w) / n).sqrt()
+    assert ((freq - w).abs() <= 4.5 * se + 1e-12).all(), (freq, w)
+
+
+@pytest.mark.parametrize("confusion", [False, True])
+def test_class_move_transition_probabilities(confusion):
+    """One class move from a fixed class: the frequency of each next class over 200 000 chains
+    matches the exact MH transition ``(1 - stay) w_k min(1, pi_k w_c / (pi_c w_k))`` (stay
+    otherwise), with ``pi`` from ``torch.distributions.Dirichlet`` as an independent density, within
+    4.5 binomial standard errors."""
+    g = torch.Generator().manual_seed(7)
+    M, C, stay = 4, 200_000, 0.3
+    o = torch.tensor([[0.15, 0.5, 0.05, 0.3]], dtype=torch.float64)
+    theta = torch.tensor([2.0, 5.0, 0.7, 9.0], dtype=torch.float64)
+    prior = torch.tensor([0.1, 0.4, 0.2, 0.3], dtype=torch.float64)
+    beta = 0.5 + torch.rand(M, M, generator=g, dtype=torch.float64) if confusion else None
+    alpha = torch.ones(M, M, dtype=torch.float64) if beta is None else beta.clone()
+    alpha.fill_diagonal_(1.0)
+    alpha = alpha + torch.diag(theta)
+    log_pi = torch.distributions.Dirichlet(alpha).log_prob(o) + prior.log()
+    w = 0.5 * o[0] + 0.5 / M
+    cur = 1
+    accept = (log_pi - log_pi[cur] + w[cur].log() - w.log()).exp().clamp_max(1)
+    exact = (1 - stay) * w * accept
+    exact[cur] = 1 - exact.sum() + exact[cur]
+    state = MHState(torch.full((C, 1), cur), theta.log().expand(C, M), torch.zeros(C, dtype=torch.float64),
+                    torch.zeros(C, dtype=torch.float64))
+    data = frame_data(o, torch.tensor([-1]), prior.log())
+    new_c, accepted = update_classes(state, data, stay, g, beta=None if beta is None else beta.expand(C, M, M))
+    freq = torch.bincount(new_c.reshape(-1), minlength=M).double() / C
+    se = (exact * (1 - exact) / C).sqrt()
+    assert ((freq - exact).abs() <= 4.5 * se).all(), (freq, exact)
+    assert new_c is state.c and int(accepted) == int((new_c != cur).sum())
+
+
 @pytest.mark.parametrize("kwargs, match", [({"num_chains": 0}, "num_chains"), ({"stay_prob": 1.0}, "stay_prob")])
 def test_kernel_rejects_bad_settings(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -97,8 +164,7 @@ def test_geweke_joint_distribution():
     labels = torch.full((C, N), -1)
     for _ in range(T):
         o = outputs(state.c, state.log_theta.exp())
-        w = 0.5 * o + 0.5 / M
-        data = MHData(o.log(), labels, prior.log(), w.log(), w.cumsum(-1))
+        data = frame_data(o, labels, prior.log())
         state = state._replace(c=update_classes(state, data, 0.5, gen)[0])
         state = state._replace(log_theta=update_theta(state, data, step, gen)[0])
         lk, lg, _ = update_hyper(state, hp, chol, gen)
@@ -122,12 +188,12 @@ def test_geweke_detects_a_missing_hastings_correction():
     labels = torch.full((C, N), -1)
 
     def frac_class0(correct):
-        s = state
+        s = state._replace(c=state.c.clone())  # the class move rewrites the classes in place
         for _ in range(30):
             o = sample_outputs(theta.unsqueeze(-2).expand(C, N, M), s.c, gen)
-            w = 0.5 * o + 0.5 / M
-            log_w = w.log() if correct else torch.zeros_like(w)
-            data = MHData(o.log(), labels, prior.log(), log_w, w.cumsum(-1))
+            data = frame_data(o, labels, prior.log())
+            if not correct:
+                data = data._replace(log_proposal=torch.zeros_like(data.log_proposal))
             s = s._replace(c=update_classes(s, data, 0.5, gen)[0])
         return torch.nn.functional.one_hot(s.c, M).double().mean((0, 1))
 
