@@ -126,6 +126,18 @@ class _Run:
         return run
 
 
+def _check_arguments(scorer: Scorer, cfg: PlannerConfig, init: JointController | None) -> PlannerConfig:
+    """Validate :func:`plan`'s scorer, config and warm-start controller; returns the config."""
+    if not isinstance(cfg, PlannerConfig):
+        raise TypeError(f"config: expected a PlannerConfig, got {type(cfg).__name__}")
+    for name in ("num_agents", "num_actions", "num_obs"):
+        as_int(f"scorer.{name}", getattr(scorer, name, None), 1)
+    if not callable(scorer) or not callable(getattr(scorer, "visits", None)):
+        raise TypeError(f"scorer: expected a Scorer (callable with a visits method), got {type(scorer).__name__}")
+    _check_init(init, scorer, cfg.num_nodes)
+    return cfg
+
+
 def _check_init(init: JointController | None, scorer: Scorer, max_nodes: int) -> None:
     """Validate a warm-start controller against the searched agents' sizes."""
     if init is None:
@@ -225,15 +237,8 @@ def plan(
             instance a plan of a related problem; ``None`` starts from no controller. Its first phase is
             then warm: cross-entropy starts from it with weight ``ce_init_weight``, local search edits it.
     """
-    cfg = PlannerConfig() if config is None else config
-    if not isinstance(cfg, PlannerConfig):
-        raise TypeError(f"config: expected a PlannerConfig, got {type(cfg).__name__}")
-    for name in ("num_agents", "num_actions", "num_obs"):
-        as_int(f"scorer.{name}", getattr(scorer, name, None), 1)
-    if not callable(scorer) or not callable(getattr(scorer, "visits", None)):
-        raise TypeError(f"scorer: expected a Scorer (callable with a visits method), got {type(scorer).__name__}")
+    cfg = _check_arguments(scorer, PlannerConfig() if config is None else config, init)
     seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
-    _check_init(init, scorer, cfg.num_nodes)
     generator = torch.Generator().manual_seed(seed)
     fingerprint = {"sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
                    "problem": describe(scorer), "config": asdict(cfg), "seed": seed,
