@@ -53,6 +53,7 @@ from classifiers import FrameClassifier
 from classifiers.data import get_conditions
 from decpomdp import JointController
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
+from decpomdp.search import PlannerConfig
 from experiments import mission_report
 from experiments.artifacts import save_artifact
 from experiments.common import beats, ratio, save_figure
@@ -74,8 +75,12 @@ class StageClock:
         self.marks: list[tuple[str, float, float]] = []  # (stage, wall, CPU) at its start
 
     def start(self, stage: str, message: str) -> None:
-        """Begin ``stage`` (ending the previous one) and print ``message`` when showing progress."""
+        """Begin ``stage`` (ending the previous one) and :meth:`say` ``message``."""
         self.marks.append((stage, time.perf_counter(), time.process_time()))
+        self.say(message)
+
+    def say(self, message: str) -> None:
+        """Print ``message`` when showing progress."""
         if self.progress:
             tqdm.write(f"[mission] {message}")
 
@@ -161,8 +166,7 @@ def start_bank(clf: FrameClassifier, settings: Settings, run_dir: Path) -> BankB
                     loop.bank_sequences, settings.frames)
     bank = BankBuild(spec, clf, run_dir / "classifier.safetensors", loop.cache_dir, loop.workers)
     how = "found in the cache" if bank.cached else f"building with {loop.workers} background worker(s)"
-    if settings.progress:
-        tqdm.write(f"[mission] held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
+    settings.clock.say(f"held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
     return bank
 
 
@@ -268,6 +272,14 @@ def _entry_variant(name: str) -> str:
     return name if name in MISSION_VARIANTS else name.rsplit("_", 1)[0]
 
 
+def planners(cfg: DictConfig) -> tuple[Any, PlannerConfig | None]:
+    """The planner's settings (``cold_planner`` or G-DICE's ``planner``) and those of the warm starts from the
+    perfect-perception plan (``warm_planner``; ``None`` unless ``planning: cold`` with ``warm_start``)."""
+    cold = cfg.planning == "cold"
+    return instantiate(cfg.cold_planner if cold else cfg.planner), (
+        instantiate(cfg.warm_planner) if cold and cfg.warm_start else None)
+
+
 def plan(
     models: dict[str, hbni_pyro.MacroObservationModel], cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> tuple[dict[str, dict], dict[str, dict]]:
@@ -279,8 +291,7 @@ def plan(
     """
     cold = cfg.planning == "cold"
     settings.clock.start("plan", f"5/6 planning with {'the cold-start planner' if cold else 'G-DICE'} on the disaster-relief domain")
-    planner = instantiate(cfg.cold_planner if cold else cfg.planner)
-    warm = instantiate(cfg.warm_planner) if cold and cfg.warm_start else None
+    planner, warm = planners(cfg)
     study, seed, reeval = cfg.study, settings.seed, int(cfg.study.reeval_rollouts)
     results: dict[str, Any] = {}
     histories = {}
@@ -351,6 +362,7 @@ def write_outputs(
     bank: BankBuild,
 ) -> dict:
     """Figures, ``report.md``; returns the metrics."""
+    planner, warm = planners(cfg)
     figures = {
         "values.png": mission_report.value_figure(results),
         "confusion.png": mission_report.confusion_figure(models),
@@ -376,8 +388,8 @@ def write_outputs(
         "hbni_temper": noise.temper,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
         "planning": cfg.planning,
-        "planner": dataclasses.asdict(instantiate(cfg.cold_planner if cfg.planning == "cold" else cfg.planner)),
-        "warm_planner": dataclasses.asdict(instantiate(cfg.warm_planner)) if cfg.planning == "cold" and cfg.warm_start else None,
+        "planner": dataclasses.asdict(planner),
+        "warm_planner": None if warm is None else dataclasses.asdict(warm),
         "wrong_penalty": float(cfg.domain.wrong_penalty),
         "frame_period": float(cfg.domain.frame_period),
         "sizes": {
