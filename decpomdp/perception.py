@@ -24,6 +24,10 @@ class PerceptionModel(Protocol):
 
     Attributes:
         num_classes: C, the number of object classes (labels lie in ``[0, C)``).
+
+    A model that is a finite law of outcomes per class (every model this project ships) also has
+    ``outcomes() -> (probs, label, frames)``, each (C, K): the compiled engine samples from that table
+    (:mod:`decpomdp.engine.perception`); a model without it runs on the torch simulator.
     """
 
     num_classes: int
@@ -68,6 +72,12 @@ class PerfectPerception:
         """Return ``(true_class, frames)``; the generator is not consumed."""
         check_true_class(true_class, self.num_classes)
         return true_class.clone(), torch.full_like(true_class, self.frames)
+
+    def outcomes(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The law of ``(label, frames)`` per true class for the compiled engine: one sure outcome each,
+        ``(probs, label, frames)``, each (C, 1)."""
+        classes = torch.arange(self.num_classes)[:, None]
+        return torch.ones(self.num_classes, 1, dtype=torch.float64), classes, torch.full_like(classes, self.frames)
 
     def __repr__(self) -> str:
         return f"PerfectPerception(num_classes={self.num_classes}, frames={self.frames})"

@@ -1,6 +1,11 @@
-"""Batched event-driven simulation of K joint controllers x R rollouts.
+"""Simulation of K joint controllers x R rollouts: the compiled engine, or the batched torch simulator.
 
-The loop runs over *completion events*, not time steps or rollouts: every iteration advances
+:func:`simulate` runs a domain written for the compiled engine (:mod:`decpomdp.engine`: every shipped
+domain, with any perception model that has an outcome table) there by default; ``backend="torch"``
+selects the batched torch simulator below, which also runs any user-written
+:class:`~decpomdp.core.DecPOSMDP` and is the test oracle of the engine.
+
+The torch loop runs over *completion events*, not time steps or rollouts: every iteration advances
 each live rollout to its next completion time ``t_next = min_a end_time``, lets every agent
 completing at ``t_next`` collect reward and a macro-observation, moves those agents along their
 controllers and starts their next MA. Rollouts whose next completion lies beyond the horizon
@@ -18,10 +23,15 @@ from torch import Tensor
 from decpomdp.batched import any_true, lookup
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
+from decpomdp.engine import draw_seed, engine_model
+from decpomdp.engine import run as run_engine
 from infra.checks import as_int
 
+BACKENDS = ("engine", "torch")
 
-def _check(env: DecPOSMDP, controller: JointController) -> None:
+
+def check(env: DecPOSMDP, controller: JointController) -> None:
+    """Raise unless ``controller`` fits ``env`` (agents, observations, actions) and the horizon is finite."""
     if not isinstance(env, DecPOSMDP):
         raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
     if not isinstance(controller, JointController):
@@ -34,6 +44,19 @@ def _check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"controller: action entries must lie in [0, {env.num_actions})")
     if not math.isfinite(env.horizon):
         raise ValueError(f"env: simulation needs a finite horizon, got {env.horizon}")
+
+
+def resolve_backend(env: DecPOSMDP, backend: str | None) -> str:
+    """``backend``, or (``None``) the engine when ``env`` is written for it and torch otherwise."""
+    if backend is not None and backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS} or None, got {backend!r}")
+    if backend == "torch":
+        return backend
+    supported = engine_model(env) is not None
+    if backend == "engine" and not supported:
+        raise ValueError(f"backend: 'engine' needs a domain written for the compiled engine with a tabular perception "
+                         f"model; {type(env).__name__} is not (use backend='torch')")
+    return "engine" if supported else "torch"
 
 
 def _flat_tables(controller: JointController, rollouts: int) -> tuple[Tensor, Tensor, Tensor]:
@@ -57,24 +80,36 @@ def _rows(keep: Tensor, *tensors: Tensor) -> tuple[Tensor, ...]:
 
 
 def simulate(
-    env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator
+    env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator,
+    backend: str | None = None,
 ) -> Tensor:
     """Discounted return of every rollout.
-
-    The event loop stays in one function on purpose: its steps share a dozen live-row tensors that
-    compaction replaces together, and splitting it would pass them all back and forth.
 
     Args:
         env: the Dec-POSMDP.
         controller: K joint controllers.
         rollouts_per_controller: R >= 1.
-        generator: the only source of randomness.
+        generator: the only source of randomness (the engine draws one seed from it per call).
+        backend: ``"engine"``, ``"torch"`` or ``None`` (the engine where ``env`` is written for it).
 
     Returns:
         float64 (K, R): return of rollout ``r`` of controller ``k``.
     """
-    _check(env, controller)
+    check(env, controller)
     rollouts_per_controller = as_int("rollouts_per_controller", rollouts_per_controller, minimum=1)
+    if resolve_backend(env, backend) == "engine":
+        return run_engine(env, controller, rollouts_per_controller, draw_seed(generator)).returns
+    return simulate_torch(env, controller, rollouts_per_controller, generator)
+
+
+def simulate_torch(
+    env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator
+) -> Tensor:
+    """:func:`simulate` on the batched torch simulator (arguments already checked).
+
+    The event loop stays in one function on purpose: its steps share a dozen live-row tensors that
+    compaction replaces together, and splitting it would pass them all back and forth.
+    """
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
     n_obs = controller.num_obs

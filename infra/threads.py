@@ -1,22 +1,26 @@
-"""Thread control for small tensor programs.
+"""Thread control: torch's intra-op threads, and the worker threads of compiled loops.
 
 The samplers, filters, SVM solver and simulators work on small tensors; on a shared or loaded
 machine the hand-offs between torch's intra-op threads cost more than the parallelism saves.
+Compiled loops (the rollout engine) split their work over :func:`worker_threads` threads; one
+setting, :func:`threads`, sets both.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterator
 
 import torch
+
+_workers: int | None = None  # None: every core this process may run on
 
 
 @contextlib.contextmanager
 def torch_threads(threads: int | None) -> Iterator[None]:
     """Run torch on ``threads`` intra-op threads inside the block (``None``: unchanged), then restore."""
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads: expected an int >= 1 or None, got {threads!r}")
+    _check(threads)
     before = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)
@@ -29,3 +33,31 @@ def torch_threads(threads: int | None) -> Iterator[None]:
 def single_thread() -> contextlib.AbstractContextManager[None]:
     """Run torch on one intra-op thread inside the block, then restore the previous count."""
     return torch_threads(1)
+
+
+def _check(threads: int | None) -> None:
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads: expected an int >= 1 or None, got {threads!r}")
+
+
+def worker_threads() -> int:
+    """Threads a compiled loop may use: the value set by :func:`threads`, else the cores available."""
+    if _workers is not None:
+        return _workers
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def threads(count: int | None) -> Iterator[None]:
+    """Run torch's intra-op threads and compiled loops' worker threads on ``count`` threads inside the block
+    (``None``: unchanged), then restore both."""
+    global _workers
+    _check(count)
+    before = _workers
+    with torch_threads(count):
+        if count is not None:
+            _workers = count
+        try:
+            yield
+        finally:
+            _workers = before

@@ -8,7 +8,9 @@ from torch import Tensor
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.evaluate import evaluate
-from decpomdp.simulate import simulate
+from decpomdp.engine import draw_seed, engine_model
+from decpomdp.engine import run as run_engine
+from decpomdp.simulate import check, resolve_backend, simulate
 from infra.checks import as_int
 
 _ROW = "_rollout_row"
@@ -44,7 +46,8 @@ class _Recorder(DecPOSMDP):
 
 
 def rollout_counters(
-    env: DecPOSMDP, controller: JointController, rollouts: int, generator: torch.Generator, keys: tuple[str, ...] | None = None
+    env: DecPOSMDP, controller: JointController, rollouts: int, generator: torch.Generator,
+    keys: tuple[str, ...] | None = None, backend: str | None = None,
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """Discounted returns (K, R) and each counter's final value per rollout, {key: (K, R)}.
 
@@ -52,11 +55,22 @@ def rollout_counters(
         env: a domain whose counters (``env.counters`` by default) change only in ``complete``, so the
             value after a rollout's last completion is final.
         keys: the state entries to report (long (B,) each).
+        backend: as in :func:`~decpomdp.simulate.simulate` (the compiled engine where ``env`` is written for it).
     """
     if keys is None:
         keys = env.counters
-    recorder = _Recorder(env, tuple(keys))
-    returns = simulate(recorder, controller, rollouts, generator)
+    keys = tuple(keys)
+    if resolve_backend(env, backend) == "engine":
+        check(env, controller)
+        rollouts = as_int("rollouts", rollouts, minimum=1)
+        model = engine_model(env)
+        missing = [key for key in keys if key not in model.domain.counters]
+        if missing:
+            raise ValueError(f"keys: {missing} are not counters of {type(env).__name__} {model.domain.counters}")
+        result = run_engine(env, controller, rollouts, draw_seed(generator))
+        return result.returns, {key: result.counters[key] for key in keys}
+    recorder = _Recorder(env, keys)
+    returns = simulate(recorder, controller, rollouts, generator, backend="torch")
     shape = returns.shape
     return returns, {key: value.view(shape) for key, value in recorder.final.items()}
 

@@ -1,5 +1,8 @@
 """A tabular Dec-POMDP as a Dec-POSMDP whose every primitive action is a unit-duration MA.
 
+:func:`decpomdp.simulate` runs it on the compiled engine (:mod:`decpomdp.dpomdp.rules`); the batched
+torch methods below are the engine's test oracle (``backend="torch"``).
+
 Time convention (see :mod:`decpomdp.core`): the step-``k`` joint action starts at ``k`` and completes
 at ``k + 1``; ``horizon = h`` runs ``h`` steps. ``complete`` samples ``s' ~ T(.|s, ja)`` from the sparse
 row of ``(ja, s)``, ``jo ~ O(.|ja, s')`` and returns ``R(s, ja, s', jo) / gamma``, so with the
@@ -17,6 +20,8 @@ import torch
 from torch import Tensor
 
 from decpomdp.core import DecPOSMDP
+from decpomdp.dpomdp import rules
+from decpomdp.engine import EngineModel, no_perception
 from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem
@@ -106,6 +111,16 @@ class TabularDecPOSMDP(DecPOSMDP):
     def from_problem(cls, name: str, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
         """Load a problem shipped with the package (see :func:`~decpomdp.dpomdp.problem_path`)."""
         return cls(load_problem(name), gamma, horizon)
+
+    def engine_model(self) -> EngineModel | None:
+        """The problem for the compiled engine (:mod:`decpomdp.dpomdp.rules`); ``None`` for an infinite horizon."""
+        if not math.isfinite(self.horizon):
+            return None
+        t = self.model.transition
+        tab = rules.tables(self.start_dist.numpy(), t.indptr, t.indices, t.data, self._o_cum.numpy(),
+                           self._reward.numpy(), self._reward_strides, self.action_strides.numpy(),
+                           self.obs_strides.numpy())
+        return EngineModel(rules.ENGINE, np.array([self.gamma]), tab, no_perception())
 
     def joint_action(self, actions: Tensor) -> Tensor:
         """(..., A) individual actions -> (...) joint index (first agent most significant)."""

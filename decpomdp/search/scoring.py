@@ -6,7 +6,7 @@ It also counts every rollout it runs (``rollouts_used``): the planner's budget i
 rollouts, so a run is deterministic whatever the machine's load.
 
 * :class:`RolloutScorer`: Monte Carlo rollouts of a :class:`~decpomdp.core.DecPOSMDP` (optionally one
-  controller shared by the whole team), in one batched simulation.
+  controller shared by the whole team), on the compiled engine (or the batched torch simulator).
 * :class:`ExactScorer`: exact values of a tabular problem (standard error 0); every edge out of a node
   reachable from node 0 counts as traversed once per rollout.
 """
@@ -22,9 +22,11 @@ from infra.checks import as_int
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.rollouts import shared
-from decpomdp.simulate import simulate
+from decpomdp.engine import draw_seed
+from decpomdp.engine import run as run_engine
+from decpomdp.simulate import resolve_backend, simulate
 
-_CHUNK = 200_000  # rollouts per batched simulation
+_CHUNK = 200_000  # rollouts per batched torch simulation
 
 
 class Scorer(Protocol):
@@ -86,20 +88,22 @@ class RolloutScorer:
     Args:
         env: the Dec-POSMDP (finite horizon).
         shared: search one controller (A = 1) that the whole team runs, instead of one per robot.
+        backend: ``"engine"``, ``"torch"`` or ``None`` (the compiled engine where ``env`` is written for it).
     """
 
-    def __init__(self, env: DecPOSMDP, shared: bool = False) -> None:
+    def __init__(self, env: DecPOSMDP, shared: bool = False, backend: str | None = None) -> None:
         if not isinstance(env, DecPOSMDP):
             raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
         if not isinstance(shared, bool):
             raise TypeError(f"shared: expected a bool, got {type(shared).__name__}")
-        self.env, self.shared = env, shared
+        self.env, self.shared, self.backend = env, shared, resolve_backend(env, backend)
         self.num_agents = 1 if shared else env.num_agents
         self.num_actions, self.num_obs = env.num_actions, env.num_obs
         self.rollouts_used = 0
 
     def fingerprint(self) -> dict[str, Any]:
-        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env, "shared": self.shared}
+        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env, "shared": self.shared,
+                "backend": self.backend}
 
     def team(self, controller: JointController) -> JointController:
         """The joint controller the team runs for searched controllers ``controller``."""
@@ -107,19 +111,25 @@ class RolloutScorer:
 
     def __call__(self, controller: JointController, rollouts: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         rollouts = as_int("rollouts", rollouts, 2)
-        per = max(1, _CHUNK // rollouts)
-        returns = torch.cat([simulate(self.env, self.team(controller[i:i + per]), rollouts, generator)
-                             for i in range(0, controller.num_controllers, per)])
+        if self.backend == "engine":
+            returns = run_engine(self.env, self.team(controller), rollouts, draw_seed(generator)).returns
+        else:
+            per = max(1, _CHUNK // rollouts)
+            returns = torch.cat([simulate(self.env, self.team(controller[i:i + per]), rollouts, generator, "torch")
+                                 for i in range(0, controller.num_controllers, per)])
         self.rollouts_used += returns.numel()
         return returns.mean(1), returns.std(1) / rollouts**0.5
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:
         rollouts = as_int("rollouts", rollouts, 1)
         team = self.team(controller[0])
-        tracker = _NodeTracker(self.env, team)
-        simulate(tracker, team, rollouts, generator)
+        if self.backend == "engine":
+            counts = run_engine(self.env, team, rollouts, draw_seed(generator), visits=True).visits / rollouts
+        else:
+            tracker = _NodeTracker(self.env, team)
+            simulate(tracker, team, rollouts, generator, "torch")
+            counts = tracker.counts.view(team.num_agents, team.num_nodes, self.num_obs) / rollouts
         self.rollouts_used += rollouts
-        counts = tracker.counts.view(team.num_agents, team.num_nodes, self.num_obs) / rollouts
         return counts.sum(0, keepdim=True) if self.shared else counts
 
 

@@ -43,7 +43,7 @@ def cycle(*per_agent, num_obs=dr.DisasterRelief.num_obs):
 
 @pytest.fixture
 def no_noise(monkeypatch):
-    monkeypatch.setattr(dr.domain, "DURATION_NOISE", 0.0)
+    monkeypatch.setattr(dr.rules, "DURATION_NOISE", 0.0)
 
 
 def start(env, state, actions, t=0.0, agents=None):
@@ -73,7 +73,7 @@ def test_infer_uses_the_plugged_model(no_noise):
     assert torch.equal(model.asked[0], objects[0])  # robot a infers the object at base a
     reward, obs = env.complete(state, torch.ones(1, 2, dtype=torch.bool), torch.full((1, 2), dr.INFER), torch.full((1,), 1.75), g())
     contexts = [dr.OBS_NAMES[o].rsplit("_", 1)[0] for o in obs[0]]
-    expected = ["saw_" + dr.LOCATIONS[int(dr.DESTINATION[ShiftedPerception.WRONG[c]])].lower() for c in objects[0]]
+    expected = ["saw_" + dr.LOCATIONS[int(dr.DESTINATION[int(ShiftedPerception.WRONG[c])])].lower() for c in objects[0]]
     assert contexts == expected
     assert state["inference_frames"].tolist() == [14] and state["inferences"].tolist() == [2]
 
@@ -94,7 +94,7 @@ def test_one_delivery_reward_and_discount(no_noise):
     env = DisasterRelief(num_agents=1, degrade_prob=0.0, horizon=5.0)
     ctrl = cycle([dr.PICK, dr.GO_HOSPITAL, dr.PUT, dr.GO_B1])
     returns, counters = rollout_counters(env, ctrl, 400, g(3))
-    hospital = (dr.DESTINATION == dr.HOSPITAL).double().mean().item()  # 1/3 of the classes
+    hospital = float((dr.DESTINATION == dr.HOSPITAL).mean())  # 1/3 of the classes
     delivered = counters["delivered"].double()
     assert torch.equal(returns, 0.99**5 * delivered)
     assert abs(delivered.mean().item() - hospital) < 4 * math.sqrt(hospital * (1 - hospital) / 400)
@@ -122,7 +122,7 @@ def test_contexts_follow_a_delivery(no_noise):
     env = DisasterRelief(num_agents=1, degrade_prob=0.0, sensor_accuracy=1.0)
     state = env.reset(1, g(6))
     one = torch.ones(1, 1, dtype=torch.bool)
-    site = dr.LOCATIONS[int(dr.DESTINATION[state["objects"][0, 0]])].lower()
+    site = dr.LOCATIONS[int(dr.DESTINATION[int(state["objects"][0, 0])])].lower()
     go = {"hospital": dr.GO_HOSPITAL, "airport": dr.GO_AIRPORT, "crate_zone": dr.GO_CRATE}[site]
     seen, t = [], 0.0
     for ma in [dr.INFER, dr.PICK, go, dr.PUT, dr.GO_B1, dr.PICK, dr.GO_B2]:

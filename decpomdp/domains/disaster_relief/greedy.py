@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from decpomdp.controller import JointController
-from decpomdp.domains.disaster_relief.domain import (
+from decpomdp.domains.disaster_relief.rules import (
     GO_AIRPORT, GO_B1, GO_B2, GO_CRATE, GO_HOSPITAL, INFER, OBS_NAMES, PICK, PUT, REPAIR_MA,
 )
 

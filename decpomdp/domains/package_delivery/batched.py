@@ -1,6 +1,7 @@
 """The package-delivery rules (:mod:`.rules`) on a batch of rollouts: :class:`PackageDelivery`.
 
-The rules are compiled into lookup tables over (location, load, package at the base, MA), so a
+:func:`decpomdp.simulate` runs the domain on the compiled engine (the rules in :mod:`.rules`); the
+batched torch methods here are its test oracle (``backend="torch"``). The rules are compiled into lookup tables over (location, load, package at the base, MA), so a
 batch step is a handful of gathers and elementwise ops on uint8 masks (see :mod:`decpomdp.batched`).
 ``tests/decpomdp/test_package_delivery.py`` checks this implementation against a plain-Python
 simulator of the same rules, one rollout at a time.
@@ -14,6 +15,7 @@ from torch import Tensor
 
 from decpomdp.batched import any_true, as_u8, equal_u8, lookup, pair, select
 from decpomdp.core import DecPOSMDP
+from decpomdp.engine import EngineModel, no_perception
 from infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
@@ -29,43 +31,16 @@ _NOISY, _OK, _JOINT_OK, _SOLO_PICK_OK = 1, 2, 4, 8  # bits (_NOISY first: ``flag
 
 
 def _start_tables(reference_pickup: bool) -> dict[str, Tensor]:
-    """Tables over ``((loc * 6 + load) * 5 + here) * 13 + ma`` (preconditions with or without ``reference_pickup``).
-
-    ``flags`` (uint8) holds bits ``_OK`` (preconditions hold), ``_JOINT_OK`` (a joint MA whose
-    preconditions hold), ``_SOLO_PICK_OK`` (a pick-up whose preconditions hold) and ``_NOISY`` (the
-    duration is noisy: preconditions hold and the MA is not ``wait``); ``mean`` is the mean duration.
-    """
-    n = _N_LOC * _N_LOAD * _N_PKG * _N_MA
-    flags, mean = torch.zeros(n, dtype=torch.uint8), torch.zeros(n, dtype=torch.float64)
-    i = 0
-    for loc in range(_N_LOC):
-        for load in range(_N_LOAD):
-            for here in range(_N_PKG):
-                for ma in range(_N_MA):
-                    ok = preconditions_hold(loc, load, here, ma, reference_pickup)
-                    flags[i] = ok * (_OK + _JOINT_OK * (ma in JOINT_MAS) + _SOLO_PICK_OK * (ma == PICK) + _NOISY * (ma != WAIT))
-                    mean[i] = float(MEAN_DURATION[ma, loc]) if ok else FAIL_DURATION
-                    i += 1
-    return {"flags": flags, "mean": mean}
+    """:func:`.rules.start_tables` as uint8 flags and float64 means."""
+    flags, mean = rules.start_tables(reference_pickup)
+    return {"flags": torch.as_tensor(flags).to(torch.uint8), "mean": torch.as_tensor(mean)}
 
 
 _START = {rule: _start_tables(rule) for rule in (False, True)}  # by reference_pickup
-_SUCCESSOR = torch.zeros(_N_MA * _N_MA, dtype=torch.uint8)  # [previous MA * 13 + MA]: may follow (successor_rule)
-for _prev, _nexts in REFERENCE_SUCCESSORS.items():
-    _SUCCESSOR[[_prev * _N_MA + n for n in _nexts]] = 1
-
-
-def _flags(mas) -> Tensor:
-    flags = torch.zeros(_N_MA, dtype=torch.bool)
-    flags[list(mas)] = True
-    return flags
-
-
-_GO, _DROP, _PICKS, _JPUT = 1, 2, 4, 8  # bits of ``_MA_KIND`` (_GO first: ``kind & _GO`` is 0 or 1)
-#: uint8 (13,): whether each MA moves the robot, drops its load, picks a package up, is the joint put-down
-_MA_KIND = (_flags(m for m, node in enumerate(TARGET_NODE) if node >= 0) * _GO + _flags(DROP_MAS) * _DROP
-            + _flags([PICK, JPICK]) * _PICKS + _flags([JPUT]) * _JPUT).to(torch.uint8)
-_TARGET = torch.tensor([max(node, 0) for node in TARGET_NODE], dtype=torch.int32)
+_GO, _DROP, _PICKS, _JPUT = rules.GO_KIND, rules.DROP_KIND, rules.PICK_KIND, rules.JPUT_KIND  # bits of ``_MA_KIND``
+#: uint8 (13,) kind bits of each MA; int32 (13,) node each go-to MA ends at; uint8 (13 * 13,) allowed successors
+_MA_KIND, _TARGET, _SUCCESSOR = (torch.as_tensor(x).to(dtype) for x, dtype in zip(
+    rules.ma_tables(), (torch.uint8, torch.int32, torch.uint8)))
 
 
 def _same_place_and_load(state: dict[str, Tensor]) -> Tensor:
@@ -129,25 +104,17 @@ class PackageDelivery(DecPOSMDP):
                 f"reference_pickup={self.reference_pickup})")
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
-        """Tables over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing successfully.
-
-        ``packed_counts[i]`` (int32) adds to the counters (delivered, delivered_large, wrong), counter
-        ``k`` in bits ``_COUNT_BITS * k`` and up; a joint put-down completes for both robots at once and
-        is counted on robot 0 only.
-        """
-        n = _N_MA * _N_LOC * _N_LOAD
-        reward = torch.zeros(n, dtype=torch.float64)
-        counts = torch.zeros(n, 3, dtype=torch.long)
-        i = 0
-        for ma in range(_N_MA):
-            for loc in range(_N_LOC):
-                for load in range(_N_LOAD):
-                    if ma in DROP_MAS and load and preconditions_hold(loc, load, 0, ma):
-                        reward[i], right = self.rewards.for_drop(ma, load, loc)
-                        counts[i] = torch.tensor([right, right and ma == JPUT, not right])
-                    i += 1
+        """:func:`.rules.drop_tables` with the counter increments packed into one int32 per entry (counter ``k``
+        in bits ``_COUNT_BITS * k`` and up); a joint put-down completes for both robots at once and is
+        counted on robot 0 only."""
+        reward, counts = (torch.as_tensor(x) for x in rules.drop_tables(self.rewards))
         packed = (counts << torch.arange(0, _COUNT_BITS * len(COUNTERS), _COUNT_BITS)).sum(dim=1).to(torch.int32)
         return {"reward": reward, "packed_counts": packed}
+
+    def engine_model(self) -> EngineModel:
+        """The domain for the compiled engine (:mod:`.rules`)."""
+        p = rules.params(self.joint_wait, self.solo_joint, self.successor_rule, self.rewards.large_per_robot)
+        return EngineModel(rules.ENGINE, p, rules.tables(self.reference_pickup, self.rewards), no_perception())
 
     @staticmethod
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:

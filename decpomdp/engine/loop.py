@@ -1,0 +1,150 @@
+"""The compiled event loop: K joint controllers x R rollouts, one plain loop per rollout.
+
+Each rollout runs its events in order: the next completion time ``t = min_a end[a]`` (stop past the
+horizon), the completing agents' ``complete`` rule (reward, observation), each of them moves along
+its controller, and their ``start`` rule begins the next MA. Rollouts are split into chunks that
+threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
+each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)``
+(:mod:`decpomdp.engine.random`), so the returns do not depend on the thread count or the chunking.
+
+A domain's rules are three compiled scalar functions on one rollout's state, an int64 vector ``si``
+and a float64 vector ``sf`` (see :class:`decpomdp.engine.EngineDomain`), marked
+``@njit(inline="always")`` so that they compile into the loop (a call that passes a dozen arrays costs
+more than most rules):
+
+* ``reset(si, sf, params, tables, perception, num_agents, rng)``: the initial state (``si``, ``sf``
+  arrive zeroed);
+* ``start(si, sf, params, tables, perception, agents, actions, t, end, rng)``: flagged agents begin
+  ``actions[a]`` at ``t`` and get ``end[a] > t`` (a rule may also move a partner's ``end``);
+* ``complete(si, sf, params, tables, perception, agents, actions, t, obs, rng) -> reward``: flagged
+  agents finish at ``t``; it writes their observations to ``obs`` and returns the undiscounted reward.
+
+:func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
+long, which :func:`decpomdp.engine.simulate.run` calls on chunks of rollouts in parallel::
+
+    @chunk_function
+    def chunk(args, out, scratch, index, lo, hi):
+        return event_loop(reset, start, complete, args, out, scratch, index, lo, hi)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+from numba.core.compiler import Compiler
+
+from decpomdp.engine.random import stream_key
+
+ZERO_DURATION = 1  # error flag: a rule returned an end time not after the event that started it
+
+
+class Outputs(NamedTuple):
+    """What a run writes, one row per rollout (``B = K * R``): ``returns`` float64 (B,), ``counters`` int64
+    (B, C), ``visits`` float64 (chunks, A, Nn, O) (per chunk: summed afterwards; (chunks, 1, 1, 1) when not
+    counted), final states int64 (B or 0, num_int) and float64 (B or 0, num_float), and ``status`` int64
+    (chunks,) error flags (0: none)."""
+
+    returns: np.ndarray
+    counters: np.ndarray
+    visits: np.ndarray
+    final_int: np.ndarray
+    final_float: np.ndarray
+    status: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """One chunk's working arrays: the rollout's int64 and float64 state ``si`` (num_int,) and ``sf``
+    (num_float,), each agent's controller node, current MA, completion time and last observation (A,), the
+    completing agents (bool (A,)), and the random stream's state (uint64 (1,))."""
+
+    si: np.ndarray
+    sf: np.ndarray
+    node: np.ndarray
+    act: np.ndarray
+    end: np.ndarray
+    obs: np.ndarray
+    agents: np.ndarray
+    rng: np.ndarray
+
+
+class _NoAliasCompiler(Compiler):
+    """numba's compiler with every pointer argument marked ``noalias`` (as numba does for the bodies of its
+    parallel loops), so that LLVM keeps the rollout's state in registers across the rules' stores."""
+
+    def define_pipelines(self):
+        self.state.flags.noalias = True
+        return super().define_pipelines()
+
+
+#: The decorator of a domain's chunk function: compiled, cached, releasing the GIL, and its array arguments
+#: declared free of aliases. Every array passed to a chunk function must therefore be its own buffer
+#: (:func:`decpomdp.engine.simulate.run` checks this).
+chunk_function = njit(cache=True, nogil=True, pipeline_class=_NoAliasCompiler)
+
+
+@njit(inline="always")
+def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
+    """Simulate rollouts ``lo .. hi - 1`` (rollout ``b`` is rollout ``b % R`` of controller ``b // R``) into
+    ``out`` (row ``chunk`` of its per-chunk arrays) with the working arrays ``scratch``; see the module doc.
+
+    Args:
+        args: the tuple ``(params, tables, perception, action, next_node, first_controller, rollouts, seed,
+            horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
+            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int64 (K, A, Nn),
+            ``next_node`` int64 (K, A, Nn, O); ``init_int``/``init_float`` a state every rollout starts from
+            instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
+    """
+    (params, tables, perception, action, next_node, first_controller, rollouts, seed, horizon, log_gamma,
+     counter_slots, track_visits, init_int, init_float, keep_state) = args
+    a_count, n_obs = action.shape[1], next_node.shape[3]
+    si, sf, node, act, end, obs, agents, rng = scratch
+    use_init = init_int.shape[0] > 0
+    for b in range(lo, hi):
+        k = b // rollouts
+        rng[0] = stream_key(seed, first_controller + k, b - k * rollouts)
+        if use_init:
+            si[:] = init_int
+            sf[:] = init_float
+        else:
+            si[:] = 0
+            sf[:] = 0.0
+            reset(si, sf, params, tables, perception, a_count, rng)
+        for a in range(a_count):
+            node[a] = 0
+            act[a] = action[k, a, 0]
+            agents[a] = True
+            end[a] = 0.0
+        start(si, sf, params, tables, perception, agents, act, 0.0, end, rng)
+        value, t_prev = 0.0, 0.0
+        while True:
+            t = end[0]
+            for a in range(1, a_count):
+                t = min(t, end[a])
+            if t > horizon:
+                break
+            if not t > t_prev:
+                out.status[chunk] = ZERO_DURATION
+                break
+            for a in range(a_count):
+                agents[a] = end[a] == t
+            reward = complete(si, sf, params, tables, perception, agents, act, t, obs, rng)
+            if reward != 0.0:
+                value += reward * math.exp(t * log_gamma)
+            for a in range(a_count):
+                if agents[a]:
+                    o = min(max(obs[a], 0), n_obs - 1)
+                    if track_visits:
+                        out.visits[chunk, a, node[a], o] += 1.0
+                    node[a] = next_node[k, a, node[a], o]
+                    act[a] = action[k, a, node[a]]
+            start(si, sf, params, tables, perception, agents, act, t, end, rng)
+            t_prev = t
+        out.returns[b] = value
+        for j in range(counter_slots.shape[0]):
+            out.counters[b, j] = si[counter_slots[j]]
+        if keep_state:
+            out.final_int[b] = si
+            out.final_float[b] = sf

@@ -1,0 +1,105 @@
+"""Counter-based random numbers for the compiled engine: one SplitMix64 stream per rollout.
+
+A rollout's stream is keyed by ``(seed, controller, rollout)``: its key is a hash of the three, and
+its ``i``-th draw is ``mix64(key + i * GOLDEN)`` (SplitMix64, Steele, Lea and Flood, OOPSLA 2014).
+A draw therefore depends on nothing but the key and how many draws the rollout made before it, so a
+seed gives the same returns whatever the thread count, the chunking or the order of the rollouts.
+
+The state of a stream is one ``uint64`` (``rng[0]``, a length-1 array the rollout owns).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_CONTROLLER = np.uint64(0xD1B54A32D192ED03)
+_ROLLOUT = np.uint64(0x8CB92BA72F3D8DD7)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+
+
+@njit(inline="always")
+def mix64(z: np.uint64) -> np.uint64:
+    """SplitMix64's finaliser: a bijective 64-bit mix."""
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@njit(cache=True)
+def stream_key(seed: np.uint64, controller: np.int64, rollout: np.int64) -> np.uint64:
+    """The key of rollout ``rollout`` of controller ``controller`` under ``seed``."""
+    h = mix64(np.uint64(seed) + GOLDEN)
+    h = mix64(h ^ (np.uint64(controller) * _CONTROLLER + GOLDEN))
+    return mix64(h ^ (np.uint64(rollout) * _ROLLOUT + GOLDEN))
+
+
+@njit(inline="always")
+def next_u64(rng: np.ndarray) -> np.uint64:
+    """The stream's next 64 random bits (advances ``rng[0]``)."""
+    rng[0] += GOLDEN
+    return mix64(rng[0])
+
+
+@njit(inline="always")
+def uniform(rng: np.ndarray) -> float:
+    """A uniform float64 in [0, 1) (53 random bits)."""
+    return float(next_u64(rng) >> _S11) * (1.0 / 9007199254740992.0)
+
+
+def _ziggurat(layers: int = 256, r: float = 3.6541528853610088, v: float = 0.00492867323399) -> tuple:
+    """Marsaglia and Tsang's (2000) ziggurat for the half-normal density ``f(x) = exp(-x^2 / 2)``:
+    layer edges ``x[0] = v / f(r) > x[1] = r > ... > x[layers] = 0`` (each layer of area ``v``) and ``f(x)``."""
+    x = np.zeros(layers + 1)
+    x[0], x[1] = v / math.exp(-0.5 * r * r), r
+    for i in range(2, layers):
+        x[i] = math.sqrt(-2.0 * math.log(v / x[i - 1] + math.exp(-0.5 * x[i - 1] ** 2)))
+    return x, np.exp(-0.5 * x * x), r
+
+
+_ZIG_X, _ZIG_F, _ZIG_R = _ziggurat()
+_LOW8, _S8 = np.uint64(255), np.uint64(8)
+
+
+@njit(inline="always")
+def normal(rng: np.ndarray) -> float:
+    """A standard normal float64 (ziggurat: one 64-bit draw in about 99 % of the calls).
+
+    The draw's low 8 bits pick a layer, bit 8 the sign and its top 53 bits the position; a point
+    outside the layer's inner rectangle is accepted under the density by a second uniform, and the
+    base layer's overhang is the tail ``x > r`` (Marsaglia's tail method).
+    """
+    while True:
+        bits = next_u64(rng)
+        i = np.int64(bits & _LOW8)
+        sign = -1.0 if (bits >> _S8) & np.uint64(1) else 1.0
+        x = float(bits >> _S11) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
+        if x < _ZIG_X[i + 1]:
+            return sign * x
+        if i == 0:  # the tail beyond r
+            while True:
+                tx = -math.log(1.0 - uniform(rng)) / _ZIG_R
+                ty = -math.log(1.0 - uniform(rng))
+                if 2.0 * ty > tx * tx:
+                    return sign * (_ZIG_R + tx)
+        if _ZIG_F[i] + uniform(rng) * (_ZIG_F[i + 1] - _ZIG_F[i]) < math.exp(-0.5 * x * x):
+            return sign * x
+
+
+@njit(inline="always")
+def below(rng: np.ndarray, n: np.int64) -> np.int64:
+    """A uniform integer in [0, n) for a small ``n >= 1``."""
+    k = np.int64(uniform(rng) * n)
+    return k if k < n else n - 1
+
+
+def draw_seed(generator) -> int:
+    """A 62-bit engine seed drawn from a ``torch.Generator`` (so a run seeded once stays reproducible)."""
+    import torch
+
+    return int(torch.randint(0, 2**62, (1,), generator=generator))
