@@ -224,6 +224,13 @@ class MacroObservationModel:
         frames = (cell % self.max_frames + 1).reshape(true_class.shape)
         return label, frames
 
+    def outcomes(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The law of ``(label, frames_used)`` per true class as outcome tables ``(probs, label, frames)``, each
+        ``(M, M * max_frames)`` (cell ``l * max_frames + f`` is label ``l`` after ``f + 1`` frames): what a
+        compiled simulator samples from (``decpomdp.engine``)."""
+        cells = torch.arange(self.num_classes * self.max_frames).expand(self.num_classes, -1)
+        return self._flat.clone(), cells // self.max_frames, cells % self.max_frames + 1
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically."""
         return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out}, {"version": 1, "info": self.info})

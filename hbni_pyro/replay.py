@@ -113,6 +113,20 @@ class StreamReplay:
         stream = self._pool[self._offset[true_class] + pick]
         return self.results.label[stream], self.results.frames_used[stream], stream
 
+    def outcomes(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The law of a draw's ``(label, frames_used)`` per true class as outcome tables ``(probs, label,
+        frames)``, each ``(M, K)`` with ``K`` the most streams of one class: entry ``j < count`` of class ``c``
+        is its ``j``-th bank stream (probability ``1 / count``), the rest are padding of probability 0.
+        What a compiled simulator samples from (``decpomdp.engine``)."""
+        K = int(self._counts.max())
+        j = torch.arange(K)
+        live = j[None, :] < self._counts[:, None]
+        stream = self._pool[(self._offset[:, None] + j[None, :]).clamp_(max=self._pool.numel() - 1)]
+        probs = torch.where(live, 1.0 / self._counts[:, None].to(torch.float64), 0.0)
+        label = torch.where(live, self.results.label[stream], 0)
+        frames = torch.where(live, self.results.frames_used[stream], 1)
+        return probs, label, frames
+
     def sample(self, true_class: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         """``(label, frames_used)`` of fresh draws (:meth:`draw` without the stream index)."""
         label, frames, _ = self.draw(true_class, generator)

@@ -3,16 +3,21 @@
 * :mod:`.random`: counter-based random streams, one per rollout, keyed by (seed, controller, rollout);
 * :mod:`.perception`: perception as a finite law of ``(label, frames)`` outcomes per true class;
 * :mod:`.domain`: what a domain hands the engine (:class:`EngineDomain`, :class:`EngineModel`);
-* :mod:`.loop`: the compiled event loop; :mod:`.simulate`: :func:`run`, its Python entry.
+* :mod:`.loop`: the compiled event loop; :mod:`.simulate`: :func:`run`, its Python entry;
+* :mod:`.cache`: where the compiled code is cached (``CACHE_DIR``, keyed by the engine's sources).
 
 A domain is written once for the engine, as three small scalar rules (``reset``, ``start``,
 ``complete``); ``docs/engine.md`` shows a small domain written this way.
 """
 
-from decpomdp.engine.domain import EngineDomain, EngineModel, StateLayout
-from decpomdp.engine.perception import OutcomeTable, no_perception, outcome_table, sample_outcome
-from decpomdp.engine.random import below, draw_seed, normal, uniform
-from decpomdp.engine.simulate import EngineRun, engine_model, run
+from decpomdp.engine.cache import use_cache_dir
+
+CACHE_DIR = use_cache_dir()  # before any engine function is decorated
+
+from decpomdp.engine.domain import EngineDomain, EngineModel, StateLayout  # noqa: E402
+from decpomdp.engine.perception import OutcomeTable, no_perception, outcome_table, sample_outcome  # noqa: E402
+from decpomdp.engine.random import below, draw_seed, normal, uniform  # noqa: E402
+from decpomdp.engine.simulate import EngineRun, engine_model, run  # noqa: E402
 
 __all__ = [
     "EngineDomain", "EngineModel", "EngineRun", "OutcomeTable", "StateLayout", "below", "draw_seed", "engine_model",
