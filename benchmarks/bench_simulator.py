@@ -53,7 +53,9 @@ def mutants(controller: JointController, count: int, mutations: int, seed: int, 
 def hbni_table(seed: int) -> hbni_pyro.MacroObservationModel:
     """An HBNI process's table on disaster relief's six classes (noise levels like the mission's)."""
     theta = torch.tensor([[[3.0, 6.0, 2.0, 8.0, 4.0, 5.0]]], dtype=torch.float64).expand(1, 50, -1)
-    posterior = hbni_pyro.posterior.posterior_from_samples({"theta": theta.clone()}, torch.full((6,), 1 / 6), HyperPrior())
+    ones = torch.ones(1, 50, dtype=torch.float64)
+    posterior = hbni_pyro.posterior.posterior_from_samples({"theta": theta.clone(), "kappa": 2 * ones, "gamma": 10 * ones},
+                                                           torch.full((6,), 1 / 6), HyperPrior())
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(posterior), threshold=0.95, max_frames=30)
     return hbni_pyro.characterize(process, theta[0, 0], 1000, seed)
 

@@ -305,9 +305,9 @@ def waiting_here(si, a):
 
 
 @njit(inline="always")
-def start_flags(si, tab, a, ma, here):
-    """The start table's flags of robot ``a`` beginning ``ma`` with ``here`` at its base."""
-    return tab[0][((si[at(a, LOC)] * _N_LOAD + si[at(a, LOAD)]) * _N_PKG + here) * _N_MA + ma]
+def situation(si, a, ma, here):
+    """Index of robot ``a`` beginning ``ma`` with ``here`` at its base in the start tables."""
+    return ((si[at(a, LOC)] * _N_LOAD + si[at(a, LOAD)]) * _N_PKG + here) * _N_MA + ma
 
 
 @njit(inline="always")
@@ -323,12 +323,12 @@ def reset(si, sf, p, tab, perception, num_agents, rng):
 def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
     """Flagged robots begin ``actions``: drafting into joint MAs, preconditions, durations, pick-ups, then the
     synchronisation of joint MAs (see the module doc). Both see the state before either started."""
-    start_mean, successor = tab[1], tab[6]
+    flags_of, successor = tab[0], tab[6]
     go0, go1 = agents[0], agents[1]
     here0, here1 = waiting_here(si, 0), waiting_here(si, 1)
     act0, act1 = actions[0], actions[1]
-    f0 = start_flags(si, tab, 0, act0, here0) if go0 else 0
-    f1 = start_flags(si, tab, 1, act1, here1) if go1 else 0
+    f0 = flags_of[situation(si, 0, act0, here0)] if go0 else 0
+    f1 = flags_of[situation(si, 1, act1, here1)] if go1 else 0
     waits0, waits1 = si[at(0, WAITING)] == 1, si[at(1, WAITING)] == 1
     joint0, joint1 = (f0 & JOINT_OK) != 0, (f1 & JOINT_OK) != 0
     drafts0, drafts1 = go0 and waits1, go1 and waits0  # a partner waits in a joint MA
@@ -339,21 +339,19 @@ def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
         both = go0 and go1 and same
         act0 = d1 if both and joint1 and not joint0 else d0  # robot 0 leads when both start joint MAs
         act1 = d0 if both and joint0 else d1
-        f0 = start_flags(si, tab, 0, act0, here0) if go0 else 0
-        f1 = start_flags(si, tab, 1, act1, here1) if go1 else 0
-    m0 = start_mean[((si[at(0, LOC)] * _N_LOAD + si[at(0, LOAD)]) * _N_PKG + here0) * _N_MA + act0]
-    m1 = start_mean[((si[at(1, LOC)] * _N_LOAD + si[at(1, LOAD)]) * _N_PKG + here1) * _N_MA + act1]
+        f0 = flags_of[situation(si, 0, act0, here0)] if go0 else 0
+        f1 = flags_of[situation(si, 1, act1, here1)] if go1 else 0
     if p[P_SUCCESSOR_RULE] > 0:  # an MA that may not follow the previous one fails; a put-down failing so still pays
-        for a in range(2):
-            if agents[a]:
-                act, f = (act0, f0) if a == 0 else (act1, f1)
-                allowed = successor[si[at(a, MA)] * _N_MA + act] == 1
-                si[at(a, PAYS)] = (f & OK_BIT) != 0 and not allowed and (act == PUT or act == JPUT)
-                if not allowed:
-                    if a == 0:
-                        f0, m0 = 0, FAIL_DURATION
-                    else:
-                        f1, m1 = 0, FAIL_DURATION
+        if go0:
+            allowed = successor[si[at(0, MA)] * _N_MA + act0] == 1
+            si[at(0, PAYS)] = (f0 & OK_BIT) != 0 and not allowed and (act0 == PUT or act0 == JPUT)
+            f0 = f0 if allowed else 0
+        if go1:
+            allowed = successor[si[at(1, MA)] * _N_MA + act1] == 1
+            si[at(1, PAYS)] = (f1 & OK_BIT) != 0 and not allowed and (act1 == PUT or act1 == JPUT)
+            f1 = f1 if allowed else 0
+    m0 = tab[1][situation(si, 0, act0, here0)] if f0 & OK_BIT else FAIL_DURATION
+    m1 = tab[1][situation(si, 1, act1, here1)] if f1 & OK_BIT else FAIL_DURATION
     finish0 = t + m0 * ((max(p[P_NOISE] * normal(rng), p[P_MIN_NOISE] - 1.0) + 1.0) if f0 & NOISY else 1.0)
     finish1 = t + m1 * ((max(p[P_NOISE] * normal(rng), p[P_MIN_NOISE] - 1.0) + 1.0) if f1 & NOISY else 1.0)
     ok0, ok1 = (f0 & OK_BIT) != 0, (f1 & OK_BIT) != 0
