@@ -15,14 +15,20 @@ Time convention (shared by every domain and the simulator):
 
 from __future__ import annotations
 
-import abc
+from typing import Any
 
 import torch
 from torch import Tensor
 
 
-class DecPOSMDP(abc.ABC):
-    """A decentralised partially observable semi-Markov decision process, batched over rollouts.
+class DecPOSMDP:
+    """A decentralised partially observable semi-Markov decision process.
+
+    A domain gives its rules in one of two forms (or both): for the compiled engine, as
+    :meth:`engine_model` (see :mod:`decpomdp.engine` and ``docs/engine.md``), or as batched torch
+    methods :meth:`reset`, :meth:`start` and :meth:`complete` over a batch of rollouts (the torch
+    simulator, ``backend="torch"``). The shipped domains give both: the torch methods are the engine's
+    test oracle.
 
     Attributes:
         num_agents: A, the number of agents.
@@ -44,11 +50,14 @@ class DecPOSMDP(abc.ABC):
     action_names: list[str]
     obs_names: list[str]
 
-    @abc.abstractmethod
+    def engine_model(self) -> Any:
+        """This domain for the compiled engine (a :class:`decpomdp.engine.EngineModel`), or ``None``."""
+        return None
+
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
         """Initial state of ``batch`` rollouts: a dict of tensors, batch dimension first."""
+        raise self._no_torch_rules()
 
-    @abc.abstractmethod
     def start(
         self,
         state: dict[str, Tensor],
@@ -71,8 +80,8 @@ class DecPOSMDP(abc.ABC):
             float64 (B, A), the completion time of every agent: flagged agents get ``t + duration``;
             a domain may also move an unflagged agent's end time (e.g. joint MAs).
         """
+        raise self._no_torch_rules()
 
-    @abc.abstractmethod
     def complete(
         self,
         state: dict[str, Tensor],
@@ -91,3 +100,8 @@ class DecPOSMDP(abc.ABC):
             reward: float64 (B,), undiscounted reward earned at ``t``.
             obs: long (B, A), each agent's macro-observation (only flagged entries are used).
         """
+        raise self._no_torch_rules()
+
+    def _no_torch_rules(self) -> NotImplementedError:
+        return NotImplementedError(f"{type(self).__name__} is written for the compiled engine only: the torch "
+                                   "simulator (backend='torch') needs reset, start and complete")

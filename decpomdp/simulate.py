@@ -28,6 +28,9 @@ from decpomdp.engine import run as run_engine
 from infra.checks import as_int
 
 BACKENDS = ("engine", "torch")
+#: The backend a call without one uses: ``None`` (or ``"engine"``) is the engine wherever the domain is written
+#: for it; ``"torch"`` runs everything on the batched torch simulator (e.g. to check a result on the oracle).
+DEFAULT_BACKEND: str | None = None
 
 
 def check(env: DecPOSMDP, controller: JointController) -> None:
@@ -47,11 +50,12 @@ def check(env: DecPOSMDP, controller: JointController) -> None:
 
 
 def resolve_backend(env: DecPOSMDP, backend: str | None) -> str:
-    """``backend``, or (``None``) the engine when ``env`` is written for it and torch otherwise."""
+    """``backend``, or (``None``) :data:`DEFAULT_BACKEND`, or the engine when ``env`` is written for it and torch
+    otherwise."""
     if backend is not None and backend not in BACKENDS:
         raise ValueError(f"backend: expected one of {BACKENDS} or None, got {backend!r}")
-    if backend == "torch":
-        return backend
+    if backend == "torch" or (backend is None and DEFAULT_BACKEND == "torch"):
+        return "torch"
     supported = engine_model(env) is not None
     if backend == "engine" and not supported:
         raise ValueError(f"backend: 'engine' needs a domain written for the compiled engine with a tabular perception "

@@ -79,10 +79,14 @@ class _NoAliasCompiler(Compiler):
         return super().define_pipelines()
 
 
-#: The decorator of a domain's chunk function: compiled, cached, releasing the GIL, and its array arguments
-#: declared free of aliases. Every array passed to a chunk function must therefore be its own buffer
-#: (:func:`decpomdp.engine.simulate.run` checks this).
-chunk_function = njit(cache=True, nogil=True, pipeline_class=_NoAliasCompiler)
+def chunk_function(fn):
+    """The decorator of a domain's chunk function: compiled, releasing the GIL, its array arguments declared free
+    of aliases, and cached on disk when its source is a file (not when typed into an interpreter). Every array
+    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it)."""
+    try:
+        return njit(cache=True, nogil=True, pipeline_class=_NoAliasCompiler)(fn)
+    except RuntimeError:  # no file to cache against
+        return njit(nogil=True, pipeline_class=_NoAliasCompiler)(fn)
 
 
 @njit(inline="always")

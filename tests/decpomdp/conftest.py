@@ -47,3 +47,12 @@ class ToyEnv(DecPOSMDP):
 def toy_env():
     """Factory for :class:`ToyEnv`."""
     return ToyEnv
+
+
+@pytest.fixture(params=["engine", "torch"])
+def backend(request, monkeypatch):
+    """Run the test on the compiled engine and on the batched torch oracle (the default backend of every call)."""
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module("decpomdp.simulate"), "DEFAULT_BACKEND", request.param)
+    return request.param

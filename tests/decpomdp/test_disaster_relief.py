@@ -30,6 +30,9 @@ class ShiftedPerception:
         self.asked.append(true_class.clone())
         return self.WRONG[true_class], torch.full_like(true_class, self.frames)
 
+    def outcomes(self):
+        return torch.ones(6, 1, dtype=torch.float64), self.WRONG[:, None], torch.full((6, 1), self.frames)
+
 
 def cycle(*per_agent, num_obs=dr.DisasterRelief.num_obs):
     nodes = max(len(seq) for seq in per_agent)
@@ -44,6 +47,11 @@ def cycle(*per_agent, num_obs=dr.DisasterRelief.num_obs):
 @pytest.fixture
 def no_noise(monkeypatch):
     monkeypatch.setattr(dr.rules, "DURATION_NOISE", 0.0)
+
+
+@pytest.fixture
+def no_noise_both(no_noise, backend):
+    """No duration noise, on both backends."""
 
 
 def start(env, state, actions, t=0.0, agents=None):
@@ -78,7 +86,7 @@ def test_infer_uses_the_plugged_model(no_noise):
     assert state["inference_frames"].tolist() == [14] and state["inferences"].tolist() == [2]
 
 
-def test_deliveries_right_and_wrong(no_noise):
+def test_deliveries_right_and_wrong(no_noise_both):
     # robot 0 infers, picks up, goes to the inferred destination, puts down, returns to Base1
     greedy = dr.greedy_controller(1)
     _, counters = rollout_counters(DisasterRelief(num_agents=1, degrade_prob=0.0), greedy, 50, g(1))
@@ -89,7 +97,7 @@ def test_deliveries_right_and_wrong(no_noise):
     assert (returns < 0).all()
 
 
-def test_one_delivery_reward_and_discount(no_noise):
+def test_one_delivery_reward_and_discount(no_noise_both):
     # Base1: pick up (1), go to the hospital (3), put down (1) at t = 5; the object is an ambulance
     env = DisasterRelief(num_agents=1, degrade_prob=0.0, horizon=5.0)
     ctrl = cycle([dr.PICK, dr.GO_HOSPITAL, dr.PUT, dr.GO_B1])
@@ -148,7 +156,7 @@ def test_degradation_and_sensor_rates():
     assert set(wrong.tolist()) <= {0, 1, 2}
 
 
-def test_greedy_seeded_determinism_and_more_agents():
+def test_greedy_seeded_determinism_and_more_agents(backend):
     env, ctrl = DisasterRelief(), dr.greedy_controller()
     a, b = simulate(env, ctrl, 100, g(7)), simulate(env, ctrl, 100, g(7))
     assert torch.equal(a, b) and not torch.equal(a, simulate(env, ctrl, 100, g(8)))

@@ -4,7 +4,6 @@ Hand-computed cases switch the duration noise off and fix the package stream by 
 constants ``DURATION_NOISE`` and ``ARRIVAL`` of :mod:`decpomdp.domains.package_delivery.rules`.
 """
 
-import importlib.util
 import math
 import random
 from pathlib import Path
@@ -35,8 +34,8 @@ def cycle(*per_agent):
 
 
 @pytest.fixture
-def exact(monkeypatch):
-    """No duration noise; every new package has code ``code`` (see pd.PACKAGES)."""
+def exact(monkeypatch, backend):
+    """No duration noise; every new package has code ``code`` (see pd.PACKAGES); on both backends."""
     monkeypatch.setattr(pd.rules, "DURATION_NOISE", 0.0)
 
     def packages(code):
@@ -201,29 +200,6 @@ def test_duration_noise_statistics():
     assert abs(d.mean().item() - 3.0) < 4 * se
     assert abs(d.std().item() - 0.9) < 4 * 0.9 / math.sqrt(2 * d.numel())
     assert d.min() >= 3.0 * pd.MIN_NOISE_FACTOR
-
-
-def test_matches_independent_per_rollout_simulator():
-    # The benchmark's reference implements the same rules one rollout at a time in plain Python;
-    # mean returns must agree within 4 combined standard errors.
-    spec = importlib.util.spec_from_file_location("bench_simulator", ROOT / "benchmarks" / "bench_simulator.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    n = 1500
-    controllers = bench.controller_family(4, 3, seed=5)
-    for env in (PackageDelivery(), PackageDelivery(solo_joint=True, large_reward_per_robot=False)):
-        compare(bench, env, controllers, n)
-
-
-def compare(bench, env, controllers, n):
-    mean, se = evaluate(env, controllers, n, g(3))
-    ref = bench.ReferencePackageDelivery(env)
-    rng = random.Random(4)
-    for k in range(controllers.num_controllers):
-        values = torch.tensor([ref.rollout(controllers.action[k].tolist(), controllers.next_node[k].tolist(), rng)[0]
-                               for _ in range(n)], dtype=torch.float64)
-        combined = math.sqrt(se[k].item() ** 2 + (values.std().item() / math.sqrt(n)) ** 2)
-        assert abs(mean[k].item() - values.mean().item()) < 4 * combined + 1e-12
 
 
 def test_greedy_controller_and_seeded_determinism():
