@@ -9,9 +9,10 @@ errors the chance that any fails by luck is below 1 %.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import re
-import runpy
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -295,39 +296,49 @@ def test_outcome_tables_are_checked_and_sample_their_law():
         outcome_table(Bad(np.array([[0.5, 0.4], [1.0, 0.0]]), np.zeros((2, 2), dtype=int)))
     with pytest.raises(ValueError, match="labels"):
         outcome_table(Bad(np.array([[1.0, 0.0], [1.0, 0.0]]), np.array([[2, 0], [0, 0]])))
-    # the engine draws an inference's outcome from the table: label frequencies of one class
+    # the engine draws each inference's outcome from the table: one inference per rollout (the horizon ends
+    # before it completes), its label against the table's confusion row of the object's class
     model = table()
-    env = DisasterRelief(perception=model, num_agents=1, horizon=1e6, gamma=1.0)
+    env = DisasterRelief(perception=model, num_agents=1, horizon=0.05)
     ctrl = JointController(torch.tensor([[[dr.INFER]]]), torch.zeros(1, 1, 1, 30, dtype=torch.long))
-    counts = run(env, ctrl, 400, 3, keep_state=True).final_state
-    assert set(counts) >= {"label[0]", "frames[0]"}
+    final = run(env, ctrl, 12_000, 3, keep_state=True).final_state
+    truth, label, frames = final["object_base1"][0], final["label[0]"][0], final["frames[0]"][0]
+    for c in range(6):
+        mine = truth == c
+        right = (label[mine] == c).double()
+        p = float(model.accuracy[c])
+        assert abs(float(right.mean()) - p) < 4 * math.sqrt(p * (1 - p) / int(mine.sum()))
+        mean_frames = float(model.mean_frames[c])
+        support = torch.arange(1, 13, dtype=torch.float64)
+        sd = math.sqrt(float(model.frames_pmf[c] @ (support - mean_frames) ** 2) / int(mine.sum()))
+        assert abs(float(frames[mine].double().mean()) - mean_frames) < 4 * sd
 
 
-def test_zero_durations_are_refused():
-    source = (ROOT / "docs" / "engine.md").read_text()
-    assert "end[a] = t + (1.0" in source
-    path = Path(__file__).with_name("_zero_domain.py")
-    block = re.findall(r"```python\n(.*?)```", source, re.S)[0]
-    path.write_text(block.replace("end[a] = t + (1.0 + uniform(rng) if actions[a] == FORAGE else 1.0)",
-                                  "end[a] = t").split("always_forage =")[0])
-    try:
-        module = runpy.run_path(str(path))
-        ctrl = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
-        with pytest.raises(RuntimeError, match="zero duration"):
-            simulate(module["Foraging"](), ctrl, 3, g())
-        with pytest.raises(NotImplementedError, match="engine only"):
-            simulate(module["Foraging"](), ctrl, 3, g(), backend="torch")
-    finally:
-        path.unlink()
+def load_docs_domain(tmp_path: Path, name: str, edit=lambda text: text) -> dict:
+    """The first Python block of docs/engine.md, edited, as a module imported from a file."""
+    block = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "engine.md").read_text(), re.S)[0]
+    path = tmp_path / f"{name}.py"
+    path.write_text(edit(block))
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return vars(module)
+
+
+def test_zero_durations_are_refused(tmp_path):
+    rule = "end[a] = t + (1.0 + uniform(rng) if actions[a] == FORAGE else 1.0)"
+    module = load_docs_domain(tmp_path, "zero_domain", lambda text: text.replace(rule, "end[a] = t").split("always_forage =")[0])
+    ctrl = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
+    with pytest.raises(RuntimeError, match="zero duration"):
+        simulate(module["Foraging"](), ctrl, 3, g())
+    with pytest.raises(NotImplementedError, match="engine only"):
+        simulate(module["Foraging"](), ctrl, 3, g(), backend="torch")
 
 
 def test_the_documented_domain_runs(tmp_path):
-    source = (ROOT / "docs" / "engine.md").read_text()
-    path = tmp_path / "foraging.py"
-    path.write_text(re.findall(r"```python\n(.*?)```", source, re.S)[0])
-    module = runpy.run_path(str(path))
-    returns = module["returns"]
+    module = load_docs_domain(tmp_path, "foraging_domain")
     # always forage: each robot forages back to back (1.5 units on average) and finds with p = 0.3
-    assert 0.5 < float(returns.mean()) < 5.0
+    assert 0.5 < float(module["returns"].mean()) < 5.0
     _, counters = rollout_counters(module["Foraging"](), module["always_forage"], 2000, g())
     assert float(counters["found"].double().mean()) == pytest.approx(2 * 0.3 * 20 / 1.5, rel=0.1)
