@@ -62,16 +62,28 @@ class JointController:
     def num_obs(self) -> int:
         return self.next_node.shape[3]
 
+    @classmethod
+    def trusted(cls, action: Tensor, next_node: Tensor) -> JointController:
+        """A controller built from tables already known to be valid (rows of checked controllers, samples of
+        the planners' distributions), without the checks: they cost more than a batch of rollouts."""
+        out = cls.__new__(cls)
+        out.action, out.next_node = action, next_node
+        return out
+
     def __getitem__(self, index: int | slice | Tensor) -> JointController:
         """Select controllers along K (an int keeps K = 1)."""
         if isinstance(index, int):
             index = slice(index, index + 1) if index != -1 else slice(-1, None)
-        return JointController(self.action[index], self.next_node[index])
+        action, next_node = self.action[index], self.next_node[index]
+        if action.dim() != 3 or action.shape[0] == 0:
+            return JointController(action, next_node)  # raises
+        return JointController.trusted(action, next_node)
 
     @staticmethod
     def cat(controllers: list[JointController]) -> JointController:
-        """Concatenate controllers along K."""
-        return JointController(torch.cat([c.action for c in controllers]), torch.cat([c.next_node for c in controllers]))
+        """Concatenate controllers along K (each already checked)."""
+        return JointController.trusted(torch.cat([c.action for c in controllers]),
+                                       torch.cat([c.next_node for c in controllers]))
 
     def save(self, path: str | os.PathLike) -> Path:
         """Atomically write the controllers to one safetensors file (no pickle)."""

@@ -142,7 +142,7 @@ def sample_controllers(action_probs: Tensor, next_probs: Tensor, count: int, gen
     o = next_probs.shape[2]
     act = torch.multinomial(action_probs.reshape(-1, m), count, replacement=True, generator=generator)
     nxt = torch.multinomial(next_probs.reshape(-1, nn), count, replacement=True, generator=generator)
-    return JointController(act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous())
+    return JointController.trusted(act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous())
 
 
 def elite_frequencies(values: Tensor, categories: int) -> Tensor:

@@ -28,12 +28,13 @@ from experiments.common import beats, save_figure
 from experiments.report import write_report
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning_figures import bar_figure, comparison_table
+from infra.threads import set_threads
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
-    torch.set_num_threads(int(cfg.study.threads))
+    set_threads(int(cfg.study.threads))  # torch and the rollout engine
     env = instantiate(cfg.domain)
     entries, metrics = compare_planners(cfg, env, greedy_controller(env.num_agents), "disaster relief", run_dir)
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")

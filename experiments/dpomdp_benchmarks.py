@@ -35,6 +35,7 @@ from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value, probl
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from experiments.common import save_figure
 from infra.files import atomic_write_text
+from infra.threads import set_threads
 
 _EVALUATORS = ("exact", "monte_carlo")
 _ROW_KEYS = {"problem", "gamma", "horizon", "optimum", "source", "evaluator", "rollouts", "restarts", "gdice"}
@@ -172,7 +173,7 @@ def solve_row(row: Row, cfg: GDICEConfig, paper: GDICEConfig, study: DictConfig,
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     rows = build_rows(cfg.study, cfg.planner)  # every row checked before any work
-    torch.set_num_threads(int(cfg.study.threads))
+    set_threads(int(cfg.study.threads))  # torch and the rollout engine
     table, curves = {}, {}
     for row, gcfg, paper in rows:
         entry, controller, curve = solve_row(row, gcfg, paper, cfg.study, int(cfg.seed), bool(cfg.progress))

@@ -64,7 +64,7 @@ from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_cold, run_gdice, score, seed_controller
-from infra.threads import torch_threads
+from infra.threads import threads
 
 
 class StageClock:
@@ -296,7 +296,7 @@ def plan(
     results: dict[str, Any] = {}
     histories = {}
     start = None  # with warm_start: the perfect-perception plan every perception variant starts from
-    with torch_threads(int(study.threads)):
+    with threads(int(study.threads)):
         for k, name in enumerate(("perfect", *models)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)

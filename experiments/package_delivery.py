@@ -38,13 +38,14 @@ from experiments.report import write_report
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning import paper_comparison, run_gdice, score
 from experiments.steps.planning_figures import bar_figure, comparison_table
+from infra.threads import set_threads
 
 PAPER = {"gdice_best_sampled": 14.44, "mmcs": 4.53, "monte_carlo_search": 2.07}
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     study, seed = cfg.study, int(cfg.seed)
-    torch.set_num_threads(int(study.threads))  # small tensors: one thread per job is fastest on shared cores
+    set_threads(int(study.threads))  # torch and the rollout engine
     env = instantiate(cfg.domain)
     config: GDICEConfig = instantiate(cfg.planner)
     reeval = int(study.reeval_rollouts)

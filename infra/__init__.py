@@ -5,7 +5,7 @@ A leaf package: it imports nothing of the project and holds no domain code.
 * :mod:`infra.files`: atomic, fsynced file writes that respect the umask.
 * :mod:`infra.tensorfile`: one-file storage of named tensors plus JSON metadata (safetensors, no pickle).
 * :mod:`infra.fingerprint`: what produced a checkpoint or cache, and a check that names the field that differs.
-* :mod:`infra.threads`: torch intra-op thread control for small tensor programs.
+* :mod:`infra.threads`: one thread setting for torch's intra-op threads and compiled loops' worker threads.
 
 See ``docs/architecture.md`` for where this sits in the project.
 """
@@ -13,7 +13,7 @@ See ``docs/architecture.md`` for where this sits in the project.
 from infra.files import atomic_write_bytes, atomic_write_text
 from infra.fingerprint import check_fingerprint, digest
 from infra.tensorfile import load_tensors, save_tensors
-from infra.threads import single_thread, torch_threads
+from infra.threads import set_threads, single_thread, threads, torch_threads, worker_threads
 
 __all__ = [
     "atomic_write_bytes",
@@ -22,6 +22,9 @@ __all__ = [
     "digest",
     "load_tensors",
     "save_tensors",
+    "set_threads",
     "single_thread",
+    "threads",
     "torch_threads",
+    "worker_threads",
 ]

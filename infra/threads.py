@@ -47,6 +47,14 @@ def worker_threads() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+def set_threads(count: int) -> None:
+    """Use ``count`` threads for torch's intra-op work and for compiled loops from now on (a whole run's setting)."""
+    global _workers
+    _check(count)
+    torch.set_num_threads(count)
+    _workers = count
+
+
 @contextlib.contextmanager
 def threads(count: int | None) -> Iterator[None]:
     """Run torch's intra-op threads and compiled loops' worker threads on ``count`` threads inside the block

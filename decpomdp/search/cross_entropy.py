@@ -61,7 +61,7 @@ class CrossEntropyState:
         act = torch.multinomial(self.action_probs.reshape(-1, m), count, replacement=True, generator=generator)
         nxt = torch.multinomial(self.next_probs.reshape(-1, nn), count, replacement=True, generator=generator)
         nxt = nxt.T.reshape(count, a, 1, o).expand(-1, -1, nn, -1)
-        return JointController(act.T.reshape(count, a, nn).contiguous(), nxt.contiguous())
+        return JointController.trusted(act.T.reshape(count, a, nn).contiguous(), nxt.contiguous())
 
     def update(self, elite: JointController, alpha: float) -> None:
         """Move the distributions ``alpha`` of the way to the elites' frequencies."""

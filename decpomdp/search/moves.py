@@ -150,7 +150,7 @@ class Neighbourhood:
         if bool((~single).any()):
             rows = (~single).nonzero().squeeze(1)
             self._chains(action, next_node, rows, index[rows] - self.num_singles)
-        return JointController(action, next_node)
+        return JointController.trusted(action, next_node)
 
     def _chains(self, action: Tensor, next_node: Tensor, rows: Tensor, flat: Tensor) -> None:
         """Write chain moves ``flat`` (indices among the chains) into candidate rows ``rows``."""

@@ -117,11 +117,15 @@ def stream_stderr(controller: JointController, perception_of: Callable[[torch.Te
 def execute(controller: JointController, perception: Any, domain: DictConfig, rollouts: int, seed: int) -> dict[str, Any]:
     """The score of ``controller`` in the domain whose "infer" MA is answered by ``perception``.
 
-    ``perception``: a :class:`hbni_pyro.StreamReplay` (closed loop) or ``None`` (perfect perception).
+    ``perception``: a :class:`hbni_pyro.StreamReplay` (closed loop) or ``None`` (perfect perception). The
+    entry's ``oracle`` is the same score on the batched torch simulator (the compiled engine's oracle): its
+    gap in standard errors says the executed value means the same on both.
     """
     env = instantiate(domain, perception=perception)
     entry = score(env, controller, rollouts, seed)
     entry["mean_inference_frames"] = delivery_rates(entry)["mean_inference_frames"]
+    oracle = score(env, controller, rollouts, seed, backend="torch")  # the same rollouts' law on the torch oracle
+    entry["oracle"] = {"value": oracle["value"], "stderr": oracle["stderr"], "gap_in_stderr": gap(oracle, entry)}
     return entry
 
 
@@ -135,7 +139,7 @@ def summarise(entry: dict[str, Any], executed: dict[str, Any], replay: hbni_pyro
            "planned_stream_stderr": planned_streams, "stream_stderr": executed_streams,
            "gap_in_total_stderr": gap(entry, executed, planned_streams, executed_streams),
            "delivered_per_rollout": executed["delivered_per_rollout"], "wrong_per_rollout": executed["wrong_per_rollout"],
-           "mean_inference_frames": executed["mean_inference_frames"]}
+           "mean_inference_frames": executed["mean_inference_frames"], "oracle": executed["oracle"]}
     if replay is not None:
         right = (replay.results.label == replay.true_class).double()
         out["bank_accuracy"] = [float(right[replay.true_class == c].mean()) for c in range(replay.num_classes)]
@@ -163,7 +167,8 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dic
     """Markdown: planned vs executed per variant, and which planning model the gaps call honest."""
     rows = ["| policy | planned on | planned value (± rollout s.e.; streams s.e.) | executed value (± rollout s.e.; "
             "streams s.e.) | gap (rollout s.e.) | gap (all s.e.) | executed wrong / run | executed frames / inference "
-            "| bank accuracy | bank mean frames |", "|---|---|---|---|---|---|---|---|---|---|"]
+            "| bank accuracy | bank mean frames | executed on the torch oracle (gap) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         e = r["executed"]
         acc = f"{np.mean(e['bank_accuracy']):.3f}" if "bank_accuracy" in e else "1"
@@ -171,7 +176,8 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dic
         rows.append(f"| {labels.get(name, name)} | {planning.get(name, 'exact')} | {r['value']:.3f} ± {r['stderr']:.3f}; "
                     f"{e['planned_stream_stderr']:.3f} | {e['value']:.3f} ± {e['stderr']:.3f}; {e['stream_stderr']:.3f} | "
                     f"{e['gap_in_stderr']:+.1f} | {e['gap_in_total_stderr']:+.1f} | {e['wrong_per_rollout']:.2f} | "
-                    f"{e['mean_inference_frames']:.1f} | {acc} | {frames} |")
+                    f"{e['mean_inference_frames']:.1f} | {acc} | {frames} | {e['oracle']['value']:.3f} ± "
+                    f"{e['oracle']['stderr']:.3f} ({e['oracle']['gap_in_stderr']:+.1f}) |")
     source = "loaded from the cache" if bank["cached"] else "rendered and classified for this run"
     lines = ["## Closed loop: planned against executed", "",
              f"Every \"infer\" MA of an executed rollout draws one of {bank['sequences_per_class']} held-out mission "
@@ -179,7 +185,8 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dic
              f"{source}: `{bank['path']}`) and runs that variant's filter and threshold on it. The rollout gap is "
              "(executed - planned) / sqrt(se_planned^2 + se_executed^2) with rollout standard errors; the full gap "
              "adds both values' stream standard errors (bootstrap over the sequences of the table and of the bank; "
-             "0 for a simulated table).", "", *rows, ""]
+             "0 for a simulated table). The last column runs the same controllers on the batched torch simulator, the "
+             "compiled engine's oracle, with the gap in standard errors.", "", *rows, ""]
     return lines + honesty_lines(results, planning) + [""]
 
 

@@ -26,9 +26,12 @@ def search_setup(env: DecPOSMDP, rollouts: int, shared_controller: bool):
     return MonteCarloEvaluator(env, rollouts), env.num_agents, lambda c: c
 
 
-def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int) -> dict[str, Any]:
-    """Mean return +- stderr over ``rollouts`` and the mean (+- stderr) of every per-rollout counter."""
-    returns, counters = rollout_counters(env, controller, rollouts, torch.Generator().manual_seed(seed))
+def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int,
+          backend: str | None = None) -> dict[str, Any]:
+    """Mean return +- stderr over ``rollouts`` and the mean (+- stderr) of every per-rollout counter
+    (``backend``: as in :func:`decpomdp.simulate`)."""
+    returns, counters = rollout_counters(env, controller, rollouts, torch.Generator().manual_seed(seed),
+                                         backend=backend)
     out: dict[str, Any] = {"value": float(returns.mean()), "stderr": float(returns.std() / rollouts**0.5)}
     for key, value in counters.items():
         value = value.to(torch.float64)
