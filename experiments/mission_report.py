@@ -59,12 +59,12 @@ def _planning_line(metrics: dict) -> str:
 
 def report(metrics: dict, figures: list[str]) -> str:
     rows = ["| perception | planned value (± s.e.) | delivered / run | wrong / run | wrong rate | mean inference frames "
-            "| greedy policy value (± s.e.) |", "|---|---|---|---|---|---|---|"]
+            "| greedy policy value (± s.e.) | planned - greedy (s.e.) |", "|---|---|---|---|---|---|---|---|"]
     for name, r in metrics["variants"].items():
         rows.append(
             f"| {LABELS[name]} | {r['value']:.3f} ± {r['stderr']:.3f} | {r['delivered_per_rollout']:.2f} | "
             f"{r['wrong_per_rollout']:.2f} | {r['wrong_rate']:.3f} | {r['mean_inference_frames']:.1f} | "
-            f"{r['greedy']['value']:.3f} ± {r['greedy']['stderr']:.3f} |"
+            f"{r['greedy']['value']:.3f} ± {r['greedy']['stderr']:.3f} | {over_greedy(r):+.1f} |"
         )
     macro = ["| process | label accuracy (mean over classes) | mean frames | timed out |", "|---|---|---|---|"]
     for name, r in metrics["variants"].items():
@@ -89,12 +89,21 @@ def report(metrics: dict, figures: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def over_greedy(entry: dict) -> float:
+    """(planned - greedy) / the standard error of the difference, on the variant's own planning model."""
+    g = entry["greedy"]
+    return (entry["value"] - g["value"]) / (entry["stderr"] ** 2 + g["stderr"] ** 2) ** 0.5
+
+
 def value_figure(results: dict[str, dict]) -> plt.Figure:
     names = list(results)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     colors = ["tab:gray", "tab:blue", "tab:orange", "tab:green", "tab:purple"][: len(names)]
     axes[0].bar([LABELS[n] for n in names], [results[n]["value"] for n in names],
                 yerr=[results[n]["stderr"] for n in names], capsize=4, color=colors)
+    axes[0].scatter([LABELS[n] for n in names], [results[n]["greedy"]["value"] for n in names], marker="_", s=900,
+                    color="black", zorder=3, label="greedy controller")
+    axes[0].legend(fontsize=8, loc="lower right", markerscale=0.3)
     axes[0].set_ylabel("discounted return (mean ± s.e.)")
     axes[0].set_title("Planned value per policy (on its planning model)")
     x = np.arange(len(names))
