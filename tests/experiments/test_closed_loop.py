@@ -107,7 +107,8 @@ def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
 
 def test_report_pieces_and_acceptance():
     entry = {"value": 5.0, "stderr": 0.1}
-    common = {"stderr": 0.1, "planned_stream_stderr": 0.0, "stream_stderr": 0.0}
+    common = {"stderr": 0.1, "planned_stream_stderr": 0.0, "stream_stderr": 0.0,
+              "oracle": {"value": 5.0, "stderr": 0.1, "gap_in_stderr": 0.3}}
     results = {
         "perfect": {**entry, "executed": {**common, "value": 5.0, "gap_in_stderr": 0.0, "gap_in_total_stderr": 0.0,
                                           "wrong_per_rollout": 0.0, "mean_inference_frames": 10.0}},
@@ -171,5 +172,5 @@ def test_loop_settings_are_read_from_the_mission_config():
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
         full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
-    assert loop.planning_model == "generative" and loop.bank_sequences == 200 and loop.workers == 1
+    assert loop.planning_model == "generative" and loop.bank_sequences == 60 and loop.workers == 1
     assert loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == Path(".cache/banks")
