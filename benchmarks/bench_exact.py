@@ -22,6 +22,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from infra.streams import stream_seed
+
 from decpomdp import JointController
 from decpomdp.dpomdp import (
     DPOMDPModel,
@@ -93,9 +95,9 @@ def cpu_time(fn, *args, **kwargs) -> tuple[float, object]:
 def bench_evaluators(args: argparse.Namespace) -> None:
     cases = [
         ("random S=100, JO=25", random_problem(100, 3, 5, 8, args.seed), 7, 3),
-        ("random S=432, JO=4", random_problem(432, 4, 2, 8, args.seed + 1), 7, 3),
-        ("random S=81, JO=81", random_problem(81, 3, 9, 6, args.seed + 2), 10, 4),
-        ("random S=256, JO=64", random_problem(256, 3, 8, 8, args.seed + 3), 7, 3),
+        ("random S=432, JO=4", random_problem(432, 4, 2, 8, stream_seed(args.seed, "S=432")), 7, 3),
+        ("random S=81, JO=81", random_problem(81, 3, 9, 6, stream_seed(args.seed, "S=81")), 10, 4),
+        ("random S=256, JO=64", random_problem(256, 3, 8, 8, stream_seed(args.seed, "S=256")), 7, 3),
         ("fireFighting_2_4_3 S=2025, JO=4", TabularDecPOSMDP.from_problem("fireFighting_2_4_3", gamma=1.0, horizon=4), 10, 4),
     ]
     print(f"{'problem':34s} {'nodes':>5s} {'h':>2s} {'new ctrl/s':>11s} {'dense ctrl/s':>13s} {'speed-up':>9s} {'max |diff|':>10s}")

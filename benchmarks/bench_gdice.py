@@ -30,6 +30,7 @@ from decpomdp import GDICEConfig, MonteCarloEvaluator, evaluate, gdice, random_c
 from decpomdp.domains import PackageDelivery, SharedControllerEvaluator, shared
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
+from infra.streams import torch_stream
 
 PAPER_ROLLOUTS = 100 * 100 * 80
 
@@ -65,7 +66,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)  # batches of ~8000 rollouts: intra-op threads only add overhead on a shared machine
     env = PackageDelivery()
-    reeval = lambda ctrl: evaluate(env, shared(ctrl, 2), args.reeval, torch.Generator().manual_seed(args.seed + 99))  # noqa: E731
+    reeval = lambda ctrl: evaluate(env, shared(ctrl, 2), args.reeval, torch_stream(args.seed, "reeval"))  # noqa: E731
 
     rows = []
     paper = GDICEConfig(num_nodes=13, iterations=100, samples=100, elites=10, alpha=0.1)

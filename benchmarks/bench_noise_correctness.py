@@ -21,6 +21,7 @@ import torch
 import hbni_pyro
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.sbc import run_sbc
+from infra.streams import stream_seed
 
 SBC_CASES = {"paper": dict(labelled=False, size=15), "confusion": dict(size=30), "sequence": dict(size=12, num_frames=5)}
 
@@ -62,7 +63,7 @@ def mh_vs_nuts(seed: int, nuts_samples: int) -> None:
                            progress=False, **extra)
         mh_cpu, cpu = time.process_time() - cpu, time.process_time()
         nuts = hbni_pyro.fit(obs, labels, model=model, method="nuts", num_chains=2, num_samples=nuts_samples,
-                             warmup_steps=nuts_samples // 2, seed=seed + 1, progress=False, **extra)
+                             warmup_steps=nuts_samples // 2, seed=stream_seed(seed, "nuts"), progress=False, **extra)
         nuts_cpu = time.process_time() - cpu
         a, b = mh.summary(), nuts.summary()
         z = {k: (a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"]) for k in a}

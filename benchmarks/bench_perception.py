@@ -23,6 +23,7 @@ import torch
 import hbni_pyro
 from classifiers import FrameClassifier, OneVsOneSVC
 from classifiers.data import render_images, render_sequence
+from infra.streams import stream_seed
 
 VEHICLES = ("irobot", "quadrotor", "racecar")  # the classes of the paper's hardware study
 
@@ -42,7 +43,7 @@ def bench_frame_rate(clf: FrameClassifier, x_cal: torch.Tensor, y_cal: np.ndarra
                               num_samples=500, warmup_steps=300, seed=seed, progress=False)
     filt = hbni_pyro.HBNIFilter(posterior, mode="marginal")
     per_class = frames // len(VEHICLES) + 1
-    seq = np.concatenate([render_sequence(name, per_class, "mission", seed=seed + 7) for name in VEHICLES])[:frames]
+    seq = np.concatenate([render_sequence(name, per_class, "mission", seed=stream_seed(seed, "sequence")) for name in VEHICLES])[:frames]
     print(f"[frame rate] {len(seq)} mission frames one at a time (crop, backbone, head, HBNI marginal update over "
           f"{filt.theta.shape[0]} draws)")
     for threads in (1, 2):
@@ -102,7 +103,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     clf = FrameClassifier(seed=args.seed)
     x_tr, y_tr = _features(clf, args.train_per_class, "training", args.seed)
-    x_te, y_te = _features(clf, args.test_per_class, "mission", args.seed + 1)
+    x_te, y_te = _features(clf, args.test_per_class, "mission", stream_seed(args.seed, "test"))
     clf.fit_features(x_tr, [VEHICLES[k] for k in y_tr])
     bench_head(x_tr, y_tr, x_te, y_te, args.seed)
     bench_frame_rate(clf, x_te, y_te, args.frames, args.seed)

@@ -41,6 +41,7 @@ from decpomdp.evaluate import MonteCarloEvaluator
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from experiments.schemas import register
 from infra.files import atomic_write_text
+from infra.streams import torch_stream
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -79,7 +80,7 @@ def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, see
         best, rollouts = out.best, out.rollouts
     cpu = time.process_time() - cpu
     team = shared(best, env.num_agents) if shared_controller else best
-    returns, _ = rollout_counters(env, team, reeval, torch.Generator().manual_seed(seed + 12345))
+    returns, _ = rollout_counters(env, team, reeval, torch_stream(seed, "reeval"))
     return {"variant": name, "value": float(returns.mean()), "stderr": float(returns.std() / reeval**0.5),
             "rollouts": rollouts, "cpu_seconds": cpu, "nodes": best.num_nodes}
 

@@ -22,6 +22,7 @@ from decpomdp import evaluate
 from decpomdp.domains import DisasterRelief, PackageDelivery, shared
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from infra.threads import threads
+from infra.streams import torch_stream
 
 FLOORS = {"package delivery": 14.4, "disaster relief, perfect perception": 6.0}
 
@@ -43,7 +44,7 @@ def main() -> None:
                 result = plan(RolloutScorer(env, shared=share), PlannerConfig(budget=budget), seed=seed)
                 cpu = time.process_time() - cpu
                 best = shared(result.best, env.num_agents) if share else result.best
-                mean, se = evaluate(env, best, args.reeval, torch.Generator().manual_seed(10_000 + seed))
+                mean, se = evaluate(env, best, args.reeval, torch_stream(seed, "reeval"))
                 ok = float(mean) >= FLOORS[name] and cpu <= 60
                 print(f"| {name} | {seed} | {result.rollouts / 1e6:.1f} M | {cpu:.0f} | {float(mean):.3f} ± "
                       f"{float(se):.3f} | {'yes' if ok else 'no'} |", flush=True)

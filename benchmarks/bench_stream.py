@@ -34,6 +34,7 @@ from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.steps.streaming import classify_frames
 from experiments.stream import Models, Settings, stream_frames
+from infra.streams import stream_seed
 
 FLOOR_FPS = 20.0
 
@@ -42,7 +43,7 @@ def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
     images = [im for name in CLASSES for im in render_images(name, 10, "training", seed=seed)]
     clf = FrameClassifier(seed=seed).fit(images, [name for name in CLASSES for _ in range(10)])
     order = [clf.classes_.index(name) for name in CLASSES]
-    calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=seed + 1))[:, order] for n in CLASSES])
+    calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order] for n in CLASSES])
     posterior = hbni_pyro.fit(calib.double(), torch.arange(len(CLASSES)).repeat_interleave(10), num_chains=8,
                               num_samples=500, warmup_steps=300, seed=seed, progress=False)
     return clf, posterior
@@ -50,7 +51,7 @@ def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
 
 def _video(path: Path, frames: int, seed: int) -> Path:
     per_class = -(-frames // len(CLASSES))
-    clip = np.concatenate([render_sequence(n, per_class, "mission", seed=seed + 2) for n in CLASSES])[:frames]
+    clip = np.concatenate([render_sequence(n, per_class, "mission", seed=stream_seed(seed, "clip")) for n in CLASSES])[:frames]
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (clip.shape[2], clip.shape[1]))
     for f in clip:
         writer.write(f)

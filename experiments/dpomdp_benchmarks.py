@@ -36,6 +36,7 @@ from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from experiments.common import save_figure
 from infra.files import atomic_write_text
 from infra.threads import set_threads
+from infra.streams import stream_seed, torch_stream
 
 _EVALUATORS = ("exact", "monte_carlo")
 _ROW_KEYS = {"problem", "gamma", "horizon", "optimum", "source", "evaluator", "rollouts", "restarts", "gdice"}
@@ -129,7 +130,7 @@ def _search(row: Row, cfg: GDICEConfig, env: TabularDecPOSMDP, restarts: int, se
     runs, walls, cpus = [], [], []
     for r in range(restarts):
         wall, cpu = time.perf_counter(), time.process_time()
-        res = gdice(evaluator, env.num_agents, env.num_actions, env.num_obs, cfg, seed=seed * 1000 + r,
+        res = gdice(evaluator, env.num_agents, env.num_actions, env.num_obs, cfg, seed=stream_seed(seed, "restart", r),
                     reevaluator=exact, progress=progress)
         walls.append(time.perf_counter() - wall)
         cpus.append(time.process_time() - cpu)
@@ -144,9 +145,9 @@ def solve_row(row: Row, cfg: GDICEConfig, paper: GDICEConfig, study: DictConfig,
     env = TabularDecPOSMDP.from_problem(row.problem, gamma=row.gamma, horizon=row.horizon)
     restarts = row.restarts if study.caps.restarts is None else min(row.restarts, int(study.caps.restarts))
     found = _search(row, cfg, env, restarts, seed, progress)
-    at_paper = _search(row, paper, env, 1, seed + 7919, progress)  # one run at N_s = 100, N_k = 100, timed
+    at_paper = _search(row, paper, env, 1, stream_seed(seed, "paper settings"), progress)  # one run at N_s = 100, N_k = 100, timed
     value = exact_value(env, found["best"].best).item()
-    rand = exact_value(env, uniform_controllers(cfg, env, int(study.random_controllers), torch.Generator().manual_seed(seed)))
+    rand = exact_value(env, uniform_controllers(cfg, env, int(study.random_controllers), torch_stream(seed, "random")))
     rand_mean = rand.mean().item()
     exhaustive, searched = (None, None)
     if row.horizon == 2:

@@ -31,6 +31,7 @@ from experiments.common import save_figure
 from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
+from infra.streams import stream_seed, torch_stream
 
 BASELINES = ("voting", "max_of_mean", "ssbf")
 METHODS = (*BASELINES, "hbni", "hbni_oracle")
@@ -94,14 +95,15 @@ def _fit_sets(train: Tensor, cfg: DictConfig, seed: int) -> list[hbni_pyro.HBNIP
     hyperprior = instantiate(cfg.hbni.hyperprior)
     if method == "mh":
         return hbni_pyro.fit_many(train, **fit, seed=seed, progress=False, hyperprior=hyperprior)
-    return [hbni_pyro.fit(x, method=method, **fit, seed=seed + d, progress=False, hyperprior=hyperprior)
+    return [hbni_pyro.fit(x, method=method, **fit, seed=stream_seed(seed, "fit", d), progress=False,
+                          hyperprior=hyperprior)
             for d, x in enumerate(train)]
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     s = _settings(cfg)
     theta, M, T, trials, sets = s["theta"], len(s["theta"]), s["max_len"], s["trials"], s["sets"]
-    g = torch.Generator().manual_seed(int(cfg.seed))
+    g = torch_stream(int(cfg.seed), "streams")
     truth = torch.randint(M, (trials,), generator=g)
     obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
 

@@ -22,12 +22,13 @@ from hbni_pyro.density import gamma_log_prob
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.model import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
+from infra.streams import torch_stream
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     theta_true = torch.tensor(list(cfg.toy.theta), dtype=DTYPE)
     classes = torch.arange(len(theta_true)).repeat_interleave(int(cfg.toy.per_class))
-    obs = sample_outputs(theta_true, classes, torch.Generator().manual_seed(int(cfg.seed)))
+    obs = sample_outputs(theta_true, classes, torch_stream(int(cfg.seed), "outputs"))
     fit_kw = dict(cfg.hbni.fit)
     posterior = hbni_pyro.fit(obs, **fit_kw, hyperprior=instantiate(cfg.hbni.hyperprior), seed=int(cfg.seed), progress=cfg.progress)
     confident = hbni_pyro.fit(

@@ -25,6 +25,7 @@ from hbni_pyro.filters import SSBF, HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.validation import DTYPE
+from infra.streams import stream_seed, torch_stream
 
 COLORS = {"hbni": "tab:blue", "ssbf": "tab:green"}
 
@@ -34,7 +35,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     theta = torch.tensor(list(s.true_theta), dtype=DTYPE)
     M, seed = len(theta), int(cfg.seed)
     classes = torch.arange(M).repeat_interleave(int(s.training_per_class))
-    train = sample_outputs(theta, classes, torch.Generator().manual_seed(seed))
+    train = sample_outputs(theta, classes, torch_stream(seed, "train"))
     posterior = hbni_pyro.fit(train, **cfg.hbni.fit, hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=cfg.progress)
     posterior.save(run_dir / "posterior.safetensors")
     filters = {
@@ -47,7 +48,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         process = MacroObservationProcess(f, threshold=float(s.threshold), max_frames=int(s.max_frames))
         models[name] = {}
         for k, (source, generative) in enumerate(sources.items()):
-            model = characterize(process, generative, int(s.num_streams), seed=seed + 1 + k, progress=cfg.progress)
+            model = characterize(process, generative, int(s.num_streams), seed=stream_seed(seed, "characterize", k),
+                                    progress=cfg.progress)
             model.save(run_dir / f"macro_{name}_{source}.safetensors")
             models[name][source] = model
     save_figure(_figure(models, theta, s), run_dir / "macro_observation.png")

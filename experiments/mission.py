@@ -64,6 +64,7 @@ from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_cold, run_gdice, score, seed_controller
+from infra.streams import stream_seed
 from infra.threads import threads
 
 
@@ -120,7 +121,6 @@ class Noise(NamedTuple):
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     settings = read_settings(cfg)
-    torch.manual_seed(settings.seed)
     clf = train_perception(cfg, settings, run_dir)
     bank = start_bank(clf, settings, run_dir)
     try:
@@ -152,17 +152,18 @@ def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> Fram
     """Stage 1: the frame classifier, trained on training-condition snapshots (saved as ``classifier``)."""
     settings.clock.start("train", "1/6 training the frame classifier on training-condition snapshots")
     st = cfg.mission
-    clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment), settings.seed,
+    clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment),
+                           stream_seed(settings.seed, "train"),
                            settings.progress)
     save_artifact(run_dir, "classifier", clf)
     return clf
 
 
 def start_bank(clf: FrameClassifier, settings: Settings, run_dir: Path) -> BankBuild:
-    """Stage 1b: the held-out bank (seed ``seed + 3``; calibration and characterisation use ``+1``, ``+2``):
+    """Stage 1b: the held-out bank (its own random stream, ``"bank"``, apart from calibration and characterisation):
     loaded from ``mission.bank.cache_dir``, or rendered and classified by background workers."""
     loop = settings.loop
-    spec = BankSpec(tuple(CLASSES), get_conditions("mission", **settings.overrides), settings.seed + 3,
+    spec = BankSpec(tuple(CLASSES), get_conditions("mission", **settings.overrides), stream_seed(settings.seed, "bank"),
                     loop.bank_sequences, settings.frames)
     bank = BankBuild(spec, clf, run_dir / "classifier.safetensors", loop.cache_dir, loop.workers)
     how = "found in the cache" if bank.cached else f"building with {loop.workers} background worker(s)"
@@ -175,9 +176,9 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
     settings.clock.start("classify", "2/6 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
-    calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, seed + 1, progress,
+    calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, stream_seed(seed, "calibration"), progress,
                              "calibration")[0]
-    held = sequence_outputs(clf, CLASSES, int(st.char_sequences), settings.frames, mission, seed + 2, progress,
+    held = sequence_outputs(clf, CLASSES, int(st.char_sequences), settings.frames, mission, stream_seed(seed, "held-out"), progress,
                             "held-out")[0]
     return Outputs(calib.double(), held.double())
 
@@ -185,7 +186,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
     """Stage 3: HBNI fitted on the labelled calibration outputs (saved as ``posterior``), and its temper."""
     settings.clock.start("fit", "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
-    posterior = fit_labelled(calib, cfg.hbni, settings.seed, settings.progress)
+    posterior = fit_labelled(calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress)
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
         return Noise(posterior, {"value": settings.temper, "fitted": False})
@@ -238,9 +239,9 @@ def characterise_generative(
         settings.clock.start("characterise_generative", f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
     processes = build_processes(noise, cfg, settings)
     models = {}
-    for k, name in enumerate(needed):
+    for name in needed:
         models[name] = hbni_pyro.characterize(processes[name], noise.posterior, loop.generative_streams,
-                                              settings.seed + 40 + k)
+                                              stream_seed(settings.seed, "generative", name))
         save_artifact(run_dir, f"macro_{name}_generative", models[name])
     return models
 
@@ -297,23 +298,25 @@ def plan(
     histories = {}
     start = None  # with warm_start: the perfect-perception plan every perception variant starts from
     with threads(int(study.threads)):
-        for k, name in enumerate(("perfect", *models)):
+        for name in ("perfect", *models):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
             if cold:
                 result, best, entry = run_cold(env, planner if start is None else warm, bool(study.cold_shared_controller),
-                                               seed + 10 * k, settings.progress, reeval, init=start)
+                                               stream_seed(seed, "plan", name), settings.progress, reeval,
+                                               init=start)
                 entry["search_seconds"] = entry.pop("seconds")
                 entry["started_from"] = "scratch" if start is None else "perfect"
                 if warm is not None and name == "perfect":
                     start = result.best
             else:
                 init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
-                result, best, seconds = run_gdice(env, planner, study, seed + 10 * k, settings.progress, init=init)
-                entry = score(env, best, reeval, seed + 10 * k + 5)
+                result, best, seconds = run_gdice(env, planner, study, stream_seed(seed, "plan", name), settings.progress,
+                                                 init=init)
+                entry = score(env, best, reeval, stream_seed(seed, "score", name))
                 entry.update(best_sampled=result.best_value, search_seconds=seconds)
             save_artifact(run_dir, f"controller_{name}", best)
-            hand = score(env, greedy, reeval, seed + 10 * k + 6)
+            hand = score(env, greedy, reeval, stream_seed(seed, "greedy", name))
             entry["greedy"] = {key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")}
             entry.update(delivery_rates(entry))
             if name != "perfect":
@@ -339,9 +342,9 @@ def execute_closed_loop(
     on_pool = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
                for name, p in build_processes(noise, cfg, settings).items()}
     boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
-    for k, name in tqdm(list(enumerate(results)), desc="closed loop", disable=not settings.progress):
+    for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
-        seed = settings.seed + 10 * k + 7
+        seed = stream_seed(settings.seed, "execute", name)
         if name == "perfect":
             executed = closed_loop.execute(controller, None, cfg.domain, reeval, seed)
             results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
@@ -350,9 +353,11 @@ def execute_closed_loop(
         replay = closed_loop.resampled(pool, C, P, torch.arange(held.shape[1], P))  # the bank
         executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
         resample = functools.partial(closed_loop.resampled, pool, C, P)
-        on_bank = closed_loop.stream_stderr(controller, resample, P, bank.shape[1], cfg.domain, boot, seed + 1000)
+        on_bank = closed_loop.stream_stderr(controller, resample, P, bank.shape[1], cfg.domain, boot,
+                                              stream_seed(settings.seed, "bootstrap", "bank", name))
         on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
-            controller, resample, P, held.shape[1], cfg.domain, boot, seed + 2000)
+            controller, resample, P, held.shape[1], cfg.domain, boot,
+            stream_seed(settings.seed, "bootstrap", "table", name))
         results[name]["executed"] = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
 
 

@@ -47,6 +47,7 @@ from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
+from infra.streams import stream_seed, torch_stream
 
 BASELINES = ("ssbf", "max_of_mean")
 TEMPERED = ("paper", "confusion")
@@ -64,7 +65,6 @@ class Settings(NamedTuple):
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     s = read_settings(cfg)
-    torch.manual_seed(s.seed)
     toy = toy_study(cfg, s, run_dir)
     data = mission_outputs(cfg, s, run_dir)
     if cfg.study.images:
@@ -102,7 +102,7 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     t = cfg.study.toy
     theta = torch.tensor(list(t.theta), dtype=DTYPE)
     M, T, trials, sets, size = len(theta), int(t.max_len), int(t.num_trials), int(t.num_training_sets), int(t.training_size)
-    g = torch.Generator().manual_seed(s.seed)
+    g = torch_stream(s.seed, "toy")
     truth = torch.randint(M, (trials,), generator=g)
     obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
     classes = torch.arange(M).repeat_interleave(size // M)
@@ -114,7 +114,7 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     }
     for k, model in enumerate(s.models):
         fit_kw = {key: v for key, v in OmegaConf.to_container(cfg.hbni.fit).items() if key != "method"}
-        posts = hbni_pyro.fit_many(train, model=model, sequence_ids=classes, **fit_kw, seed=s.seed + 100 * (k + 1),
+        posts = hbni_pyro.fit_many(train, model=model, sequence_ids=classes, **fit_kw, seed=stream_seed(s.seed, "fit", model, k),
                                    progress=False, hyperprior=instantiate(cfg.hbni.hyperprior))
         save_artifact(run_dir, f"toy_posterior_{model}", posts[0])
         counts = torch.zeros(T, dtype=torch.long)
@@ -166,12 +166,12 @@ def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tu
 
 
 def _classify_condition(classifier: Any, name: str, conditions: Any, m: DictConfig, s: Settings) -> dict[str, torch.Tensor]:
-    """Render and classify one condition's calibration (seed + 1) and held-out (seed + 2) sequences."""
+    """Render and classify one condition's calibration and held-out sequences (their own random streams)."""
     _step(s, f"classifying {name} sequences")
     f = classifier()
-    calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, s.seed + 1, s.progress,
+    calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, stream_seed(s.seed, "calibration"), s.progress,
                              f"{name} calibration")[0]
-    held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, s.seed + 2, s.progress,
+    held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, stream_seed(s.seed, "held-out"), s.progress,
                             f"{name} held-out")[0]
     return {"calibration": calib.double(), "held_out": held.double()}
 

@@ -39,6 +39,7 @@ from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning import paper_comparison, run_gdice, score
 from experiments.steps.planning_figures import bar_figure, comparison_table
 from infra.threads import set_threads
+from infra.streams import stream_seed
 
 PAPER = {"gdice_best_sampled": 14.44, "mmcs": 4.53, "monte_carlo_search": 2.07}
 
@@ -54,14 +55,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     sweep = {}
     for k, alpha in enumerate(study.alpha_sweep):
         sweep_cfg = dataclasses.replace(config, alpha=float(alpha), iterations=int(study.sweep_iterations))
-        res, ctrl, secs = run_gdice(env, sweep_cfg, study, seed + 100 + k, bool(cfg.progress))
+        res, ctrl, secs = run_gdice(env, sweep_cfg, study, stream_seed(seed, "sweep", k), bool(cfg.progress))
         sweep[str(alpha)] = {"alpha": float(alpha), "history_best": res.history["best"], "best_sampled": res.best_value,
-                             "seconds": secs, **score(env, ctrl, reeval, seed + 200 + k)}
+                             "seconds": secs, **score(env, ctrl, reeval, stream_seed(seed, "sweep reeval", k))}
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
     ref = cfg.reference
     paper = paper_comparison(env, instantiate(ref.domain), instantiate(ref.planner), int(ref.rollouts), int(ref.runs),
-                             seed + 700, reeval, bool(cfg.progress))
+                             stream_seed(seed, "preset"), reeval, bool(cfg.progress))
     save_figure(bar_figure(entries, "Package delivery: re-evaluated values",
                            {"paper G-DICE 14.44": PAPER["gdice_best_sampled"], "paper MCS 2.07": PAPER["monte_carlo_search"]}),
                 run_dir / "baselines.png")

@@ -35,6 +35,7 @@ from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
+from infra.streams import stream_seed
 
 
 def _frames_to_reach(post: torch.Tensor, true: int, threshold: float) -> torch.Tensor:
@@ -48,7 +49,6 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     st = cfg.study
     classes = list(st.classes)
     seed, progress = int(cfg.seed), bool(cfg.progress)
-    torch.manual_seed(seed)
     mission = get_conditions("mission", **OmegaConf.to_container(st.mission))
 
     # 1. Train the head on training-condition snapshots (+ crops and mirrors).
@@ -57,12 +57,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
-    calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, seed + 1, progress, "calibration")
+    calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, stream_seed(seed, "calibration"), progress,
+                                "calibration")
     posterior = fit_labelled(calib, cfg.hbni, seed, progress)
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
-    test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, seed + 2, progress, "test")
+    test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, stream_seed(seed, "test"), progress,
+                                    "test")
     test = test.double()
     filters = {"ssbf": hbni_pyro.SSBF(len(classes)), "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode)}
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}

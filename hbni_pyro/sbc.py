@@ -27,6 +27,7 @@ from hbni_pyro.sequence_model import hyper_scales, look_prior_mean
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import check_model
 from hbni_pyro.wishart import sample_wishart
+from infra.streams import stream_seed
 
 
 def draw_prior(model: str, hyperprior: HyperPrior, num_classes: int, num_draws: int, generator: torch.Generator) -> dict[str, Tensor]:
@@ -119,7 +120,7 @@ def run_sbc(
     ids = torch.arange(size).repeat_interleave(num_frames) if sequence else None
     posts = fit_many(
         data, labels.expand(num_datasets, -1) if labelled else None, model=model, sequence_ids=ids, num_chains=num_chains,
-        num_samples=num_samples, warmup_steps=warmup_steps, seed=seed + 1, progress=False, hyperprior=fit_hyperprior or hp,
+        num_samples=num_samples, warmup_steps=warmup_steps, seed=stream_seed(seed, "fit"), progress=False, hyperprior=fit_hyperprior or hp,
     )
     true_stats = rank_statistics(model, truth)
     ranks: dict[str, list[int]] = {k: [] for k in true_stats}

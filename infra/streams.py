@@ -3,8 +3,8 @@
 Every entry point takes one ``seed``; each of its stages and variants draws from its own stream,
 ``stream_seed(seed, "plan", "hbni")``: a :class:`numpy.random.SeedSequence` with entropy ``seed`` and
 a spawn key made of a hash of each name. Streams of different names are independent, and adding a
-stage never shifts the numbers of another, which ``seed + N`` arithmetic does not guarantee (stage
-``a``'s ``seed + 10`` is stage ``b``'s ``seed + 10``).
+stage never shifts the numbers of another, which adding constants to the seed does not guarantee
+(one stage's offset 10 is another's offset 10).
 """
 
 from __future__ import annotations

@@ -123,7 +123,7 @@ def run(env: Any, controller: JointController, rollouts: int, seed: int, *, firs
             init_int, init_float, keep_state)
     batch = controller.num_controllers * rollouts
     threads = worker_threads()
-    chunks = max(1, min(4 * threads, batch // _MIN_CHUNK))
+    chunks = max(1, min(16 * threads, batch // _MIN_CHUNK))  # many small chunks balance uneven rollouts
     kept = batch if keep_state else 0
     seen_shape = (chunks, a_count, controller.num_nodes, controller.num_obs) if visits else (chunks, 1, 1, 1)
     out = loop.Outputs(np.zeros(batch), np.zeros((batch, len(slots)), dtype=np.int64), np.zeros(seen_shape),

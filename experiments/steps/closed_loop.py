@@ -39,6 +39,7 @@ from decpomdp import JointController
 from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps.planning import delivery_rates, score
+from infra.streams import stream_seed, torch_stream
 
 
 class Bootstrap(NamedTuple):
@@ -104,11 +105,12 @@ def stream_stderr(controller: JointController, perception_of: Callable[[torch.Te
     scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
     rollout variance is the streams' share (floored at 0).
     """
-    g = torch.Generator().manual_seed(seed)
+    g = torch_stream(seed, "resample")
     values, variances = [], []
     for b in range(boot.replicates):
         idx = torch.randint(pool, (size,), generator=g)
-        entry = score(instantiate(domain, perception=perception_of(idx)), controller, boot.rollouts, seed + 1 + b)
+        entry = score(instantiate(domain, perception=perception_of(idx)), controller, boot.rollouts,
+                      stream_seed(seed, "replicate", b))
         values.append(entry["value"])
         variances.append(entry["stderr"] ** 2)
     return float(max(np.var(values, ddof=1) - np.mean(variances), 0.0) ** 0.5)

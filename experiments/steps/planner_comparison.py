@@ -28,6 +28,7 @@ from experiments.steps.planning import (
     score,
 )
 from experiments.steps.planning_figures import history_figure, planner_figure
+from infra.streams import stream_seed
 
 
 class Comparison(NamedTuple):
@@ -51,23 +52,25 @@ def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointContro
     cold_cfg: PlannerConfig = instantiate(cfg.cold_planner)
     reeval = int(study.reeval_rollouts)
 
-    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller), seed + 600,
+    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller),
+                                                     stream_seed(seed, "cold"),
                                                     progress, reeval)
     planner_best.save(run_dir / "best_controller_planner.safetensors")
     save_figure(planner_figure(planner.history, f"Cold-start planner on {title}"), run_dir / "planner_progress.png")
 
     result, best, seconds = run_gdice(env, config, study, seed, progress)
     best.save(run_dir / "best_controller_cold.safetensors")
-    gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, seed + 10)}
+    gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, stream_seed(seed, "reeval", "gdice"))}
     save_figure(history_figure(result.history, f"G-DICE on {title}"), run_dir / "value_vs_iteration.png")
 
-    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, seed + 500, progress)
+    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, stream_seed(seed, "seeded"),
+                                                         progress)
     seeded_best.save(run_dir / "best_controller.safetensors")
     save_figure(history_figure(seeded.history, f"G-DICE seeded with the hand-written policy, {title}"),
                 run_dir / "value_vs_iteration_seeded.png")
 
-    baselines = run_baselines(env, config, study, seed + 300)
-    greedy = score(env, greedy_policy, reeval, seed + 400)
+    baselines = run_baselines(env, config, study, stream_seed(seed, "baselines"))
+    greedy = score(env, greedy_policy, reeval, stream_seed(seed, "reeval", "greedy"))
     entries = {"cold-start planner": planner_score, "G-DICE": gdice_score, "G-DICE seeded": seeded_score,
                "greedy (hand-written)": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
                "random": baselines["random"]}

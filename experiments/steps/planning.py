@@ -17,6 +17,7 @@ from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, m
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains import SharedControllerEvaluator, rollout_counters, shared
 from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, plan
+from infra.streams import stream_seed, torch_stream
 
 
 def search_setup(env: DecPOSMDP, rollouts: int, shared_controller: bool):
@@ -67,7 +68,7 @@ def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, see
     """The cold-start planner, from scratch or from ``init`` (searched agents): (result, best joint controller,
     score entry).
 
-    The entry holds the value re-evaluated on ``reeval_rollouts`` fresh rollouts (seed ``seed + 10``),
+    The entry holds the value re-evaluated on ``reeval_rollouts`` fresh rollouts (stream ``(seed, "reeval")``),
     the rollouts spent, and process CPU and wall seconds of the search.
     """
     scorer = RolloutScorer(env, shared=shared_controller)
@@ -76,7 +77,7 @@ def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, see
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     best = scorer.team(result.best)
     entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,
-             **score(env, best, reeval_rollouts, seed + 10)}
+             **score(env, best, reeval_rollouts, stream_seed(seed, "reeval"))}
     return result, best, entry
 
 
@@ -93,8 +94,9 @@ def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: GDICEConfig, rol
         sampled, values, stderrs = [], [], []
         for r in range(runs):
             res = gdice(SharedControllerEvaluator(domain, rollouts), 1, domain.num_actions, domain.num_obs, config,
-                        seed=seed + r, progress=progress)
-            entry = score(domain, shared(res.best, domain.num_agents), reeval_rollouts, seed + 100 + r)
+                        seed=stream_seed(seed, "paper", name, r), progress=progress)
+            entry = score(domain, shared(res.best, domain.num_agents), reeval_rollouts,
+                          stream_seed(seed, "reeval", name, r))
             sampled.append(res.best_value)
             values.append(entry["value"])
             stderrs.append(entry["stderr"])
@@ -130,11 +132,11 @@ def run_seeded(env, config: GDICEConfig, study, policy: JointController, seed: i
     result, best, seconds = run_gdice(env, seeded_cfg, study, seed, progress, init=seed_controller(policy, shared_controller))
     mode = mode_controller(result.action_probs, result.next_probs)
     candidates = {"best_sampled": best, "mode": shared(mode, env.num_agents) if shared_controller else mode}
-    selection = {name: score(env, ctrl, int(study.select_rollouts), seed + 20)["value"] for name, ctrl in candidates.items()}
+    selection = {name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"] for name, ctrl in candidates.items()}
     chosen = max(selection, key=selection.get)
     entry = {"init_weight": seeded_cfg.init_weight, "planner": dataclasses.asdict(seeded_cfg),
              "best_sampled": result.best_value, "seconds": seconds, "selected": chosen, "selection_values": selection,
-             **score(env, candidates[chosen], int(study.reeval_rollouts), seed + 10)}
+             **score(env, candidates[chosen], int(study.reeval_rollouts), stream_seed(seed, "reeval"))}
     return result, candidates[chosen], entry
 
 
@@ -146,11 +148,12 @@ def run_baselines(env, config: GDICEConfig, study, seed: int) -> dict[str, Any]:
     mcs = monte_carlo_search(evaluator, agents, env.num_actions, env.num_obs, config.num_nodes, budget, seed=seed)
     seconds = time.perf_counter() - tic
     rand = random_controllers(int(study.random_controllers), agents, config.num_nodes, env.num_actions, env.num_obs,
-                              torch.Generator().manual_seed(seed + 1))
-    values, _ = evaluator(rand, torch.Generator().manual_seed(seed + 2))
+                              torch_stream(seed, "random controllers"))
+    values, _ = evaluator(rand, torch_stream(seed, "random scores"))
     return {
         "monte_carlo_search": {"budget": budget, "best_sampled": mcs.best_value, "seconds": seconds,
-                               **score(env, to_joint(mcs.best), int(study.reeval_rollouts), seed + 3)},
+                               **score(env, to_joint(mcs.best), int(study.reeval_rollouts),
+                                                        stream_seed(seed, "reeval", "monte carlo search"))},
         "random": {"controllers": len(values), "value": float(values.mean()),
                    "stderr": float(values.std() / len(values) ** 0.5)},
     }
