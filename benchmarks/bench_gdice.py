@@ -26,10 +26,10 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from decpomdp import GDICEConfig, MonteCarloEvaluator, evaluate, gdice, random_controllers
-from decpomdp.domains import PackageDelivery, SharedControllerEvaluator, shared
+from decpomdp import evaluate, random_controllers
+from decpomdp.domains import PackageDelivery, shared
 from decpomdp.dpomdp import TabularDecPOSMDP
-from decpomdp.search import PlannerConfig, RolloutScorer, plan
+from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from infra.streams import torch_stream
 
 PAPER_ROLLOUTS = 100 * 100 * 80
@@ -54,8 +54,9 @@ def tiger_iteration_cpu(seed: int) -> float:
     """CPU seconds of one G-DICE iteration's evaluation on Dec-Tiger (horizon 50, 100 samples x 80 rollouts)."""
     tiger = TabularDecPOSMDP.from_problem("dectiger", gamma=0.99, horizon=50)
     gen = torch.Generator().manual_seed(seed)
-    ctrl = random_controllers(100, 2, 13, tiger.num_actions, tiger.num_obs, gen)
-    return timed(lambda: MonteCarloEvaluator(tiger, 80)(ctrl, gen))[1]
+    ctrl = random_controllers(100, num_agents=2, num_nodes=13,
+                              num_actions=tiger.num_actions, num_obs=tiger.num_obs, generator=gen)
+    return timed(lambda: RolloutScorer(tiger)(ctrl, 80, gen))[1]
 
 
 def main() -> None:
@@ -69,9 +70,8 @@ def main() -> None:
     reeval = lambda ctrl: evaluate(env, shared(ctrl, 2), args.reeval, torch_stream(args.seed, "reeval"))  # noqa: E731
 
     rows = []
-    paper = GDICEConfig(num_nodes=13, iterations=100, samples=100, elites=10, alpha=0.1)
-    res, cpu, wall = timed(lambda: gdice(SharedControllerEvaluator(env, 80), 1, env.num_actions, env.num_obs, paper,
-                                         seed=args.seed, progress=True))
+    paper = gdice_config()
+    res, cpu, wall = timed(lambda: plan(RolloutScorer(env, shared=True), paper, seed=args.seed, progress=True))
     rows.append(("paper G-DICE", PAPER_ROLLOUTS, cpu, wall, *reeval(res.best)))
     default = default_planner()
     runs = [("cold-start planner, paper budget", dataclasses.replace(default, budget=PAPER_ROLLOUTS))]
@@ -86,8 +86,8 @@ def main() -> None:
     for name, rollouts, cpu, wall, mean, se in rows:
         print(f"| {name} | {rollouts:,} | {cpu:.1f} | {wall:.1f} | {cpu / ref:.2f} | {float(mean):.3f} +- {float(se):.3f} |")
     tab = tiger_iteration_cpu(args.seed)
-    print(f"one G-DICE iteration (CPU s): package delivery {ref / paper.iterations:.3f} vs Dec-Tiger horizon 50 "
-          f"(8000 rollouts, 50 events) {tab:.3f}; ratio {ref / paper.iterations / tab:.2f}")
+    print(f"one G-DICE iteration (CPU s): package delivery {ref / paper.ce_iterations:.3f} vs Dec-Tiger horizon 50 "
+          f"(8000 rollouts, 50 events) {tab:.3f}; ratio {ref / paper.ce_iterations / tab:.2f}")
 
 
 if __name__ == "__main__":

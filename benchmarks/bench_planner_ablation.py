@@ -2,7 +2,7 @@
 
 Every variant runs from scratch on the same rollout budget and seed, and its best controller is
 re-evaluated on ``--reeval`` rollouts the search never saw. Variants (the domain's experiment's
-``cold_planner``, ``conf/planner/cold.yaml`` with the experiment's overrides, with one change):
+``planners.cold``, ``conf/planner/cold.yaml`` with the experiment's overrides, with one change):
 
 * ``full``: the planner as configured;
 * ``no agent copies``: ``ls_copy: false`` (no effect with a shared controller);
@@ -15,8 +15,8 @@ re-evaluated on ``--reeval`` rollouts the search never saw. Variants (the domain
   pays for), cross-entropy scores every sample on 80 (90 samples, the racing budget);
 * ``no elite memory``: ``ce_memory: 0``;
 * ``13 nodes``: the paper's node count instead of growing to 24;
-* ``G-DICE``: the paper's algorithm (13 nodes, 100 samples, 10 elites, alpha 0.1, 80 rollouts per
-  sample) run for as many iterations as the budget pays for.
+* ``G-DICE``: the planner's G-DICE preset (:func:`decpomdp.search.gdice_config`: 13 nodes, 100 samples,
+  10 elites, alpha 0.1, 80 rollouts per sample) run for as many iterations as the budget pays for.
 
 Prints a markdown table (value +- s.e., rollouts, CPU seconds) and writes it as JSON to ``--out``.
 
@@ -35,10 +35,8 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from decpomdp import GDICEConfig, gdice
-from decpomdp.domains import DisasterRelief, PackageDelivery, SharedControllerEvaluator, rollout_counters, shared
-from decpomdp.evaluate import MonteCarloEvaluator
-from decpomdp.search import PlannerConfig, RolloutScorer, plan
+from decpomdp.domains import DisasterRelief, PackageDelivery, rollout_counters, shared
+from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from experiments.schemas import register
 from infra.files import atomic_write_text
 from infra.streams import torch_stream
@@ -61,23 +59,18 @@ DOMAINS = {"package_delivery": (PackageDelivery, True), "disaster_relief": (Disa
 
 
 def experiment_planner(domain: str) -> PlannerConfig:
-    """The ``cold_planner`` of ``experiment=<domain>`` (``conf/planner/cold.yaml`` and the experiment's overrides)."""
+    """The ``planners.cold`` of ``experiment=<domain>`` (``conf/planner/cold.yaml`` and the experiment's overrides)."""
     register()
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        return instantiate(compose(config_name="config", overrides=[f"experiment={domain}"]).cold_planner)
+        return instantiate(compose(config_name="config", overrides=[f"experiment={domain}"]).planners.cold)
 
 
 def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, seed: int, reeval: int) -> dict:
     cpu = time.process_time()
     if name == "G-DICE":
-        paper = GDICEConfig(num_nodes=13, iterations=max(1, cfg.budget // (100 * 80)), samples=100, elites=10, alpha=0.1)
-        evaluator = SharedControllerEvaluator(env, 80) if shared_controller else MonteCarloEvaluator(env, 80)
-        agents = 1 if shared_controller else env.num_agents
-        best, rollouts = gdice(evaluator, agents, env.num_actions, env.num_obs, paper, seed=seed).best, paper.iterations * 8000
-    else:
-        scorer = RolloutScorer(env, shared=shared_controller)
-        out = plan(scorer, cfg, seed=seed)
-        best, rollouts = out.best, out.rollouts
+        cfg = gdice_config(ce_iterations=max(1, cfg.budget // (100 * 80)))
+    out = plan(RolloutScorer(env, shared=shared_controller), cfg, seed=seed)
+    best, rollouts = out.best, out.rollouts
     cpu = time.process_time() - cpu
     team = shared(best, env.num_agents) if shared_controller else best
     returns, _ = rollout_counters(env, team, reeval, torch_stream(seed, "reeval"))

@@ -1,8 +1,9 @@
-"""Dec-POSMDP planning: a batched event-driven simulator, finite-state controllers, G-DICE and the
-robot-side executor of a planned controller (:class:`ControllerExecutor`).
+"""Dec-POSMDP planning: a compiled rollout engine and a batched torch simulator, finite-state controllers, the
+planner (the cold-start planner and the paper's G-DICE as its preset), the mission domains and the robot-side
+executor of a planned controller (:class:`ControllerExecutor`).
 
-Perception enters only through :class:`PerceptionModel`; this package never imports
-``classifiers`` or ``hbni_pyro``.
+Perception enters only through :class:`PerceptionModel`; this package never imports ``classifiers`` or
+``hbni_pyro``.
 
 See ``docs/architecture.md`` for the layout and the data's path from pixels to policy.
 """
@@ -10,28 +11,34 @@ See ``docs/architecture.md`` for the layout and the data's path from pixels to p
 from decpomdp.baselines import SearchResult, monte_carlo_search, random_controllers
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
-from decpomdp.evaluate import Evaluator, MonteCarloEvaluator, evaluate
+from decpomdp.domains import DisasterRelief, PackageDelivery, rollout_counters, shared
+from decpomdp.evaluate import evaluate
 from decpomdp.executor import ControllerExecutor, MacroAction
-from decpomdp.gdice import GDICEConfig, GDICEResult, gdice, sample_controllers
 from decpomdp.perception import PerceptionModel, PerfectPerception
+from decpomdp.search import ExactScorer, PlannerConfig, PlannerResult, RolloutScorer, Scorer, gdice_config, plan
 from decpomdp.simulate import simulate
 
 __all__ = [
     "ControllerExecutor",
     "DecPOSMDP",
-    "Evaluator",
-    "GDICEConfig",
-    "GDICEResult",
+    "DisasterRelief",
+    "ExactScorer",
     "JointController",
     "MacroAction",
+    "PackageDelivery",
     "PerceptionModel",
-    "MonteCarloEvaluator",
     "PerfectPerception",
+    "PlannerConfig",
+    "PlannerResult",
+    "RolloutScorer",
+    "Scorer",
     "SearchResult",
     "evaluate",
-    "gdice",
+    "gdice_config",
     "monte_carlo_search",
+    "plan",
     "random_controllers",
-    "sample_controllers",
+    "rollout_counters",
+    "shared",
     "simulate",
 ]

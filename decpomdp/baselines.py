@@ -1,4 +1,4 @@
-"""Generic baselines over any Dec-POSMDP evaluator: random controllers and Monte Carlo search."""
+"""Generic baselines over any scorer: uniformly random controllers and Monte Carlo search."""
 
 from __future__ import annotations
 
@@ -8,17 +8,17 @@ import torch
 from torch import Tensor
 
 from decpomdp.controller import JointController
-from decpomdp.evaluate import Evaluator
+from decpomdp.search.scoring import Scorer
+from infra.checks import as_int
 
 
 def random_controllers(
-    count: int, num_agents: int, num_nodes: int, num_actions: int, num_obs: int, generator: torch.Generator
+    count: int, *, num_agents: int, num_nodes: int, num_actions: int, num_obs: int, generator: torch.Generator
 ) -> JointController:
     """``count`` joint controllers with every node action and transition drawn uniformly."""
     for name, value in (("count", count), ("num_agents", num_agents), ("num_nodes", num_nodes),
                         ("num_actions", num_actions), ("num_obs", num_obs)):
-        if not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+        as_int(name, value, 1)
     action = torch.randint(0, num_actions, (count, num_agents, num_nodes), generator=generator)
     next_node = torch.randint(0, num_nodes, (count, num_agents, num_nodes, num_obs), generator=generator)
     return JointController(action, next_node)
@@ -36,35 +36,27 @@ class SearchResult:
 
 
 def monte_carlo_search(
-    evaluator: Evaluator,
-    num_agents: int,
-    num_actions: int,
-    num_obs: int,
-    num_nodes: int,
-    budget: int,
-    seed: int = 0,
-    batch: int = 100,
-    reevaluator: Evaluator | None = None,
+    scorer: Scorer, *, num_nodes: int, budget: int, rollouts: int, seed: int = 0, batch: int = 100,
+    reeval_rollouts: int | None = None,
 ) -> SearchResult:
-    """Evaluate ``budget`` uniformly random controllers (in batches of ``batch``) and keep the best.
+    """Score ``budget`` uniformly random controllers of ``scorer``'s agents (in batches of ``batch``, each on
+    ``rollouts`` rollouts) and keep the best; with ``reeval_rollouts`` the best is scored again on that many.
 
     With ``budget = iterations * samples`` it sees as many controllers as a G-DICE run.
     """
-    if not isinstance(budget, int) or budget < 1:
-        raise ValueError(f"budget: expected an int >= 1, got {budget!r}")
-    if not isinstance(batch, int) or batch < 1:
-        raise ValueError(f"batch: expected an int >= 1, got {batch!r}")
-    generator = torch.Generator().manual_seed(int(seed))
+    budget, batch, rollouts = as_int("budget", budget, 1), as_int("batch", batch, 1), as_int("rollouts", rollouts, 2)
+    generator = torch.Generator().manual_seed(as_int("seed", seed, 0))
     best, best_value, all_values = None, -float("inf"), []
     for start in range(0, budget, batch):
-        ctrl = random_controllers(min(batch, budget - start), num_agents, num_nodes, num_actions, num_obs, generator)
-        values = evaluator(ctrl, generator)[0].to(torch.float64)
+        ctrl = random_controllers(min(batch, budget - start), num_agents=scorer.num_agents, num_nodes=num_nodes,
+                                  num_actions=scorer.num_actions, num_obs=scorer.num_obs, generator=generator)
+        values = scorer(ctrl, rollouts, generator)[0].to(torch.float64)
         all_values.append(values)
         top = int(values.argmax())
         if float(values[top]) > best_value:
             best, best_value = ctrl[top], float(values[top])
     value = stderr = None
-    if reevaluator is not None:
-        mean, se = reevaluator(best, generator)
+    if reeval_rollouts is not None:
+        mean, se = scorer(best, reeval_rollouts, generator)
         value, stderr = float(mean[0]), float(se[0])
     return SearchResult(best, best_value, value, stderr, torch.cat(all_values))

@@ -1,10 +1,10 @@
 """Planning on health-aware disaster relief: the cold-start planner, G-DICE cold and seeded, baselines.
 
-Side by side: the cold-start planner (``cold_planner``, :mod:`decpomdp.search`, one controller per
-robot or shared: ``study.cold_shared_controller``), the paper's G-DICE from uniform distributions
-(``planner``), "G-DICE seeded with the hand-written policy" (``planner`` overridden by
-``study.seeded``, warm-started from the greedy controller), the greedy controller, Monte Carlo search
-and random controllers (G-DICE's team: ``study.shared_controller``). Every reported policy is
+Side by side: the cold-start planner (``planners.cold``, :mod:`decpomdp.search`), the paper's G-DICE from
+uniform distributions (``planners.gdice``), "G-DICE seeded with the hand-written policy" (``planners.gdice``
+overridden by ``study.seeded``, warm-started from the greedy controller), the greedy controller, Monte Carlo
+search and random controllers; every planner searches one controller per robot or one shared by the team
+(``study.shared_controller``). Every reported policy is
 re-evaluated on ``study.reeval_rollouts`` independent rollouts, with per-rollout counts of objects
 delivered right, wrong deliveries, inferences, inference frames and repairs. Writes ``metrics.json``,
 ``report.md`` (the table), ``comparison.png``, ``counters.png``, ``planner_progress.png``,

@@ -20,6 +20,7 @@ per row in ``controllers/``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -30,9 +31,10 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from decpomdp import GDICEConfig, MonteCarloEvaluator, gdice, sample_controllers
-from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value, problem_names
+from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
+from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
+from decpomdp.search.cross_entropy import layered_mask, sample_controllers
 from experiments.common import save_figure
 from infra.files import atomic_write_text
 from infra.threads import set_threads
@@ -77,7 +79,7 @@ class Row:
             raise ValueError(f"{where}.source: a published optimum needs its source")
 
 
-def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, GDICEConfig, GDICEConfig]]:
+def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, PlannerConfig, PlannerConfig]]:
     """Every row, its G-DICE settings (the planner overridden by the row, then capped) and the same at the
     paper's budget, checked up front."""
     rows = []
@@ -91,15 +93,16 @@ def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, GDICEC
                   optimum=plain.get("optimum"), source=plain.get("source", ""), evaluator=plain.get("evaluator", "exact"),
                   rollouts=int(plain.get("rollouts", 200)), restarts=int(plain.get("restarts", 1)),
                   gdice=plain.get("gdice", {}))
-        settings = {**OmegaConf.to_container(planner, resolve=True), **row.gdice}  # plain: schemas stay apart
+        # plain containers (schemas stay apart), unresolved: start_nodes follows a row's num_nodes
+        settings = {**OmegaConf.to_container(planner, resolve=False), **row.gdice}
         merged = OmegaConf.create(settings)
         paper = OmegaConf.create({**settings, **OmegaConf.to_container(study.paper_budget, resolve=True)})
         cfgs = []
         for settings in (merged, paper):
             for key in ("iterations", "samples"):
                 if study.caps[key] is not None:
-                    settings[key] = min(int(settings[key]), int(study.caps[key]))
-            settings.elites = min(int(settings.elites), int(settings.samples))
+                    settings[f"ce_{key}"] = min(int(settings[f"ce_{key}"]), int(study.caps[key]))
+            settings.ce_elites = min(int(settings.ce_elites), int(settings.ce_samples))
             try:
                 cfgs.append(instantiate(settings))
             except Exception as exc:  # noqa: BLE001  (re-raised with the row's name)
@@ -114,32 +117,34 @@ def fraction_of_optimum(value: float, optimum: float, random_mean: float) -> flo
     return 1.0 - (optimum - value) / scale if scale > 0 else float(value >= optimum)
 
 
-def uniform_controllers(cfg: GDICEConfig, env: TabularDecPOSMDP, count: int, generator: torch.Generator):
+def uniform_controllers(cfg: PlannerConfig, env: TabularDecPOSMDP, count: int, generator: torch.Generator):
     """Controllers from G-DICE's initial (uniform) distributions: the random baseline of the same graph."""
     a, nn = env.num_agents, cfg.num_nodes
-    mask = cfg.transition_mask().to(torch.float64)
+    mask = layered_mask(nn, cfg.layer_width).to(torch.float64)
     nxt = (mask / mask.sum(-1, keepdim=True))[None, :, None, :].expand(a, nn, env.num_obs, nn).contiguous()
     act = torch.full((a, nn, env.num_actions), 1.0 / env.num_actions, dtype=torch.float64)
     return sample_controllers(act, nxt, count, generator)
 
 
-def _search(row: Row, cfg: GDICEConfig, env: TabularDecPOSMDP, restarts: int, seed: int, progress: bool) -> dict:
-    """Run G-DICE ``restarts`` times; the best controller by exact value, with wall and CPU seconds per run."""
-    exact = ExactEvaluator(env)
-    evaluator = exact if row.evaluator == "exact" else MonteCarloEvaluator(env, row.rollouts)
-    runs, walls, cpus = [], [], []
+def _search(row: Row, cfg: PlannerConfig, env: TabularDecPOSMDP, restarts: int, seed: int, progress: bool) -> dict:
+    """Run G-DICE ``restarts`` times (scores: exact, or ``row.rollouts`` rollouts with ``ce_rollouts`` set to it);
+    the best controller by exact value, with wall and CPU seconds per run."""
+    scorer = ExactScorer(env) if row.evaluator == "exact" else RolloutScorer(env)
+    if row.evaluator != "exact":
+        cfg = dataclasses.replace(cfg, ce_rollouts=row.rollouts)
+    runs, values, walls, cpus = [], [], [], []
     for r in range(restarts):
         wall, cpu = time.perf_counter(), time.process_time()
-        res = gdice(evaluator, env.num_agents, env.num_actions, env.num_obs, cfg, seed=stream_seed(seed, "restart", r),
-                    reevaluator=exact, progress=progress)
+        res = plan(scorer, cfg, seed=stream_seed(seed, "restart", r), progress=progress)
         walls.append(time.perf_counter() - wall)
         cpus.append(time.process_time() - cpu)
         runs.append(res)
-    best = max(runs, key=lambda res: res.value)
-    return {"best": best, "values": [res.value for res in runs], "wall": walls, "cpu": cpus}
+        values.append(exact_value(env, res.best).item())
+    best = runs[max(range(restarts), key=values.__getitem__)]
+    return {"best": best, "values": values, "wall": walls, "cpu": cpus}
 
 
-def solve_row(row: Row, cfg: GDICEConfig, paper: GDICEConfig, study: DictConfig, seed: int,
+def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictConfig, seed: int,
               progress: bool) -> tuple[dict, object, list]:
     """One row of the table, the best controller and its learning curve."""
     env = TabularDecPOSMDP.from_problem(row.problem, gamma=row.gamma, horizon=row.horizon)
@@ -165,11 +170,12 @@ def solve_row(row: Row, cfg: GDICEConfig, paper: GDICEConfig, study: DictConfig,
         "gap_closed": None if optimum is None or optimum == rand_mean else (value - rand_mean) / (optimum - rand_mean),
         "random_controller_mean": rand_mean, "random_controller_stderr": (rand.std() / math.sqrt(rand.numel())).item(),
         "seconds_per_run": found["wall"], "cpu_seconds_per_run": found["cpu"],
-        "controllers_per_run": cfg.iterations * cfg.samples, "settings": {**vars(cfg), "restarts": restarts},
-        "paper_budget": {"samples": paper.samples, "iterations": paper.iterations, "value": at_paper["values"][0],
+        "controllers_per_run": cfg.ce_iterations * cfg.ce_samples,
+        "settings": {**dataclasses.asdict(cfg), "restarts": restarts},
+        "paper_budget": {"samples": paper.ce_samples, "iterations": paper.ce_iterations, "value": at_paper["values"][0],
                          "seconds": at_paper["wall"][0], "cpu_seconds": at_paper["cpu"][0]},
     }
-    return table, found["best"].best, found["best"].history["best"]
+    return table, found["best"].best, found["best"].history["best_sampled"]
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:

@@ -18,13 +18,12 @@ then the policy executed with the actual filter on held-out frames.
    the same processes run on streams simulated from HBNI's fitted posterior predictive (the
    generative planning model); :func:`planning_models` gives each variant the one
    ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
-5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain, search a
-   controller with the cold-start planner (``planning: cold``; no hand-written controller): perfect
-   perception from scratch (settings ``cold_planner``), then each perception variant from that plan
-   (``warm_start: true``, settings ``warm_planner``) or from scratch too (``warm_start: false``); or
-   with G-DICE (``planning: gdice``, settings ``planner``, seeded with the hand-written greedy
-   controller when ``planner.init_weight > 0``). Each controller, and the greedy controller itself,
-   is re-evaluated on independent rollouts: the planned value.
+5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain and search a
+   controller with the planner (no hand-written controller): perfect perception from scratch (settings
+   ``planner``: the cold-start planner tuned for the mission, or ``planner=gdice`` for the paper's G-DICE),
+   then each perception variant from that plan (``warm_start: true``, settings ``warm_planner``) or from
+   scratch too (``warm_start: false``). Each controller, and the greedy controller itself, is
+   re-evaluated on independent rollouts: the planned value.
 6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
    answered by that variant's process on a fresh bank stream of the true class: the executed value,
    and its gap to the planned one in standard errors.
@@ -63,7 +62,7 @@ from experiments.steps import closed_loop
 from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
-from experiments.steps.planning import delivery_rates, run_cold, run_gdice, score, seed_controller
+from experiments.steps.planning import delivery_rates, run_planner, score
 from infra.streams import stream_seed
 from infra.threads import threads
 
@@ -273,25 +272,23 @@ def _entry_variant(name: str) -> str:
     return name if name in MISSION_VARIANTS else name.rsplit("_", 1)[0]
 
 
-def planners(cfg: DictConfig) -> tuple[Any, PlannerConfig | None]:
-    """The planner's settings (``cold_planner`` or G-DICE's ``planner``) and those of the warm starts from the
-    perfect-perception plan (``warm_planner``; ``None`` unless ``planning: cold`` with ``warm_start``)."""
-    cold = cfg.planning == "cold"
-    return instantiate(cfg.cold_planner if cold else cfg.planner), (
-        instantiate(cfg.warm_planner) if cold and cfg.warm_start else None)
+def planners(cfg: DictConfig) -> tuple[PlannerConfig, PlannerConfig | None]:
+    """The planner's settings (``planner``) and those of the warm starts from the perfect-perception plan
+    (``warm_planner``; ``None`` without ``warm_start``)."""
+    return instantiate(cfg.planner), instantiate(cfg.warm_planner) if cfg.warm_start else None
 
 
 def plan(
     models: dict[str, hbni_pyro.MacroObservationModel], cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> tuple[dict[str, dict], dict[str, dict]]:
     """Stage 5: a controller per perception variant and for perfect perception (saved as
-    ``controller_<variant>``), found by the cold-start planner (``planning: cold``) or G-DICE
-    (``planning: gdice``), each re-evaluated on independent rollouts beside the greedy controller.
+    ``controller_<variant>``): perfect perception planned from scratch with ``planner``, each variant from that
+    plan with ``warm_planner`` (or from scratch too without ``warm_start``), each re-evaluated on independent
+    rollouts beside the greedy controller.
 
     Returns the score entry and the search history of every variant.
     """
-    cold = cfg.planning == "cold"
-    settings.clock.start("plan", f"5/6 planning with {'the cold-start planner' if cold else 'G-DICE'} on the disaster-relief domain")
+    settings.clock.start("plan", "5/6 planning on the disaster-relief domain (no hand-written controller)")
     planner, warm = planners(cfg)
     study, seed, reeval = cfg.study, settings.seed, int(cfg.study.reeval_rollouts)
     results: dict[str, Any] = {}
@@ -301,20 +298,13 @@ def plan(
         for name in ("perfect", *models):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
-            if cold:
-                result, best, entry = run_cold(env, planner if start is None else warm, bool(study.cold_shared_controller),
-                                               stream_seed(seed, "plan", name), settings.progress, reeval,
-                                               init=start)
-                entry["search_seconds"] = entry.pop("seconds")
-                entry["started_from"] = "scratch" if start is None else "perfect"
-                if warm is not None and name == "perfect":
-                    start = result.best
-            else:
-                init = seed_controller(greedy, bool(study.shared_controller)) if planner.init_weight > 0 else None
-                result, best, seconds = run_gdice(env, planner, study, stream_seed(seed, "plan", name), settings.progress,
-                                                 init=init)
-                entry = score(env, best, reeval, stream_seed(seed, "score", name))
-                entry.update(best_sampled=result.best_value, search_seconds=seconds)
+            result, best, entry = run_planner(env, planner if start is None else warm, bool(study.shared_controller),
+                                              stream_seed(seed, "plan", name), settings.progress, reeval,
+                                              init=start)
+            entry["search_seconds"] = entry.pop("seconds")
+            entry["started_from"] = "scratch" if start is None else "perfect"
+            if warm is not None and name == "perfect":
+                start = result.best
             save_artifact(run_dir, f"controller_{name}", best)
             hand = score(env, greedy, reeval, stream_seed(seed, "greedy", name))
             entry["greedy"] = {key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")}
@@ -392,7 +382,6 @@ def write_outputs(
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
-        "planning": cfg.planning,
         "planner": dataclasses.asdict(planner),
         "warm_planner": None if warm is None else dataclasses.asdict(warm),
         "wrong_penalty": float(cfg.domain.wrong_penalty),

@@ -45,15 +45,13 @@ def _overrides(overrides: dict) -> str:
 
 def _planning_line(metrics: dict) -> str:
     """How the policies were searched."""
-    if metrics["planning"] == "gdice":
-        seed = " seeded with the greedy controller" if metrics["planner"].get("init_weight", 0) > 0 else " from scratch"
-        return f"Policies searched with G-DICE{seed} for each perception variant and re-evaluated on independent rollouts."
+    first = "the paper's G-DICE" if metrics["planner"]["ce_result"] == "best_sampled" else "the cold-start planner"
     if metrics.get("warm_planner"):
-        return (f"Policies searched with no hand-written controller: the cold-start planner planned perfect perception "
+        return (f"Policies searched with no hand-written controller: {first} planned perfect perception "
                 f"from scratch ({metrics['planner']['budget'] / 1e6:g}M rollouts), then refined that plan for each perception "
                 f"variant ({metrics['warm_planner']['budget'] / 1e6:g}M rollouts each); every policy is re-evaluated on "
                 "independent rollouts.")
-    return (f"Policies searched from scratch with the cold-start planner ({metrics['planner']['budget'] / 1e6:g}M rollouts "
+    return (f"Policies searched from scratch with {first} ({metrics['planner']['budget'] / 1e6:g}M rollouts "
             "each) and re-evaluated on independent rollouts.")
 
 
@@ -155,28 +153,20 @@ def frames_figure(models: dict[str, hbni_pyro.MacroObservationModel]) -> plt.Fig
 
 
 def curves_figure(histories: dict[str, dict], offsets: dict[str, float] | None = None) -> plt.Figure:
-    """Learning curves: the cold-start planner's incumbent value against rollouts, or G-DICE's per iteration.
+    """Learning curves: each planner run's incumbent value against rollouts (G-DICE: its best sample so far).
 
     ``offsets``: rollouts spent before a run started (a run warm-started from another run's plan continues its curve).
     """
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
-    if all("value" in h for h in histories.values()):
-        offsets = offsets or {}
-        for name, h in histories.items():
-            points = [((offsets.get(name, 0) + r) / 1e6, v) for r, v in zip(h["rollouts"], h["value"]) if v == v]
-            if points:
-                ax.step(*zip(*points), where="post", label=LABELS[name])
-        ax.set_xlabel("rollouts spent (millions)")
-        ax.set_ylabel("incumbent value on fresh rollouts")
-        ax.set_title("Cold-start planner learning curves")
-        ax.legend(fontsize=8)
-        return fig
+    offsets = offsets or {}
     for name, h in histories.items():
-        its = np.arange(1, len(h["best"]) + 1)
-        line, = ax.plot(its, h["best"], label=f"{LABELS[name]}: best so far")
-        ax.plot(its, h["iteration_mean"], color=line.get_color(), alpha=0.4, ls="--")
-    ax.set_xlabel("G-DICE iteration")
-    ax.set_ylabel("value (Monte Carlo estimate)")
-    ax.set_title("G-DICE learning curves (dashed: iteration mean)")
+        # the incumbent after each step; a G-DICE run has one only at its end, so its best sample so far instead
+        key = "value" if sum(v == v for v in h["value"]) > 1 else "best_sampled"
+        points = [((offsets.get(name, 0) + r) / 1e6, v) for r, v in zip(h["rollouts"], h[key]) if v == v]
+        if points:
+            ax.step(*zip(*points), where="post", label=LABELS[name] + (" (best sampled)" if key != "value" else ""))
+    ax.set_xlabel("rollouts spent (millions)")
+    ax.set_ylabel("incumbent value on fresh rollouts")
+    ax.set_title("Planner learning curves")
     ax.legend(fontsize=8)
     return fig

@@ -2,14 +2,14 @@
 
 Side by side, every controller re-evaluated on ``study.reeval_rollouts`` independent rollouts:
 
-* the cold-start planner (``cold_planner``, :mod:`decpomdp.search`), from no controller at all, one
-  controller per robot or shared (``study.cold_shared_controller``);
-* the paper's G-DICE from uniform distributions (``planner``; also the alpha sweep), scoring each
-  sample by ``study.rollouts`` rollouts, one controller per robot or shared (``study.shared_controller``);
-* G-DICE seeded with the hand-written policy (``planner`` overridden by ``study.seeded``: initial
-  distributions ``(1 - init_weight) * uniform + init_weight * greedy``);
+* the cold-start planner (``planners.cold``, :mod:`decpomdp.search`), from no controller at all;
+* the paper's G-DICE from uniform distributions (``planners.gdice``, the planner's G-DICE preset; also the
+  alpha sweep), scoring each sample by ``ce_rollouts`` rollouts;
+* G-DICE seeded with the hand-written policy (``planners.gdice`` overridden by ``study.seeded``: initial
+  distributions ``(1 - ce_init_weight) * uniform + ce_init_weight * greedy``);
 * the hand-written greedy controller, Monte Carlo search over as many uniformly random controllers as
   the cold G-DICE samples, and the mean of random controllers;
+* every planner searches one controller per robot or one shared by the team (``study.shared_controller``);
 * the paper's 14.44 like for like (``reference``): the paper's G-DICE with one shared controller on this
   domain and on ``reference.domain``, the preset that follows the reference simulator's rules
   (``conf/domain/package_delivery_reference.yaml`` cites them), ``reference.runs`` seeds each.
@@ -31,12 +31,12 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from decpomdp import GDICEConfig
+from decpomdp.search import PlannerConfig
 from decpomdp.domains.package_delivery import greedy_controller
 from experiments.common import save_figure
 from experiments.report import write_report
 from experiments.steps.planner_comparison import compare_planners
-from experiments.steps.planning import paper_comparison, run_gdice, score
+from experiments.steps.planning import paper_comparison, run_planner
 from experiments.steps.planning_figures import bar_figure, comparison_table
 from infra.threads import set_threads
 from infra.streams import stream_seed
@@ -48,20 +48,20 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     study, seed = cfg.study, int(cfg.seed)
     set_threads(int(study.threads))  # torch and the rollout engine
     env = instantiate(cfg.domain)
-    config: GDICEConfig = instantiate(cfg.planner)
+    config: PlannerConfig = instantiate(cfg.planners.gdice)
     reeval = int(study.reeval_rollouts)
     entries, metrics = compare_planners(cfg, env, greedy_controller(), "package delivery", run_dir)
 
     sweep = {}
     for k, alpha in enumerate(study.alpha_sweep):
-        sweep_cfg = dataclasses.replace(config, alpha=float(alpha), iterations=int(study.sweep_iterations))
-        res, ctrl, secs = run_gdice(env, sweep_cfg, study, stream_seed(seed, "sweep", k), bool(cfg.progress))
-        sweep[str(alpha)] = {"alpha": float(alpha), "history_best": res.history["best"], "best_sampled": res.best_value,
-                             "seconds": secs, **score(env, ctrl, reeval, stream_seed(seed, "sweep reeval", k))}
+        sweep_cfg = dataclasses.replace(config, ce_alpha=float(alpha), ce_iterations=int(study.sweep_iterations))
+        res, _, entry = run_planner(env, sweep_cfg, bool(study.shared_controller), stream_seed(seed, "sweep", k),
+                                    bool(cfg.progress), reeval)
+        sweep[str(alpha)] = {"alpha": float(alpha), "history_best": res.history["best_sampled"], **entry}
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
     ref = cfg.reference
-    paper = paper_comparison(env, instantiate(ref.domain), instantiate(ref.planner), int(ref.rollouts), int(ref.runs),
+    paper = paper_comparison(env, instantiate(ref.domain), instantiate(ref.planner), int(ref.runs),
                              stream_seed(seed, "preset"), reeval, bool(cfg.progress))
     save_figure(bar_figure(entries, "Package delivery: re-evaluated values",
                            {"paper G-DICE 14.44": PAPER["gdice_best_sampled"], "paper MCS 2.07": PAPER["monte_carlo_search"]}),

@@ -306,3 +306,30 @@ def _point_estimate(draws: dict[str, Tensor], model: str) -> dict[str, Tensor]:
     if model == "sequence":
         return {k: v.mean(0, keepdim=True) for k, v in draws.items()}
     return {k: v.median(0).values.unsqueeze(0) for k, v in draws.items()}
+
+
+FILTERS = ("hbni", "ssbf", "max_of_mean", "voting")
+
+
+def make_filter(name: str, posterior: Any = None, *, num_classes: int | None = None, **options: Any) -> StreamingFilter:
+    """The streaming filter called ``name`` (one of :data:`FILTERS`).
+
+    ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
+    ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
+    (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``.
+    """
+    if name not in FILTERS:
+        raise ValueError(f"name: expected one of {FILTERS}, got {name!r}")
+    if name == "hbni":
+        if posterior is None:
+            raise ValueError("posterior: the 'hbni' filter needs a fitted posterior, got None")
+        return HBNIFilter(posterior, **options)
+    if num_classes is None:
+        if posterior is None:
+            raise ValueError(f"num_classes: the {name!r} filter needs num_classes or a posterior")
+        num_classes = posterior.num_classes
+    allowed = {"class_prior"} if name == "ssbf" else set()
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
+    return {"ssbf": SSBF, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](num_classes, **options)

@@ -3,6 +3,6 @@ each with its hand-written greedy controller; running controllers on them (count
 
 from decpomdp.domains.disaster_relief import DisasterRelief
 from decpomdp.domains.package_delivery import PackageDelivery
-from decpomdp.domains.rollouts import SharedControllerEvaluator, rollout_counters, shared
+from decpomdp.domains.rollouts import rollout_counters, shared
 
-__all__ = ["DisasterRelief", "PackageDelivery", "SharedControllerEvaluator", "rollout_counters", "shared"]
+__all__ = ["DisasterRelief", "PackageDelivery", "rollout_counters", "shared"]

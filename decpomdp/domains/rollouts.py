@@ -7,7 +7,6 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
-from decpomdp.evaluate import evaluate
 from decpomdp.engine import draw_seed, engine_model
 from decpomdp.engine import run as run_engine
 from decpomdp.simulate import check, resolve_backend, simulate
@@ -86,19 +85,3 @@ def shared(controller: JointController, num_agents: int) -> JointController:
         controller.action[:, :1].expand(k, num_agents, n).contiguous(),
         controller.next_node[:, :1].expand(k, num_agents, n, o).contiguous(),
     )
-
-
-class SharedControllerEvaluator:
-    """An evaluator of one-agent controllers run by every robot of a homogeneous team.
-
-    The reference package-delivery study searched one controller for both robots; G-DICE does the
-    same when given this evaluator and ``num_agents=1``.
-    """
-
-    def __init__(self, env: DecPOSMDP, rollouts: int, max_batch: int = 200_000) -> None:
-        if not isinstance(env, DecPOSMDP):
-            raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
-        self.env, self.rollouts, self.max_batch = env, as_int("rollouts", rollouts, minimum=2), max_batch
-
-    def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        return evaluate(self.env, shared(controller, self.env.num_agents), self.rollouts, generator, self.max_batch)

@@ -1,7 +1,7 @@
 """Tabular Dec-POMDPs in the MADP ``.dpomdp`` format: parser, shipped problems, unit-duration Dec-POSMDP,
 exact evaluation."""
 
-from decpomdp.dpomdp.exact import DEFAULT_EVAL_BUDGET, ExactEvaluator, exact_value
+from decpomdp.dpomdp.exact import DEFAULT_EVAL_BUDGET, exact_value
 from decpomdp.dpomdp.model import DPOMDPModel, SparseTransitions
 from decpomdp.dpomdp.parser import load_dpomdp, parse_dpomdp
 from decpomdp.dpomdp.problems import PROBLEM_DIR, load_problem, problem_names, problem_path
@@ -14,7 +14,6 @@ __all__ = [
     "PROBLEM_DIR",
     "DPOMDPModel",
     "DPOMDPSyntaxError",
-    "ExactEvaluator",
     "SparseTransitions",
     "TabularDecPOSMDP",
     "exact_value",

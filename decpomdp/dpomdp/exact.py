@@ -185,24 +185,3 @@ def exact_value(
             else:
                 out.append(_finite(op, nodes, k, int(horizon), env.gamma, env.start_dist))
     return torch.cat(out)
-
-
-class ExactEvaluator:
-    """An :class:`~decpomdp.evaluate.Evaluator` returning exact values (standard error 0).
-
-    Args:
-        env: the tabular problem.
-        horizon: overrides ``env.horizon`` (None keeps it).
-        memory_budget, threads: per call, see :func:`exact_value`.
-    """
-
-    def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None,
-                 memory_budget: int = DEFAULT_EVAL_BUDGET, threads: int | None = 1) -> None:
-        if not isinstance(env, TabularDecPOSMDP):
-            raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
-        self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
-        self.num_agents, self.num_actions, self.num_obs = env.num_agents, env.num_actions, env.num_obs
-
-    def __call__(self, controller: JointController, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        v = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget, threads=self.threads)
-        return v, torch.zeros_like(v)

@@ -1,26 +1,32 @@
-"""Settings of the cold-start planner (:func:`decpomdp.search.plan`), checked when built."""
+"""Settings of the planner (:func:`decpomdp.search.plan`), checked when built: the cold-start planner's defaults, and
+:func:`gdice_config`, the paper's G-DICE as a preset of the same settings."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from infra.checks import as_float, as_int
 
 PHASES = ("ce", "ls")
+RESULTS = ("duel", "best_sampled")
+THRESHOLD_RULES = ("none", "paper", "capped")
 
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Settings of the cold-start planner; defaults are the tuned planner (see the ablation in the README).
+    """Settings of the planner; defaults are the tuned cold-start planner (``docs/planner.md``), and
+    :func:`gdice_config` gives the paper's G-DICE.
 
-    The run cycles through ``phases`` until ``budget`` rollouts are spent or ``patience`` whole cycles
-    in a row improved nothing. It starts from a ``start_nodes``-node controller found by a cold
-    cross-entropy phase (or, without a ``ce`` phase, node 0 running MA 0).
+    The run cycles through ``phases`` until ``budget`` rollouts are spent, ``patience`` whole cycles
+    in a row improved nothing, or ``cycles`` cycles ran. It starts from a ``start_nodes``-node controller
+    found by a cold cross-entropy phase (or, without a ``ce`` phase, node 0 running MA 0).
 
     Attributes:
         phases: the cycle, a sequence of ``"ce"`` (cross-entropy phase) and ``"ls"`` (local search).
         budget: rollouts the whole run may spend (the run stops at the first step boundary past it).
         patience: whole cycles without an accepted improvement before the run stops.
+        cycles: most whole cycles (0: no limit).
         num_nodes: most nodes per agent (the graph grows up to it).
         start_nodes: nodes of the cold start (the first cross-entropy phase searches over this many).
         grow_nodes: nodes added when local search lacks free nodes for a chain (0: never grow).
@@ -32,7 +38,20 @@ class PlannerConfig:
         ce_elites: N_b, elites per update.
         ce_memory: elites carried to the next iteration and re-scored there (0: no memory).
         ce_alpha: learning rate of the update, in (0, 1].
-        ce_init_weight: weight of the incumbent in a warm phase's initial distributions, in [0, 1).
+        ce_init_weight: weight of the incumbent in a warm phase's initial distributions, in [0, 1] (1: every
+            first-iteration sample is the incumbent).
+        ce_threshold: which elites update the distributions: ``"none"`` (the best ``ce_elites``), ``"paper"``
+            (G-DICE's rule: only those at least as good as the previous iteration's worst elite) or
+            ``"capped"`` (that threshold, never above this iteration's ``ce_elites``-th best).
+        ce_result: how a cross-entropy phase ends: ``"duel"`` (its elites duel the incumbent on fresh
+            rollouts) or ``"best_sampled"`` (the best controller it sampled, on the score it was sampled
+            with, becomes the incumbent: G-DICE's result, a biased maximum).
+        ce_injection_weight: weight of the uniform mixed into collapsed rows (0: no entropy injection).
+        ce_injection_threshold: normalised entropy below which a row counts as collapsed.
+        ce_injection_until: injection happens in the first this-fraction of a phase's iterations.
+        layer_width: ``None`` for a free graph; ``W`` for a layered graph (finite horizons): node 0 is layer 0,
+            then layers of ``W`` nodes (``num_nodes = 1 + W * (layers - 1)``); a node moves to the next layer
+            only, and the last layer within itself. Cross-entropy phases only (no reactive phases).
         ce_reactive: cross-entropy phases search reactive controllers (tied edges: the next node depends on
             the last observation only, see :mod:`decpomdp.search.cross_entropy`) while the incumbent is
             reactive (the cold phase always); after local search has untied it, phases search whole graphs.
@@ -52,6 +71,7 @@ class PlannerConfig:
     phases: tuple[str, ...] = ("ce", "ls")
     budget: int = 40_000_000
     patience: int = 3
+    cycles: int = 0
     num_nodes: int = 24
     start_nodes: int = 1
     grow_nodes: int = 4
@@ -65,6 +85,12 @@ class PlannerConfig:
     ce_alpha: float = 0.2
     ce_init_weight: float = 0.7
     ce_reactive: bool = False
+    ce_threshold: str = "none"
+    ce_result: str = "duel"
+    ce_injection_weight: float = 0.0
+    ce_injection_threshold: float = 0.05
+    ce_injection_until: float = 0.5
+    layer_width: int | None = None
     ls_chain: int = 3
     ls_team: bool = True
     ls_compose: bool = True
@@ -82,7 +108,7 @@ class PlannerConfig:
         if not phases or any(p not in PHASES for p in phases):
             raise ValueError(f"phases: expected a non-empty sequence of {PHASES}, got {self.phases!r}")
         object.__setattr__(self, "phases", phases)
-        for name, low in (("budget", 1), ("patience", 1), ("num_nodes", 1), ("start_nodes", 1), ("grow_nodes", 0),
+        for name, low in (("budget", 1), ("patience", 1), ("cycles", 0), ("num_nodes", 1), ("start_nodes", 1), ("grow_nodes", 0),
                           ("ce_iterations", 1), ("ce_samples", 1), ("ce_screen_rollouts", 0), ("ce_rollouts", 2),
                           ("ce_elites", 1), ("ce_memory", 0), ("ls_chain", 0), ("ls_candidates", 1),
                           ("ls_patience", 1), ("duel_rollouts", 2), ("visit_rollouts", 1)):
@@ -97,7 +123,21 @@ class PlannerConfig:
             raise ValueError(f"ce_memory: expected <= ce_elites ({self.ce_elites}), got {self.ce_memory}")
         object.__setattr__(self, "ce_screen_keep", as_float("ce_screen_keep", self.ce_screen_keep, 0, 1, low_open=True))
         object.__setattr__(self, "ce_alpha", as_float("ce_alpha", self.ce_alpha, 0, 1, low_open=True))
-        object.__setattr__(self, "ce_init_weight", as_float("ce_init_weight", self.ce_init_weight, 0, 1, high_open=True))
+        object.__setattr__(self, "ce_init_weight", as_float("ce_init_weight", self.ce_init_weight, 0, 1))
+        for name in ("ce_injection_weight", "ce_injection_threshold", "ce_injection_until"):
+            object.__setattr__(self, name, as_float(name, getattr(self, name), 0, 1))
+        for name, options in (("ce_threshold", THRESHOLD_RULES), ("ce_result", RESULTS)):
+            if getattr(self, name) not in options:
+                raise ValueError(f"{name}: expected one of {options}, got {getattr(self, name)!r}")
+        if self.layer_width is not None:
+            w = as_int("layer_width", self.layer_width, 1)
+            if self.num_nodes < 1 + w or (self.num_nodes - 1) % w:
+                raise ValueError(f"layer_width: expected W with num_nodes = 1 + W * k (k >= 1), got W = {w} "
+                                 f"for num_nodes = {self.num_nodes}")
+            if "ls" in self.phases or self.ce_reactive or self.start_nodes != self.num_nodes:
+                raise ValueError("layer_width: a layered graph is searched by cross-entropy phases alone, over all "
+                                 "num_nodes nodes (phases=['ce'], ce_reactive=false, start_nodes=num_nodes)")
+            object.__setattr__(self, "layer_width", w)
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
         object.__setattr__(self, "ls_stages", _stages(self.ls_stages))
@@ -105,10 +145,32 @@ class PlannerConfig:
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
 
+    def replace(self, **changes) -> "PlannerConfig":
+        """A copy with ``changes``; a graph that starts at full size (``start_nodes == num_nodes``, as G-DICE's)
+        keeps doing so when ``num_nodes`` changes alone."""
+        if "num_nodes" in changes and "start_nodes" not in changes and self.start_nodes == self.num_nodes:
+            changes["start_nodes"] = changes["num_nodes"]
+        return dataclasses.replace(self, **changes)
+
     @property
     def paper_budget(self) -> int:
         """G-DICE's rollouts at the paper's package-delivery settings: 100 iterations x 100 samples x 80."""
         return 100 * 100 * 80
+
+
+def gdice_config(**overrides) -> PlannerConfig:
+    """The paper's G-DICE (Omidshafiei et al., ICRA 2016, Alg. 1) as planner settings: one cross-entropy phase of
+    ``ce_iterations`` (N_k = 100) iterations over ``num_nodes`` (N_n = 13) nodes, ``ce_samples`` (N_s = 100)
+    controllers each scored on ``ce_rollouts`` (80) rollouts with no racing, the best ``ce_elites`` (N_b = 10)
+    above the previous worst elite updating with learning rate ``ce_alpha`` (0.1), no memory, no local search,
+    and the best controller ever sampled as the result. ``overrides`` change any setting."""
+    paper = dict(phases=("ce",), cycles=1, budget=2**62, num_nodes=13, start_nodes=13, grow_nodes=0, ce_iterations=100,
+                 ce_samples=100, ce_screen_rollouts=0, ce_rollouts=80, ce_elites=10, ce_memory=0, ce_alpha=0.1,
+                 ce_init_weight=0.0, ce_threshold="paper", ce_result="best_sampled")
+    paper.update(overrides)
+    if "start_nodes" not in overrides:  # the paper's graph has num_nodes nodes from the start
+        paper["start_nodes"] = paper["num_nodes"]
+    return PlannerConfig(**paper)
 
 
 def _sequence(name: str, value: object) -> tuple:

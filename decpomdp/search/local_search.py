@@ -65,7 +65,7 @@ def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator,
         index = torch.arange(hood.size)
     else:
         index = torch.cat([torch.arange(hood.num_singles), hood.sample_chains(candidates - hood.num_singles, generator)])
-    alive, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
+    alive, _, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
     challengers = hood.build(index[alive])
     merged = composite(incumbent, challengers) if compose else None
     if merged is not None:

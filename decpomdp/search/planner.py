@@ -40,8 +40,9 @@ from decpomdp.search.scoring import Scorer
 
 _KIND = "decpomdp.PlannerCheckpoint"
 _VERSION = 1
-HISTORY = ("phase", "rollouts", "nodes", "value", "challenger_value", "accepted")
-_COUNTERS = ("cycle_position", "phase_step", "used", "idle_cycles", "gained")
+HISTORY = ("phase", "rollouts", "nodes", "value", "challenger_value", "accepted", "best_sampled", "mean", "kept",
+           "threshold", "entropy")
+_COUNTERS = ("cycle_position", "phase_step", "used", "idle_cycles", "gained", "cycles_done")
 
 
 @dataclass
@@ -51,13 +52,18 @@ class PlannerResult:
     Attributes:
         best: the final incumbent (K = 1, searched agents).
         value, stderr: its mean and standard error in its last duel (fresh rollouts, but the duel
-            that kept it is a selection: re-evaluate independently for an unbiased value).
+            that kept it is a selection: re-evaluate independently for an unbiased value). With
+            ``ce_result="best_sampled"`` (G-DICE) the value is the best sampled score, a biased maximum, and the
+            standard error is NaN.
         rollouts: rollouts spent.
         history: per step: ``phase`` (0 cross-entropy iteration, 1 local-search step), ``rollouts`` spent
             so far, ``nodes`` of the incumbent, ``value`` (the incumbent's duel mean after the step; NaN
             for a cross-entropy iteration that ends no phase), ``challenger_value`` (the best challenger's
             duel mean, or the best elite's score in a cross-entropy iteration) and ``accepted`` (1 if the
-            incumbent changed).
+            incumbent changed); for a cross-entropy iteration also ``best_sampled`` (the best score sampled so far in
+            the phase), ``mean`` (the samples' mean score), ``kept`` (elites used), ``threshold`` (the worst
+            elite score) and ``entropy`` (the distributions' mean normalised entropy), NaN for other steps.
+        distributions: the final ``(action_probs, next_probs)`` of the last cross-entropy phase (None without one).
     """
 
     best: JointController
@@ -66,6 +72,7 @@ class PlannerResult:
     rollouts: int
     history: dict[str, list[float]]
     config: PlannerConfig = field(default_factory=PlannerConfig)
+    distributions: tuple[torch.Tensor, torch.Tensor] | None = None
 
 
 class _Run:
@@ -75,23 +82,31 @@ class _Run:
         self.incumbent: JointController | None = None
         self.value = self.stderr = math.nan
         self.ce: cross_entropy.CrossEntropyState | None = None
-        self.cycle_position = self.phase_step = self.used = self.idle_cycles = self.gained = 0
+        self.cycle_position = self.phase_step = self.used = self.idle_cycles = self.gained = self.cycles_done = 0
+        self.distributions: tuple[torch.Tensor, torch.Tensor] | None = None
         self.history: dict[str, list[float]] = {k: [] for k in HISTORY}
 
-    def record(self, phase: str, value: float, challenger_value: float, accepted: bool) -> None:
+    def record(self, phase: str, value: float, challenger_value: float, accepted: bool, info: dict[str, float]) -> None:
         for key, value in (("phase", PHASES.index(phase)), ("rollouts", self.used),
                            ("nodes", 0 if self.incumbent is None else self.incumbent.num_nodes),
                            ("value", value), ("challenger_value", challenger_value), ("accepted", accepted)):
             self.history[key].append(float(value))
+        for key in HISTORY[6:]:
+            self.history[key].append(float(info.get(key, math.nan)))
 
     def tensors(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         out = {"generator_state": generator.get_state()}
         if self.incumbent is not None:
             out.update(incumbent_action=self.incumbent.action, incumbent_next_node=self.incumbent.next_node)
         if self.ce is not None:
-            out.update(ce_action_probs=self.ce.action_probs, ce_next_probs=self.ce.next_probs)
+            out.update(ce_action_probs=self.ce.action_probs, ce_next_probs=self.ce.next_probs,
+                       ce_action_uniform=self.ce.action_uniform, ce_next_uniform=self.ce.next_uniform)
             if self.ce.elites is not None:
                 out.update(ce_elites_action=self.ce.elites.action, ce_elites_next_node=self.ce.elites.next_node)
+            if self.ce.best is not None:
+                out.update(ce_best_action=self.ce.best.action, ce_best_next_node=self.ce.best.next_node)
+        if self.distributions is not None:
+            out.update(last_action_probs=self.distributions[0], last_next_probs=self.distributions[1])
         return out
 
     def save(self, path: Path, fingerprint: dict, generator: torch.Generator) -> None:
@@ -99,6 +114,8 @@ class _Run:
         state = {name: getattr(self, name) for name in _COUNTERS}
         state.update(value=finite(self.value), stderr=finite(self.stderr),
                      history={k: [finite(v) for v in values] for k, values in self.history.items()})
+        if self.ce is not None:
+            state.update(ce_threshold=finite(self.ce.threshold), ce_best_value=finite(self.ce.best_value))
         save_checkpoint(path, _KIND, _VERSION, fingerprint, self.tensors(generator), state)
 
     @classmethod
@@ -106,7 +123,7 @@ class _Run:
         tensors, meta = load_checkpoint(path, _KIND, _VERSION, fingerprint)
         run = cls()
         limits = {"cycle_position": len(config.phases) - 1, "phase_step": max(config.ce_iterations, config.ls_patience),
-                  "used": 2**62, "idle_cycles": config.patience, "gained": 1}
+                  "used": 2**63, "idle_cycles": config.patience, "gained": 1, "cycles_done": 2**62}
         for name in _COUNTERS:
             setattr(run, name, read_count(meta, name, path, limits[name]))
         run.value, run.stderr = (_nan_if_none(read_number(meta, name, path)) for name in ("value", "stderr"))
@@ -118,8 +135,14 @@ class _Run:
             if "incumbent_action" in tensors:
                 run.incumbent = pair("incumbent")
             if "ce_action_probs" in tensors:
-                run.ce = cross_entropy.CrossEntropyState(tensors["ce_action_probs"], tensors["ce_next_probs"])
+                run.ce = cross_entropy.CrossEntropyState(tensors["ce_action_probs"], tensors["ce_next_probs"],
+                                                         tensors["ce_action_uniform"], tensors["ce_next_uniform"])
                 run.ce.elites = pair("ce_elites") if "ce_elites_action" in tensors else None
+                run.ce.best = pair("ce_best") if "ce_best_action" in tensors else None
+                run.ce.threshold = read_number(meta, "ce_threshold", path)
+                run.ce.best_value = read_number(meta, "ce_best_value", path)
+            if "last_action_probs" in tensors:
+                run.distributions = (tensors["last_action_probs"], tensors["last_next_probs"])
             generator.set_state(tensors["generator_state"])
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise ValueError(f"checkpoint: {str(path)!r} is inconsistent ({exc})") from None
@@ -134,12 +157,13 @@ def _check_arguments(scorer: Scorer, cfg: PlannerConfig, init: JointController |
         as_int(f"scorer.{name}", getattr(scorer, name, None), 1)
     if not callable(scorer) or not callable(getattr(scorer, "visits", None)):
         raise TypeError(f"scorer: expected a Scorer (callable with a visits method), got {type(scorer).__name__}")
-    _check_init(init, scorer, cfg.num_nodes)
+    _check_init(init, scorer, cfg)
     return cfg
 
 
-def _check_init(init: JointController | None, scorer: Scorer, max_nodes: int) -> None:
-    """Validate a warm-start controller against the searched agents' sizes."""
+def _check_init(init: JointController | None, scorer: Scorer, cfg: PlannerConfig) -> None:
+    """Validate a warm-start controller against the searched agents' sizes and the graph's layers."""
+    max_nodes = cfg.num_nodes
     if init is None:
         return
     if not isinstance(init, JointController):
@@ -151,6 +175,10 @@ def _check_init(init: JointController | None, scorer: Scorer, max_nodes: int) ->
                          f"next_node {tuple(init.next_node.shape)}")
     if bool((init.action >= scorer.num_actions).any()):
         raise ValueError(f"init: actions must lie in [0, {scorer.num_actions})")
+    mask = cross_entropy.layered_mask(cfg.num_nodes, cfg.layer_width)
+    rows = torch.arange(nodes)[None, None, :, None].expand_as(init.next_node)
+    if not bool(mask[rows, init.next_node].all()):
+        raise ValueError("init: transitions must respect the layered graph (config.layer_width)")
 
 
 def _nan_if_none(value: float) -> float:
@@ -158,29 +186,42 @@ def _nan_if_none(value: float) -> float:
     return math.nan if value == -math.inf else value
 
 
-def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
-    """One cross-entropy iteration; at the phase's end its elites duel the incumbent.
+def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
+             generator: torch.Generator) -> tuple[bool, float, float, bool, dict[str, float]]:
+    """One cross-entropy iteration; at the phase's end its elites duel the incumbent (``ce_result="duel"``), or its
+    best sample becomes the incumbent (``"best_sampled"``).
 
-    Returns: (phase over, the incumbent's value after the phase or NaN, best elite score, incumbent replaced).
+    Returns: (phase over, the incumbent's value after the phase or NaN, best elite score, incumbent replaced,
+    the iteration's record).
     """
     if run.ce is None:
-        nodes = cfg.start_nodes if run.incumbent is None else run.incumbent.num_nodes
+        nodes = cfg.start_nodes if run.incumbent is None else max(cfg.start_nodes, run.incumbent.num_nodes)
         weight = 0.0 if run.incumbent is None else cfg.ce_init_weight
-        run.ce = cross_entropy.start_state(run.incumbent, scorer.num_agents, nodes, scorer.num_actions,
-                                           scorer.num_obs, weight, reactive=cfg.ce_reactive and (
-                                               run.incumbent is None or cross_entropy.is_reactive(run.incumbent)))
+        reactive = cfg.ce_reactive and (run.incumbent is None or cross_entropy.is_reactive(run.incumbent))
+        run.ce = cross_entropy.start_state(run.incumbent, scorer.num_agents, nodes, scorer.num_actions, scorer.num_obs,
+                                           weight, reactive=reactive,
+                                           mask=cross_entropy.layered_mask(nodes, cfg.layer_width))
+    injecting = cfg.ce_injection_weight > 0 and run.phase_step < cfg.ce_injection_until * cfg.ce_iterations
     info = cross_entropy.iterate(run.ce, scorer, generator, samples=cfg.ce_samples,
                                  screen_rollouts=cfg.ce_screen_rollouts, screen_keep=cfg.ce_screen_keep,
                                  rollouts=cfg.ce_rollouts, elites=cfg.ce_elites, memory=cfg.ce_memory,
-                                 alpha=cfg.ce_alpha)
+                                 alpha=cfg.ce_alpha, threshold_rule=cfg.ce_threshold,
+                                 injection=cross_entropy.Injection(cfg.ce_injection_weight, cfg.ce_injection_threshold)
+                                 if injecting else None)
+    info["best_sampled"] = run.ce.best_value
     run.phase_step += 1
     if run.phase_step < cfg.ce_iterations:
-        return False, math.nan, info["best"], False
+        return False, math.nan, info["best"], False, info
     elites = run.ce.elites
-    if run.incumbent is None:  # the cold phase: its best elite on fresh rollouts becomes the incumbent
-        mean, se = scorer(elites, cfg.duel_rollouts, generator)
+    if cfg.ce_result == "best_sampled":  # G-DICE: the best controller sampled, on its sampled score
+        accepted = run.incumbent is None or run.ce.best_value > run.value or math.isnan(run.value)
+        if accepted:
+            run.incumbent, run.value, run.stderr = run.ce.best, run.ce.best_value, math.nan
+    elif run.incumbent is None or elites is None:  # the cold phase: its best elite on fresh rollouts
+        pool = elites if elites is not None else run.ce.best
+        mean, se = scorer(pool, cfg.duel_rollouts, generator)
         top = int(mean.argmax())
-        run.incumbent, run.value, run.stderr = elites[top], float(mean[top]), float(se[top])
+        run.incumbent, run.value, run.stderr = pool[top], float(mean[top]), float(se[top])
         accepted = True
     else:
         winner, mean, se = duel(scorer, run.incumbent, elites, cfg.duel_rollouts, cfg.duel_z, generator)
@@ -189,11 +230,13 @@ def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
         run.value, run.stderr = float(mean[pick]), float(se[pick])
         if accepted:
             run.incumbent = elites[winner]
+    run.distributions = (run.ce.action_probs, run.ce.next_probs)
     run.ce = None
-    return True, run.value, info["best"], accepted
+    return True, run.value, info["best"], accepted, info
 
 
-def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator) -> tuple[bool, float, float, bool]:
+def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
+             generator: torch.Generator) -> tuple[bool, float, float, bool, dict[str, float]]:
     """One local-search step.
 
     Returns: (phase over: ``ls_patience`` failures in a row, the incumbent's duel mean after the step, the best
@@ -210,7 +253,7 @@ def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Gen
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1
-    return run.phase_step >= cfg.ls_patience, run.value, out.challenger_value, out.accepted
+    return run.phase_step >= cfg.ls_patience, run.value, out.challenger_value, out.accepted, {}
 
 
 def plan(
@@ -251,13 +294,13 @@ def plan(
         run.incumbent = None if init is None else JointController(init.action.clone(), init.next_node.clone())
     steps = {"ce": _ce_step, "ls": _ls_step}
     bar = tqdm(total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout")
-    while run.used < cfg.budget and run.idle_cycles < cfg.patience:
+    while run.used < cfg.budget and run.idle_cycles < cfg.patience and not (cfg.cycles and run.cycles_done >= cfg.cycles):
         before = scorer.rollouts_used
         phase = cfg.phases[run.cycle_position]
-        over, value, challenger_value, accepted = steps[phase](run, scorer, cfg, generator)
+        over, value, challenger_value, accepted, info = steps[phase](run, scorer, cfg, generator)
         spent = scorer.rollouts_used - before
         run.used += spent
-        run.record(phase, value, challenger_value, accepted)
+        run.record(phase, value, challenger_value, accepted, info)
         run.gained = int(run.gained or accepted)
         if over:
             run.phase_step = 0
@@ -265,6 +308,7 @@ def plan(
             if run.cycle_position == 0:
                 run.idle_cycles = 0 if run.gained else run.idle_cycles + 1
                 run.gained = 0
+                run.cycles_done += 1
         bar.update(min(spent, max(cfg.budget - bar.n, 0)))
         bar.set_postfix(phase=phase, value=f"{run.value:.4g}", nodes=run.incumbent.num_nodes if run.incumbent else 0)
         if path is not None and (len(run.history["phase"]) % checkpoint_every == 0):
@@ -272,4 +316,4 @@ def plan(
     bar.close()
     if path is not None:
         run.save(path, fingerprint, generator)
-    return PlannerResult(run.incumbent, run.value, run.stderr, run.used, run.history, cfg)
+    return PlannerResult(run.incumbent, run.value, run.stderr, run.used, run.history, cfg, run.distributions)

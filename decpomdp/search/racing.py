@@ -27,18 +27,21 @@ def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
     """Race candidates ``0 .. count - 1`` (built on demand by ``build(indices)``) through ``stages``.
 
     Returns:
-        the surviving indices, long (S,), best first, and their last-stage scores, float64 (S,).
+        the surviving indices, long (S,), best first, their last-stage scores, float64 (S,), and the mean score
+        of all ``count`` candidates in the first stage.
     """
     alive = torch.arange(count)
     scores = torch.zeros(count, dtype=torch.float64)
+    first_mean = math.nan
     for rollouts, keep in stages:
-        per = max(1, 200_000 // rollouts)  # candidates per batched simulation
+        per = max(1, 200_000 // rollouts)  # candidates per batched call
         scores = torch.cat([scorer(build(alive[i:i + per]), rollouts, generator)[0]
                             for i in range(0, alive.numel(), per)])
+        first_mean = float(scores.mean()) if math.isnan(first_mean) else first_mean
         kept = int(keep) if keep >= 1 else max(minimum, math.ceil(keep * alive.numel()))
         order = torch.sort(scores, descending=True, stable=True).indices[:kept]
         alive, scores = alive[order], scores[order]
-    return alive, scores
+    return alive, scores, first_mean
 
 
 def duel(scorer: Scorer, incumbent: JointController, challengers: JointController, rollouts: int, z: float,

@@ -9,6 +9,8 @@ rollouts, so a run is deterministic whatever the machine's load.
   controller shared by the whole team), on the compiled engine (or the batched torch simulator).
 * :class:`ExactScorer`: exact values of a tabular problem (standard error 0); every edge out of a node
   reachable from node 0 counts as traversed once per rollout.
+
+:func:`mean_stderr` is the project's one mean +- standard error of Monte Carlo values.
 """
 
 from __future__ import annotations
@@ -22,11 +24,19 @@ from infra.checks import as_int
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.rollouts import shared
+from decpomdp.dpomdp.exact import DEFAULT_EVAL_BUDGET, exact_value
+from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 from decpomdp.engine import draw_seed
 from decpomdp.engine import run as run_engine
-from decpomdp.simulate import resolve_backend, simulate
+from decpomdp.simulate import check, resolve_backend, simulate
 
 _CHUNK = 200_000  # rollouts per batched torch simulation
+
+
+def mean_stderr(values: Tensor) -> tuple[Tensor, Tensor]:
+    """Mean and standard error (sample sd / sqrt(n)) over the last dimension: ``(..., n)`` -> two ``(...)``."""
+    n = values.shape[-1]
+    return values.mean(-1), (values.std(-1) / n**0.5 if n > 1 else torch.zeros_like(values[..., 0]))
 
 
 class Scorer(Protocol):
@@ -110,15 +120,18 @@ class RolloutScorer:
         return shared(controller, self.env.num_agents) if self.shared else controller
 
     def __call__(self, controller: JointController, rollouts: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        if not isinstance(controller, JointController):
+            raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
         rollouts = as_int("rollouts", rollouts, 2)
         if self.backend == "engine":
+            check(self.env, self.team(controller))
             returns = run_engine(self.env, self.team(controller), rollouts, draw_seed(generator)).returns
         else:
             per = max(1, _CHUNK // rollouts)
             returns = torch.cat([simulate(self.env, self.team(controller[i:i + per]), rollouts, generator, "torch")
                                  for i in range(0, controller.num_controllers, per)])
         self.rollouts_used += returns.numel()
-        return returns.mean(1), returns.std(1) / rollouts**0.5
+        return mean_stderr(returns)
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:
         rollouts = as_int("rollouts", rollouts, 1)
@@ -134,24 +147,31 @@ class RolloutScorer:
 
 
 class ExactScorer:
-    """Exact values from an :class:`~decpomdp.evaluate.Evaluator` with zero standard errors (e.g.
-    :class:`~decpomdp.dpomdp.ExactEvaluator`); ``rollouts`` is ignored, and every edge out of a node
-    reachable from node 0 (through any observations) counts as visited once."""
+    """Exact values of a tabular problem (:func:`~decpomdp.dpomdp.exact_value`) with zero standard errors;
+    ``rollouts`` is ignored, and every edge out of a node reachable from node 0 (through any observations)
+    counts as visited once.
 
-    def __init__(self, evaluator: Any) -> None:
-        for name in ("num_agents", "num_actions", "num_obs"):
-            if not isinstance(getattr(evaluator, name, None), int):
-                raise TypeError(f"evaluator: expected an exact evaluator with an int {name}, got {type(evaluator).__name__}")
-        self.evaluator = evaluator
-        self.num_agents, self.num_actions, self.num_obs = evaluator.num_agents, evaluator.num_actions, evaluator.num_obs
+    Args:
+        env: the tabular problem.
+        horizon: overrides ``env.horizon`` (None keeps it; ``math.inf``: the discounted infinite horizon).
+        memory_budget, threads: per call, see :func:`~decpomdp.dpomdp.exact_value`.
+    """
+
+    def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None,
+                 memory_budget: int = DEFAULT_EVAL_BUDGET, threads: int | None = 1) -> None:
+        if not isinstance(env, TabularDecPOSMDP):
+            raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
+        self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
+        self.num_agents, self.num_actions, self.num_obs = env.num_agents, env.num_actions, env.num_obs
         self.rollouts_used = 0
 
     def fingerprint(self) -> dict[str, Any]:
-        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "evaluator": self.evaluator}
+        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env,
+                "horizon": self.horizon}
 
     def __call__(self, controller: JointController, rollouts: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        mean, _ = self.evaluator(controller, generator)
-        mean = mean.to(torch.float64)
+        mean = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget,
+                           threads=self.threads).to(torch.float64)
         return mean, torch.zeros_like(mean)
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:

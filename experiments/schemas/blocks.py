@@ -78,18 +78,14 @@ class HBNIBlock:
 class PlanningStudy:
     """``study`` of the planning experiments: how controllers are searched and scored.
 
-    ``shared_controller``: G-DICE searches one controller the whole team runs; ``cold_shared_controller``:
-    the same for the cold-start planner.
+    ``shared_controller``: every planner searches one controller the whole team runs.
     """
 
     shared_controller: bool = False
-    cold_shared_controller: bool = False
-    rollouts: int = 80
     reeval_rollouts: int = 1000
     threads: int = 1
 
     def check(self, path: str) -> None:
-        positive_int("rollouts", self.rollouts, 2)
         positive_int("reeval_rollouts", self.reeval_rollouts, 2)
         positive_int("threads", self.threads)
 
@@ -98,7 +94,7 @@ class PlanningStudy:
 class BaselineStudy(PlanningStudy):
     """A planning ``study`` that also runs baselines and a G-DICE run seeded with the greedy controller.
 
-    ``seeded`` holds :class:`decpomdp.GDICEConfig` overrides of the seeded run.
+    ``seeded`` holds :class:`decpomdp.search.PlannerConfig` overrides of the G-DICE preset for the seeded run.
     """
 
     random_controllers: int = 1000
@@ -113,8 +109,6 @@ class BaselineStudy(PlanningStudy):
 
 def check_seeded(planner: Any, seeded: dict[str, Any]) -> None:
     """Raise ``ValueError`` unless ``planner`` overridden by the ``seeded`` settings is a valid planner."""
-    import dataclasses
-
     from hydra.utils import instantiate
 
     base = instantiate({k: getattr(planner, k) for k in planner.__dataclass_fields__})
@@ -122,6 +116,6 @@ def check_seeded(planner: Any, seeded: dict[str, Any]) -> None:
     if unknown:
         raise ValueError(f"study.seeded: unknown planner setting(s) {unknown}")
     try:
-        dataclasses.replace(base, **seeded)
+        base.replace(**seeded)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"study.seeded: {exc}") from None

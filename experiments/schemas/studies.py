@@ -11,8 +11,7 @@ from experiments.schemas.blocks import (
 from experiments.schemas.targets import target_schema
 
 ClassifierBlock = target_schema("classifiers.FrameClassifier")
-PlannerBlock = target_schema("decpomdp.GDICEConfig")
-ColdPlannerBlock = target_schema("decpomdp.search.PlannerConfig")
+PlannerBlock = target_schema("decpomdp.search.PlannerConfig")
 DisasterReliefBlock = target_schema("decpomdp.domains.DisasterRelief", runtime=("perception",))
 PackageDeliveryBlock = target_schema("decpomdp.domains.PackageDelivery")
 
@@ -149,15 +148,22 @@ class PackageStudy(BaselineStudy):
 
 
 @dataclass
+class ComparedPlanners:
+    """``planners``: the presets a planning experiment compares (both ``conf/planner`` options, one schema)."""
+
+    cold: Any = field(default_factory=PlannerBlock)
+    gdice: Any = field(default_factory=PlannerBlock)
+
+
+@dataclass
 class PlanningExperiment(Root):
     """A planning experiment: the cold-start planner, G-DICE cold and seeded from the greedy controller, baselines."""
 
-    planner: Any = field(default_factory=PlannerBlock)
-    cold_planner: Any = field(default_factory=ColdPlannerBlock)
+    planners: ComparedPlanners = field(default_factory=ComparedPlanners)
     study: BaselineStudy = field(default_factory=BaselineStudy)
 
     def check(self, path: str) -> None:
-        check_seeded(self.planner, self.study.seeded)
+        check_seeded(self.planners.gdice, self.study.seeded)
 
 
 @dataclass
@@ -166,11 +172,9 @@ class PaperComparison:
 
     domain: Any = field(default_factory=PackageDeliveryBlock)
     planner: Any = field(default_factory=PlannerBlock)
-    rollouts: int = 80
     runs: int = 3
 
     def check(self, path: str) -> None:
-        positive_int("rollouts", self.rollouts, 2)
         positive_int("runs", self.runs)
 
 
@@ -232,12 +236,14 @@ class BenchmarkRow:
 
 @dataclass
 class PaperBudget:
-    samples: int = 100
-    iterations: int = 100
+    """The planner settings of each row's run at the paper's budget (N_s samples, N_k iterations)."""
+
+    ce_samples: int = 100
+    ce_iterations: int = 100
 
     def check(self, path: str) -> None:
-        positive_int("samples", self.samples)
-        positive_int("iterations", self.iterations)
+        positive_int("ce_samples", self.ce_samples)
+        positive_int("ce_iterations", self.ce_iterations)
 
 
 @dataclass
@@ -333,18 +339,15 @@ MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
 @dataclass
 class Mission(Root):
     classifier: Any = field(default_factory=ClassifierBlock)
-    planning: str = "cold"  # "cold": the cold-start planner (cold_planner); "gdice": G-DICE (planner)
-    planner: Any = field(default_factory=PlannerBlock)
-    cold_planner: Any = field(default_factory=ColdPlannerBlock)
-    warm_start: bool = True  # planning=cold: perception variants start from the perfect-perception plan
-    warm_planner: Any = field(default_factory=ColdPlannerBlock)  # the planner settings of those warm starts
+    planner: Any = field(default_factory=PlannerBlock)  # plans perfect perception (and every variant without warm starts)
+    warm_start: bool = True  # perception variants start from the perfect-perception plan
+    warm_planner: Any = field(default_factory=PlannerBlock)  # the planner settings of those warm starts
     domain: Any = field(default_factory=DisasterReliefBlock)
     perception: Any = field(default_factory=lambda: list(MISSION_VARIANTS))
     mission: MissionBlock = field(default_factory=MissionBlock)
     study: PlanningStudy = field(default_factory=PlanningStudy)
 
     def check(self, path: str) -> None:
-        one_of("planning", self.planning, ("cold", "gdice"))
         chosen = [self.perception] if isinstance(self.perception, str) else list(self.perception)
         unknown = [v for v in chosen if v not in MISSION_VARIANTS]
         if unknown or not chosen:

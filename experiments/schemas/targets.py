@@ -1,6 +1,6 @@
 """Schemas of ``_target_`` blocks, derived from the target's own signature.
 
-A block such as ``planner`` (``_target_: decpomdp.GDICEConfig``) is typed by the parameters of
+A block such as ``planner`` (``_target_: decpomdp.search.PlannerConfig``) is typed by the parameters of
 its target: :func:`target_schema` builds a dataclass with ``_target_`` and one field per
 parameter (its annotation when it is a plain ``int``/``float``/``bool``/``str``, optionally
 ``None``; ``Any`` otherwise), so Hydra rejects a wrong type or an unknown key when it composes.
@@ -56,6 +56,11 @@ def join_key(path: str, message: str, fields: Any = ()) -> str:
     return f"{path}: {message}"
 
 
+def _as_lists(value: Any) -> Any:
+    """Nested tuples and lists as nested lists."""
+    return [_as_lists(v) for v in value] if isinstance(value, (list, tuple)) else value
+
+
 def target_schema(target: str, runtime: tuple[str, ...] = ()) -> type:
     """A dataclass schema for a ``_target_: <target>`` block (see the module docstring).
 
@@ -71,8 +76,10 @@ def target_schema(target: str, runtime: tuple[str, ...] = ()) -> type:
         if name == "self" or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
             continue
         default = None if param.default is inspect.Parameter.empty else param.default
-        if isinstance(default, (list, dict, tuple)) or not (default is None or isinstance(default, _PLAIN)):
-            default = None
-        fields.append((name, _field_type(hints.get(name, Any)), dataclasses.field(default=default)))
+        if isinstance(default, (list, tuple)):  # a sequence default (lists of lists in the config)
+            spec = dataclasses.field(default_factory=lambda d=default: _as_lists(d))
+        else:
+            spec = dataclasses.field(default=default if default is None or isinstance(default, _PLAIN) else None)
+        fields.append((name, _field_type(hints.get(name, Any)), spec))
     name = target.rsplit(".", 1)[-1] + "Block"
     return dataclasses.make_dataclass(name, fields, bases=(TargetBlock,), namespace={"_runtime": runtime})

@@ -1,7 +1,7 @@
 """The side-by-side planner comparison that the package-delivery and disaster-relief experiments share.
 
-On one domain: the cold-start planner (``cold_planner``), the paper's G-DICE from uniform
-distributions (``planner``), G-DICE seeded with a hand-written policy (``study.seeded``), that
+On one domain: the cold-start planner (``planners.cold``), the paper's G-DICE from uniform
+distributions (``planners.gdice``), G-DICE seeded with a hand-written policy (``study.seeded``), that
 policy itself, Monte Carlo search and random controllers; every controller re-evaluated on
 ``study.reeval_rollouts`` independent rollouts. Saves the three searched controllers and their
 progress figures into the run folder.
@@ -16,17 +16,11 @@ from typing import Any, NamedTuple
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from decpomdp import GDICEConfig, JointController
+from decpomdp import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.search import PlannerConfig
 from experiments.common import save_figure
-from experiments.steps.planning import (
-    run_baselines,
-    run_cold,
-    run_gdice,
-    run_seeded,
-    score,
-)
+from experiments.steps.planning import run_baselines, run_planner, run_seeded, score
 from experiments.steps.planning_figures import history_figure, planner_figure
 from infra.streams import stream_seed
 
@@ -48,23 +42,22 @@ def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointContro
     the figures.
     """
     study, seed, progress = cfg.study, int(cfg.seed), bool(cfg.progress)
-    config: GDICEConfig = instantiate(cfg.planner)
-    cold_cfg: PlannerConfig = instantiate(cfg.cold_planner)
-    reeval = int(study.reeval_rollouts)
+    config: PlannerConfig = instantiate(cfg.planners.gdice)
+    cold_cfg: PlannerConfig = instantiate(cfg.planners.cold)
+    reeval, shared_controller = int(study.reeval_rollouts), bool(study.shared_controller)
 
-    planner, planner_best, planner_score = run_cold(env, cold_cfg, bool(study.cold_shared_controller),
-                                                     stream_seed(seed, "cold"),
-                                                    progress, reeval)
+    planner, planner_best, planner_score = run_planner(env, cold_cfg, shared_controller, stream_seed(seed, "cold"),
+                                                       progress, reeval)
     planner_best.save(run_dir / "best_controller_planner.safetensors")
     save_figure(planner_figure(planner.history, f"Cold-start planner on {title}"), run_dir / "planner_progress.png")
 
-    result, best, seconds = run_gdice(env, config, study, seed, progress)
+    result, best, gdice_score = run_planner(env, config, shared_controller, stream_seed(seed, "gdice"), progress,
+                                            reeval)
     best.save(run_dir / "best_controller_cold.safetensors")
-    gdice_score = {"best_sampled": result.best_value, "seconds": seconds, **score(env, best, reeval, stream_seed(seed, "reeval", "gdice"))}
     save_figure(history_figure(result.history, f"G-DICE on {title}"), run_dir / "value_vs_iteration.png")
 
     seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, stream_seed(seed, "seeded"),
-                                                         progress)
+                                                   progress)
     seeded_best.save(run_dir / "best_controller.safetensors")
     save_figure(history_figure(seeded.history, f"G-DICE seeded with the hand-written policy, {title}"),
                 run_dir / "value_vs_iteration_seeded.png")
@@ -80,8 +73,8 @@ def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointContro
         "planner_cold_start_config": dataclasses.asdict(cold_cfg),
         "domain": repr(env),
         "planner": dataclasses.asdict(config),
-        "shared_controller": bool(study.shared_controller),
-        "rollouts_per_evaluation": int(study.rollouts),
+        "shared_controller": shared_controller,
+        "rollouts_per_evaluation": config.ce_rollouts,
         "reeval_rollouts": reeval,
         "gdice": gdice_score,
         "gdice_history": result.history,

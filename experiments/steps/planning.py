@@ -1,4 +1,5 @@
-"""Planning steps: G-DICE runs, the cold-start planner, baselines and scores on independent rollouts.
+"""Planning steps: planner runs (the cold-start planner or the paper's G-DICE, one stack), baselines and scores on
+independent rollouts.
 
 Shared by the package-delivery, disaster-relief and mission experiments. A team either shares
 one controller (every robot runs agent 0's FSC; searched as a one-agent controller) or gives each
@@ -13,18 +14,11 @@ from typing import Any
 
 import torch
 
-from decpomdp import GDICEConfig, JointController, MonteCarloEvaluator, gdice, monte_carlo_search, random_controllers
+from decpomdp import JointController, monte_carlo_search, random_controllers
 from decpomdp.core import DecPOSMDP
-from decpomdp.domains import SharedControllerEvaluator, rollout_counters, shared
-from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, plan
+from decpomdp.domains import rollout_counters
+from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, mean_stderr, plan
 from infra.streams import stream_seed, torch_stream
-
-
-def search_setup(env: DecPOSMDP, rollouts: int, shared_controller: bool):
-    """(evaluator, agents searched, to_joint) for a team that shares one controller or not."""
-    if shared_controller:
-        return SharedControllerEvaluator(env, rollouts), 1, lambda c: shared(c, env.num_agents)
-    return MonteCarloEvaluator(env, rollouts), env.num_agents, lambda c: c
 
 
 def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int,
@@ -33,11 +27,11 @@ def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int,
     (``backend``: as in :func:`decpomdp.simulate`)."""
     returns, counters = rollout_counters(env, controller, rollouts, torch.Generator().manual_seed(seed),
                                          backend=backend)
-    out: dict[str, Any] = {"value": float(returns.mean()), "stderr": float(returns.std() / rollouts**0.5)}
+    mean, se = mean_stderr(returns.flatten())
+    out: dict[str, Any] = {"value": float(mean), "stderr": float(se)}
     for key, value in counters.items():
-        value = value.to(torch.float64)
-        out[f"{key}_per_rollout"] = float(value.mean())
-        out[f"{key}_stderr"] = float(value.std() / rollouts**0.5)
+        mean, se = mean_stderr(value.flatten().to(torch.float64))
+        out[f"{key}_per_rollout"], out[f"{key}_stderr"] = float(mean), float(se)
     return out
 
 
@@ -48,28 +42,15 @@ def delivery_rates(entry: dict[str, float]) -> dict[str, float]:
             "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)}
 
 
-def run_gdice(
-    env, config: GDICEConfig, study, seed: int, progress: bool, init: JointController | None = None
-) -> tuple[Any, JointController, float]:
-    """One G-DICE run; returns (result, best joint controller, seconds).
-
-    ``init`` warm-starts the search (weight ``config.init_weight``): a one-agent controller when
-    ``study.shared_controller`` is true (see :func:`seed_controller`), else a joint controller.
-    """
-    evaluator, agents, to_joint = search_setup(env, int(study.rollouts), bool(study.shared_controller))
-    tic = time.perf_counter()
-    result = gdice(evaluator, agents, env.num_actions, env.num_obs, config, seed=seed, init=init, progress=progress)
-    return result, to_joint(result.best), time.perf_counter() - tic
-
-
-def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, seed: int, progress: bool,
-             reeval_rollouts: int, init: JointController | None = None
-             ) -> tuple[PlannerResult, JointController, dict[str, Any]]:
-    """The cold-start planner, from scratch or from ``init`` (searched agents): (result, best joint controller,
-    score entry).
+def run_planner(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, seed: int, progress: bool,
+                reeval_rollouts: int, init: JointController | None = None
+                ) -> tuple[PlannerResult, JointController, dict[str, Any]]:
+    """The planner (any preset: the cold-start planner, G-DICE), from scratch or from ``init`` (searched agents):
+    (result, best joint controller, score entry).
 
     The entry holds the value re-evaluated on ``reeval_rollouts`` fresh rollouts (stream ``(seed, "reeval")``),
-    the rollouts spent, and process CPU and wall seconds of the search.
+    the planner's own value of it (``planner_value``: its last duel mean, or for G-DICE the best sampled score, a
+    biased maximum), the rollouts spent, and process CPU and wall seconds of the search.
     """
     scorer = RolloutScorer(env, shared=shared_controller)
     cpu, wall = time.process_time(), time.perf_counter()
@@ -77,30 +58,28 @@ def run_cold(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, see
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     best = scorer.team(result.best)
     entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,
-             **score(env, best, reeval_rollouts, stream_seed(seed, "reeval"))}
+             "planner_value": result.value, **score(env, best, reeval_rollouts, stream_seed(seed, "reeval"))}
     return result, best, entry
 
 
-def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: GDICEConfig, rollouts: int, runs: int, seed: int,
+def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: PlannerConfig, runs: int, seed: int,
                      reeval_rollouts: int, progress: bool) -> dict[str, Any]:
     """The paper's G-DICE (``config``), one controller shared by both robots, on ``env`` and on ``preset``.
 
     Runs ``runs`` seeds on each domain. The paper reports the best *sampled* value (a maximum over
-    noisy ``rollouts``-rollout scores), so both that and the value re-evaluated on ``reeval_rollouts``
+    noisy ``config.ce_rollouts``-rollout scores), so both that and the value re-evaluated on ``reeval_rollouts``
     fresh rollouts are kept, per run and averaged (mean and its standard error over the runs).
     """
     out: dict[str, Any] = {}
     for name, domain in (("this_domain", env), ("preset", preset)):
         sampled, values, stderrs = [], [], []
         for r in range(runs):
-            res = gdice(SharedControllerEvaluator(domain, rollouts), 1, domain.num_actions, domain.num_obs, config,
-                        seed=stream_seed(seed, "paper", name, r), progress=progress)
-            entry = score(domain, shared(res.best, domain.num_agents), reeval_rollouts,
-                          stream_seed(seed, "reeval", name, r))
-            sampled.append(res.best_value)
+            _, _, entry = run_planner(domain, config, True, stream_seed(seed, "paper", name, r), progress,
+                                      reeval_rollouts)
+            sampled.append(entry["planner_value"])
             values.append(entry["value"])
             stderrs.append(entry["stderr"])
-        spread = lambda xs: float(torch.tensor(xs).std() / len(xs) ** 0.5) if len(xs) > 1 else float("nan")  # noqa: E731
+        spread = lambda xs: float(mean_stderr(torch.tensor(xs))[1]) if len(xs) > 1 else float("nan")  # noqa: E731
         out[name] = {"domain": repr(domain), "best_sampled": sampled, "values": values, "stderrs": stderrs,
                      "best_sampled_mean": sum(sampled) / runs, "best_sampled_stderr": spread(sampled),
                      "value": sum(values) / runs, "stderr": spread(values)}
@@ -108,18 +87,19 @@ def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: GDICEConfig, rol
 
 
 def seed_controller(policy: JointController, shared_controller: bool) -> JointController:
-    """The warm start G-DICE searches from: agent 0's FSC of ``policy`` for a shared controller, else all of it."""
+    """The warm start a planner searches from: agent 0's FSC of ``policy`` for a shared controller, else all of it."""
     if not shared_controller:
         return policy
     return JointController(policy.action[:, :1].clone(), policy.next_node[:, :1].clone())
 
 
-def mode_controller(action_probs, next_probs) -> JointController:
-    """The most likely controller (K = 1) of G-DICE's distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
+def mode_controller(distributions: tuple[torch.Tensor, torch.Tensor]) -> JointController:
+    """The most likely controller (K = 1) of cross-entropy distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
+    action_probs, next_probs = distributions
     return JointController(action_probs.argmax(-1)[None], next_probs.argmax(-1)[None])
 
 
-def run_seeded(env, config: GDICEConfig, study, policy: JointController, seed: int, progress: bool):
+def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointController, seed: int, progress: bool):
     """G-DICE seeded with ``policy`` (settings: ``config`` overridden by ``study.seeded``): (result, best, score).
 
     The best sampled controller is a maximum over noisy scores, so the final distributions' most
@@ -127,33 +107,38 @@ def run_seeded(env, config: GDICEConfig, study, policy: JointController, seed: i
     the better one is kept, and its reported value comes from ``study.reeval_rollouts`` further
     independent rollouts (so the selection does not bias it).
     """
-    seeded_cfg = dataclasses.replace(config, **dict(study.seeded))
+    seeded_cfg = config.replace(**dict(study.seeded))
     shared_controller = bool(study.shared_controller)
-    result, best, seconds = run_gdice(env, seeded_cfg, study, seed, progress, init=seed_controller(policy, shared_controller))
-    mode = mode_controller(result.action_probs, result.next_probs)
-    candidates = {"best_sampled": best, "mode": shared(mode, env.num_agents) if shared_controller else mode}
-    selection = {name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"] for name, ctrl in candidates.items()}
+    result, best, entry = run_planner(env, seeded_cfg, shared_controller, seed, progress, int(study.reeval_rollouts),
+                                      init=seed_controller(policy, shared_controller))
+    mode = mode_controller(result.distributions)
+    candidates = {"best_sampled": best, "mode": RolloutScorer(env, shared=shared_controller).team(mode)}
+    selection = {name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"]
+                 for name, ctrl in candidates.items()}
     chosen = max(selection, key=selection.get)
-    entry = {"init_weight": seeded_cfg.init_weight, "planner": dataclasses.asdict(seeded_cfg),
-             "best_sampled": result.best_value, "seconds": seconds, "selected": chosen, "selection_values": selection,
+    entry = {"init_weight": seeded_cfg.ce_init_weight, "planner": dataclasses.asdict(seeded_cfg),
+             "best_sampled": entry["planner_value"], "seconds": entry["seconds"], "selected": chosen,
+             "selection_values": selection,
              **score(env, candidates[chosen], int(study.reeval_rollouts), stream_seed(seed, "reeval"))}
     return result, candidates[chosen], entry
 
 
-def run_baselines(env, config: GDICEConfig, study, seed: int) -> dict[str, Any]:
-    """Monte Carlo search with G-DICE's sample budget, and the mean of uniformly random controllers."""
-    evaluator, agents, to_joint = search_setup(env, int(study.rollouts), bool(study.shared_controller))
-    budget = config.iterations * config.samples
+def run_baselines(env: DecPOSMDP, config: PlannerConfig, study, seed: int) -> dict[str, Any]:
+    """Monte Carlo search with G-DICE's sample budget (``config``: its preset), and the mean of uniformly random
+    controllers."""
+    scorer = RolloutScorer(env, shared=bool(study.shared_controller))
+    budget, rollouts = config.ce_iterations * config.ce_samples, config.ce_rollouts
     tic = time.perf_counter()
-    mcs = monte_carlo_search(evaluator, agents, env.num_actions, env.num_obs, config.num_nodes, budget, seed=seed)
+    mcs = monte_carlo_search(scorer, num_nodes=config.num_nodes, budget=budget, rollouts=rollouts, seed=seed)
     seconds = time.perf_counter() - tic
-    rand = random_controllers(int(study.random_controllers), agents, config.num_nodes, env.num_actions, env.num_obs,
-                              torch_stream(seed, "random controllers"))
-    values, _ = evaluator(rand, torch_stream(seed, "random scores"))
+    rand = random_controllers(int(study.random_controllers), num_agents=scorer.num_agents, num_nodes=config.num_nodes,
+                              num_actions=env.num_actions, num_obs=env.num_obs,
+                              generator=torch_stream(seed, "random controllers"))
+    values, _ = scorer(rand, rollouts, torch_stream(seed, "random scores"))
+    mean, se = mean_stderr(values)
     return {
         "monte_carlo_search": {"budget": budget, "best_sampled": mcs.best_value, "seconds": seconds,
-                               **score(env, to_joint(mcs.best), int(study.reeval_rollouts),
-                                                        stream_seed(seed, "reeval", "monte carlo search"))},
-        "random": {"controllers": len(values), "value": float(values.mean()),
-                   "stderr": float(values.std() / len(values) ** 0.5)},
+                               **score(env, scorer.team(mcs.best), int(study.reeval_rollouts),
+                                       stream_seed(seed, "reeval", "monte carlo search"))},
+        "random": {"controllers": len(values), "value": float(mean), "stderr": float(se)},
     }

@@ -24,12 +24,13 @@ def bar_figure(entries: dict[str, dict[str, float]], title: str, reference: dict
 
 
 def history_figure(history: dict[str, list[float]], title: str) -> plt.Figure:
-    """G-DICE's best-so-far, iteration-best and iteration-mean values against iteration."""
+    """A cross-entropy run's best sample so far, the iteration's best elite score and its samples' mean score
+    against iteration."""
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
-    its = range(1, len(history["best"]) + 1)
-    ax.plot(its, history["best"], label="best sampled so far")
-    ax.plot(its, history["iteration_best"], label="iteration best", alpha=0.7)
-    ax.plot(its, history["iteration_mean"], label="iteration mean", alpha=0.7)
+    its = [i + 1 for i, phase in enumerate(history["phase"]) if phase == 0]
+    for key, label, alpha in (("best_sampled", "best sampled so far", 1.0), ("challenger_value", "iteration best", 0.7),
+                              ("mean", "iteration mean", 0.7)):
+        ax.plot(its, [history[key][i - 1] for i in its], label=label, alpha=alpha)
     ax.set_xlabel("G-DICE iteration")
     ax.set_ylabel("value (Monte Carlo estimate)")
     ax.set_title(title)

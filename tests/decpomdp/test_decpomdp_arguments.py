@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from decpomdp import PerfectPerception, simulate
-from decpomdp.domains import DisasterRelief, PackageDelivery, SharedControllerEvaluator, shared
+from decpomdp import PerfectPerception, RolloutScorer, monte_carlo_search, simulate
+from decpomdp.domains import DisasterRelief, PackageDelivery, shared
 from decpomdp.domains import package_delivery as pd
 
 
@@ -17,7 +17,7 @@ def test_numpy_and_torch_scalars_are_accepted():
     assert (env.gamma, env.horizon, env.joint_wait) == (0.95, 20.0, 2.0)
     returns = simulate(env, pd.greedy_controller(), np.int64(3), torch.Generator().manual_seed(0))
     assert returns.shape == (1, 3)
-    assert SharedControllerEvaluator(env, np.int64(4)).rollouts == 4
+    assert RolloutScorer(env, shared=True)(pd.greedy_controller()[0], np.int64(4), torch.Generator())[0].shape == (1,)
     assert shared(pd.greedy_controller()[0], np.int64(2)).num_agents == 2
 
 
@@ -39,4 +39,4 @@ def test_bad_counts_name_the_argument():
     with pytest.raises(ValueError, match="rollouts_per_controller: expected an int >= 1, got 0"):
         simulate(PackageDelivery(), pd.greedy_controller(), 0, torch.Generator())
     with pytest.raises(ValueError, match="rollouts: expected an int >= 2, got 1"):
-        SharedControllerEvaluator(PackageDelivery(), 1)
+        monte_carlo_search(RolloutScorer(PackageDelivery(), shared=True), num_nodes=2, budget=1, rollouts=1)

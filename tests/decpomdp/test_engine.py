@@ -111,7 +111,8 @@ def assert_same_law(x: torch.Tensor, y: torch.Tensor, what: str) -> None:
 @pytest.mark.parametrize("name", DOMAINS)
 def test_engine_matches_the_torch_oracle(name):
     env = DOMAINS[name]()
-    controllers = {"random": random_controllers(2, env.num_agents, 4, env.num_actions, env.num_obs, g(1)),
+    controllers = {"random": random_controllers(2, num_agents=env.num_agents, num_nodes=4,
+                                                num_actions=env.num_actions, num_obs=env.num_obs, generator=g(1)),
                    "planned": planned(env)}
     if greedy(env) is not None:
         controllers["greedy"] = greedy(env)

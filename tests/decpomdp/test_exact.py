@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from decpomdp import JointController, MonteCarloEvaluator, random_controllers
-from decpomdp.dpomdp import ExactEvaluator, TabularDecPOSMDP, exact_value
+from decpomdp import ExactScorer, JointController, RolloutScorer, random_controllers
+from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 
 
 def tiger(horizon, gamma=1.0):
@@ -80,7 +80,8 @@ def test_hand_values():
 def test_matches_brute_force(name, gamma, horizon):
     env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
     g = torch.Generator().manual_seed(4)
-    ctrls = [random_controllers(4, 2, 3, env.num_actions, env.num_obs, g),
+    ctrls = [random_controllers(4, num_agents=2, num_nodes=3,
+                                num_actions=env.num_actions, num_obs=env.num_obs, generator=g),
              layered(4, 2, 2, 3, env.num_actions, env.num_obs, seed=5)]
     for ctrl in ctrls:
         ref = brute_force(env, ctrl, horizon)
@@ -99,11 +100,12 @@ def test_exact_matches_monte_carlo(name, gamma, horizon, nodes):
     controller); the simulator samples next states from the sparse rows, including fireFighting's 2025 states."""
     g = torch.Generator().manual_seed(11)
     env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
-    ctrl = random_controllers(4, 2, nodes, env.num_actions, env.num_obs, g)
+    ctrl = random_controllers(4, num_agents=2, num_nodes=nodes,
+                              num_actions=env.num_actions, num_obs=env.num_obs, generator=g)
     exact = exact_value(env, ctrl)
     if horizon == math.inf:
         env.horizon = 250.0  # gamma ** 250 * max|R| / (1 - gamma) < 1e-9: far below Monte Carlo error
-    mean, se = MonteCarloEvaluator(env, 2000 if horizon == math.inf else 4000)(ctrl, g)
+    mean, se = RolloutScorer(env)(ctrl, 2000 if horizon == math.inf else 4000, g)
     # a deterministic return has se 0 and must match exactly
     ok = ((mean - exact).abs() < 3 * se) | ((se < 1e-12) & ((mean - exact).abs() < 1e-9))
     assert bool(ok.all()), (exact, mean, se)
@@ -125,12 +127,13 @@ def test_next_state_sampling_follows_the_sparse_rows():
 
 def test_infinite_horizon_solvers_agree_with_a_long_finite_horizon():
     env = TabularDecPOSMDP.from_problem("GridSmall", gamma=0.9)
-    ctrl = random_controllers(3, 2, 4, env.num_actions, env.num_obs, torch.Generator().manual_seed(2))
+    ctrl = random_controllers(3, num_agents=2, num_nodes=4,
+                              num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(2))
     dense, krylov = exact_value(env, ctrl), exact_value(env, ctrl, max_dense=0, tol=1e-12)
     long = exact_value(env, ctrl, horizon=400)  # 0.9 ** 400 * max|R| / 0.1 < 1e-17
     torch.testing.assert_close(dense, krylov, atol=1e-10, rtol=0)
     torch.testing.assert_close(dense, long, atol=1e-10, rtol=0)
-    mean, se = ExactEvaluator(env)(ctrl, torch.Generator())
+    mean, se = ExactScorer(env)(ctrl, 1, torch.Generator())
     torch.testing.assert_close(mean, dense)
     assert bool((se == 0).all())
 
@@ -156,15 +159,18 @@ def test_unreachable_nodes_and_memory_budget_do_not_change_values():
 
 def test_errors():
     env = tiger(3)
-    ctrl = random_controllers(1, 2, 2, 3, 2, torch.Generator().manual_seed(0))
+    ctrl = random_controllers(1, num_agents=2, num_nodes=2,
+                              num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0))
     with pytest.raises(ValueError, match="infinite horizon needs gamma < 1"):
         exact_value(env, ctrl, horizon=math.inf)
     with pytest.raises(ValueError, match="horizon"):
         exact_value(env, ctrl, horizon=2.5)
     with pytest.raises(ValueError, match="action entries"):
-        exact_value(env, random_controllers(1, 2, 2, 4, 2, torch.Generator().manual_seed(0)))
+        exact_value(env, random_controllers(1, num_agents=2, num_nodes=2,
+                                            num_actions=4, num_obs=2, generator=torch.Generator().manual_seed(0)))
     with pytest.raises(ValueError, match="agents"):
-        exact_value(env, random_controllers(1, 3, 2, 3, 2, torch.Generator().manual_seed(0)))
+        exact_value(env, random_controllers(1, num_agents=3, num_nodes=2,
+                                            num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)))
     with pytest.raises(TypeError, match="env"):
         exact_value(object(), ctrl)
     with pytest.raises(ValueError, match="memory_budget"):
@@ -174,7 +180,7 @@ def test_errors():
     with pytest.raises(ValueError, match="horizon"):
         TabularDecPOSMDP(env.model, horizon=0)
     with pytest.raises(TypeError, match="env"):
-        ExactEvaluator(object())
+        ExactScorer(object())
 
 
 def test_tabular_env_rejects_rows_that_are_not_distributions():
@@ -206,7 +212,8 @@ def test_equals_the_former_dense_product(name, horizon):
     """The factored evaluator reproduces the former (K, Q, S, S', JO) dense product to 1e-9 on the small problems."""
     bench = _bench_exact()
     env = TabularDecPOSMDP.from_problem(name, gamma=1.0, horizon=horizon)
-    for ctrl in (random_controllers(8, 2, 3, env.num_actions, env.num_obs, torch.Generator().manual_seed(3)),
+    for ctrl in (random_controllers(8, num_agents=2, num_nodes=3,
+                                    num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(3)),
                  bench.layered_controllers(env, 8, 1 + 3 * (horizon - 1), seed=4)):
         torch.testing.assert_close(exact_value(env, ctrl), bench.dense_reference_value(env, ctrl, horizon),
                                    atol=1e-9, rtol=0)

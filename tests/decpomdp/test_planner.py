@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from decpomdp import JointController
-from decpomdp.dpomdp import ExactEvaluator, exact_value
+from decpomdp.dpomdp import exact_value
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search import local_search
 from decpomdp.search.cross_entropy import iterate, start_state
@@ -127,7 +127,7 @@ def test_racing_keeps_the_true_best(seed):
     best = int(torch.randint(2000, (1,), generator=g))
     means[best] = 2.0
     scorer = KnownMeans(means)
-    alive, scores = race(scorer, 2000, index_controllers, [(16, 0.05), (128, 0.1), (1024, 3)], g)
+    alive, scores, _ = race(scorer, 2000, index_controllers, [(16, 0.05), (128, 0.1), (1024, 3)], g)
     assert int(alive[0]) == best and len(alive) == 3
     assert scores[0] == pytest.approx(2.0, abs=5 / 1024**0.5)
     assert scorer.rollouts_used == 2000 * 16 + 100 * 128 + 10 * 1024
@@ -141,7 +141,7 @@ def test_racing_keeps_the_true_best(seed):
 
 def test_local_search_never_worsens_under_exact_values():
     env = dec_tiger(3)
-    scorer = ExactScorer(ExactEvaluator(env))
+    scorer = ExactScorer(env)
     g = torch.Generator().manual_seed(0)
     for start in range(4):
         ctrl = JointController(torch.randint(0, 3, (1, 2, 2), generator=g), torch.randint(0, 2, (1, 2, 2, 2), generator=g))
@@ -166,7 +166,7 @@ def test_planner_reaches_the_dec_tiger_optimum(seed):
     cfg = PlannerConfig(phases=("ce", "ls"), budget=10**9, patience=3, num_nodes=7, start_nodes=3, ce_iterations=20,
                         ce_samples=200, ce_screen_rollouts=0, ce_rollouts=2, ce_elites=10, ce_memory=2, ls_chain=2,
                         ls_candidates=5000, ls_stages=((2, 8),), duel_rollouts=2, edge_rate=0.0)
-    res = plan(ExactScorer(ExactEvaluator(env)), cfg, seed=seed)
+    res = plan(ExactScorer(env), cfg, seed=seed)
     assert res.value == pytest.approx(exact_value(env, res.best).item())
     assert res.value == pytest.approx(DEC_TIGER_OPTIMUM[3], abs=1e-4)
     duels = [v for v in res.history["value"] if not math.isnan(v)]
@@ -278,14 +278,14 @@ def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
                         ls_stages=((2, 4),), duel_rollouts=2, edge_rate=0.0)
     for _ in range(3):
         init = JointController(torch.randint(0, 3, (1, 2, 3), generator=g), torch.randint(0, 3, (1, 2, 3, 2), generator=g))
-        res = plan(ExactScorer(ExactEvaluator(env)), cfg, seed=0, init=init)
+        res = plan(ExactScorer(env), cfg, seed=0, init=init)
         start = exact_value(env, init).item()
         assert res.value == pytest.approx(exact_value(env, res.best).item())
         assert res.value >= start - 1e-12
         assert res.history["phase"][0] == 1.0  # the cycle's first phase (local search) edits init from step one
     ones = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
     budget_one = dataclasses.replace(cfg, phases=("ls",), budget=1)
-    first = plan(ExactScorer(ExactEvaluator(env)), budget_one, seed=0, init=ones)
+    first = plan(ExactScorer(env), budget_one, seed=0, init=ones)
     assert first.history["value"][0] == pytest.approx(exact_value(env, first.best).item())
 
 
@@ -344,7 +344,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ({"ce_screen_rollouts": 1}, ValueError, "ce_screen_rollouts"),
     ({"ce_screen_keep": 0.0}, ValueError, "ce_screen_keep"),
     ({"ce_alpha": 1.5}, ValueError, "ce_alpha"),
-    ({"ce_init_weight": 1.0}, ValueError, "ce_init_weight"),
+    ({"ce_init_weight": 1.5}, ValueError, "ce_init_weight"),
     ({"ce_alpha": "0.1"}, TypeError, "ce_alpha: expected a number"),
     ({"ls_stages": ()}, ValueError, "ls_stages: expected at least one"),
     ({"ls_stages": ((16, 0.1, 3),)}, ValueError, r"ls_stages\[0\]: expected a pair"),
@@ -408,7 +408,6 @@ def test_reactive_cross_entropy_ties_the_edges(toy_env):
     state.update(ctrl[:4], 0.5)
     freq = torch.nn.functional.one_hot(ctrl.next_node[:4, :, 0], 3).to(torch.float64).mean(0)
     torch.testing.assert_close(state.next_probs, 0.5 * freq + 0.5 / 3)
-    assert state.elites.num_controllers == 4
     untied = JointController(ctrl.action[:1], ctrl.next_node[:1].clone())
     untied.next_node[0, 0, 1, 0] = (untied.next_node[0, 0, 0, 0] + 1) % 3
     with pytest.raises(ValueError, match="reactive"):

@@ -48,9 +48,9 @@ TYPE_ERRORS = [
     ("macro_observation", "study.threshold=high", "study.threshold"),
     ("perception_replay", "study.frames=x", "study.frames"),
     ("perception_replay", "classifier.C=big", "classifier.C"),
-    ("package_delivery", "planner.alpha=fast", "planner.alpha"),
+    ("package_delivery", "planners.gdice.ce_alpha=fast", "planners.gdice.ce_alpha"),
     ("package_delivery", "domain.joint_wait=long", "domain.joint_wait"),
-    ("disaster_relief", "study.rollouts=many", "study.rollouts"),
+    ("disaster_relief", "study.reeval_rollouts=many", "study.reeval_rollouts"),
     ("dpomdp_benchmarks", "study.caps.iterations=x", "study.caps.iterations"),
     ("mission", "mission.threshold=abc", "mission.threshold"),
     ("mission", "domain.num_agents=two", "domain.num_agents"),
@@ -86,13 +86,13 @@ RANGE_ERRORS = [
     ("perception_replay", "study.classes=[irobot,unicorn]", "study.classes: expected at least 2 distinct objects"),
     ("perception_replay", "classifier.cv=1", "classifier.cv: expected an integer >= 2"),
     ("perception_replay", "+study.mission.fog=[1,2]", "study.mission: unknown field(s) ['fog']"),
-    ("package_delivery", "planner.alpha=2", "planner.alpha: expected a finite number in (0, 1]"),
-    ("package_delivery", "cold_planner.ce_alpha=2", "cold_planner.ce_alpha: expected a finite number in (0, 1]"),
+    ("package_delivery", "planners.gdice.ce_alpha=2", "planners.gdice.ce_alpha: expected a finite number in (0, 1]"),
+    ("package_delivery", "planners.cold.ce_alpha=2", "planners.cold.ce_alpha: expected a finite number in (0, 1]"),
     ("package_delivery", "reference.runs=0", "reference.runs: expected an int >= 1"),
-    ("package_delivery", "planner.elites=500", "planner.elites: expected <= samples"),
+    ("package_delivery", "planners.gdice.ce_elites=500", "planners.gdice.ce_elites: expected <= ce_samples"),
     ("package_delivery", "domain.gamma=1.5", "domain.gamma: expected a finite number in (0, 1]"),
     ("package_delivery", "study.alpha_sweep=[0.1,3]", "study.alpha_sweep: expected a probability in (0, 1]"),
-    ("package_delivery", "study.seeded.init_weight=2", "study.seeded: init_weight: expected a finite number in [0, 1]"),
+    ("package_delivery", "study.seeded.ce_init_weight=2", "study.seeded: ce_init_weight: expected a finite number in [0, 1]"),
     ("package_delivery", "+study.seeded.speed=2", "study.seeded: unknown planner setting(s) ['speed']"),
     ("disaster_relief", "study.reeval_rollouts=1", "study.reeval_rollouts: expected an int >= 2"),
     ("disaster_relief", "domain.degrade_prob=2", "domain.degrade_prob: expected a finite number in [0, 1]"),
@@ -122,8 +122,8 @@ def test_the_mission_plans_with_no_hand_written_controller():
     """The default main job and the larger mission plan perfect perception from scratch and each variant from that
     plan, the larger one with more rollouts."""
     main = _compose("experiment=mission")
-    assert main.planning == "cold" and main.warm_start and main.cold_planner.ce_reactive
+    assert main.warm_start and main.planner.ce_reactive and main.planner.ce_result == "duel"
     assert main.warm_planner.phases == ["ls"]
     full = _compose("experiment=mission_full")
-    assert full.planning == "cold" and full.warm_start and full.cold_planner.budget > main.cold_planner.budget
-    assert full.cold_planner.ce_reactive and full.warm_planner.budget > main.warm_planner.budget
+    assert full.warm_start and full.planner.budget > main.planner.budget
+    assert full.planner.ce_reactive and full.warm_planner.budget > main.warm_planner.budget

@@ -87,7 +87,7 @@ def test_infinite_rows_need_a_discount():
     study.rows.recycling_inf.gamma = 1.0
     with pytest.raises(ValueError, match="study.rows.recycling_inf.horizon: null"):
         build_rows(study, PLANNER)
-    assert all(math.isfinite(cfg.alpha) for _, cfg, _ in build_rows(CONFIG.study, PLANNER))
+    assert all(math.isfinite(cfg.ce_alpha) for _, cfg, _ in build_rows(CONFIG.study, PLANNER))
 
 
 @pytest.mark.parametrize(
@@ -97,7 +97,7 @@ def test_infinite_rows_need_a_discount():
         ("study.rows.dectiger_h2.evaluator=guess", "study.rows.dectiger_h2.evaluator: expected one of"),
         ("study.rows.recycling_inf.gamma=1.0", r"study.rows.recycling_inf.horizon: null \(infinite\) needs gamma < 1"),
         ("study.rows.dectiger_h2.restarts=0", "study.rows.dectiger_h2.restarts: expected an int >= 1"),
-        ("study.paper_budget.samples=0", "study.paper_budget.samples: expected an int >= 1"),
+        ("study.paper_budget.ce_samples=0", "study.paper_budget.ce_samples: expected an int >= 1"),
         ("study.rows.recycling_inf.evaluator=monte_carlo", "study.rows.recycling_inf.evaluator: monte_carlo rollouts"),
     ],
 )

@@ -50,12 +50,12 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
     assert f"temper is {temper['value']:g}" in report
     assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
-    assert metrics["planning"] == "cold" and metrics["planner"]["budget"] == 3000  # no hand-written seed
+    assert metrics["planner"]["budget"] == 3000 and metrics["planner"]["ce_result"] == "duel"  # no hand-written seed
     assert metrics["warm_planner"]["budget"] == 1000
     started = {name: entry["started_from"] for name, entry in metrics["variants"].items()}
     assert started == {"perfect": "scratch", "hbni": "perfect", "ssbf": "perfect", "max_of_mean": "perfect",
                        "hbni_generative": "perfect"}
-    assert all(entry["rollouts"] > 0 and "best_sampled" not in entry for entry in metrics["variants"].values())
+    assert all(entry["rollouts"] > 0 and entry["planner_value"] == entry["planner_value"] for entry in metrics["variants"].values())
     assert set(metrics["stage_seconds"]) == {"train", "classify", "fit", "characterise", "characterise_generative", "plan",
                                              "bank_wait", "closed_loop"}
     assert "preset with gain = [0.45, 0.8]" in report
@@ -122,16 +122,17 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith("| [1](1/) | completed | ssbf | ")
 
 
-@pytest.mark.parametrize("planning", ["planning=gdice", "warm_start=false"])
+@pytest.mark.parametrize("planning", ["planner=gdice", "warm_start=false"])
 def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, planning):
     _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
          planning)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    if planning == "planning=gdice":  # G-DICE seeded with the greedy controller
-        assert metrics["planning"] == "gdice" and metrics["planner"]["init_weight"] == 0.8
-        assert all("best_sampled" in entry for entry in metrics["variants"].values())
+    if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
+        assert metrics["planner"]["ce_result"] == "best_sampled" and metrics["warm_planner"]["phases"] == ["ls"]
+        assert metrics["variants"]["perfect"]["started_from"] == "scratch"
+        assert metrics["variants"]["hbni"]["started_from"] == "perfect"
     else:  # every variant from scratch
-        assert metrics["planning"] == "cold" and metrics["warm_planner"] is None
+        assert metrics["warm_planner"] is None
         assert {entry["started_from"] for entry in metrics["variants"].values()} == {"scratch"}
     assert metrics["hbni_temper"] == {"value": 0.5, "fitted": False}
     assert metrics["conditions"]["overrides"] == {}

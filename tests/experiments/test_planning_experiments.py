@@ -10,14 +10,15 @@ import pytest
 from decpomdp import JointController
 
 ROOT = Path(__file__).resolve().parents[2]
-TINY = ["planner.iterations=2", "planner.samples=6", "planner.elites=2", "planner.num_nodes=4", "study.rollouts=3",
+GDICE = ["ce_iterations=2", "ce_samples=6", "ce_elites=2", "ce_rollouts=3"]
+TINY = [*(f"planners.gdice.{s}" for s in GDICE), "planners.gdice.num_nodes=4",
         "study.reeval_rollouts=5", "study.random_controllers=4", "study.select_rollouts=4", "progress=false",
-        "cold_planner.budget=3000", "cold_planner.patience=1", "cold_planner.num_nodes=6", "cold_planner.ce_iterations=2",
-        "cold_planner.ce_samples=10", "cold_planner.ce_elites=2", "cold_planner.ce_memory=1", "cold_planner.ce_rollouts=4",
-        "cold_planner.ce_screen_rollouts=2", "cold_planner.ls_candidates=40", "cold_planner.ls_stages=[[2,0.5],[4,2]]",
-        "cold_planner.duel_rollouts=20", "cold_planner.visit_rollouts=10"]
-REFERENCE = ["reference.planner.iterations=2", "reference.planner.samples=6", "reference.planner.elites=2",
-             "reference.rollouts=3", "reference.runs=2"]
+        "planners.cold.budget=3000", "planners.cold.patience=1", "planners.cold.num_nodes=6",
+        "planners.cold.ce_iterations=2", "planners.cold.ce_samples=10", "planners.cold.ce_elites=2",
+        "planners.cold.ce_memory=1", "planners.cold.ce_rollouts=4", "planners.cold.ce_screen_rollouts=2",
+        "planners.cold.ls_candidates=40", "planners.cold.ls_stages=[[2,0.5],[4,2]]", "planners.cold.duel_rollouts=20",
+        "planners.cold.visit_rollouts=10"]
+REFERENCE = [*(f"reference.planner.{s}" for s in GDICE), "reference.runs=2"]
 
 
 def run(name: str, tmp_path: Path, *overrides: str) -> dict:
@@ -28,7 +29,7 @@ def run(name: str, tmp_path: Path, *overrides: str) -> dict:
 
 def test_package_delivery(tmp_path):
     metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]",
-                  "study.seeded.iterations=2", *REFERENCE)
+                  "study.seeded.ce_iterations=2", *REFERENCE)
     for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png",
                 "planner_progress.png"):
         assert (tmp_path / png).stat().st_size > 0
@@ -41,7 +42,7 @@ def test_package_delivery(tmp_path):
         assert entry["value"] == pytest.approx(sum(entry["values"]) / 2)
     report = (tmp_path / "report.md").read_text()
     assert "cold-start planner" in report and "reference-rules preset" in report and "14.44" in report
-    assert len(metrics["gdice_history"]["best"]) == 2
+    assert len(metrics["gdice_history"]["best_sampled"]) == 2
     check_seeded(metrics, tmp_path, num_nodes=14)
     assert set(metrics["alpha_sweep"]) == {"0.1", "0.3"}
     assert metrics["baselines"]["monte_carlo_search"]["budget"] == 12
@@ -68,7 +69,7 @@ def test_disaster_relief(tmp_path):
 
 @pytest.mark.parametrize("name", ["package_delivery", "disaster_relief"])
 def test_same_seed_same_numbers(tmp_path, name):
-    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.iterations=2", *REFERENCE] \
+    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.ce_iterations=2", *REFERENCE] \
         if name == "package_delivery" else []
     a = run(name, tmp_path / "a", "seed=3", *extra)
     b = run(name, tmp_path / "b", "seed=3", *extra)
@@ -78,9 +79,9 @@ def test_same_seed_same_numbers(tmp_path, name):
 def check_seeded(metrics: dict, run_dir: Path, num_nodes: int) -> None:
     """The seeded run: its settings, candidates and saved controller (the cold one is saved too)."""
     seeded = metrics["gdice_seeded"]
-    assert seeded["planner"]["num_nodes"] == num_nodes and seeded["planner"]["init_weight"] == seeded["init_weight"] > 0
+    assert seeded["planner"]["num_nodes"] == num_nodes and seeded["planner"]["ce_init_weight"] == seeded["init_weight"] > 0
     assert set(seeded["selection_values"]) == {"best_sampled", "mode"} and seeded["selected"] in seeded["selection_values"]
-    assert len(metrics["gdice_seeded_history"]["best"]) == 2 and metrics["planner"]["init_weight"] == 0
+    assert len(metrics["gdice_seeded_history"]["best_sampled"]) == 2 and metrics["planner"]["ce_init_weight"] == 0
     assert JointController.load(run_dir / "best_controller.safetensors").num_nodes == num_nodes
     assert JointController.load(run_dir / "best_controller_cold.safetensors").num_nodes == 4
 
