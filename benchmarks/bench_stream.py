@@ -32,7 +32,7 @@ from classifiers import FrameClassifier
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments.steps.streaming import classify_frames
+from classifiers import classify_frames
 from experiments.stream import Models, Settings, stream_frames
 from infra.streams import stream_seed
 

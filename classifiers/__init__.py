@@ -10,6 +10,7 @@ from classifiers.coupling import pairwise_coupling
 from classifiers.pipeline import FrameClassifier
 from classifiers.platt import fit_platt, platt_predict
 from classifiers.preprocess import augment, center_crop, crop_box, normalize
+from classifiers.stream import class_columns, classify_frames
 from classifiers.svm import OneVsOneSVC
 
 __all__ = [
@@ -19,6 +20,8 @@ __all__ = [
     "OneVsOneSVC",
     "augment",
     "center_crop",
+    "class_columns",
+    "classify_frames",
     "crop_box",
     "default_weights_path",
     "fit_platt",

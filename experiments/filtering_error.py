@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 import hbni_pyro
 from experiments.common import save_figure
-from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
+from hbni_pyro.filters import decide, make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
 from infra.streams import stream_seed, torch_stream
@@ -110,23 +110,19 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     def wrong_counts(probs: Tensor, rows: slice = slice(None)) -> Tensor:
         return (decide(probs) != truth[rows].unsqueeze(1)).sum(0)
 
-    fixed = {
-        "voting": wrong_counts(VotingFilter(M).run(obs)),
-        "max_of_mean": wrong_counts(MaxOfMeanFilter(M).run(obs)),
-        "ssbf": wrong_counts(SSBF(M).run(obs)),
-        "hbni_oracle": wrong_counts(HBNIFilter(_TrueTheta(theta), s["mode"]).run(obs)),
-    }
+    fixed = {name: wrong_counts(make_filter(name, num_classes=M).run(obs)) for name in ("voting", "max_of_mean", "ssbf")}
+    fixed["hbni_oracle"] = wrong_counts(make_filter("hbni", _TrueTheta(theta), mode=s["mode"]).run(obs))
     per_set = trials // sets
     wrong: dict[int, dict[str, Tensor]] = {}
     fits: dict[int, dict[str, Any]] = {}
     for k, size in enumerate(tqdm(s["sizes"], desc="training sizes", disable=not cfg.progress)):
         classes = torch.arange(M).repeat_interleave(size // M).expand(sets, size)
-        posteriors = _fit_sets(sample_outputs(theta, classes, g), cfg, seed=int(cfg.seed) + 1000 * (k + 1))
+        posteriors = _fit_sets(sample_outputs(theta, classes, g), cfg, seed=stream_seed(int(cfg.seed), "fit", size))
         posteriors[0].save(run_dir / f"posterior_train{size}_set0.safetensors")
         hbni = torch.zeros(T, dtype=torch.long)
         for d, post in enumerate(posteriors):
             rows = slice(d * per_set, (d + 1) * per_set)
-            hbni += wrong_counts(HBNIFilter(post, s["mode"], num_draws=s["draws"]).run(obs[rows]), rows)
+            hbni += wrong_counts(make_filter("hbni", post, mode=s["mode"], num_draws=s["draws"]).run(obs[rows]), rows)
         wrong[size] = {**fixed, "hbni": hbni}
         theta_means = torch.stack([p.theta_draws().mean(0) for p in posteriors])
         fits[size] = {

@@ -22,7 +22,7 @@ from hbni_pyro.density import gamma_log_prob
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.model import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
-from infra.streams import torch_stream
+from infra.streams import stream_seed, torch_stream
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -30,9 +30,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     classes = torch.arange(len(theta_true)).repeat_interleave(int(cfg.toy.per_class))
     obs = sample_outputs(theta_true, classes, torch_stream(int(cfg.seed), "outputs"))
     fit_kw = dict(cfg.hbni.fit)
-    posterior = hbni_pyro.fit(obs, **fit_kw, hyperprior=instantiate(cfg.hbni.hyperprior), seed=int(cfg.seed), progress=cfg.progress)
+    posterior = hbni_pyro.fit(obs, **fit_kw, hyperprior=instantiate(cfg.hbni.hyperprior), seed=stream_seed(int(cfg.seed), "fit"),
+                             progress=cfg.progress)
     confident = hbni_pyro.fit(
-        obs, **fit_kw, hyperprior=instantiate(cfg.toy.near_perfect_hyperprior), seed=int(cfg.seed) + 1, progress=cfg.progress
+        obs, **fit_kw, hyperprior=instantiate(cfg.toy.near_perfect_hyperprior), seed=stream_seed(int(cfg.seed), "fit", "near perfect"),
+        progress=cfg.progress
     )
     save_artifact(run_dir, "posterior", posterior)
     save_artifact(run_dir, "posterior_near_perfect", confident)

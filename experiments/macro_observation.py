@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 
 import hbni_pyro
 from experiments.common import save_figure
-from hbni_pyro.filters import SSBF, HBNIFilter
+from hbni_pyro.filters import make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.validation import DTYPE
@@ -38,10 +38,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     train = sample_outputs(theta, classes, torch_stream(seed, "train"))
     posterior = hbni_pyro.fit(train, **cfg.hbni.fit, hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=cfg.progress)
     posterior.save(run_dir / "posterior.safetensors")
-    filters = {
-        "hbni": HBNIFilter(posterior, str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
-        "ssbf": SSBF(M),
-    }
+    filters = {"hbni": make_filter("hbni", posterior, mode=str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
+               "ssbf": make_filter("ssbf", num_classes=M)}
     sources = {"true_theta": theta, "posterior_predictive": posterior}
     models: dict[str, dict[str, MacroObservationModel]] = {}
     for name, f in filters.items():

@@ -213,14 +213,10 @@ def characterise_processes(
 
 def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
     """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
-    M = len(CLASSES)
-    filters = {
-        "hbni": lambda: hbni_pyro.HBNIFilter(noise.posterior, mode=cfg.hbni.filter.mode, temper=noise.temper["value"]),
-        "ssbf": lambda: hbni_pyro.SSBF(M),
-        "max_of_mean": lambda: hbni_pyro.MaxOfMeanFilter(M),
-    }
-    return {name: hbni_pyro.MacroObservationProcess(filters[name](), threshold=float(cfg.mission.threshold),
-                                                    max_frames=settings.frames) for name in settings.variants}
+    options = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
+    return {name: hbni_pyro.MacroObservationProcess(
+        hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
+        threshold=float(cfg.mission.threshold), max_frames=settings.frames) for name in settings.variants}
 
 
 def characterise_generative(

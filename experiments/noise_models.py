@@ -109,9 +109,8 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     train = sample_outputs(theta, classes.expand(sets, -1), g)
     per_set = trials // sets
     wrong: dict[str, torch.Tensor] = {
-        "ssbf": (hbni_pyro.decide(hbni_pyro.SSBF(M).run(obs)) != truth[:, None]).sum(0),
-        "max_of_mean": (hbni_pyro.decide(hbni_pyro.MaxOfMeanFilter(M).run(obs)) != truth[:, None]).sum(0),
-    }
+        name: (hbni_pyro.decide(hbni_pyro.make_filter(name, num_classes=M).run(obs)) != truth[:, None]).sum(0)
+        for name in ("ssbf", "max_of_mean")}
     for k, model in enumerate(s.models):
         fit_kw = {key: v for key, v in OmegaConf.to_container(cfg.hbni.fit).items() if key != "method"}
         posts = hbni_pyro.fit_many(train, model=model, sequence_ids=classes, **fit_kw, seed=stream_seed(s.seed, "fit", model, k),
@@ -239,11 +238,12 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     for model in s.models:
         post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model)
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
-        filters[model] = hbni_pyro.HBNIFilter(post, mode)
+        filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
         if model in TEMPERED:
             tau = hbni_pyro.fit_temper(post, calib_streams, calib_truth, mode).temper
-            filters[f"{model}_tempered"] = hbni_pyro.HBNIFilter(post, mode, temper=tau)
-    filters["ssbf"], filters["max_of_mean"] = hbni_pyro.SSBF(M), hbni_pyro.MaxOfMeanFilter(M)
+            filters[f"{model}_tempered"] = hbni_pyro.make_filter("hbni", post, mode=mode, temper=tau)
+    for baseline in ("ssbf", "max_of_mean"):
+        filters[baseline] = hbni_pyro.make_filter(baseline, num_classes=M)
     return filters
 
 

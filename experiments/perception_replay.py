@@ -66,7 +66,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, stream_seed(seed, "test"), progress,
                                     "test")
     test = test.double()
-    filters = {"ssbf": hbni_pyro.SSBF(len(classes)), "hbni": hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode)}
+    filters = {name: hbni_pyro.make_filter(name, posterior, **({"mode": cfg.hbni.filter.mode} if name == "hbni" else {}))
+               for name in ("ssbf", "hbni")}
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
     per_class = _per_class(test, posts, classes, float(st.threshold))
     hardest = min(classes, key=lambda n: per_class[n]["frame_accuracy"])

@@ -27,12 +27,11 @@ from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, classify_frames
 from classifiers.sources import FrameSource, open_source
 from experiments.artifacts import latest_run, load_run
 from experiments.common import save_figure
 from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
-from experiments.steps.streaming import Segment, classify_frames, macro_observations
 from infra.files import atomic_write_text
 
 class Settings(NamedTuple):
@@ -62,7 +61,7 @@ class Models(NamedTuple):
 class Streamed(NamedTuple):
     """What :func:`stream_frames` saw: segments, their running confidences and deciding frames, timing."""
 
-    segments: list[Segment]
+    segments: list[hbni_pyro.Segment]
     beliefs: list[Any]
     thumbs: list[np.ndarray]
     frames: int
@@ -133,7 +132,7 @@ def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed
     bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
     tic, cpu = time.perf_counter(), time.process_time()
     try:
-        for seg in macro_observations(items, models.process, models.classes, keep_frames=True):
+        for seg in hbni_pyro.macro_observations(items, models.process, models.classes, keep_frames=True):
             running = running_posterior(models.process, seg.outputs)
             if video is not None:
                 video.write(seg, running)

@@ -7,8 +7,9 @@ the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
-(:func:`threshold_checks`, :func:`stream_reliability`) and closed-loop perception replaying recorded
-streams through a process (:class:`StreamReplay`).
+(:func:`threshold_checks`, :func:`stream_reliability`), closed-loop perception replaying recorded
+streams through a process (:class:`StreamReplay`), and a live classified stream cut into consecutive
+macro-observations (:func:`macro_observations`, :class:`Segment`).
 
 See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
@@ -16,7 +17,7 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
-from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
+from hbni_pyro.filters import FILTERS, SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide, make_filter
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import (
@@ -28,12 +29,14 @@ from hbni_pyro.macro import (
 from hbni_pyro.model import HyperPrior, hbni_model, log_joint
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.replay import StreamReplay
+from hbni_pyro.segments import Segment, macro_observations
 from hbni_pyro.sequence_model import sequence_model
 from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 from hbni_pyro.variants import MODELS
 
 __all__ = [
+    "FILTERS",
     "MODELS",
     "OUTPUT_FLOOR",
     "SSBF",
@@ -45,6 +48,7 @@ __all__ = [
     "MacroObservationModel",
     "MacroObservationProcess",
     "MaxOfMeanFilter",
+    "Segment",
     "SequenceMetropolis",
     "StreamReplay",
     "TemperFit",
@@ -53,6 +57,8 @@ __all__ = [
     "characterize",
     "confusion_model",
     "decide",
+    "macro_observations",
+    "make_filter",
     "fit",
     "fit_many",
     "fit_temper",

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 import hbni_pyro
-from experiments.steps.streaming import Segment
+from hbni_pyro import Segment
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 

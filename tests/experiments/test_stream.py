@@ -18,7 +18,8 @@ from classifiers import FrameClassifier
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from experiments.schemas import check_config, register
-from experiments.steps.streaming import classify_frames, macro_observations
+from classifiers import classify_frames
+from hbni_pyro import macro_observations
 
 CLASSES = ["police_car", "ambulance", "food_crate"]  # not the classifier's alphabetical order, on purpose
 PER_CLASS = 14

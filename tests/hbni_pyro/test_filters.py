@@ -9,7 +9,7 @@ import pytest
 import scipy.stats
 import torch
 
-from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, StreamingFilter, VotingFilter, decide
+from hbni_pyro.filters import FILTERS, SSBF, HBNIFilter, MaxOfMeanFilter, StreamingFilter, VotingFilter, decide, make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.validation import OUTPUT_FLOOR
@@ -248,3 +248,27 @@ def test_shape_and_argument_errors():
     with pytest.raises(ValueError, match="class_prior"):
         HBNIFilter(post, class_prior=[0.2, 0.8])
     assert not isinstance(THETA, StreamingFilter)
+
+
+def test_make_filter_builds_every_named_filter():
+    post = DrawsPosterior(THETA[None].expand(4, -1).clone())
+    obs = sample_outputs(THETA, torch.tensor([0, 1, 2]), torch.Generator().manual_seed(0)).reshape(1, 3, -1)
+    built = {name: make_filter(name, post) for name in FILTERS}
+    want = {"hbni": HBNIFilter(post), "ssbf": SSBF(len(THETA)), "max_of_mean": MaxOfMeanFilter(len(THETA)),
+            "voting": VotingFilter(len(THETA))}
+    for name in FILTERS:
+        assert type(built[name]) is type(want[name])
+        torch.testing.assert_close(built[name].run(obs), want[name].run(obs), rtol=0, atol=0)
+    assert make_filter("hbni", post, mode="plugin", temper=0.5).mode == "plugin"
+    assert make_filter("ssbf", num_classes=4).num_classes == 4
+
+
+@pytest.mark.parametrize("args, kwargs, error, message", [
+    (("kalman",), {}, ValueError, "name: expected one of"),
+    (("hbni",), {}, ValueError, "posterior: the 'hbni' filter needs a fitted posterior"),
+    (("voting",), {}, ValueError, "num_classes: the 'voting' filter needs num_classes or a posterior"),
+    (("voting",), {"num_classes": 3, "temper": 0.5}, TypeError, "the 'voting' filter takes no options, got"),
+])
+def test_make_filter_errors(args, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        make_filter(*args, **kwargs)

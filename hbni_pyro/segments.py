@@ -1,13 +1,9 @@
-"""Frames in, macro-observations out: a frame classifier feeding a macro-observation process.
+"""A classified frame stream cut into consecutive macro-observations.
 
-:func:`classify_frames` runs a :class:`~classifiers.FrameClassifier` over any iterable of uint8
-BGR frames (a :mod:`classifiers.sources` source, a list, a rendered sequence) in small batches
-and yields each frame with its output row, columns in the caller's class order (the order the
-noise posterior was fitted in). :func:`macro_observations` runs a
-:class:`~hbni_pyro.MacroObservationProcess` on those outputs and restarts it after every
-macro-observation, so a long stream becomes consecutive :class:`Segment` s. Frames are read
-lazily: nothing after the last frame a decision needs is decoded before that decision is made,
-beyond the classifier's batch.
+:func:`macro_observations` runs a :class:`~hbni_pyro.MacroObservationProcess` on ``(frame, output)``
+pairs (for instance :func:`classifiers.stream.classify_frames`) and restarts it after every
+macro-observation, so a long stream becomes consecutive :class:`Segment` s. The process pulls frames
+lazily: nothing after the last frame a decision needs is read before that decision is made.
 """
 
 from __future__ import annotations
@@ -16,12 +12,10 @@ import itertools
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any, NamedTuple
 
-import numpy as np
 import torch
 from torch import Tensor
 
-import hbni_pyro
-from classifiers import FrameClassifier
+from hbni_pyro.macro import MacroObservationProcess
 
 
 class Segment(NamedTuple):
@@ -43,7 +37,7 @@ class Segment(NamedTuple):
     timed_out: bool
     stream_ended: bool
     outputs: Tensor
-    frames: list[np.ndarray]
+    frames: list[Any]
 
     def record(self) -> dict[str, Any]:
         """The JSON-lines record of this macro-observation."""
@@ -52,49 +46,9 @@ class Segment(NamedTuple):
                 "timed_out": self.timed_out, "stream_ended": self.stream_ended}
 
 
-def class_columns(clf: FrameClassifier, classes: Sequence[str]) -> list[int]:
-    """Indices of ``classes`` among the classifier's columns (``clf.classes_`` is alphabetical).
-
-    Raises:
-        ValueError: ``classes`` is not a reordering of the classifier's classes.
-    """
-    if clf.classes_ is None:
-        raise ValueError("clf: the classifier is not fitted")
-    if sorted(classes) != sorted(clf.classes_) or len(set(classes)) != len(classes):
-        raise ValueError(f"classes: expected a reordering of the classifier's classes {clf.classes_}, got {list(classes)}")
-    return [clf.classes_.index(name) for name in classes]
-
-
-def classify_frames(
-    frames: Iterable[np.ndarray], clf: FrameClassifier, classes: Sequence[str], batch: int = 8
-) -> Iterator[tuple[np.ndarray, Tensor]]:
-    """Yield ``(frame, output)`` for every frame: ``output`` float64 ``(M,)`` in ``classes`` order.
-
-    Args:
-        batch: frames per classifier call (1: lowest latency on a live camera; 8: the backbone's
-            batch and the best throughput).
-    """
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise ValueError(f"batch: expected a positive int, got {batch!r}")
-    order = class_columns(clf, classes)
-    pending: list[np.ndarray] = []
-    for frame in frames:
-        pending.append(frame)
-        if len(pending) == batch:
-            yield from _classified(pending, clf, order)
-            pending = []
-    if pending:
-        yield from _classified(pending, clf, order)
-
-
-def _classified(frames: list[np.ndarray], clf: FrameClassifier, order: list[int]) -> Iterator[tuple[np.ndarray, Tensor]]:
-    probs = clf.predict_proba(frames)[:, order].double()
-    yield from zip(frames, probs)
-
-
 def macro_observations(
-    items: Iterable[tuple[np.ndarray, Tensor]],
-    process: hbni_pyro.MacroObservationProcess,
+    items: Iterable[tuple[Any, Tensor]],
+    process: MacroObservationProcess,
     classes: Sequence[str],
     keep_frames: bool = False,
 ) -> Iterator[Segment]:
@@ -116,7 +70,7 @@ def macro_observations(
         first = next(it, None)
         if first is None:
             return
-        used: list[tuple[np.ndarray, Tensor]] = [first]
+        used: list[tuple[Any, Tensor]] = [first]
         result = process.run(_outputs(first, it, used))
         frames = [frame for frame, _ in used] if keep_frames else []
         ended = result.timed_out and result.frames_used < process.max_frames
@@ -126,7 +80,7 @@ def macro_observations(
         start += result.frames_used
 
 
-def _outputs(first: tuple[np.ndarray, Tensor], rest: Iterator, used: list) -> Iterator[Tensor]:
+def _outputs(first: tuple[Any, Tensor], rest: Iterator, used: list) -> Iterator[Tensor]:
     """The outputs of ``first`` then of ``rest``, recording every pair handed out in ``used``.
 
     The process stops pulling as soon as it decides, so ``rest`` is left at the next segment's first frame.
