@@ -25,16 +25,13 @@ from infra.fingerprint import check_fingerprint
 def save_checkpoint(path: str | os.PathLike, kind: str, version: int, fingerprint: dict[str, Any],
                     tensors: dict[str, Tensor], state: dict[str, Any]) -> Path:
     """Atomically write a checkpoint (``state`` must be JSON-serialisable)."""
-    return save_tensors(path, kind, tensors, {"version": version, "fingerprint": fingerprint, **state})
+    return save_tensors(path, kind, tensors, {"fingerprint": fingerprint, **state}, version=version)
 
 
 def load_checkpoint(path: str | os.PathLike, kind: str, version: int,
                     fingerprint: dict[str, Any]) -> tuple[dict[str, Tensor], dict[str, Any]]:
     """Read a checkpoint written by :func:`save_checkpoint` for a run with this ``fingerprint``."""
-    tensors, meta = load_tensors(path, kind)
-    if meta.get("version") != version:
-        raise ValueError(f"checkpoint: {str(path)!r} is not a version-{version} {kind} checkpoint "
-                         f"(version {meta.get('version')!r})")
+    tensors, meta = load_tensors(path, kind, version=version)
     check_fingerprint(meta.get("fingerprint"), fingerprint, "checkpoint", path)
     return tensors, meta
 

@@ -87,15 +87,16 @@ class JointController:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Atomically write the controllers to one safetensors file (no pickle)."""
-        meta = {"version": _VERSION, "shape": list(self.next_node.shape)}
-        return save_tensors(path, _KIND, {"action": self.action, "next_node": self.next_node}, meta)
+        meta = {"shape": list(self.next_node.shape)}
+        return save_tensors(path, _KIND, {"action": self.action, "next_node": self.next_node}, meta, version=_VERSION)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> JointController:
         """Read controllers written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
-        tensors, meta = load_tensors(path, _KIND)
-        if meta.get("version") != _VERSION or set(tensors) != {"action", "next_node"}:
-            raise ValueError(f"path: {str(path)!r} is not a version-{_VERSION} JointController file")
+        tensors, _ = load_tensors(path, _KIND, version=_VERSION)
+        if set(tensors) != {"action", "next_node"}:
+            raise ValueError(f"path: {str(path)!r} holds {sorted(tensors)}, expected a JointController's action and "
+                             "next_node")
         try:
             return cls(tensors["action"], tensors["next_node"])
         except (TypeError, ValueError) as exc:

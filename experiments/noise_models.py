@@ -41,7 +41,7 @@ from experiments import noise_models_report as report
 from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from experiments.report import write_report
-from experiments.steps.cache import cached
+from infra.cache import cached, source_identity
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
@@ -141,7 +141,9 @@ def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tu
     """``(calibration, held-out)`` classifier outputs ``(C, S, F, C)`` per imaging condition, from the
     cache when a run with the same inputs stored them (the classifier is trained only if needed)."""
     m = cfg.study.mission
-    base = {"classes": list(CLASSES), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True), "seed": s.seed,
+    # everything that decides the outputs: the classifier's settings and code, the renderer's code, seeds and sizes
+    base = {"classes": list(CLASSES), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
+            "code": source_identity("classifiers"), "seed": s.seed,
             "train_per_class": int(m.train_per_class), "augment": int(m.augment), "frames": int(m.frames),
             "calib_sequences": int(m.calib_sequences), "test_sequences": int(m.test_sequences)}
     clf: list[FrameClassifier] = []

@@ -6,12 +6,22 @@ against the experiment's typed schema (:mod:`experiments.schemas`): a wrong type
 fails here, naming the key. The function writes its figures and models into ``run_dir``
 (Hydra's output directory) and returns the metrics, which are written to ``run_dir /
 "metrics.json"``. ``run_dir / "status.json"`` says whether the run is running, completed or
-failed (with the error); :func:`experiments.load_run` refuses a run that did not complete.
+failed (with the error); :func:`experiments.load_run` refuses a run that did not complete. SIGTERM and
+SIGHUP (``kill``, ``timeout``, Slurm's time limit, ``docker stop``, a closed terminal) stop a run as
+Ctrl-C does: it is marked failed and its background workers end.
+
+A config that fails its check prints one line (``HYDRA_FULL_ERROR=1`` for the traceback) and leaves no
+run folder behind: the run never started.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import shutil
+import signal
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -28,12 +38,38 @@ log = logging.getLogger("experiments")
 register()
 
 
+class Stopped(BaseException):
+    """The run was stopped by a signal (SIGTERM or SIGHUP); like ``KeyboardInterrupt``, not an ``Exception``."""
+
+
+def _stop(signum: int, frame: object) -> None:
+    raise Stopped(f"stopped by {signal.Signals(signum).name}")
+
+
+def _config_error(run_dir: Path, exc: Exception) -> None:
+    """Report a config that fails its check in one line, remove the run folder Hydra made for it, and exit 2."""
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":
+        raise exc
+    logging.shutdown()  # Hydra's log file lives in the run folder
+    if run_dir.is_dir() and not any(p.name not in (".hydra", "run.log", f"{HydraConfig.get().job.name}.log")
+                                    for p in run_dir.iterdir()):
+        shutil.rmtree(run_dir, ignore_errors=True)
+    print(f"config error: {exc}", file=sys.stderr)
+    sys.exit(2)
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> dict:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     tic = time.perf_counter()
     try:
         check_config(cfg)
+    except (TypeError, ValueError) as exc:
+        _config_error(run_dir, exc)
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):
+            signal.signal(getattr(signal, name), _stop)
+    try:
         log.info("experiment %s (seed %s): writing to %s", cfg.name, cfg.seed, run_dir)
         write_status(run_dir, "running")
         metrics = get_method(cfg.entry)(cfg, run_dir)

@@ -233,7 +233,7 @@ class MacroObservationModel:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically."""
-        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out}, {"version": 1, "info": self.info})
+        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out}, {"info": self.info})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MacroObservationModel":

@@ -19,6 +19,7 @@ from hbni_pyro.variants import MODELS, check_model, site_shapes
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
+_VERSION = 2  # format version of saved posteriors
 
 
 def _num_classes(model: str, samples: dict[str, Tensor]) -> int:
@@ -173,13 +174,13 @@ class HBNIPosterior:
         tensors["class_prior"] = self.class_prior
         if self.label_probs is not None:
             tensors["label_probs"] = self.label_probs
-        meta = {"version": 2, "model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info}
-        return save_tensors(path, _KIND, tensors, meta)
+        meta = {"model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info}
+        return save_tensors(path, _KIND, tensors, meta, version=_VERSION)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "HBNIPosterior":
         """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
-        tensors, meta = load_tensors(path, _KIND)
+        tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         model = meta.get("model", "paper")
         if model not in MODELS:
             raise ValueError(f"{path}: unknown noise model {model!r} in saved {_KIND}, expected one of {MODELS}")

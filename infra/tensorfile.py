@@ -3,8 +3,9 @@
 The file is a `safetensors <https://github.com/huggingface/safetensors>`_ container: a JSON
 header, then raw little-endian tensor bytes. Loading parses JSON and copies bytes; nothing is
 unpickled, so a foreign file cannot run code. The header's metadata holds ``kind`` (what the file
-holds, e.g. ``"decpomdp.JointController"``) and ``metadata`` (JSON). Writes are atomic
-(:func:`infra.files.atomic_write_bytes`).
+holds, e.g. ``"decpomdp.JointController"``) and ``metadata`` (JSON), whose ``version`` is the format
+version of that kind: a loader names the version it reads and refuses any other, telling a file
+from a newer release of the package apart. Writes are atomic (:func:`infra.files.atomic_write_bytes`).
 
 Files written before this module existed kept the kind under ``"<package>.kind"`` (and the
 metadata under ``"<package>.metadata"``); they still load.
@@ -28,15 +29,18 @@ _KIND_KEY = "kind"
 _META_KEY = "metadata"
 
 
-def save_tensors(path: str | os.PathLike, kind: str, tensors: dict[str, Tensor], metadata: dict[str, Any]) -> Path:
-    """Atomically save named ``tensors`` and JSON-serialisable ``metadata``, tagged with ``kind``."""
-    header = {_KIND_KEY: kind, _META_KEY: json.dumps(metadata)}
+def save_tensors(path: str | os.PathLike, kind: str, tensors: dict[str, Tensor], metadata: dict[str, Any],
+                 version: int = 1) -> Path:
+    """Atomically save named ``tensors`` and JSON-serialisable ``metadata``, tagged with ``kind`` and its format
+    ``version``."""
+    header = {_KIND_KEY: kind, _META_KEY: json.dumps({**metadata, "version": version})}
     data = _st_save({k: v.detach().contiguous().cpu() for k, v in tensors.items()}, metadata=header)
     return atomic_write_bytes(path, data)
 
 
-def load_tensors(path: str | os.PathLike, kind: str) -> tuple[dict[str, Tensor], dict[str, Any]]:
-    """Load a file written by :func:`save_tensors` and check that it holds a ``kind`` object.
+def load_tensors(path: str | os.PathLike, kind: str, version: int = 1) -> tuple[dict[str, Tensor], dict[str, Any]]:
+    """Load a file written by :func:`save_tensors` and check that it holds a ``kind`` object of format ``version``
+    (a file without one is version 1).
 
     Returns:
         the tensors (fresh copies, safe to modify) and the metadata.
@@ -44,7 +48,8 @@ def load_tensors(path: str | os.PathLike, kind: str) -> tuple[dict[str, Tensor],
     Raises:
         FileNotFoundError: no file at ``path``.
         IsADirectoryError: ``path`` is a directory.
-        ValueError: the file is corrupt, not in this format, or holds another kind of object.
+        ValueError: the file is corrupt, not in this format, holds another kind of object or another format
+            version (a newer one says so: the package needs an upgrade).
     """
     path = Path(path)
     if path.is_dir():
@@ -65,6 +70,12 @@ def load_tensors(path: str | os.PathLike, kind: str) -> tuple[dict[str, Tensor],
         raise ValueError(f"path: {str(path)!r} has corrupt metadata for a saved {kind} ({exc})") from None
     if not isinstance(metadata, dict):
         raise ValueError(f"path: {str(path)!r} has corrupt metadata for a saved {kind} (not a JSON object)")
+    found_version = metadata.get("version", 1)
+    if found_version != version:
+        newer = isinstance(found_version, int) and not isinstance(found_version, bool) and found_version > version
+        raise ValueError(f"path: {str(path)!r} holds format version {found_version!r} of a saved {kind}; this "
+                         f"version of the package reads version {version}"
+                         + (" (the file comes from a newer release: upgrade the package)" if newer else ""))
     return {k: v.clone() for k, v in tensors.items()}, metadata
 
 

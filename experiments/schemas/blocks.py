@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from experiments.schemas.targets import target_schema
+from hbni_pyro import HBNIFilter
+from hbni_pyro.fit import METHODS
 
 HyperPriorBlock = target_schema("hbni_pyro.HyperPrior")
 
@@ -43,7 +45,7 @@ class FitBlock:
     warmup_steps: int = 500
 
     def check(self, path: str) -> None:
-        one_of("method", self.method, ("mh", "nuts"))
+        one_of("method", self.method, METHODS)
         positive_int("num_chains", self.num_chains)
         positive_int("num_samples", self.num_samples)
         positive_int("warmup_steps", self.warmup_steps, 0)
@@ -56,7 +58,7 @@ class FilterBlock:
     mode: str = "marginal"
 
     def check(self, path: str) -> None:
-        one_of("mode", self.mode, ("marginal", "plugin"))
+        one_of("mode", self.mode, HBNIFilter.MODES)
 
 
 @dataclass

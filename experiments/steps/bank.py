@@ -8,30 +8,23 @@ crop setting and backbone weights), the renderer's code, the class order, the im
 the seed, the number of sequences per class, the frames per sequence, the frame shape and the
 torch and OpenCV versions.
 
-Cache policy: the file name is a digest of that fingerprint, so a run whose inputs differ in any
-field looks for another file and builds its own bank next to the old one (later runs and sweeps
-with those inputs reuse it). The file also records the fingerprint in full; a file under the
-right name that records another fingerprint (copied, edited, or a digest collision) is refused
-with a ``ValueError`` naming the first field that differs, never silently used or overwritten.
+The bank is an entry of the project's one cache (:mod:`infra.cache`): the file name is a digest of
+that fingerprint, a run whose inputs differ in any field builds its own bank next to the old one,
+and a file recording another fingerprint is refused, naming the first field that differs.
 
 Building runs in ``workers`` background processes (spawned, each loading the saved classifier
 file), so the mission can go on fitting and planning meanwhile; ``workers=0`` builds in this
 process when the result is asked for. Each sequence is rendered from ``(seed, index)`` and
 classified on its own, so the bank does not depend on how it was split among workers.
 
-Jobs of one sweep often need the same missing bank at once: the first takes a lock file beside
-the bank (``<bank>.lock``, holding its host and process id) and builds; the others carry on with
-their own stages and, when they need the bank, wait for its file. A lock whose process is gone
-(same host) is taken over.
+Jobs of one sweep often need the same missing bank at once: the first takes the entry's lock and
+builds; the others carry on with their own stages and, when they need the bank, wait for its file.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
-import socket
-import sys
-import time
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -44,11 +37,11 @@ from tqdm.auto import tqdm
 
 from classifiers import FrameClassifier
 from classifiers.data import FRAME_SHAPE, Conditions, render_sequence
-from infra.fingerprint import check_fingerprint, digest
-from infra.tensorfile import load_tensors, save_tensors
+from infra.cache import FileLock, entry_path, load_entry, source_identity, store_entry, wait_for_entry
+from infra.fingerprint import digest
 
 _KIND = "experiments.OutputBank"
-_VERSION = 1
+_VERSION = 2
 _RENDERER_MODULES = ("classifiers.data.render", "classifiers.data.sprites", "classifiers.data.conditions")
 
 
@@ -84,7 +77,7 @@ def classifier_identity(clf: FrameClassifier) -> str:
 
 def renderer_identity() -> str:
     """Digest of the renderer's source code (a change to how frames are drawn is a new bank)."""
-    return digest(*(Path(sys.modules[name].__file__).read_bytes() for name in _RENDERER_MODULES))
+    return source_identity(*_RENDERER_MODULES)
 
 
 def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
@@ -99,14 +92,12 @@ def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
 
 def cache_path(cache_dir: str | os.PathLike, key: dict[str, Any]) -> Path:
     """Where the bank with fingerprint ``key`` lives in ``cache_dir``."""
-    return Path(cache_dir) / f"bank-{digest(key)[:24]}.safetensors"
+    return entry_path(cache_dir, "bank", key)
 
 
 def load_bank(path: str | os.PathLike, key: dict[str, Any]) -> Tensor:
     """The cached outputs ``(C, S, F, C)``; refuses a file recording another fingerprint, naming the field."""
-    tensors, meta = load_tensors(path, _KIND)
-    check_fingerprint(meta.get("fingerprint"), key, "output bank", path)
-    outputs = tensors.get("outputs")
+    outputs = load_entry(path, key, "output bank").get("outputs")
     shape = (len(key["classes"]), key["sequences_per_class"], key["frames"], len(key["classes"]))
     if outputs is None or tuple(outputs.shape) != shape:
         raise ValueError(f"output bank {str(path)!r}: expected outputs of shape {shape}, got "
@@ -168,9 +159,8 @@ class BankBuild:
         self._classifier_path = str(classifier_path)
         self._pool: ProcessPoolExecutor | None = None
         self._futures: dict[Future, tuple[int, int, int]] = {}
-        self._lock = self.path.with_name(self.path.name + ".lock")
-        self._holds_lock = not self.cached and _acquire(self._lock)
-        if self._holds_lock and workers > 0:
+        self._lock = FileLock(self.path)
+        if not self.cached and self._lock.acquire() and workers > 0:
             self._start_workers()
 
     def _start_workers(self) -> None:
@@ -182,13 +172,9 @@ class BankBuild:
 
     def result(self, progress: bool = False) -> Tensor:
         """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
-        while self._outputs is None and not self._holds_lock:  # another job builds it: wait for its file
-            if self.path.is_file():
+        if self._outputs is None and not self._lock.held:  # another job builds it: wait for its file
+            if wait_for_entry(self.path, self.key, self._lock, "output bank") is not None:
                 self._outputs = load_bank(self.path, self.key)
-            elif _acquire(self._lock):
-                self._holds_lock = True  # the builder is gone: build here
-            else:
-                time.sleep(1.0)
         if self._outputs is not None:
             return self._outputs
         try:
@@ -214,48 +200,18 @@ class BankBuild:
                         bar.update(last - first)
                 finally:
                     self._pool.shutdown(cancel_futures=True)
-        save_tensors(self.path, _KIND, {"outputs": out}, {"fingerprint": self.key})
+        store_entry(self.path, self.key, {"outputs": out})
         return out
 
     def _release(self) -> None:
-        if self._holds_lock:
-            self._lock.unlink(missing_ok=True)
-            self._holds_lock = False
+        self._lock.release()
 
     def cancel(self) -> None:
-        """Stop a background build (nothing is written) and release its lock."""
+        """Stop a background build (nothing is written): its worker processes end now, and its lock is released."""
         if self._pool is not None:
+            workers = list(getattr(self._pool, "_processes", {}).values())
             self._pool.shutdown(wait=False, cancel_futures=True)
+            for process in workers:  # a running task would otherwise finish first
+                process.terminate()
         self._release()
 
-
-def _acquire(lock: Path) -> bool:
-    """Take ``lock`` (create it holding this host and process id); take over a lock whose process is gone."""
-    lock.parent.mkdir(parents=True, exist_ok=True)
-    me = f"{socket.gethostname()} {os.getpid()}"
-    for _ in range(2):
-        try:
-            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            if not _stale(lock):
-                return False
-            lock.unlink(missing_ok=True)
-            continue
-        with os.fdopen(fd, "w") as fh:
-            fh.write(me)
-        return True
-    return False
-
-
-def _stale(lock: Path) -> bool:
-    """Whether ``lock`` was taken by a process of this host that no longer runs."""
-    try:
-        host, pid = lock.read_text().split()
-        if host != socket.gethostname():
-            return False
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return True
-    except (OSError, ValueError):
-        return False  # unreadable or being written: leave it
-    return False

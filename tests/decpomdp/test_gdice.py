@@ -11,12 +11,12 @@ import torch
 from decpomdp import JointController, monte_carlo_search
 from decpomdp.domains import PackageDelivery
 from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
-from decpomdp.identity import describe
 from decpomdp.search import ExactScorer, RolloutScorer, gdice_config, plan
 from decpomdp.search.cross_entropy import layered_mask
 
 from gdice_reference import gdice as reference
 from test_dpomdp_parser import BENCH
+from test_planner import Interrupt
 from tiny_problems import dec_tiger
 
 
@@ -80,30 +80,6 @@ def test_seeded_determinism(recycling):
     assert a.history != plan(ExactScorer(recycling), cfg, seed=6).history
 
 
-class Interrupted:
-    """Delegates to ``scorer`` (and describes itself as it) but raises KeyboardInterrupt on call ``at``."""
-
-    def __init__(self, scorer, at):
-        self.scorer, self.at, self.calls = scorer, at, 0
-        self.num_agents, self.num_actions, self.num_obs = scorer.num_agents, scorer.num_actions, scorer.num_obs
-
-    @property
-    def rollouts_used(self):
-        return self.scorer.rollouts_used
-
-    def fingerprint(self):
-        return describe(self.scorer)
-
-    def __call__(self, ctrl, rollouts, generator):
-        self.calls += 1
-        if self.calls == self.at:
-            raise KeyboardInterrupt
-        return self.scorer(ctrl, rollouts, generator)
-
-    def visits(self, ctrl, rollouts, generator):
-        return self.scorer.visits(ctrl, rollouts, generator)
-
-
 @pytest.mark.parametrize("warm", [False, True])
 def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0)
@@ -114,15 +90,16 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     full = plan(RolloutScorer(env), cfg, seed=3, init=init)
     ckpt = tmp_path / "gdice.safetensors"
     with pytest.raises(KeyboardInterrupt):  # interrupted in its 5th iteration
-        plan(Interrupted(RolloutScorer(env), 5), cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
+        plan(Interrupt(RolloutScorer(env), 5), cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
     assert ckpt.exists()
-    resumed = plan(RolloutScorer(env), cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
+    resumed = plan(Interrupt(RolloutScorer(env), 0), cfg, seed=3, init=init, checkpoint=ckpt, checkpoint_every=2)
     assert resumed.history == full.history and resumed.value == full.value
     assert torch.equal(resumed.best.next_node, full.best.next_node)
     for got, want in zip(resumed.distributions, full.distributions):
         torch.testing.assert_close(got, want, rtol=0, atol=0)
     with pytest.raises(ValueError, match="another run: config.ce_iterations was 6 there, is 4 here"):
-        plan(RolloutScorer(env), dataclasses.replace(cfg, ce_iterations=4), seed=3, init=init, checkpoint=ckpt)
+        plan(Interrupt(RolloutScorer(env), 0), dataclasses.replace(cfg, ce_iterations=4), seed=3, init=init,
+             checkpoint=ckpt)
 
 
 def recycling_controller(num_nodes=2):

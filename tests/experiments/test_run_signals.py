@@ -1,0 +1,69 @@
+"""The entry point under signals and bad configs: SIGTERM and SIGHUP mark the run failed and end its background
+workers; a config that fails its check prints one line and leaves no run folder."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mission_tiny import TINY_MISSION
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _children(pid: int) -> set[int]:
+    """The live child processes of ``pid`` (Linux /proc)."""
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out |= {int(c) for c in (task / "children").read_text().split()}
+        except OSError:
+            pass
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split()[2]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
+    # the bank is built by one background process from a fresh cache folder while the mission goes on
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY_MISSION, f"hydra.run.dir={tmp_path / 'run'}",
+           "perception=hbni", "mission.bank.workers=1", "mission.bank.sequences=60", f"mission.bank.cache_dir={tmp_path / 'cache'}"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    status = tmp_path / "run" / "status.json"
+    deadline = time.time() + 120
+    workers: set[int] = set()
+    while time.time() < deadline and not workers:  # wait for the bank's worker to start
+        workers = {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()} \
+            if _alive(proc.pid) else set()
+        time.sleep(0.2)
+    assert workers and json.loads(status.read_text())["status"] == "running"
+    proc.send_signal(signum)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode != 0
+    entry = json.loads(status.read_text())
+    assert entry["status"] == "failed" and f"stopped by {signal.Signals(signum).name}" in entry["error"], stderr
+    time.sleep(2)
+    assert not [w for w in workers if _alive(w)], "a bank worker outlived the run"
+    assert not list((tmp_path / "cache").glob("*.lock"))  # the bank's lock released
+
+
+def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
+    run_dir = tmp_path / "run"
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    proc = subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
+                           "mission.threshold=1.5"], cwd=ROOT, capture_output=True, text=True, env=env)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "config error: mission.threshold: expected a probability in (0, 1], got 1.5"
+    assert not run_dir.exists()
