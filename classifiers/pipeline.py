@@ -128,6 +128,9 @@ class FrameClassifier:
             progress: bool = False) -> FrameClassifier:
         """Train on ``images`` with ``labels`` (one per image); ``augment`` extra random crops/mirrors each."""
         batch = as_image_batch(images)
+        if isinstance(labels, (str, bytes)) or not hasattr(labels, "__len__"):
+            raise TypeError(f"labels: expected one class name per image (a list, array or tensor), got "
+                            f"{type(labels).__name__}")
         labels = list(labels.tolist() if isinstance(labels, (Tensor, np.ndarray)) else labels)
         if len(labels) != len(batch):
             raise ValueError(f"labels: expected {len(batch)} labels, got {len(labels)}")

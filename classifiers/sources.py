@@ -20,11 +20,13 @@ import abc
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from classifiers.data.image_folder import ImageFolder
+from infra.checks import as_int
 
 __all__ = ["Camera", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
 
@@ -62,6 +64,11 @@ def _bgr(frame: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(frame)
 
 
+def _frame_limit(max_frames: Any) -> int | None:
+    """``max_frames`` checked: ``None`` (every frame) or an int >= 1."""
+    return None if max_frames is None else as_int("max_frames", max_frames, 1)
+
+
 def _read_all(capture: cv2.VideoCapture, limit: int | None) -> Iterator[np.ndarray]:
     count = 0
     while limit is None or count < limit:
@@ -73,14 +80,15 @@ def _read_all(capture: cv2.VideoCapture, limit: int | None) -> Iterator[np.ndarr
 
 
 class VideoFile(FrameSource):
-    """The frames of a video file, in order.
+    """The frames of a video file, in order (the first ``max_frames`` of them when given).
 
     Raises:
         FileNotFoundError: no file at ``path``.
-        ValueError: OpenCV cannot open it as a video.
+        ValueError: OpenCV cannot open it as a video, or ``max_frames < 1``.
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, max_frames: int | None = None) -> None:
+        self.max_frames = _frame_limit(max_frames)
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"source: no such video file {str(self.path)!r}")
@@ -90,6 +98,8 @@ class VideoFile(FrameSource):
         capture.release()
         self.fps = float(fps) if fps > 0 else None
         self.num_frames = count if count > 0 else None  # the container's count: exact for most codecs
+        if self.num_frames is not None and self.max_frames is not None:
+            self.num_frames = min(self.num_frames, self.max_frames)
 
     def _open(self) -> cv2.VideoCapture:
         capture = cv2.VideoCapture(str(self.path))
@@ -101,7 +111,7 @@ class VideoFile(FrameSource):
     def __iter__(self) -> Iterator[np.ndarray]:
         capture = self._open()
         try:
-            yield from _read_all(capture, None)
+            yield from _read_all(capture, self.max_frames)
         finally:
             capture.release()
 
@@ -116,13 +126,16 @@ class FrameFolder(FrameSource):
     Args:
         path: the folder.
         fps: nominal frame rate to report (a folder has none of its own).
+        max_frames: read only the first this many frames (``None``: all of them).
 
     Raises:
         FileNotFoundError: ``path`` is not a directory.
-        ValueError: no image in the folder, or it holds ``<class>/`` folders (a labelled folder, not frames).
+        ValueError: no image in the folder, it holds ``<class>/`` folders (a labelled folder, not frames), or
+            ``max_frames < 1``.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, fps: float | None = None, max_frames: int | None = None) -> None:
+        self.max_frames = _frame_limit(max_frames)
         self.path = Path(path)
         if not self.path.is_dir():
             raise FileNotFoundError(f"source: no such folder {str(self.path)!r}")
@@ -130,12 +143,12 @@ class FrameFolder(FrameSource):
         if self._folder.labelled:
             raise ValueError(f"source: {str(self.path)!r} holds <class>/ folders of images, not a flat folder of "
                              "frames (a labelled folder is read by classifiers.data.ImageFolder)")
-        self.files = [f for f, _ in self._folder.samples]
+        self.files = [f for f, _ in self._folder.samples][:self.max_frames]
         self.fps = fps
         self.num_frames = len(self.files)
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        for i in range(len(self._folder)):
+        for i in range(self.num_frames):
             yield self._folder[i][0]
 
     def __repr__(self) -> str:
@@ -146,16 +159,15 @@ class Camera(FrameSource):
     """A live camera by device index; iteration stops after ``max_frames`` frames or when a read fails.
 
     Raises:
-        ValueError: ``index`` is not an int >= 0, ``max_frames`` not a positive int or ``None``, or
+        TypeError: ``max_frames`` is not an int or ``None``.
+        ValueError: ``index`` is not an int >= 0, ``max_frames < 1``, or
             the device cannot be opened.
     """
 
     def __init__(self, index: int, max_frames: int | None = None) -> None:
         if isinstance(index, bool) or not isinstance(index, int) or index < 0:
             raise ValueError(f"source: expected a camera index >= 0, got {index!r}")
-        if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
-            raise ValueError(f"max_frames: expected a positive int or None, got {max_frames!r}")
-        self.index, self.max_frames = index, max_frames
+        self.index, self.max_frames = index, _frame_limit(max_frames)
         self._capture = cv2.VideoCapture(index)
         if not self._capture.isOpened():
             self._capture.release()
@@ -181,21 +193,24 @@ def open_source(source: str | int | os.PathLike, max_frames: int | None = None) 
     Args:
         source: an existing file (video) or directory (frames), or a camera index (an int, or a
             string of digits that names no existing path).
-        max_frames: for a camera, stop after this many frames (``None``: until a read fails).
+        max_frames: stop after this many frames, whatever the source (``None``: a file's or folder's every
+            frame, a camera until a read fails).
 
     Raises:
-        TypeError: ``source`` is neither a path nor an int.
+        TypeError: ``source`` is neither a path nor an int, or ``max_frames`` not an int.
+        ValueError: ``max_frames < 1``.
         FileNotFoundError: a path that does not exist.
     """
+    max_frames = _frame_limit(max_frames)
     if isinstance(source, bool) or not isinstance(source, (str, int, os.PathLike)):
         raise TypeError(f"source: expected a video file, a folder of frames or a camera index, got {type(source).__name__}")
     if isinstance(source, int):
         return Camera(source, max_frames)
     path = Path(source)
     if path.is_dir():
-        return FrameFolder(path)
+        return FrameFolder(path, max_frames=max_frames)
     if path.is_file():
-        return VideoFile(path)
+        return VideoFile(path, max_frames)
     if isinstance(source, str) and source.isdigit():
         return Camera(int(source), max_frames)
     raise FileNotFoundError(f"source: no such video file or folder {str(path)!r} (a camera is given by its index)")

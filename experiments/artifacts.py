@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -70,19 +71,53 @@ def _read_manifest(run_dir: Path) -> dict[str, dict[str, str]]:
     return manifest
 
 
+class Artifacts(Mapping):
+    """A run's artefacts by name, each loaded from its file on first access (then kept).
+
+    A damaged file raises when that artefact is asked for, naming the file; the others stay readable.
+    ``recorded`` is False for a run that wrote no ``artifacts.json``.
+    """
+
+    def __init__(self, run_dir: Path, entries: dict[str, dict[str, str]], recorded: bool = True) -> None:
+        self.run_dir, self.entries, self.recorded = run_dir, entries, recorded
+        self._loaded: dict[str, Any] = {}
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._loaded:
+            entry = self.entries[name]
+            path = self.run_dir / entry["path"]
+            if not path.is_file():
+                raise FileNotFoundError(f"run_dir: artefact {name!r} ({entry['kind']}) is missing: {str(path)!r}")
+            try:
+                self._loaded[name] = _loader(entry["kind"])(path)
+            except (ValueError, OSError) as exc:
+                raise ValueError(f"run_dir: artefact {name!r} ({entry['kind']}) in {str(path)!r} cannot be read: "
+                                 f"{exc}") from None
+        return self._loaded[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.entries)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+
 @dataclass
 class Run:
-    """A finished run: its composed config, metrics and fitted artefacts (also as attributes)."""
+    """A finished run: its composed config, metrics and fitted artefacts (also as attributes, loaded when first
+    used)."""
 
     run_dir: Path
     cfg: DictConfig
     metrics: dict[str, Any]
-    artifacts: dict[str, Any] = field(default_factory=dict)
+    artifacts: Mapping[str, Any] = field(default_factory=dict)
 
     def __getattr__(self, name: str) -> Any:
         artifacts = self.__dict__.get("artifacts", {})
         if name in artifacts:
             return artifacts[name]
+        if isinstance(artifacts, Artifacts) and not artifacts.recorded:
+            raise AttributeError(f"run has no attribute {name!r}, and it recorded no artefacts (no {MANIFEST})")
         raise AttributeError(f"run has no artefact or attribute {name!r}; artefacts: {sorted(artifacts)}")
 
     def __dir__(self) -> list[str]:
@@ -92,8 +127,8 @@ class Run:
 def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
     """Load a run directory written by ``python -m experiments.run``.
 
-    Returns a :class:`Run` whose artefacts are ready to use, e.g. ``run.posterior.summary()``
-    or ``run.classifier.predict_proba(images)``.
+    Returns a :class:`Run` whose artefacts load when first used, e.g. ``run.posterior.summary()`` or
+    ``run.classifier.predict_proba(images)``; its config and metrics are read at once.
 
     Args:
         run_dir: the run's directory (Hydra's output directory).
@@ -101,9 +136,10 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
             without it such a run is refused.
 
     Raises:
-        FileNotFoundError: the directory, its ``.hydra/config.yaml``, or a recorded artefact is missing.
-        ValueError: the run failed or did not finish (unless ``allow_incomplete``), or a file is
-            corrupt or not what the manifest says.
+        FileNotFoundError: the directory or its ``.hydra/config.yaml`` is missing (a missing artefact raises
+            when it is used).
+        ValueError: the run failed or did not finish (unless ``allow_incomplete``), or the manifest is corrupt
+            (a damaged artefact raises when it is used, naming its file).
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -116,14 +152,8 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
         _check_completed(run_dir, metrics_path)
     cfg = OmegaConf.load(cfg_path)
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
-    artifacts: dict[str, Any] = {}
-    if (run_dir / MANIFEST).is_file():
-        for name, entry in _read_manifest(run_dir).items():
-            path = run_dir / entry["path"]
-            if not path.is_file():
-                raise FileNotFoundError(f"run_dir: artefact {name!r} ({entry['kind']}) is missing: {str(path)!r}")
-            artifacts[name] = _loader(entry["kind"])(path)
-    return Run(run_dir, cfg, metrics, artifacts)
+    recorded = (run_dir / MANIFEST).is_file()
+    return Run(run_dir, cfg, metrics, Artifacts(run_dir, _read_manifest(run_dir) if recorded else {}, recorded))
 
 
 def latest_run(name: str, root: str | os.PathLike = "outputs") -> Path:

@@ -104,6 +104,12 @@ def _path(value: Any) -> Path | None:
 def load_models(settings: Settings, cfg: DictConfig) -> Models:
     """The classifier, the HBNI process and the class order (a mission run's, overridden by explicit files)."""
     finished = load_run(settings.run) if settings.run is not None else None
+    if finished is not None:
+        lacking = [name for name in ("classifier", "posterior") if not hasattr(finished, name)]
+        lacking += [f"metrics['{key}']" for key in ("classes", "hbni_temper") if key not in finished.metrics]
+        if lacking:
+            raise ValueError(f"stream.run: {str(settings.run)!r} is not a mission run (it lacks {', '.join(lacking)}); "
+                             "expected a run of experiment=mission, or give stream.classifier and stream.posterior")
     clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
     classes = settings.classes or (list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))

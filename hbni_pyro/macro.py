@@ -303,8 +303,11 @@ def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) ->
     batch = process.run_batch(streams)
     if truth.shape[0] != batch.label.shape[0]:
         raise ValueError(f"true_class: expected {batch.label.shape[0]} entries to match streams, got {truth.shape[0]}")
+    outside = sorted({c for c in truth.tolist() if not 0 <= c < process.num_classes})
+    if outside:
+        raise ValueError(f"true_class: {outside[0]} is out of range: expected classes in [0, {process.num_classes})")
     missing = sorted(set(range(process.num_classes)) - set(truth.tolist()))
-    if missing or ((truth < 0) | (truth >= process.num_classes)).any():
+    if missing:
         raise ValueError(f"true_class: expected every class in [0, {process.num_classes}) at least once; missing {missing}")
     return _table(process, batch, truth.long(), {"num_streams": int(truth.numel()), "generative": "recorded streams"})
 

@@ -1,4 +1,5 @@
-"""The README's Python blocks run as written: in order, in one interpreter, as a reader pastes them.
+"""The README's Python blocks run as written: each alone in a fresh interpreter, as a reader pastes it. A block
+whose first line is a comment starting ``# continues`` runs after the block before it, in the same interpreter.
 
 The blocks that load a finished run need one: the test first runs the main job (the mission) with
 the small settings the mission tests use, into ``outputs/mission/`` of a scratch directory, and
@@ -17,8 +18,19 @@ ROOT = Path(__file__).resolve().parents[1]
 BLOCKS = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
 
 
+def groups(blocks: list[str]) -> list[str]:
+    """The blocks as the scripts a reader runs: each alone, or joined to the one before when it says it continues it."""
+    out: list[str] = []
+    for block in blocks:
+        if block.startswith("# continues") and out:
+            out[-1] += "\n\n" + block
+        else:
+            out.append(block)
+    return out
+
+
 def test_readme_has_python_blocks():
-    assert len(BLOCKS) >= 4
+    assert len(BLOCKS) >= 4 and len(groups(BLOCKS)) >= 4
 
 
 def test_readme_python_blocks_run_as_written(tmp_path):
@@ -27,7 +39,9 @@ def test_readme_python_blocks_run_as_written(tmp_path):
     subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
                     f"mission.bank.cache_dir={tmp_path / 'banks'}", *TINY_MISSION], cwd=ROOT, check=True,
                    capture_output=True, env=env)
-    script = "\n\n".join(BLOCKS)
-    proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "MacroObservation(label=" in proc.stdout
+    printed = ""
+    for script in groups(BLOCKS):
+        proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
+        assert proc.returncode == 0, f"this block fails alone:\n{script}\n{proc.stderr[-3000:]}"
+        printed += proc.stdout
+    assert "MacroObservation(label=" in printed

@@ -38,6 +38,8 @@ class ImageFolder:
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
+        if self.root.is_file():
+            raise NotADirectoryError(f"root: {str(self.root)!r} is a file, expected a folder of images")
         if not self.root.is_dir():
             raise FileNotFoundError(f"root: no such directory {str(self.root)!r}")
         folders = {}

@@ -193,6 +193,8 @@ def load_dpomdp(path: str | os.PathLike, check_probabilities: bool = True,
         DPOMDPSyntaxError: malformed, binary or non-UTF-8 content; the message names the file.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"path: {str(path)!r} is a folder, expected a .dpomdp file")
     if not path.is_file():
         raise FileNotFoundError(f"path: no such file {str(path)!r}")
     data = _read_bytes(path, memory_budget)

@@ -78,5 +78,39 @@ def test_bad_sources_are_clear_errors(tmp_path, frames):
         open_source("97")  # digits that name no path: a camera index
     with pytest.raises(ValueError, match="source: expected a camera index >= 0"):
         Camera(-1)
-    with pytest.raises(ValueError, match="max_frames: expected a positive int or None"):
+    with pytest.raises(ValueError, match="max_frames: expected an int >= 1, got 0"):
         Camera(0, max_frames=0)
+
+
+@pytest.mark.parametrize("kind", ["video", "folder"])
+def test_max_frames_is_honoured_by_every_source(tmp_path, frames, kind):
+    if kind == "video":
+        path = tmp_path / "clip.mp4"
+        _write_video(path, frames)
+    else:
+        path = tmp_path / "frames"
+        path.mkdir()
+        for i, frame in enumerate(frames):
+            cv2.imwrite(str(path / f"f{i}.png"), frame)
+    source = open_source(path, max_frames=5)
+    assert len(list(source)) == 5 == source.num_frames
+    assert len(list(open_source(path))) == len(frames) > 5
+    with pytest.raises(ValueError, match="max_frames: expected an int >= 1, got -3"):
+        open_source(path, max_frames=-3)
+    with pytest.raises(TypeError, match="max_frames: expected an int"):
+        open_source(path, max_frames=2.5)
+
+
+def test_an_image_folder_on_a_file_says_so(tmp_path):
+    from classifiers.data import ImageFolder
+
+    (tmp_path / "x.png").write_bytes(b"")
+    with pytest.raises(NotADirectoryError, match="is a file, expected a folder of images"):
+        ImageFolder(tmp_path / "x.png")
+
+
+def test_fit_without_labels_names_the_argument(frame_classifier):
+    from classifiers import FrameClassifier
+
+    with pytest.raises(TypeError, match="labels: expected one class name per image"):
+        FrameClassifier().fit([np.zeros((8, 8, 3), np.uint8)], None)

@@ -345,3 +345,8 @@ def test_mutated_files_raise_only_syntax_errors():
             parse_dpomdp(text)
         except DPOMDPSyntaxError as exc:
             assert 1 <= exc.lineno <= len(text.splitlines()) + 1, (exc, text)
+
+
+def test_a_folder_is_not_a_problem_file(tmp_path):
+    with pytest.raises(IsADirectoryError, match="is a folder, expected a .dpomdp file"):
+        load_dpomdp(tmp_path)

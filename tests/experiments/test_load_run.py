@@ -47,11 +47,17 @@ def test_missing_and_corrupt_artefacts(toy_run, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(toy_run, copy)
     (copy / "posterior.safetensors").unlink()
+    run = load_run(copy)  # lazy: the metrics and the other artefacts stay readable
+    assert run.metrics["theta_true"] == [1.0, 6.0, 20.0] and isinstance(run.posterior_near_perfect, HBNIPosterior)
     with pytest.raises(FileNotFoundError, match="artefact 'posterior' .* is missing"):
-        load_run(copy)
+        run.posterior
     (copy / "posterior.safetensors").write_bytes(b"garbage")
-    with pytest.raises(ValueError, match="is not a readable model file"):
-        load_run(copy)
+    with pytest.raises(ValueError, match=r"artefact 'posterior' \(HBNIPosterior\) in .*posterior.safetensors.* cannot "
+                                         "be read: .*is not a readable model file"):
+        load_run(copy).posterior
+    (copy / "artifacts.json").unlink()
+    with pytest.raises(AttributeError, match="recorded no artefacts"):
+        load_run(copy).posterior
     (copy / "artifacts.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt manifest"):
         load_run(copy)
@@ -65,15 +71,15 @@ def test_a_run_says_where_it_wrote_and_fills_its_log(toy_run):
 
 def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
     cmd = [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
-           "toy.per_class=0", "progress=false"]
+           "entry=experiments.hbni_toy.no_such_study", "progress=false"]  # fails once started
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
-    assert proc.returncode != 0 and "toy.per_class: expected an int >= 1" in proc.stderr
+    assert proc.returncode != 0 and "no_such_study" in proc.stderr
     status = json.loads((tmp_path / "status.json").read_text())
-    assert status["status"] == "failed" and "toy.per_class" in status["error"]
-    with pytest.raises(ValueError, match="failed .*toy.per_class.*pass allow_incomplete=True"):
+    assert status["status"] == "failed" and "no_such_study" in status["error"]
+    with pytest.raises(ValueError, match="(?s)failed .*no_such_study.*pass allow_incomplete=True"):
         load_run(tmp_path)
     run = load_run(tmp_path, allow_incomplete=True)
-    assert run.metrics == {} and run.cfg.toy.per_class == 0
+    assert run.metrics == {} and run.cfg.entry == "experiments.hbni_toy.no_such_study"
 
 
 def test_an_unfinished_run_is_refused(toy_run, tmp_path):

@@ -174,3 +174,15 @@ def test_streaming_steps_reject_bad_input(saved):
     with pytest.raises(ValueError, match="classes: expected 3 names"):
         next(macro_observations([], process, CLASSES[:2]))
     assert list(macro_observations([], process, CLASSES)) == []
+
+
+def test_a_run_that_is_not_a_mission_is_a_clear_error(tmp_path, saved, repo_root):
+    other = tmp_path / "toy"
+    (other / ".hydra").mkdir(parents=True)
+    (other / ".hydra" / "config.yaml").write_text("name: hbni_toy\n")
+    (other / "metrics.json").write_text("{}")
+    (other / "status.json").write_text('{"status": "completed"}')
+    proc = subprocess.run(_args(saved, tmp_path / "out", "stream.classifier=null", "stream.posterior=null",
+                                f"stream.run={other}"), cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0 and f"stream.run: {str(other)!r} is not a mission run (it lacks classifier, " \
+        "posterior" in proc.stderr, proc.stderr[-2000:]

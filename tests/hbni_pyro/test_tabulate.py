@@ -49,3 +49,5 @@ def test_tabulate_errors():
         tabulate(process, streams, torch.tensor([0.0, 1.0]))
     with pytest.raises(TypeError, match="process"):
         tabulate("ssbf", streams, torch.tensor([0, 1]))
+    with pytest.raises(ValueError, match=r"true_class: 9 is out of range: expected classes in \[0, 2\)"):
+        tabulate(process, streams, torch.tensor([0, 9]))
