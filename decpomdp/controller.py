@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -22,12 +24,16 @@ class JointController:
     Attributes:
         action: long (K, A, Nn), the MA agent ``a`` runs in node ``n`` of controller ``k``.
         next_node: long (K, A, Nn, O), the node after observing ``o`` in node ``n``.
+        action_names, obs_names: the names of the domain's MAs and observations the controller was planned for
+            (``None``: unnamed); saved with it, and checked against a domain it is run in.
 
     Every agent starts in node 0.
     """
 
     action: Tensor
     next_node: Tensor
+    action_names: tuple[str, ...] | None = None
+    obs_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         for name, value in (("action", self.action), ("next_node", self.next_node)):
@@ -45,6 +51,12 @@ class JointController:
             raise ValueError("action: entries must be >= 0")
         if bool(((self.next_node < 0) | (self.next_node >= nn)).any()):
             raise ValueError(f"next_node: entries must lie in [0, {nn})")
+        self.action_names = _names("action_names", self.action_names, int(self.action.max()) + 1, at_least=True)
+        self.obs_names = _names("obs_names", self.obs_names, self.next_node.shape[3])
+
+    def named(self, action_names: Sequence[str] | None, obs_names: Sequence[str] | None) -> JointController:
+        """The same controllers, named after a domain's MAs and observations."""
+        return JointController(self.action, self.next_node, action_names, obs_names)
 
     @property
     def num_controllers(self) -> int:
@@ -77,7 +89,9 @@ class JointController:
         action, next_node = self.action[index], self.next_node[index]
         if action.dim() != 3 or action.shape[0] == 0:
             return JointController(action, next_node)  # raises
-        return JointController.trusted(action, next_node)
+        out = JointController.trusted(action, next_node)
+        out.action_names, out.obs_names = self.action_names, self.obs_names
+        return out
 
     @staticmethod
     def cat(controllers: list[JointController]) -> JointController:
@@ -87,17 +101,32 @@ class JointController:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Atomically write the controllers to one safetensors file (no pickle)."""
-        meta = {"shape": list(self.next_node.shape)}
+        meta = {"shape": list(self.next_node.shape),
+                "action_names": None if self.action_names is None else list(self.action_names),
+                "obs_names": None if self.obs_names is None else list(self.obs_names)}
         return save_tensors(path, _KIND, {"action": self.action, "next_node": self.next_node}, meta, version=_VERSION)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> JointController:
         """Read controllers written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
-        tensors, _ = load_tensors(path, _KIND, version=_VERSION)
+        tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         if set(tensors) != {"action", "next_node"}:
             raise ValueError(f"path: {str(path)!r} holds {sorted(tensors)}, expected a JointController's action and "
                              "next_node")
         try:
-            return cls(tensors["action"], tensors["next_node"])
+            return cls(tensors["action"], tensors["next_node"], meta.get("action_names"), meta.get("obs_names"))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid controller ({exc})") from None
+
+
+def _names(name: str, names: Any, count: int, at_least: bool = False) -> tuple[str, ...] | None:
+    """``names`` as a tuple of distinct strings, ``count`` of them (at least ``count`` with ``at_least``)."""
+    if names is None:
+        return None
+    if isinstance(names, str) or not hasattr(names, "__iter__"):
+        raise TypeError(f"{name}: expected a sequence of names, got {type(names).__name__}")
+    names = tuple(names)
+    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names) or (
+            len(names) < count if at_least else len(names) != count):
+        raise ValueError(f"{name}: expected {'at least ' if at_least else ''}{count} distinct names, got {list(names)}")
+    return names

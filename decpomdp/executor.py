@@ -114,6 +114,13 @@ class ControllerExecutor:
         if controller.num_obs != env.num_obs or controller.num_agents != env.num_agents:
             raise ValueError(f"controller: has {controller.num_agents} agents and {controller.num_obs} observations, "
                              f"env has {env.num_agents} and {env.num_obs}")
+        for kind, planned, domain in (("action_names", controller.action_names, env.action_names),
+                                      ("obs_names", controller.obs_names, env.obs_names)):
+            if planned is not None and tuple(planned) != tuple(domain):
+                first = next((i for i, (a, b) in enumerate(zip(planned, domain)) if a != b), min(len(planned), len(domain)))
+                raise ValueError(f"controller: planned for other {kind} than env's (first difference at index {first}: "
+                                 f"{planned[first] if first < len(planned) else None!r} there, "
+                                 f"{domain[first] if first < len(domain) else None!r} here)")
         return cls(controller, agent, env.action_names, env.obs_names)
 
     @property

@@ -185,7 +185,8 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
     """Stage 3: HBNI fitted on the labelled calibration outputs (saved as ``posterior``), and its temper."""
     settings.clock.start("fit", "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
-    posterior = fit_labelled(calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress)
+    posterior = fit_labelled(calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress,
+                             class_names=list(CLASSES))
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
         return Noise(posterior, {"value": settings.temper, "fitted": False})

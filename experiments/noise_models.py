@@ -238,7 +238,7 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     mode = cfg.hbni.filter.mode
     filters: dict[str, Any] = {}
     for model in s.models:
-        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model)
+        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model, class_names=list(CLASSES))
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
         if model in TEMPERED:

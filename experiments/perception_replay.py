@@ -59,7 +59,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     frames = int(st.frames)
     calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, stream_seed(seed, "calibration"), progress,
                                 "calibration")
-    posterior = fit_labelled(calib, cfg.hbni, seed, progress)
+    posterior = fit_labelled(calib, cfg.hbni, seed, progress, class_names=list(classes))
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.

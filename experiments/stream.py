@@ -112,7 +112,8 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
                              "expected a run of experiment=mission, or give stream.classifier and stream.posterior")
     clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
-    classes = settings.classes or (list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
+    classes = settings.classes or (list(posterior.class_names) if posterior.class_names is not None else None) or (
+        list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
     if len(classes) != posterior.num_classes:
         raise ValueError(f"stream.classes: the posterior has {posterior.num_classes} classes, got {classes}")
     temper = settings.temper

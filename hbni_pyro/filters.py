@@ -55,10 +55,12 @@ class StreamingFilter:
 
     Subclasses define :meth:`features` (per-frame ``(..., M) -> (..., F)``) and
     :meth:`posterior` (running feature sum and frame count ``-> (..., M)`` class probabilities);
-    ``F = feature_size`` (``M`` unless a subclass says otherwise).
+    ``F = feature_size`` (``M`` unless a subclass says otherwise). ``class_names`` are the classes' names in
+    column order when the filter knows them (an HBNI filter: its posterior's), else ``None``.
     """
 
     num_classes: int
+    class_names: tuple[str, ...] | None = None
 
     @property
     def feature_size(self) -> int:
@@ -231,6 +233,7 @@ class HBNIFilter(StreamingFilter):
         if isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1:
             raise ValueError(f"temper: expected a float in (0, 1], got {temper!r}")
         self.model = getattr(posterior, "model", "paper")
+        self.class_names = getattr(posterior, "class_names", None)
         draws = _checked_draws(posterior, self.model)
         if class_prior is None:
             class_prior = getattr(posterior, "class_prior", None)

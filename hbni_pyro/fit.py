@@ -26,6 +26,7 @@ from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
 from hbni_pyro.sequence_model import SequenceStats, sequence_model, sequence_stats
 from hbni_pyro.validation import (
     DTYPE,
+    as_class_names,
     as_class_prior,
     as_labels,
     as_outputs,
@@ -59,6 +60,7 @@ def fit(
     hyperprior: HyperPrior | None = None,
     class_prior: Any = None,
     jit: bool = True,
+    class_names: Any = None,
 ) -> HBNIPosterior:
     """Infer a noise model's posterior from classifier outputs.
 
@@ -78,6 +80,7 @@ def fit(
         hyperprior: a :class:`HyperPrior` (``None`` = defaults).
         class_prior: ``(M,)`` prior ``p`` over classes (``None`` = uniform).
         jit: compile the NUTS potential with the PyTorch JIT (ignored by MH).
+        class_names: ``M`` names of the classes, in column order, stored with the posterior (``None``: unnamed).
 
     Returns:
         An :class:`HBNIPosterior` with ``num_chains`` chains of ``num_samples`` draws.
@@ -90,10 +93,14 @@ def fit(
     ids = _sequence_ids(model, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
+    names = as_class_names(class_names, x.shape[1])
     settings = dict(chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p)
     if method == "mh":
-        return _fit_mh(model, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
-    return _fit_nuts(model, x, y, ids, jit=jit, **settings)
+        posterior = _fit_mh(model, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
+    else:
+        posterior = _fit_nuts(model, x, y, ids, jit=jit, **settings)
+    posterior.class_names = names
+    return posterior
 
 
 def fit_many(
@@ -109,12 +116,13 @@ def fit_many(
     progress: bool = True,
     hyperprior: HyperPrior | None = None,
     class_prior: Any = None,
+    class_names: Any = None,
 ) -> list[HBNIPosterior]:
     """Fit ``D`` independent datasets ``obs_sets (D, N, M)`` with MH in one vectorised run.
 
     ``labels`` is ``None`` or ``(D, N)`` with -1 for unknown; ``sequence_ids (N,)`` is shared by the
     datasets. Returns ``D`` posteriors, each with ``num_chains`` chains; dataset ``d``'s chains see
-    only dataset ``d``.
+    only dataset ``d``; ``class_names`` names the classes of all of them.
     """
     x = as_outputs(obs_sets, min_dim=3, name="obs_sets")
     if x.dim() != 3:
@@ -128,7 +136,11 @@ def fit_many(
     ids = _sequence_ids(model, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
-    return _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
+    names = as_class_names(class_names, x.shape[2])
+    posteriors = _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
+    for posterior in posteriors:
+        posterior.class_names = names
+    return posteriors
 
 
 def _sequence_ids(model: str, sequence_ids: Any, num_obs: int, labels: Tensor | None) -> Tensor | None:

@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.validation import DTYPE, as_class_names
 from infra.checks import as_int, as_probability
 from infra.tensorfile import load_tensors, save_tensors
 
@@ -72,6 +72,11 @@ class MacroObservationProcess:
     @property
     def num_classes(self) -> int:
         return self.filter.num_classes
+
+    @property
+    def class_names(self) -> tuple[str, ...] | None:
+        """The filter's class names in column order (``None`` when it has none)."""
+        return self.filter.class_names
 
     def run(self, stream: Iterable[Any] | Tensor) -> MacroObservation:
         """Consume outputs from ``stream`` (an iterable of ``(M,)`` rows or an ``(N, M)`` tensor)
@@ -147,7 +152,8 @@ class MacroObservationModel:
         info: JSON-serialisable description (threshold, filter, number of simulated streams, ...).
     """
 
-    def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None) -> None:
+    def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None,
+                 class_names: Any = None) -> None:
         joint = torch.as_tensor(joint, dtype=DTYPE)
         if joint.dim() != 3 or joint.shape[0] != joint.shape[1] or joint.shape[0] < 2 or joint.shape[2] < 1:
             raise ValueError(f"joint: expected shape (M, M, max_frames) with M >= 2, got {tuple(joint.shape)}")
@@ -163,6 +169,7 @@ class MacroObservationModel:
         self.timed_out = timed_out
         self.info = dict(info or {})
         self._flat = self.joint.reshape(self.num_classes, -1)
+        self.class_names = as_class_names(class_names, self.num_classes)
 
     @property
     def num_classes(self) -> int:
@@ -233,14 +240,15 @@ class MacroObservationModel:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically."""
-        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out}, {"info": self.info})
+        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out},
+                            {"info": self.info, "class_names": None if self.class_names is None else list(self.class_names)})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MacroObservationModel":
         """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
         tensors, meta = load_tensors(path, _KIND)
         try:
-            return cls(tensors["joint"], tensors["timed_out"], meta.get("info", {}))
+            return cls(tensors["joint"], tensors["timed_out"], meta.get("info", {}), meta.get("class_names"))
         except KeyError as exc:
             raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
 
@@ -320,7 +328,7 @@ def _table(process: MacroObservationProcess, batch: MacroObservationBatch, truth
     per_class = counts.sum(-1, keepdim=True)
     timed_out = torch.zeros(M, dtype=DTYPE).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
     info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
-    return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info)
+    return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info, process.class_names)
 
 
 StreamSampler = Callable[[int, int, int, torch.Generator], Tensor]

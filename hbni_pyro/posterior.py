@@ -14,7 +14,7 @@ from torch import Tensor
 from hbni_pyro.density import concentrations
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.model import HyperPrior
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.validation import DTYPE, as_class_names
 from hbni_pyro.variants import MODELS, check_model, site_shapes
 from infra.tensorfile import load_tensors, save_tensors
 
@@ -42,6 +42,8 @@ class HBNIPosterior:
         label_probs: ``(N, M)`` posterior probability of each training output's class, or ``None``.
         info: JSON-serialisable fit metadata (method, settings, sampler diagnostics).
         model: the noise model, one of :data:`hbni_pyro.variants.MODELS` (default ``"paper"``).
+        class_names: the name of each class, in the order of the outputs' columns (``None``: unnamed); filters,
+            tables and streams built on the posterior check their names against it.
     """
 
     samples: dict[str, Tensor]
@@ -50,9 +52,11 @@ class HBNIPosterior:
     label_probs: Tensor | None = None
     info: dict[str, Any] = field(default_factory=dict)
     model: str = "paper"
+    class_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         check_model(self.model)
+        self.class_names = as_class_names(self.class_names, _num_classes(self.model, self.samples))
         shapes = site_shapes(self.model, _num_classes(self.model, self.samples))
         missing = [k for k in shapes if k not in self.samples]
         if missing:
@@ -174,7 +178,8 @@ class HBNIPosterior:
         tensors["class_prior"] = self.class_prior
         if self.label_probs is not None:
             tensors["label_probs"] = self.label_probs
-        meta = {"model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info}
+        meta = {"model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info,
+                "class_names": None if self.class_names is None else list(self.class_names)}
         return save_tensors(path, _KIND, tensors, meta, version=_VERSION)
 
     @classmethod
@@ -193,6 +198,7 @@ class HBNIPosterior:
                 label_probs=tensors.get("label_probs"),
                 info=meta.get("info", {}),
                 model=model,
+                class_names=meta.get("class_names"),
             )
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.macro import MacroObservationProcess
+from hbni_pyro.validation import check_same_classes
 
 
 class Segment(NamedTuple):
@@ -64,6 +65,7 @@ def macro_observations(
     """
     if len(classes) != process.num_classes:
         raise ValueError(f"classes: expected {process.num_classes} names, got {len(classes)}")
+    check_same_classes(process.class_names, classes, "the process's posterior")
     it = iter(items)
     start = 0
     for index in itertools.count():

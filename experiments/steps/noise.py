@@ -10,12 +10,14 @@ import hbni_pyro
 
 
 def fit_labelled(
-    outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool, model: str | None = None
+    outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool, model: str | None = None, *,
+    class_names: list[str],
 ) -> hbni_pyro.HBNIPosterior:
     """Fit HBNI on ``outputs (C, S, F, M)``: ``S`` sequences of ``F`` frames of each true class ``c``.
 
     Uses the noise model ``model`` (default ``hbni.model``), the ``hbni.fit`` sampler settings and
-    the ``hbni.hyperprior``; every output's class is known, and so is its sequence.
+    the ``hbni.hyperprior``; every output's class is known, and so is its sequence. ``class_names`` name the
+    ``C`` classes (the outputs' column order), and travel with the posterior.
     """
     num_classes, num_seq, frames = outputs.shape[:3]
     labels = torch.arange(num_classes).view(-1, 1, 1).expand(outputs.shape[:3]).reshape(-1)
@@ -23,4 +25,5 @@ def fit_labelled(
     return hbni_pyro.fit(
         outputs.reshape(-1, outputs.shape[-1]).double(), labels, model=model or hbni.model, sequence_ids=sequence_ids,
         **OmegaConf.to_container(hbni.fit), hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress,
+        class_names=class_names,
     )

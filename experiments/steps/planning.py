@@ -56,7 +56,7 @@ def run_planner(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, 
     cpu, wall = time.process_time(), time.perf_counter()
     result = plan(scorer, config, seed=seed, progress=progress, init=init)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-    best = scorer.team(result.best)
+    best = scorer.team(result.best).named(env.action_names, env.obs_names)
     entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,
              "planner_value": result.value, **score(env, best, reeval_rollouts, stream_seed(seed, "reeval"))}
     return result, best, entry
@@ -112,7 +112,7 @@ def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointContro
     result, best, entry = run_planner(env, seeded_cfg, shared_controller, seed, progress, int(study.reeval_rollouts),
                                       init=seed_controller(policy, shared_controller))
     mode = mode_controller(result.distributions)
-    candidates = {"best_sampled": best, "mode": RolloutScorer(env, shared=shared_controller).team(mode)}
+    candidates = {"best_sampled": best, "mode": RolloutScorer(env, shared=shared_controller).team(mode).named(env.action_names, env.obs_names)}
     selection = {name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"]
                  for name, ctrl in candidates.items()}
     chosen = max(selection, key=selection.get)

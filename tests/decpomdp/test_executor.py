@@ -147,3 +147,19 @@ def test_default_names_index_only():
     assert ex.action == MacroAction(1, "ma1") and ex.obs_names == ["obs0", "obs1"]
     assert ex.observe(0) == MacroAction(0, "ma0")
     assert ex.observe("obs1") == MacroAction(0, "ma0")
+
+
+def test_names_travel_with_the_controller_and_are_checked(tmp_path):
+    env = DisasterRelief()
+    ctrl = greedy_controller(2).named(env.action_names, env.obs_names)
+    loaded = JointController.load(ctrl.save(tmp_path / "c.safetensors"))
+    assert loaded.action_names == tuple(env.action_names) and loaded.obs_names == tuple(env.obs_names)
+    assert loaded[0].obs_names == loaded.obs_names  # selecting controllers keeps the names
+    ControllerExecutor.for_domain(loaded, agent=0, env=env)
+    swapped = list(env.obs_names)
+    swapped[0], swapped[1] = swapped[1], swapped[0]
+    with pytest.raises(ValueError, match=r"controller: planned for other obs_names than env's \(first difference at "
+                                         r"index 0"):
+        ControllerExecutor.for_domain(loaded.named(env.action_names, swapped), agent=0, env=env)
+    with pytest.raises(ValueError, match="obs_names: expected .* distinct names"):
+        loaded.named(env.action_names, env.obs_names[:-1])
