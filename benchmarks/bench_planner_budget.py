@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import torch
 
 from decpomdp import evaluate
 from decpomdp.domains import DisasterRelief, PackageDelivery, shared

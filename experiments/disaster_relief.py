@@ -19,7 +19,6 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 

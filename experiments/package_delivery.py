@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib.pyplot as plt
-import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 

@@ -82,7 +82,9 @@ class TabularDecPOSMDP(DecPOSMDP):
         self.gamma, self.horizon = gamma, float(horizon)
         self.action_names = list(model.action_names[0])
         self.obs_names = list(model.obs_names[0])
-        f64 = lambda x: torch.as_tensor(np.asarray(x, dtype=np.float64))
+        def f64(x):
+            return torch.as_tensor(np.asarray(x, dtype=np.float64))
+
         self.start_dist = f64(model.start)
         self.observation = f64(model.observation)  # (JA, S', JO)
         self.expected_reward = f64(model.expected_reward())  # (JA, S)

@@ -163,20 +163,20 @@ class Neighbourhood:
         owner, x, o = self.sites[site].T
         for who in owner.unique().tolist():
             exits = self.visited[who].nonzero().squeeze(1)
-            for l in range(1, self.max_chain + 1):
-                pick = (owner == who) & (length == l)
+            for size in range(1, self.max_chain + 1):
+                pick = (owner == who) & (length == size)
                 if not bool(pick.any()):
                     continue
                 r, w = rows[pick], within[pick]
                 exit_node = exits[w % len(exits)]
                 combo = w // len(exits)
-                mas = [(combo // self.m**j) % self.m for j in range(l)]
+                mas = [(combo // self.m**j) % self.m for j in range(size)]
                 for a in self._agents(who):
                     free = self.free[a]
                     next_node[r, a, x[pick], o[pick]] = free[0]
-                    for j in range(l):
+                    for j in range(size):
                         action[r, a, free[j]] = mas[j]
-                        next_node[r, a, free[j], :] = free[j + 1] if j + 1 < l else exit_node[:, None]
+                        next_node[r, a, free[j], :] = free[j + 1] if j + 1 < size else exit_node[:, None]
 
 
 def grow(controller: JointController, extra: int) -> JointController:

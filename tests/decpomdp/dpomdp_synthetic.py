@@ -67,7 +67,9 @@ def synthetic_text(seed: int) -> str:
     start = rng.choice(["uniform", states[0], " ".join(["%.6f" % (1 / n_s)] * (n_s - 1) + ["%.6f" % (1 - (n_s - 1) * float("%.6f" % (1 / n_s)))])])
     lines = [f"agents: {n_agents}", f"discount: {rng.choice([1, 0.9])}", f"values: {rng.choice(['reward', 'cost'])}",
              f"states: {s_head}", f"start: {start}", "actions:", *a_head, "observations:", *o_head]
-    state = lambda: rng.choice(["*", rng.choice(states), str(rng.randrange(n_s))])
+    def state():
+        return rng.choice(["*", rng.choice(states), str(rng.randrange(n_s))])
+
     for _ in range(rng.randint(5, 25)):
         kind, form = rng.choice("TOR"), rng.randint(0, 2)
         ja = _joint(rng, acts)

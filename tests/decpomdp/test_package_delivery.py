@@ -5,13 +5,12 @@ constants ``DURATION_NOISE`` and ``ARRIVAL`` of :mod:`decpomdp.domains.package_d
 """
 
 import math
-import random
 from pathlib import Path
 
 import pytest
 import torch
 
-from decpomdp import JointController, evaluate, simulate
+from decpomdp import JointController, simulate
 from decpomdp.domains import PackageDelivery, rollout_counters
 from decpomdp.domains import package_delivery as pd
 

@@ -27,7 +27,7 @@ def _brute_force(obs, theta, kappa, gamma, labels, prior):
     base = base + gamma_log_prob(theta, kappa, gamma).sum()
     terms = []
     for assignment in itertools.product(range(num_classes), repeat=num_obs):
-        if any(l >= 0 and a != l for a, l in zip(assignment, labels.tolist())):
+        if any(y >= 0 and a != y for a, y in zip(assignment, labels.tolist())):
             continue
         lp = base.clone()
         for o, m in zip(obs, assignment):

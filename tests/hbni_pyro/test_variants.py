@@ -80,7 +80,7 @@ def test_confusion_log_joint_matches_brute_force_and_pyro_enumeration():
     for labels in (torch.tensor([-1, -1, -1, -1]), torch.tensor([2, -1, 0, -1])):
         terms = []
         for assignment in itertools.product(range(3), repeat=4):
-            if any(l >= 0 and a != l for a, l in zip(assignment, labels.tolist())):
+            if any(y >= 0 and a != y for a, y in zip(assignment, labels.tolist())):
                 continue
             terms.append(sum(prior[m].log() + torch.distributions.Dirichlet(alpha[m]).log_prob(o) for o, m in zip(obs, assignment)))
         ref = base + torch.logsumexp(torch.stack(terms), 0)

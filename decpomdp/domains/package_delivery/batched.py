@@ -19,8 +19,7 @@ from decpomdp.engine import EngineModel, no_perception
 from infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
-    ACTION_NAMES, BASE1, COUNTERS, DROP_MAS, FAIL_DURATION, GO_B1, JOINT_MAS, JPICK, JPUT, MEAN_DURATION,
-    MIN_NOISE_FACTOR, OBS_NAMES, PICK, PUT, REFERENCE_SUCCESSORS, TARGET_NODE, WAIT, Rewards, preconditions_hold,
+    ACTION_NAMES, BASE1, COUNTERS, FAIL_DURATION, GO_B1, JPICK, JPUT, MIN_NOISE_FACTOR, OBS_NAMES, PUT, WAIT, Rewards,
 )
 
 _N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
