@@ -18,6 +18,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.common import write_json
+from experiments.paths import outputs_root
 from experiments.status import read_status
 
 MANIFEST = "artifacts.json"
@@ -156,13 +157,15 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
     return Run(run_dir, cfg, metrics, Artifacts(run_dir, _read_manifest(run_dir) if recorded else {}, recorded))
 
 
-def latest_run(name: str, root: str | os.PathLike = "outputs") -> Path:
-    """The newest completed run directory of experiment ``name`` under ``root/<name>/``.
+def latest_run(name: str, root: str | os.PathLike | None = None) -> Path:
+    """The newest completed run directory of experiment ``name`` under ``root/<name>/`` (default root: the
+    project's ``outputs``, :func:`experiments.paths.outputs_root`, from any working directory).
 
     Raises:
         FileNotFoundError: no completed run of ``name`` under ``root``.
     """
-    runs = sorted(p for p in (Path(root) / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed")
+    root = outputs_root() if root is None else Path(root)
+    runs = sorted(p for p in (root / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed")
     if not runs:
         raise FileNotFoundError(f"name: no completed {name!r} run under {str(Path(root) / name)!r}; "
                                 f"run `python -m experiments.run experiment={name}` first")

@@ -80,7 +80,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 def read_settings(cfg: DictConfig) -> Settings:
     """The stream's settings from its config (already checked against its schema, ``experiments.schemas``).
 
-    ``stream.run=latest`` is the newest completed mission run under ``outputs/mission``; it is not read
+    ``stream.run=latest`` is the newest completed mission run under the project's ``outputs/mission`` (from any
+    working directory, :mod:`experiments.paths`); it is not read
     when both ``stream.classifier`` and ``stream.posterior`` are given.
     """
     st = cfg.stream

@@ -2,8 +2,8 @@
 whose first line is a comment starting ``# continues`` runs after the block before it, in the same interpreter.
 
 The blocks that load a finished run need one: the test first runs the main job (the mission) with
-the small settings the mission tests use, into ``outputs/mission/`` of a scratch directory, and
-runs the blocks there.
+the small settings the mission tests use, into ``outputs/mission/`` of a scratch directory made the project
+root (``HBNI_PYRO_ROOT``), and runs the blocks there.
 """
 
 import os
@@ -34,7 +34,7 @@ def test_readme_has_python_blocks():
 
 
 def test_readme_python_blocks_run_as_written(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(tmp_path)}  # outputs/ of the scratch folder
     run_dir = tmp_path / "outputs" / "mission" / "2026-01-01_00-00-00"
     subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
                     f"mission.bank.cache_dir={tmp_path / 'banks'}", *TINY_MISSION], cwd=ROOT, check=True,

@@ -18,12 +18,14 @@ from omegaconf.errors import OmegaConfBaseException
 
 from experiments.schemas.studies import SCHEMAS
 from experiments.schemas.targets import join_key
+from experiments.paths import register_resolver
 
 __all__ = ["SCHEMAS", "check_config", "register"]
 
 
 def register() -> None:
     """Store every experiment's schema as ``schema/<name>`` (package ``_global_``) in Hydra's ConfigStore."""
+    register_resolver()
     store = ConfigStore.instance()
     for name, schema in SCHEMAS.items():
         store.store(group="schema", name=name, node=schema, package="_global_")

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+from omegaconf import MISSING
+
 from experiments.schemas.blocks import (
     BaselineStudy, HBNIBlock, HyperPriorBlock, PlanningStudy, check_seeded, one_of, positive_int, probability,
 )
@@ -17,9 +19,20 @@ PackageDeliveryBlock = target_schema("decpomdp.domains.PackageDelivery")
 
 
 @dataclass
+class Paths:
+    """``paths``: where runs, sweeps and caches go (``conf/config.yaml``)."""
+
+    root: str = MISSING  # the values are conf/config.yaml's
+    outputs: str = MISSING
+    multirun: str = MISSING
+    cache: str = MISSING
+
+
+@dataclass
 class Root:
     """Keys every experiment has."""
 
+    paths: Paths = field(default_factory=Paths)
     name: str = "?"
     entry: str = "?"
     headline: list[str] = field(default_factory=list)  # metrics a sweep report shows (paths into metrics.json)

@@ -155,8 +155,9 @@ def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path,
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
         cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.classifier=null"])
     check_config(cfg)  # run=latest is found when the stream starts
-    monkeypatch.chdir(tmp_path)
-    with pytest.raises(FileNotFoundError, match="stream.run: no completed 'mission' run under 'outputs/mission'"):
+    monkeypatch.setenv("HBNI_PYRO_ROOT", str(tmp_path))
+    with pytest.raises(FileNotFoundError, match=f"stream.run: no completed 'mission' run under "
+                                                f"'{tmp_path / 'outputs' / 'mission'}'"):
         read_settings(cfg)
 
 

@@ -1,0 +1,44 @@
+"""One root for runs, sweeps and caches: the project folder (or HBNI_PYRO_ROOT), whatever the working directory."""
+
+import json
+import os
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+
+from experiments import latest_run
+from experiments.paths import project_root
+from experiments.schemas import check_config, register
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _compose(*overrides):
+    register()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+
+
+def test_defaults_resolve_against_the_project_from_any_directory(tmp_path, monkeypatch):
+    monkeypatch.delenv("HBNI_PYRO_ROOT", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert project_root() == ROOT
+    cfg = _compose("experiment=mission")
+    check_config(cfg)
+    assert cfg.paths.root == str(ROOT) and cfg.mission.bank.cache_dir == str(ROOT / ".cache" / "banks")
+    assert cfg.hydra.run.dir.startswith(str(ROOT / "outputs" / "mission"))
+    assert cfg.hydra.sweep.dir.startswith(str(ROOT / "multirun" / "mission"))
+    assert _compose("experiment=noise_models").study.cache_dir == str(ROOT / ".cache" / "noise_models")
+
+
+def test_the_root_can_be_moved_and_latest_run_finds_its_runs_from_anywhere(tmp_path, monkeypatch):
+    root = tmp_path / "project"
+    run = root / "outputs" / "mission" / "2026-01-01_00-00-00"
+    run.mkdir(parents=True)
+    (run / "status.json").write_text(json.dumps({"status": "completed"}))
+    monkeypatch.setenv("HBNI_PYRO_ROOT", str(root))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert latest_run("mission") == run and os.getcwd() == str(elsewhere)
+    assert _compose("experiment=mission").paths.outputs == str(root / "outputs")
