@@ -42,3 +42,14 @@ def test_the_root_can_be_moved_and_latest_run_finds_its_runs_from_anywhere(tmp_p
     monkeypatch.chdir(elsewhere)
     assert latest_run("mission") == run and os.getcwd() == str(elsewhere)
     assert _compose("experiment=mission").paths.outputs == str(root / "outputs")
+
+
+def test_help_lists_every_experiment_on_one_line():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "experiments.run", "--help"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    names = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
+    listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ") and line.split()}
+    assert set(names) <= listed and len(out.splitlines()) < 30
