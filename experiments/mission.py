@@ -11,10 +11,10 @@ then the policy executed with the actual filter on held-out frames.
    sequences and classify every frame.
 3. :func:`fit_noise`: fit HBNI on the calibration outputs, then its likelihood temper on the same
    sequences (:func:`hbni_pyro.fit_temper`: their frames are correlated, not i.i.d.).
-4. :func:`characterise_processes`: run HBNI, SSBF and max-of-mean macro-observation processes
+4. :func:`characterize_processes`: run HBNI, SSBF and max-of-mean macro-observation processes
    (threshold, frame budget) on the held-out streams and tabulate each one's
    ``P(label, frames | true class)``: the :class:`~hbni_pyro.MacroObservationModel` of the
-   "infer with 95 % confidence" MA (the empirical planning model). :func:`characterise_generative`:
+   "infer with 95 % confidence" MA (the empirical planning model). :func:`characterize_generative`:
    the same processes run on streams simulated from HBNI's fitted posterior predictive (the
    generative planning model); :func:`planning_models` gives each variant the one
    ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
@@ -125,8 +125,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     try:
         outputs = classify_sequences(clf, cfg, settings)
         noise = fit_noise(outputs.calibration, cfg, settings, run_dir)
-        empirical = characterise_processes(noise, outputs.held_out, cfg, settings, run_dir)
-        generative = characterise_generative(noise, cfg, settings, run_dir)
+        empirical = characterize_processes(noise, outputs.held_out, cfg, settings, run_dir)
+        generative = characterize_generative(noise, cfg, settings, run_dir)
         models = planning_models(empirical, generative, settings)
         results, histories = plan(models, cfg, settings, run_dir)
         settings.clock.start("bank_wait", "waiting for the held-out bank")
@@ -197,11 +197,11 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
                              "log_score": fitted.log_score.tolist()})
 
 
-def characterise_processes(
+def characterize_processes(
     noise: Noise, held: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """Stage 4: each variant's macro-observation table on the held-out streams (saved as ``macro_<variant>``)."""
-    settings.clock.start("characterise", "4/6 characterising the macro-observation processes on held-out streams")
+    settings.clock.start("characterize", "4/6 characterising the macro-observation processes on held-out streams")
     M = len(CLASSES)
     streams = held.reshape(-1, settings.frames, M)
     truth = torch.arange(M).repeat_interleave(held.shape[1])
@@ -220,7 +220,7 @@ def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[s
         threshold=float(cfg.mission.threshold), max_frames=settings.frames) for name in settings.variants}
 
 
-def characterise_generative(
+def characterize_generative(
     noise: Noise, cfg: DictConfig, settings: Settings, run_dir: Path
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """Stage 4b: the generative planning model of the variants that need it (all of them when
@@ -232,7 +232,7 @@ def characterise_generative(
     needed = settings.variants if loop.planning_model == "generative" else (
         [v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])
     if needed:
-        settings.clock.start("characterise_generative", f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
+        settings.clock.start("characterize_generative", f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
     processes = build_processes(noise, cfg, settings)
     models = {}
     for name in needed:

@@ -56,7 +56,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert started == {"perfect": "scratch", "hbni": "perfect", "ssbf": "perfect", "max_of_mean": "perfect",
                        "hbni_generative": "perfect"}
     assert all(entry["rollouts"] > 0 and entry["planner_value"] == entry["planner_value"] for entry in metrics["variants"].values())
-    assert set(metrics["stage_seconds"]) == {"train", "classify", "fit", "characterise", "characterise_generative", "plan",
+    assert set(metrics["stage_seconds"]) == {"train", "classify", "fit", "characterize", "characterize_generative", "plan",
                                              "bank_wait", "closed_loop"}
     assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
