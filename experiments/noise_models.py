@@ -238,7 +238,8 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     mode = cfg.hbni.filter.mode
     filters: dict[str, Any] = {}
     for model in s.models:
-        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model, class_names=list(CLASSES))
+        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model,
+                            class_names=None if name == "images" else list(CLASSES))  # a user's folder: its own
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
         if model in TEMPERED:

@@ -11,13 +11,13 @@ import hbni_pyro
 
 def fit_labelled(
     outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool, model: str | None = None, *,
-    class_names: list[str],
+    class_names: list[str] | None = None,
 ) -> hbni_pyro.HBNIPosterior:
     """Fit HBNI on ``outputs (C, S, F, M)``: ``S`` sequences of ``F`` frames of each true class ``c``.
 
     Uses the noise model ``model`` (default ``hbni.model``), the ``hbni.fit`` sampler settings and
     the ``hbni.hyperprior``; every output's class is known, and so is its sequence. ``class_names`` name the
-    ``C`` classes (the outputs' column order), and travel with the posterior.
+    ``C`` classes (the outputs' column order), and travel with the posterior (``None``: unnamed).
     """
     num_classes, num_seq, frames = outputs.shape[:3]
     labels = torch.arange(num_classes).view(-1, 1, 1).expand(outputs.shape[:3]).reshape(-1)
