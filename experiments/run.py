@@ -11,7 +11,8 @@ SIGHUP (``kill``, ``timeout``, Slurm's time limit, ``docker stop``, a closed ter
 Ctrl-C does: it is marked failed and its background workers end.
 
 A config that fails its check prints one line (``HYDRA_FULL_ERROR=1`` for the traceback) and leaves no
-run folder behind: the run never started.
+run folder behind: the run never started. In a sweep (``-m``) such a job is marked failed instead, and the
+sweep's report lists it with its error.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from hydra.utils import get_method
 from omegaconf import DictConfig
 
@@ -65,7 +67,11 @@ def main(cfg: DictConfig) -> dict:
     try:
         check_config(cfg)
     except (TypeError, ValueError) as exc:
-        _config_error(run_dir, exc)
+        if HydraConfig.get().mode != RunMode.MULTIRUN:
+            _config_error(run_dir, exc)
+        write_status(run_dir, "failed", error=f"{type(exc).__name__}: {exc}")  # a sweep's report lists the job
+        log.error("experiment %s: config error: %s", cfg.name, exc)
+        raise
     if threading.current_thread() is threading.main_thread():
         for name in ("SIGTERM", "SIGHUP"):
             signal.signal(getattr(signal, name), _stop)
