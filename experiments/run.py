@@ -33,7 +33,7 @@ from hydra.utils import get_method
 from omegaconf import DictConfig
 
 from experiments.common import write_json
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, check_overrides, register
 from experiments.status import write_status
 
 log = logging.getLogger("experiments")
@@ -66,6 +66,7 @@ def main(cfg: DictConfig) -> dict:
     tic = time.perf_counter()
     try:
         check_config(cfg)
+        check_overrides(cfg, list(HydraConfig.get().overrides.task))
     except (TypeError, ValueError) as exc:
         if HydraConfig.get().mode != RunMode.MULTIRUN:
             _config_error(run_dir, exc)

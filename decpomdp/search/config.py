@@ -145,6 +145,21 @@ class PlannerConfig:
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
 
+    def ignored(self) -> set[str]:
+        """The settings these settings make irrelevant: those of a phase the cycle never runs, the duel of a
+        G-DICE run without local search, and injection settings without injection."""
+        names = {f.name for f in dataclasses.fields(self)}
+        out: set[str] = set()
+        if "ce" not in self.phases:
+            out |= {n for n in names if n.startswith("ce_")} | {"layer_width"}
+        if "ls" not in self.phases:
+            out |= {n for n in names if n.startswith("ls_")} | {"edge_rate", "visit_rollouts", "grow_nodes"}
+            if self.ce_result == "best_sampled":
+                out |= {"duel_rollouts", "duel_z"}
+        if self.ce_injection_weight == 0:
+            out |= {"ce_injection_threshold", "ce_injection_until"}
+        return out
+
     def replace(self, **changes) -> "PlannerConfig":
         """A copy with ``changes``; a graph that starts at full size (``start_nodes == num_nodes``, as G-DICE's)
         keeps doing so when ``num_nodes`` changes alone."""

@@ -53,6 +53,26 @@ def check_config(cfg: DictConfig) -> None:
     _check(obj, "")
 
 
+def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
+    """Raise ``ValueError`` naming the key if an override (``key=value``, as on the command line) sets a planner
+    setting that the chosen planner ignores (see :meth:`decpomdp.search.PlannerConfig.ignored`): a sweep over
+    it would run the same job again and again."""
+    from hydra.utils import instantiate
+
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~")
+        parts = key.split(".")
+        for cut in range(len(parts) - 1, 0, -1):
+            block = OmegaConf.select(cfg, ".".join(parts[:cut]))
+            if isinstance(block, DictConfig) and block.get("_target_") == "decpomdp.search.PlannerConfig":
+                setting = ".".join(parts[cut:])
+                planner = instantiate(block)
+                if setting in planner.ignored():
+                    raise ValueError(f"{key}: the planner {'.'.join(parts[:cut])} (phases {list(planner.phases)}, "
+                                     f"ce_result {planner.ce_result!r}) ignores {setting}; set a key it reads")
+                break
+
+
 def _check(obj: Any, path: str) -> None:
     """Call ``check(path)`` on every block, inner blocks first, prefixing errors with the block's key."""
     if not dataclasses.is_dataclass(obj):

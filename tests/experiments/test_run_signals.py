@@ -67,3 +67,10 @@ def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip() == "config error: mission.threshold: expected a probability in (0, 1], got 1.5"
     assert not run_dir.exists()
+
+
+def test_a_planner_setting_the_planner_ignores_is_refused_at_the_start(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={tmp_path / 'run'}",
+                           "warm_planner.ce_alpha=0.3"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 2 and "config error: warm_planner.ce_alpha: the planner warm_planner" in proc.stderr
+    assert not (tmp_path / "run").exists()

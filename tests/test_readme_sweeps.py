@@ -1,0 +1,69 @@
+"""The README's sweeps: every job composes and passes its checks, the comment above says how many jobs it
+launches, and a planner setting the chosen planner ignores is refused, naming the key."""
+
+import itertools
+import re
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from experiments.schemas import check_config, check_overrides, register
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def readme_sweeps() -> list[tuple[int, list[str]]]:
+    """(jobs the comment announces, the command's overrides) of every ``-m`` command in the README's bash blocks."""
+    out = []
+    for block in re.findall(r"```bash\n(.*?)```", (ROOT / "README.md").read_text(), re.S):
+        lines = block.replace("\\\n", " ").splitlines()
+        for previous, line in zip([""] + lines, lines):
+            if "experiments.run -m " in line:
+                announced = re.match(r"# (\d+) jobs?\b", previous)
+                assert announced, f"the sweep {line!r} does not say how many jobs it launches"
+                out.append((int(announced.group(1)), line.split("experiments.run -m ", 1)[1].split()))
+    return out
+
+
+def jobs(overrides: list[str]) -> list[list[str]]:
+    """Every job of a sweep: the cartesian product of comma-separated values."""
+    options = [[f"{key}={value}" for value in values.split(",")] for key, values in (o.split("=", 1) for o in overrides)]
+    return [list(job) for job in itertools.product(*options)]
+
+
+def _compose(overrides: list[str]):
+    register()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
+    sweeps = readme_sweeps()
+    assert len(sweeps) >= 2
+    for announced, overrides in sweeps:
+        expanded = jobs(overrides)
+        assert len(expanded) == announced, (overrides, len(expanded))
+        for job in expanded:
+            cfg = _compose(job)
+            check_config(cfg)
+            check_overrides(cfg, job)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("warm_planner.ce_alpha=0.3", r"warm_planner.ce_alpha: the planner warm_planner \(phases \['ls'\], "
+                                  r"ce_result 'duel'\) ignores ce_alpha"),
+    ("planner.ce_injection_until=0.9", "planner.ce_injection_until: the planner planner .* ignores ce_injection_until"),
+])
+def test_a_setting_the_planner_ignores_is_refused(override, message):
+    cfg = _compose(["experiment=mission", override])
+    check_config(cfg)
+    with pytest.raises(ValueError, match=message):
+        check_overrides(cfg, [override])
+    check_overrides(cfg, ["planner.ce_alpha=0.3", "warm_planner.ls_patience=4", "mission.threshold=0.9"])
+
+
+def test_gdice_ignores_local_search():
+    cfg = _compose(["experiment=package_delivery"])
+    with pytest.raises(ValueError, match="planners.gdice.ls_candidates: .* ignores ls_candidates"):
+        check_overrides(cfg, ["planners.gdice.ls_candidates=10"])
