@@ -7,10 +7,10 @@ import numpy as np
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import CLASSES
+from experiments import figures
 from experiments.common import beats
 
-LABELS = {"perfect": "perfect perception", "hbni": "HBNI", "ssbf": "SSBF", "max_of_mean": "max-of-mean",
-          "hbni_generative": "HBNI (generative)", "hbni_empirical": "HBNI (empirical)"}
+LABELS = figures.LABELS
 
 
 def _explanation(metrics: dict) -> list[str]:
@@ -95,59 +95,60 @@ def over_greedy(entry: dict) -> float:
 
 def value_figure(results: dict[str, dict]) -> plt.Figure:
     names = list(results)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    colors = ["tab:gray", "tab:blue", "tab:orange", "tab:green", "tab:purple"][: len(names)]
-    axes[0].bar([LABELS[n] for n in names], [results[n]["value"] for n in names],
-                yerr=[results[n]["stderr"] for n in names], capsize=4, color=colors)
-    axes[0].scatter([LABELS[n] for n in names], [results[n]["greedy"]["value"] for n in names], marker="_", s=900,
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    ticks = [figures.label(n) for n in names]
+    axes[0].bar(ticks, [results[n]["value"] for n in names], yerr=[results[n]["stderr"] for n in names], capsize=4,
+                color=[figures.color(n) for n in names])
+    axes[0].scatter(ticks, [results[n]["greedy"]["value"] for n in names], marker="_", s=900,
                     color="black", zorder=3, label="greedy controller")
-    axes[0].legend(fontsize=8, loc="lower right", markerscale=0.3)
-    axes[0].set_ylabel("discounted return (mean ± s.e.)")
-    axes[0].set_title("Planned value per policy (on its planning model)")
+    axes[0].legend(fontsize=figures.TICK_SIZE, loc="lower right", markerscale=0.3)
+    axes[0].set_ylabel("discounted return (mean ± s.e.)", fontsize=figures.LABEL_SIZE)
+    axes[0].set_title("Planned value per policy (on its planning model)", fontsize=figures.TITLE_SIZE)
     x = np.arange(len(names))
-    axes[1].bar(x - 0.2, [results[n]["delivered_per_rollout"] for n in names], 0.4, label="delivered right")
-    axes[1].bar(x + 0.2, [results[n]["wrong_per_rollout"] for n in names], 0.4, label="delivered wrong", color="tab:red")
-    axes[1].set_xticks(x, [LABELS[n] for n in names])
-    axes[1].set_ylabel("objects per mission")
+    colors = [figures.color(n) for n in names]
+    axes[1].bar(x - 0.2, [results[n]["delivered_per_rollout"] for n in names], 0.4, color=colors,
+                label="delivered right (solid)")
+    axes[1].bar(x + 0.2, [results[n]["wrong_per_rollout"] for n in names], 0.4, color=colors, alpha=0.35,
+                hatch="//", label="delivered wrong (hatched)")
+    axes[1].set_xticks(x, ticks)
+    axes[1].set_ylabel("objects per mission", fontsize=figures.LABEL_SIZE)
     axes[1].set_ylim(top=1.3 * max(results[n]["delivered_per_rollout"] for n in names))  # room for the legend
-    axes[1].legend(fontsize=8, ncol=2)
-    axes[1].set_title("Deliveries")
+    axes[1].legend(fontsize=figures.TICK_SIZE, ncol=2)
+    axes[1].set_title("Deliveries", fontsize=figures.TITLE_SIZE)
     for ax in axes:
-        ax.tick_params(axis="x", labelsize=8)
+        ax.tick_params(axis="x", labelsize=figures.TICK_SIZE)
         plt.setp(ax.get_xticklabels(), rotation=15, ha="right")
     fig.tight_layout()
     return fig
 
 
 def confusion_figure(models: dict[str, hbni_pyro.MacroObservationModel]) -> plt.Figure:
-    fig, axes = plt.subplots(1, len(models), figsize=(4.2 * len(models), 4), squeeze=False)
-    short = [c.replace("_", "\n") for c in CLASSES]
-    for ax, (name, model) in zip(axes[0], models.items()):
-        conf = model.confusion.numpy()
-        ax.imshow(conf, vmin=0, vmax=1, cmap="Blues")
-        for i in range(conf.shape[0]):
-            for j in range(conf.shape[1]):
-                ax.text(j, i, f"{conf[i, j]:.2f}", ha="center", va="center", fontsize=7,
-                        color="white" if conf[i, j] > 0.6 else "black")
-        ax.set_xticks(range(len(CLASSES)), short, fontsize=6)
-        ax.set_yticks(range(len(CLASSES)), short, fontsize=6)
-        ax.set_xlabel("macro-observation label")
-        ax.set_title(f"{LABELS[name]}: P(label | true class)", fontsize=9)
-    axes[0][0].set_ylabel("true class")
+    fig, axes = figures.panels(len(models))
+    ticks = [c.replace("_", " ") for c in CLASSES]
+    for k, (ax, (name, model)) in enumerate(zip(axes, models.items())):
+        image = figures.heatmap(ax, model.confusion.numpy(), ticks, f"{figures.label(name)}: P(label | true class)")
+        ax.set_xlabel("macro-observation label", fontsize=figures.LABEL_SIZE)
+        if k % figures.PANEL_COLUMNS == 0:
+            ax.set_ylabel("true class", fontsize=figures.LABEL_SIZE)
+        else:  # one set of class names per row
+            ax.set_yticklabels([])
     fig.tight_layout()
+    fig.colorbar(image, ax=axes, shrink=0.8, label="probability")
     return fig
 
 
 def frames_figure(models: dict[str, hbni_pyro.MacroObservationModel]) -> plt.Figure:
-    fig, axes = plt.subplots(1, len(models), figsize=(4.2 * len(models), 3.4), squeeze=False, sharey=True)
-    for ax, (name, model) in zip(axes[0], models.items()):
+    fig, axes = figures.panels(len(models), height=3.6, sharey=True)
+    for k, (ax, (name, model)) in enumerate(zip(axes, models.items())):
         support = np.arange(1, model.max_frames + 1)
         for c, cls in enumerate(CLASSES):
-            ax.plot(support, model.frames_pmf[c].numpy(), marker=".", lw=1, label=cls)
-        ax.set_xlabel("frames used")
-        ax.set_title(f"{LABELS[name]}: P(frames | true class)", fontsize=9)
-    axes[0][0].set_ylabel("probability")
-    axes[0][-1].legend(fontsize=7)
+            ax.plot(support, model.frames_pmf[c].numpy(), marker=".", lw=1, label=cls.replace("_", " "))
+        ax.set_xlabel("frames used", fontsize=figures.LABEL_SIZE)
+        ax.set_title(f"{figures.label(name)}: P(frames | true class)", fontsize=figures.TITLE_SIZE)
+        ax.tick_params(labelsize=figures.TICK_SIZE)
+        if k % figures.PANEL_COLUMNS == 0:
+            ax.set_ylabel("probability", fontsize=figures.LABEL_SIZE)
+    axes[0].legend(fontsize=figures.TICK_SIZE - 1, title="true class")
     fig.tight_layout()
     return fig
 
@@ -164,7 +165,8 @@ def curves_figure(histories: dict[str, dict], offsets: dict[str, float] | None =
         key = "value" if sum(v == v for v in h["value"]) > 1 else "best_sampled"
         points = [((offsets.get(name, 0) + r) / 1e6, v) for r, v in zip(h["rollouts"], h[key]) if v == v]
         if points:
-            ax.step(*zip(*points), where="post", label=LABELS[name] + (" (best sampled)" if key != "value" else ""))
+            ax.step(*zip(*points), where="post", color=figures.color(name),
+                    label=figures.label(name) + (" (best sampled)" if key != "value" else ""))
     ax.set_xlabel("rollouts spent (millions)")
     ax.set_ylabel("incumbent value on fresh rollouts")
     ax.set_title("Planner learning curves")

@@ -36,6 +36,7 @@ from omegaconf import DictConfig
 
 import hbni_pyro
 from decpomdp import JointController
+from experiments import figures
 from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps.planning import delivery_rates, score
@@ -223,20 +224,21 @@ def figure(results: dict[str, dict], labels: dict[str, str]) -> plt.Figure:
     """Planned and executed value (± s.e.) of every policy side by side."""
     names = list(results)
     x = np.arange(len(names))
-    fig, ax = plt.subplots(figsize=(max(6.5, 1.5 * len(names)), 3.8))
+    fig, ax = plt.subplots(figsize=(max(7.5, 1.6 * len(names)), 4.2))
+    colors = [figures.color(n) for n in names]  # each policy's colour, as in values.png; planned is the light shade
     ax.bar(x - 0.2, [results[n]["value"] for n in names], 0.4, yerr=[results[n]["stderr"] for n in names], capsize=3,
-           label="planned (on its planning model)", color="tab:blue")
+           label="planned, on its planning model (light)", color=colors, alpha=0.4)
     ax.bar(x + 0.2, [results[n]["executed"]["value"] for n in names], 0.4,
-           yerr=[results[n]["executed"]["stderr"] for n in names], capsize=3, label="executed (closed loop)",
-           color="tab:orange")
+           yerr=[results[n]["executed"]["stderr"] for n in names], capsize=3, label="executed in closed loop (solid)",
+           color=colors)
     for i, n in enumerate(names):
         e = results[n]["executed"]
         top = max(results[n]["value"], e["value"])
         ax.text(i, top * 1.02, f"{e['gap_in_stderr']:+.1f} / {e['gap_in_total_stderr']:+.1f} s.e.", ha="center", fontsize=8)
-    ax.set_xticks(x, [labels.get(n, n) for n in names], fontsize=8)
-    ax.set_ylabel("discounted return (mean ± s.e.)")
-    ax.set_title("Planned vs executed value (gap in rollout / all standard errors)")
+    ax.set_xticks(x, [labels.get(n, n) for n in names], fontsize=figures.TICK_SIZE)
+    ax.set_ylabel("discounted return (mean ± s.e.)", fontsize=figures.LABEL_SIZE)
+    ax.set_title("Planned vs executed value (gap in rollout / all standard errors)", fontsize=figures.TITLE_SIZE)
     ax.set_ylim(0, 1.15 * max(max(r["value"], r["executed"]["value"]) for r in results.values()))
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=figures.TICK_SIZE, loc="lower right")
     fig.tight_layout()
     return fig

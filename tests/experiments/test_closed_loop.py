@@ -11,6 +11,7 @@ from omegaconf import OmegaConf
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import greedy_controller
+from experiments.paths import project_root
 from experiments.steps import closed_loop
 from experiments.steps.planning import score
 from hbni_pyro.generative import sample_outputs
@@ -173,4 +174,4 @@ def test_loop_settings_are_read_from_the_mission_config():
         full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
     assert loop.planning_model == "generative" and loop.bank_sequences == 60 and loop.workers == 1
-    assert loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == Path(".cache/banks")
+    assert loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == project_root() / ".cache" / "banks"  # the project's, from anywhere
