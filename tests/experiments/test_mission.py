@@ -11,13 +11,14 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
-from mission_tiny import TINY_MISSION
+from mission_tiny import TINY_MISSION, TINY_MISSION_GDICE
 
-TINY = [*TINY_MISSION, f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"]
+BANKS = f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"
+TINY = [*TINY_MISSION, BANKS]
 
 
-def _run(repo_root, *args, multirun=False):
-    cmd = [sys.executable, "-m", "experiments.run", *(["-m"] if multirun else []), "experiment=mission", *TINY, *args]
+def _run(repo_root, *args, multirun=False, tiny=TINY):
+    cmd = [sys.executable, "-m", "experiments.run", *(["-m"] if multirun else []), "experiment=mission", *tiny, *args]
     return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
 
 
@@ -124,8 +125,12 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
 
 @pytest.mark.parametrize("planning", ["planner=gdice", "warm_start=false"])
 def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, planning):
-    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
-         planning)
+    if planning == "planner=gdice":  # G-DICE reads no local-search settings: the tiny ones are its own
+        _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
+             tiny=[*TINY_MISSION_GDICE, BANKS])
+    else:
+        _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
+             planning)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
         assert metrics["planner"]["ce_result"] == "best_sampled" and metrics["warm_planner"]["phases"] == ["ls"]
