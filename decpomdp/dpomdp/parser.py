@@ -102,6 +102,9 @@ def _header(lines: Lines, budget: int) -> dict:
             out[key] = []
             for a in range(n_agents):
                 ln, text_a = lines.next(f"{what}s of agent {a}")
+                if re.match(r"^\w+\s*:", text_a):  # the next section: fewer lists than agents
+                    raise DPOMDPSyntaxError(ln, f"{key}: expected one list per agent ({n_agents} agents declared by "
+                                                f"'agents:'), found {a} before {text_a.split(':')[0]!r}:")
                 out[key].append(_names(text_a, ln, what, budget))
                 n_ja = math.prod(len(x) for x in out["actions"])
                 n_jo = math.prod(len(x) for x in out.get("observations", [[0]]))

@@ -350,3 +350,10 @@ def test_mutated_files_raise_only_syntax_errors():
 def test_a_folder_is_not_a_problem_file(tmp_path):
     with pytest.raises(IsADirectoryError, match="is a folder, expected a .dpomdp file"):
         load_dpomdp(tmp_path)
+
+
+def test_more_agents_than_action_lists_says_so():
+    text = (PROBLEM_DIR / "dectiger.dpomdp").read_text().replace("agents: 2", "agents: 100000", 1)
+    with pytest.raises(DPOMDPSyntaxError, match=r"actions: expected one list per agent \(100000 agents declared by "
+                                               r"'agents:'\), found 2 before 'observations'"):
+        parse_dpomdp(text)
