@@ -31,7 +31,7 @@ def groups(blocks: list[str]) -> list[str]:
 
 
 def test_readme_has_python_blocks():
-    assert len(BLOCKS) >= 4 and len(groups(BLOCKS)) >= 4
+    assert len(BLOCKS) >= 4 and len(groups(BLOCKS)) >= 3  # the robot loop continues the block that writes its files
 
 
 def test_readme_python_blocks_run_as_written(tmp_path):
