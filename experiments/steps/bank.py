@@ -97,7 +97,12 @@ def cache_path(cache_dir: str | os.PathLike, key: dict[str, Any]) -> Path:
 
 def load_bank(path: str | os.PathLike, key: dict[str, Any]) -> Tensor:
     """The cached outputs ``(C, S, F, C)``; refuses a file recording another fingerprint, naming the field."""
-    outputs = load_entry(path, key, "output bank").get("outputs")
+    return _bank_outputs(load_entry(path, key, "output bank"), key, path)
+
+
+def _bank_outputs(tensors: dict[str, Tensor], key: dict[str, Any], path: str | os.PathLike) -> Tensor:
+    """The bank's outputs among an entry's tensors, checked against the shape ``key`` promises."""
+    outputs = tensors.get("outputs")
     shape = (len(key["classes"]), key["sequences_per_class"], key["frames"], len(key["classes"]))
     if outputs is None or tuple(outputs.shape) != shape:
         raise ValueError(f"output bank {str(path)!r}: expected outputs of shape {shape}, got "
@@ -173,8 +178,9 @@ class BankBuild:
     def result(self, progress: bool = False) -> Tensor:
         """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
         if self._outputs is None and not self._lock.held:  # another job builds it: wait for its file
-            if wait_for_entry(self.path, self.key, self._lock, "output bank") is not None:
-                self._outputs = load_bank(self.path, self.key)
+            found = wait_for_entry(self.path, self.key, self._lock, "output bank")
+            if found is not None:
+                self._outputs = _bank_outputs(found, self.key, self.path)
         if self._outputs is not None:
             return self._outputs
         try:
