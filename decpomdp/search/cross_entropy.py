@@ -37,9 +37,6 @@ from decpomdp.controller import JointController
 from decpomdp.search.racing import race
 from decpomdp.search.scoring import Scorer
 
-THRESHOLD_RULES = ("none", "paper", "capped")
-
-
 def sample_controllers(action_probs: Tensor, next_probs: Tensor, count: int, generator: torch.Generator) -> JointController:
     """Draw ``count`` joint controllers from the node distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
     a, nn, m = action_probs.shape
@@ -149,20 +146,20 @@ def start_state(incumbent: JointController | None, num_agents: int, num_nodes: i
             raise ValueError("reactive: a reactive phase needs a free graph (no layer_width)")
         if incumbent is not None and not is_reactive(incumbent):
             raise ValueError("reactive: a reactive phase starts cold or from a reactive incumbent")
-        nxt = torch.full((num_agents, num_obs, num_nodes), 1.0 / num_nodes, dtype=torch.float64)
+        uniform_next = torch.full((num_agents, num_obs, num_nodes), 1.0 / num_nodes, dtype=torch.float64)
+        nxt = uniform_next
         if incumbent is not None and weight > 0:
             nxt = (1 - weight) * nxt + weight * torch.nn.functional.one_hot(incumbent.next_node[0, :, 0],
                                                                            num_nodes).to(torch.float64)
     else:
         allowed = torch.ones(num_nodes, num_nodes, dtype=torch.float64) if mask is None else mask.to(torch.float64)
-        nxt = (allowed / allowed.sum(-1, keepdim=True))[None, :, None, :].expand(num_agents, num_nodes, num_obs,
-                                                                                 num_nodes).clone()
+        uniform_next = (allowed / allowed.sum(-1, keepdim=True))[None, :, None, :].expand(
+            num_agents, num_nodes, num_obs, num_nodes)
+        nxt = uniform_next.clone()
         if incumbent is not None and weight > 0:
             nxt[:, :incumbent.num_nodes] = (1 - weight) * nxt[:, :incumbent.num_nodes] + weight * (
                 torch.nn.functional.one_hot(incumbent.next_node[0], num_nodes).to(torch.float64))
-    uniform_action, uniform_next = action.clone(), (nxt if incumbent is None or weight == 0 else None)
-    if uniform_next is None:
-        uniform_next = start_state(None, num_agents, num_nodes, num_actions, num_obs, 0.0, reactive, mask).next_uniform
+    uniform_action = action.clone()
     if incumbent is not None and weight > 0:
         n = incumbent.num_nodes
         action[:, :n] = (1 - weight) * action[:, :n] + weight * torch.nn.functional.one_hot(
