@@ -6,11 +6,11 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch import Tensor
 
+from infra.checks import as_names
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "decpomdp.JointController"
@@ -51,8 +51,8 @@ class JointController:
             raise ValueError("action: entries must be >= 0")
         if bool(((self.next_node < 0) | (self.next_node >= nn)).any()):
             raise ValueError(f"next_node: entries must lie in [0, {nn})")
-        self.action_names = _names("action_names", self.action_names, int(self.action.max()) + 1, at_least=True)
-        self.obs_names = _names("obs_names", self.obs_names, self.next_node.shape[3])
+        self.action_names = as_names("action_names", self.action_names, int(self.action.max()) + 1, at_least=True)
+        self.obs_names = as_names("obs_names", self.obs_names, self.next_node.shape[3])
 
     def named(self, action_names: Sequence[str] | None, obs_names: Sequence[str] | None) -> JointController:
         """The same controllers, named after a domain's MAs and observations."""
@@ -118,15 +118,3 @@ class JointController:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid controller ({exc})") from None
 
-
-def _names(name: str, names: Any, count: int, at_least: bool = False) -> tuple[str, ...] | None:
-    """``names`` as a tuple of distinct strings, ``count`` of them (at least ``count`` with ``at_least``)."""
-    if names is None:
-        return None
-    if isinstance(names, str) or not hasattr(names, "__iter__"):
-        raise TypeError(f"{name}: expected a sequence of names, got {type(names).__name__}")
-    names = tuple(names)
-    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names) or (
-            len(names) < count if at_least else len(names) != count):
-        raise ValueError(f"{name}: expected {'at least ' if at_least else ''}{count} distinct names, got {list(names)}")
-    return names

@@ -24,6 +24,7 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
+from infra.checks import first_difference
 from infra.fingerprint import check_fingerprint, digest
 
 _STATE_KIND = "decpomdp.ControllerExecutor"
@@ -117,7 +118,7 @@ class ControllerExecutor:
         for kind, planned, domain in (("action_names", controller.action_names, env.action_names),
                                       ("obs_names", controller.obs_names, env.obs_names)):
             if planned is not None and tuple(planned) != tuple(domain):
-                first = next((i for i, (a, b) in enumerate(zip(planned, domain)) if a != b), min(len(planned), len(domain)))
+                first = first_difference(planned, domain)
                 raise ValueError(f"controller: planned for other {kind} than env's (first difference at index {first}: "
                                  f"{planned[first] if first < len(planned) else None!r} there, "
                                  f"{domain[first] if first < len(domain) else None!r} here)")

@@ -26,14 +26,13 @@ from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
 from hbni_pyro.sequence_model import SequenceStats, sequence_model, sequence_stats
 from hbni_pyro.validation import (
     DTYPE,
-    as_class_names,
     as_class_prior,
     as_labels,
     as_outputs,
     as_sequence_ids,
 )
 from hbni_pyro.variants import SEQUENCE_MODELS, check_model
-from infra.checks import as_int
+from infra.checks import as_int, as_names
 from infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
@@ -93,7 +92,7 @@ def fit(
     ids = _sequence_ids(model, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
-    names = as_class_names(class_names, x.shape[1])
+    names = as_names("class_names", class_names, x.shape[1])
     settings = dict(chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p)
     if method == "mh":
         posterior = _fit_mh(model, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
@@ -136,7 +135,7 @@ def fit_many(
     ids = _sequence_ids(model, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
-    names = as_class_names(class_names, x.shape[2])
+    names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
     for posterior in posteriors:
         posterior.class_names = names

@@ -22,8 +22,8 @@ from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs
-from hbni_pyro.validation import DTYPE, as_class_names
-from infra.checks import as_int, as_probability
+from hbni_pyro.validation import DTYPE
+from infra.checks import as_int, as_names, as_probability
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.MacroObservationModel"
@@ -169,7 +169,7 @@ class MacroObservationModel:
         self.timed_out = timed_out
         self.info = dict(info or {})
         self._flat = self.joint.reshape(self.num_classes, -1)
-        self.class_names = as_class_names(class_names, self.num_classes)
+        self.class_names = as_names("class_names", class_names, self.num_classes)
 
     @property
     def num_classes(self) -> int:

@@ -14,8 +14,9 @@ from torch import Tensor
 from hbni_pyro.density import concentrations
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.model import HyperPrior
-from hbni_pyro.validation import DTYPE, as_class_names
+from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import MODELS, check_model, site_shapes
+from infra.checks import as_names
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
@@ -56,7 +57,7 @@ class HBNIPosterior:
 
     def __post_init__(self) -> None:
         check_model(self.model)
-        self.class_names = as_class_names(self.class_names, _num_classes(self.model, self.samples))
+        self.class_names = as_names("class_names", self.class_names, _num_classes(self.model, self.samples))
         shapes = site_shapes(self.model, _num_classes(self.model, self.samples))
         missing = [k for k in shapes if k not in self.samples]
         if missing:

@@ -14,6 +14,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from infra.checks import first_difference
+
 OUTPUT_FLOOR: float = 1e-6
 """Smallest probability an output entry may take after clamping (before renormalising)."""
 
@@ -144,18 +146,6 @@ def as_sequence_ids(ids: Any, num_obs: int, *, name: str = "sequence_ids") -> Te
     return torch.unique(x.long(), return_inverse=True)[1]
 
 
-def as_class_names(names: Any, num_classes: int, name: str = "class_names") -> tuple[str, ...] | None:
-    """``names`` as a tuple of ``num_classes`` distinct strings (``None`` stays ``None``: unnamed classes)."""
-    if names is None:
-        return None
-    if isinstance(names, str) or not hasattr(names, "__iter__"):
-        raise TypeError(f"{name}: expected a sequence of {num_classes} class names, got {type(names).__name__}")
-    names = tuple(names)
-    if len(names) != num_classes or len(set(names)) != len(names) or not all(isinstance(n, str) for n in names):
-        raise ValueError(f"{name}: expected {num_classes} distinct class names, got {list(names)}")
-    return names
-
-
 def check_same_classes(expected: tuple[str, ...] | None, got: Any, what: str, name: str = "classes") -> None:
     """Raise ``ValueError`` naming the difference unless the class names ``got`` are ``expected`` (in that order);
     nothing to check when ``expected`` is ``None``."""
@@ -163,6 +153,5 @@ def check_same_classes(expected: tuple[str, ...] | None, got: Any, what: str, na
         return
     got = tuple(got)
     if got != expected:
-        where = next((i for i, (a, b) in enumerate(zip(expected, got)) if a != b), min(len(expected), len(got)))
         raise ValueError(f"{name}: expected the classes of {what} in its order {list(expected)}, got {list(got)} "
-                         f"(first difference at column {where})")
+                         f"(first difference at column {first_difference(expected, got)})")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Sequence
 from typing import Any
 
 import torch
@@ -56,3 +57,22 @@ def as_float(
 def as_probability(name: str, value: Any, allow_zero: bool = True) -> float:
     """``value`` as a probability in ``[0, 1]`` (``(0, 1]`` when ``allow_zero`` is false)."""
     return as_float(name, value, 0.0, 1.0, low_open=not allow_zero)
+
+
+def as_names(name: str, names: Any, count: int, at_least: bool = False) -> tuple[str, ...] | None:
+    """``names`` as a tuple of ``count`` distinct strings (at least ``count`` with ``at_least``); ``None`` stays
+    ``None`` (unnamed). ``TypeError`` for a string or a non-sequence, ``ValueError`` for the wrong count or repeats."""
+    if names is None:
+        return None
+    if isinstance(names, str) or not hasattr(names, "__iter__"):
+        raise TypeError(f"{name}: expected a sequence of names, got {type(names).__name__}")
+    names = tuple(names)
+    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names) or (
+            len(names) < count if at_least else len(names) != count):
+        raise ValueError(f"{name}: expected {'at least ' if at_least else ''}{count} distinct names, got {list(names)}")
+    return names
+
+
+def first_difference(a: Sequence[Any], b: Sequence[Any]) -> int:
+    """The first index where the sequences differ (the shorter one's length when one extends the other)."""
+    return next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from infra.checks import as_float, as_int, as_probability
+from infra.checks import as_float, as_int, as_names, as_probability, first_difference
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), np.int32(3), torch.tensor(3)])
@@ -44,3 +44,15 @@ def test_ranges_name_the_argument_and_interval():
     assert as_float("x", 2.0, 0.0, 2.0) == 2.0
     with pytest.raises(ValueError, match=r"\[0, 2\)"):
         as_float("x", 2.0, 0.0, 2.0, high_open=True)
+
+
+def test_names_and_their_first_difference():
+    assert as_names("obs_names", ["a", "b"], 2) == ("a", "b") and as_names("obs_names", None, 2) is None
+    assert as_names("action_names", ("a", "b", "c"), 2, at_least=True) == ("a", "b", "c")
+    with pytest.raises(ValueError, match=r"obs_names: expected 2 distinct names, got \['a', 'a'\]"):
+        as_names("obs_names", ["a", "a"], 2)
+    with pytest.raises(ValueError, match="action_names: expected at least 3 distinct names"):
+        as_names("action_names", ["a", "b"], 3, at_least=True)
+    with pytest.raises(TypeError, match="class_names: expected a sequence of names, got str"):
+        as_names("class_names", "abc", 3)
+    assert first_difference("abc", "abd") == 2 and first_difference("ab", "abc") == 2 and first_difference("", "x") == 0
