@@ -16,7 +16,6 @@
 
 from __future__ import annotations
 
-import itertools
 import json
 import time
 from pathlib import Path
@@ -127,15 +126,13 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
 
 def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed:
     """Classify and filter every frame of the source; write the annotated video as segments complete."""
-    source: FrameSource = open_source(settings.source, max_frames=settings.max_input_frames)
-    limit, total = settings.max_input_frames, source.num_frames
-    if limit is not None:
-        total = limit if total is None else min(total, limit)
+    source: FrameSource = open_source(settings.source, max_frames=settings.max_input_frames)  # the source stops there
+    total = source.num_frames if source.num_frames is not None else settings.max_input_frames  # a camera: the limit
     video = None
     if "video" in settings.annotate:
         video = AnnotatedVideo(run_dir / "annotated.mp4", source.fps or 30.0, models.classes, settings.threshold,
                                settings.max_frames)
-    items = classify_frames(itertools.islice(source, limit), models.classifier, models.classes, settings.batch)
+    items = classify_frames(source, models.classifier, models.classes, settings.batch)
     segments, beliefs, thumbs = [], [], []
     bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
     tic, cpu = time.perf_counter(), time.process_time()
