@@ -28,11 +28,10 @@ import numpy as np
 import torch
 
 import hbni_pyro
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns, classify_frames
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
-from classifiers import classify_frames
 from experiments.stream import Models, Settings, stream_frames
 from infra.streams import stream_seed
 
@@ -42,7 +41,7 @@ FLOOR_FPS = 20.0
 def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
     images = [im for name in CLASSES for im in render_images(name, 10, "training", seed=seed)]
     clf = FrameClassifier(seed=seed).fit(images, [name for name in CLASSES for _ in range(10)])
-    order = [clf.classes_.index(name) for name in CLASSES]
+    order = class_columns(clf, CLASSES)
     calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order] for n in CLASSES])
     posterior = hbni_pyro.fit(calib.double(), torch.arange(len(CLASSES)).repeat_interleave(10), num_chains=8,
                               num_samples=500, warmup_steps=300, seed=seed, progress=False)

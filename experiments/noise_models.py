@@ -34,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns
 from classifiers.data import ImageFolder, get_conditions
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments import noise_models_report as report
@@ -193,7 +193,7 @@ def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Te
     classes = sorted(p.name for p in seq_root.iterdir() if p.is_dir()) if seq_root.is_dir() else []
     if classes != train.classes:
         raise ValueError(f"study.images: {str(seq_root)!r} must hold one folder per class of {train.classes}, found {classes}")
-    order = [clf.classes_.index(c) for c in classes]
+    order = class_columns(clf, classes)
     per_class = []
     for name in classes:
         seqs = sorted(p for p in (seq_root / name).iterdir() if p.is_dir())

@@ -35,7 +35,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns
 from classifiers.data import FRAME_SHAPE, Conditions, render_sequence
 from infra.cache import FileLock, entry_path, load_entry, source_identity, store_entry, wait_for_entry
 from infra.fingerprint import digest
@@ -126,7 +126,7 @@ def _load_worker(classifier_path: str) -> None:
 
 def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: int) -> Tensor:
     """Outputs ``(last - first, F, C)`` of sequences ``first..last-1`` of class ``c``, columns in ``spec.classes`` order."""
-    order = [clf.classes_.index(name) for name in spec.classes]
+    order = class_columns(clf, spec.classes)
     return torch.stack([
         clf.predict_proba(render_sequence(spec.classes[c], spec.frames, spec.conditions, seed=spec.seed, index=i,
                                           shape=spec.shape))[:, order]

@@ -8,7 +8,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns
 from classifiers.data import render_images, render_sequence
 
 
@@ -37,7 +37,7 @@ def sequence_outputs(
     Row ``c`` holds sequences of ``classes[c]``; output columns follow ``classes`` too (the
     classifier's own column order is alphabetical, ``clf.classes_``).
     """
-    order = [clf.classes_.index(name) for name in classes]
+    order = class_columns(clf, classes)
     out = torch.empty(len(classes), n_seq, frames, len(classes))
     thumbs = np.empty((len(classes), n_seq), dtype=object)
     bar = tqdm(total=len(classes) * n_seq, desc=desc, unit="seq", disable=not progress)
