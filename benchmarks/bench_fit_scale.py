@@ -55,8 +55,8 @@ def case_fit(kind: str, model: str) -> dict:
 
     n = 1_000_000 if kind == "labelled" else 200_000
     obs, classes = _data(n, 10)
-    ids = torch.arange(n) // 100 if model == "sequence" else None
-    if model == "sequence":
+    ids = torch.arange(n) // 100 if hbni_pyro.noise_model(model).sequences else None
+    if ids is not None:
         classes = classes[ids * 100]  # one label per sequence of 100 frames
     base = _peak_bytes()
     wall, cpu = time.perf_counter(), time.process_time()

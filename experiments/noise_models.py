@@ -47,11 +47,10 @@ from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
+from hbni_pyro.variants import noise_model
 from infra.streams import stream_seed, torch_stream
 
 BASELINES = ("ssbf", "max_of_mean")
-TEMPERED = ("paper", "confusion")
-"""Frame-level models that also run with the temper fitted on the calibration sequences."""
 
 
 class Settings(NamedTuple):
@@ -242,10 +241,10 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
                             class_names=None if name == "images" else list(CLASSES))  # a user's folder: its own
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
-        if model in TEMPERED:
+        if not noise_model(model).sequences:  # frame-level models also run with the temper fitted on the calibration sequences
             tau = hbni_pyro.fit_temper(post, calib_streams, calib_truth, mode).temper
             filters[f"{model}_tempered"] = hbni_pyro.make_filter("hbni", post, mode=mode, temper=tau)
-    for baseline in ("ssbf", "max_of_mean"):
+    for baseline in BASELINES:
         filters[baseline] = hbni_pyro.make_filter(baseline, num_classes=M)
     return filters
 

@@ -1,7 +1,7 @@
 """Hierarchical Bayesian Noise Inference (HBNI) for streams of classifier outputs.
 
 Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: ``model="paper"``,
-``"confusion"`` or ``"sequence"``, see :data:`MODELS`),
+``"confusion"`` or ``"sequence"``, each a :class:`NoiseModel` in :mod:`hbni_pyro.variants`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
@@ -33,11 +33,11 @@ from hbni_pyro.segments import Segment, macro_observations
 from hbni_pyro.sequence_model import sequence_model
 from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
-from hbni_pyro.variants import MODELS
+from hbni_pyro.variants import NOISE_MODELS, NoiseModel, noise_model, register
 
 __all__ = [
     "FILTERS",
-    "MODELS",
+    "NOISE_MODELS",
     "OUTPUT_FLOOR",
     "SSBF",
     "ConfusionMetropolis",
@@ -48,6 +48,7 @@ __all__ = [
     "MacroObservationModel",
     "MacroObservationProcess",
     "MaxOfMeanFilter",
+    "NoiseModel",
     "Segment",
     "SequenceMetropolis",
     "StreamReplay",
@@ -59,6 +60,8 @@ __all__ = [
     "decide",
     "macro_observations",
     "make_filter",
+    "noise_model",
+    "register",
     "fit",
     "fit_many",
     "fit_temper",

@@ -133,5 +133,3 @@ class SequenceEvidence:
             out[rows] = logsumexp_in_order(terms.transpose(1, 2))
         return out - math.log(S)
 
-
-EVIDENCE = {"paper": PaperEvidence, "confusion": ConfusionEvidence, "sequence": SequenceEvidence}

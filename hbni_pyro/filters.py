@@ -33,8 +33,8 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from hbni_pyro.evidence import EVIDENCE
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
+from hbni_pyro.variants import noise_model
 from infra.threads import single_thread
 
 
@@ -178,7 +178,7 @@ class _Posterior(Protocol):
 
 
 class HBNIFilter(StreamingFilter):
-    """Class filter under a fitted HBNI noise model (any variant of :data:`hbni_pyro.variants.MODELS`).
+    """Class filter under a fitted HBNI noise model (any variant of :data:`hbni_pyro.variants.NOISE_MODELS`).
 
     Args:
         posterior: an :class:`hbni_pyro.HBNIPosterior` (its ``model`` picks the likelihood), or
@@ -201,8 +201,8 @@ class HBNIFilter(StreamingFilter):
         class_prior: ``(M,)`` class prior; ``None`` takes ``posterior.class_prior``.
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
             draws; its cost is ``O(draws)`` per frame and class. ``None`` = the model's
-            :attr:`DEFAULT_DRAWS`: all draws, except at most 2000 under the sequence model, whose
-            cost per draw is ``M - 1`` times the paper's (2000 draws keep a frame under 2 ms).
+            spec's ``filter_draws`` (:mod:`hbni_pyro.variants`): all draws, except at most 2000 under the
+            sequence model, whose cost per draw is ``M - 1`` times the paper's (2000 draws keep a frame under 2 ms).
         temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood (all statistics scaled by
             ``tau``). The frame-level models treat outputs as i.i.d.; the frames of one camera
             sequence are not (the same view, light and background persist), so ``N`` of them carry
@@ -215,7 +215,6 @@ class HBNIFilter(StreamingFilter):
     """
 
     MODES = ("marginal", "plugin")
-    DEFAULT_DRAWS = {"paper": None, "confusion": None, "sequence": 2000}
 
     def __init__(
         self,
@@ -232,26 +231,27 @@ class HBNIFilter(StreamingFilter):
             raise ValueError(f"num_draws: expected a positive int or None, got {num_draws!r}")
         if isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1:
             raise ValueError(f"temper: expected a float in (0, 1], got {temper!r}")
-        self.model = getattr(posterior, "model", "paper")
+        spec = noise_model(getattr(posterior, "model", "paper"))
+        self.model = spec.name
         self.class_names = getattr(posterior, "class_names", None)
-        draws = _checked_draws(posterior, self.model)
+        draws = _checked_draws(posterior)
         if class_prior is None:
             class_prior = getattr(posterior, "class_prior", None)
-        num_classes = (draws["loc"].shape[1] if self.model == "sequence" else draws["theta"].shape[1])
+        num_classes = spec.num_classes(draws, lead=1)
         self.class_prior = as_class_prior(class_prior, num_classes)
         self._log_prior = self.class_prior.log()
         self.mode = mode
         self.temper = float(temper)
-        num_draws = self.DEFAULT_DRAWS[self.model] if num_draws is None else num_draws
+        num_draws = spec.filter_draws if num_draws is None else num_draws
         if mode == "plugin":
-            draws = _point_estimate(draws, self.model)
+            draws = spec.point_estimate(draws)
         elif num_draws is not None and num_draws < len(next(iter(draws.values()))):
             total = len(next(iter(draws.values())))
             picks = torch.linspace(0, total - 1, num_draws, dtype=DTYPE).round().long()
             draws = {k: v[picks] for k, v in draws.items()}
         self.draws = draws
         """The draws used, site -> ``(S, ...)`` (``S = 1`` in plugin mode)."""
-        self._evidence = EVIDENCE[self.model](draws)
+        self._evidence = spec.evidence(draws)
         super().__init__(num_classes)
 
     @property
@@ -279,9 +279,11 @@ class HBNIFilter(StreamingFilter):
                 f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g})")
 
 
-def _checked_draws(posterior: Any, model: str) -> dict[str, Tensor]:
-    """The posterior's pooled draws as float64, checked: finite, concentrations > 0, covariances SPD."""
-    if model == "paper" or not callable(getattr(posterior, "draws", None)):
+def _checked_draws(posterior: Any) -> dict[str, Tensor]:
+    """The posterior's pooled draws as float64, checked: finite, concentrations > 0, covariances SPD.
+
+    An object with only ``theta_draws()`` (``(S, M)``) stands for a paper's-model posterior."""
+    if not callable(getattr(posterior, "draws", None)):
         fn = getattr(posterior, "theta_draws", None)
         if not callable(fn):
             raise TypeError(f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}")
@@ -302,13 +304,6 @@ def _checked_draws(posterior: Any, model: str) -> dict[str, Tensor]:
         if name in draws and torch.linalg.cholesky_ex(draws[name]).info.any():
             raise ValueError(f"posterior: every {name} draw must be a positive-definite covariance")
     return draws
-
-
-def _point_estimate(draws: dict[str, Tensor], model: str) -> dict[str, Tensor]:
-    """One plug-in draw: medians of the concentrations, means of the sequence model's parameters."""
-    if model == "sequence":
-        return {k: v.mean(0, keepdim=True) for k, v in draws.items()}
-    return {k: v.median(0).values.unsqueeze(0) for k, v in draws.items()}
 
 
 FILTERS = ("hbni", "ssbf", "max_of_mean", "voting")

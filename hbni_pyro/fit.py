@@ -3,7 +3,7 @@
 ``fit`` fits one dataset; ``fit_many`` fits many same-sized datasets in one vectorised MH
 program (one block of chains per dataset), which is how a study that refits the model on
 dozens of training sets, or a simulation-based calibration, stays fast. ``model`` picks the
-variant (:data:`hbni_pyro.variants.MODELS`); the ``sequence`` model needs ``sequence_ids``.
+variant (a name of :data:`hbni_pyro.variants.NOISE_MODELS`); a sequence model needs ``sequence_ids``.
 """
 
 from __future__ import annotations
@@ -19,11 +19,9 @@ from pyro import poutine
 from pyro.infer import MCMC, NUTS, infer_discrete
 from torch import Tensor
 
-from hbni_pyro.confusion_model import confusion_model, off_diagonal
-from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
-from hbni_pyro.model import HyperPrior, hbni_model
+from hbni_pyro.model import HyperPrior
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
-from hbni_pyro.sequence_model import SequenceStats, sequence_model, sequence_stats
+from hbni_pyro.sequence_model import SequenceStats, sequence_stats
 from hbni_pyro.validation import (
     DTYPE,
     as_class_prior,
@@ -31,7 +29,7 @@ from hbni_pyro.validation import (
     as_outputs,
     as_sequence_ids,
 )
-from hbni_pyro.variants import SEQUENCE_MODELS, check_model
+from hbni_pyro.variants import NoiseModel, noise_model
 from infra.checks import as_int, as_names
 from infra.threads import single_thread
 
@@ -40,15 +38,12 @@ DEFAULT_CHAINS = {"mh": 16, "nuts": 2}
 """Chains per dataset when ``num_chains=None``: MH chains cost almost nothing extra (they share
 one tensor program), NUTS chains run one after another on these CPUs."""
 
-_KERNELS = {"paper": HBNIMetropolis, "confusion": ConfusionMetropolis, "sequence": SequenceMetropolis}
-_PYRO_MODELS: dict[str, Callable] = {"paper": hbni_model, "confusion": confusion_model, "sequence": sequence_model}
-
 
 def fit(
     obs: Any,
     labels: Any = None,
     *,
-    model: str = "paper",
+    model: str | NoiseModel = "paper",
     sequence_ids: Any = None,
     method: str = "mh",
     num_chains: int | None = None,
@@ -67,8 +62,9 @@ def fit(
         obs: ``(N, M)`` classifier outputs, rows on the simplex (exact zeros are floored).
         labels: ``(N,)`` true classes, ``-1`` where unknown; ``None`` means all unknown. Under the
             sequence model a sequence's outputs share one label.
-        model: ``"paper"`` (default), ``"confusion"`` or ``"sequence"``.
-        sequence_ids: ``(N,)`` integer id of each output's sequence (required by the sequence
+        model: the noise model's name, ``"paper"`` (default), ``"confusion"``, ``"sequence"`` or
+            another registered one (:func:`hbni_pyro.variants.register`), or its spec.
+        sequence_ids: ``(N,)`` integer id of each output's sequence (required by a sequence
             model, ignored by the others).
         method: ``"mh"`` (the vectorised kernels) or ``"nuts"`` (Pyro NUTS on the Pyro model with
             the classes enumerated out, labels recovered by ``infer_discrete``).
@@ -88,16 +84,16 @@ def fit(
     if x.dim() != 2:
         raise ValueError(f"obs: expected shape (N, M), got {tuple(x.shape)}; use fit_many for a stack of datasets")
     y = None if labels is None else as_labels(labels, x.shape[0], x.shape[1])
-    model = check_model(model)
-    ids = _sequence_ids(model, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
+    spec = noise_model(model)
+    ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
     names = as_names("class_names", class_names, x.shape[1])
     settings = dict(chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p)
     if method == "mh":
-        posterior = _fit_mh(model, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
+        posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
     else:
-        posterior = _fit_nuts(model, x, y, ids, jit=jit, **settings)
+        posterior = _fit_nuts(spec, x, y, ids, jit=jit, **settings)
     posterior.class_names = names
     return posterior
 
@@ -106,7 +102,7 @@ def fit_many(
     obs_sets: Any,
     labels: Any = None,
     *,
-    model: str = "paper",
+    model: str | NoiseModel = "paper",
     sequence_ids: Any = None,
     num_chains: int | None = None,
     num_samples: int = 1000,
@@ -131,23 +127,23 @@ def fit_many(
         y = torch.stack([as_labels(row, x.shape[1], x.shape[2], name=f"labels[{d}]") for d, row in enumerate(torch.as_tensor(labels))])
         if y.shape[0] != x.shape[0]:
             raise ValueError(f"labels: expected {x.shape[0]} rows to match obs_sets, got {y.shape[0]}")
-    model = check_model(model)
-    ids = _sequence_ids(model, sequence_ids, x.shape[1], y)
+    spec = noise_model(model)
+    ids = _sequence_ids(spec, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
     names = as_names("class_names", class_names, x.shape[2])
-    posteriors = _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
+    posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
     for posterior in posteriors:
         posterior.class_names = names
     return posteriors
 
 
-def _sequence_ids(model: str, sequence_ids: Any, num_obs: int, labels: Tensor | None) -> Tensor | None:
+def _sequence_ids(spec: NoiseModel, sequence_ids: Any, num_obs: int, labels: Tensor | None) -> Tensor | None:
     """Validated ids remapped to ``0..K-1`` (``None`` for frame-level models); labels must agree within a sequence."""
-    if model not in SEQUENCE_MODELS:
+    if not spec.sequences:
         return None
     if sequence_ids is None:
-        raise ValueError(f"sequence_ids: the {model!r} model needs the sequence id of every output, got None")
+        raise ValueError(f"sequence_ids: the {spec.name!r} model needs the sequence id of every output, got None")
     ids = as_sequence_ids(sequence_ids, num_obs)
     for d, row in enumerate([] if labels is None else labels):
         high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long).scatter_reduce(0, ids, row, "amax", include_self=False)
@@ -179,11 +175,11 @@ def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
     return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
 
 
-def _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
+def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
     D = x.shape[0]
-    kernel = _KERNELS[model](num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
+    kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
-    args = (_stacked_stats(x, y, ids),) if model in SEQUENCE_MODELS else (x, y)
+    args = (_stacked_stats(x, y, ids),) if spec.sequences else (x, y)
     start = time.perf_counter()
     with single_thread():
         mcmc.run(*args)
@@ -199,17 +195,17 @@ def _fit_mh(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress,
         info["step_size_theta"] = diag["step size theta"]
     return [
         posterior_from_samples(
-            {k: v.reshape((D, chains) + v.shape[1:])[d] for k, v in draws.items()}, p, hp, model,
+            {k: v.reshape((D, chains) + v.shape[1:])[d] for k, v in draws.items()}, p, hp, spec.name,
             label_probs=label_probs[d], info=info,
         )
         for d in range(D)
     ]
 
 
-def _fit_nuts(model, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
-    args = _nuts_args(model, x, y, ids)
+def _fit_nuts(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
+    args = _nuts_args(spec, x, y, ids)
     pyro.set_rng_seed(seed)
-    kernel = NUTS(_PYRO_MODELS[model], max_plate_nesting=2 if model == "confusion" else 1, jit_compile=jit, ignore_jit_warnings=True)
+    kernel = NUTS(spec.pyro_model, max_plate_nesting=spec.max_plate_nesting, jit_compile=jit, ignore_jit_warnings=True)
     start = time.perf_counter()
     with warnings.catch_warnings(), single_thread():
         warnings.filterwarnings("ignore", message="num_chains=.*more than available_cpu")
@@ -222,15 +218,15 @@ def _fit_nuts(model, x, y, ids, chains, num_samples, warmup_steps, seed, progres
         "method": "nuts", "num_chains": chains, "num_samples": num_samples, "warmup_steps": warmup_steps,
         "seed": seed, "seconds": seconds, "jit": jit, "divergences": int(sum(len(v) for v in divergences.values())),
     }
-    label_probs = recover_label_probs(_PYRO_MODELS[model], args, raw, p, hp, seed=seed)
+    label_probs = recover_label_probs(spec.pyro_model, args, raw, p, hp, seed=seed)
     if ids is not None:
         label_probs = label_probs[ids]
-    return posterior_from_samples(nuts_sites(model, raw), p, hp, model, label_probs=label_probs, info=info)
+    return posterior_from_samples(spec.nuts_sites(raw), p, hp, spec.name, label_probs=label_probs, info=info)
 
 
-def _nuts_args(model: str, x: Tensor, y: Tensor | None, ids: Tensor | None) -> tuple:
+def _nuts_args(spec: NoiseModel, x: Tensor, y: Tensor | None, ids: Tensor | None) -> tuple:
     """The Pyro model's data arguments: ``(obs, labels)``, or padded sequences ``(obs, mask, labels)``."""
-    if model not in SEQUENCE_MODELS:
+    if not spec.sequences:
         return (x, y)
     num_seq, M = int(ids.max()) + 1, x.shape[1]
     order = torch.argsort(ids, stable=True)
@@ -242,17 +238,6 @@ def _nuts_args(model: str, x: Tensor, y: Tensor | None, ids: Tensor | None) -> t
     mask[ids[order], pos] = True
     labels = None if y is None else torch.full((num_seq,), -1, dtype=torch.long).scatter_(0, ids, y)
     return (padded, mask, labels)
-
-
-def nuts_sites(model: str, raw: dict[str, Tensor]) -> dict[str, Tensor]:
-    """The posterior sites of ``model`` from the Pyro program's sampled sites ``(chains, draws, ...)``."""
-    if model == "paper":
-        return {k: raw[k] for k in ("theta", "kappa", "gamma")}
-    if model == "confusion":
-        beta = off_diagonal((raw["beta_loc"][..., None, None] + raw["beta_scale"][..., None, None] * raw["beta_raw"]).exp())
-        return {"theta": raw["theta"], "beta": beta, **{k: raw[k] for k in ("kappa", "gamma", "beta_loc", "beta_scale")}}
-    outer = {k[: -len("_tril")]: v @ v.transpose(-1, -2) for k, v in raw.items() if k.endswith("_tril")}
-    return {"loc": raw["loc"], **outer, **{k: v for k, v in raw.items() if k.endswith("_pooling")}}
 
 
 def recover_label_probs(

@@ -344,7 +344,7 @@ def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, s
         def posterior_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
             return generative.sample_streams(c, n, T, generator=g)
 
-        return posterior_streams, "posterior predictive" + ("" if generative.model == "paper" else f" ({generative.model} model)")
+        return posterior_streams, f"posterior predictive ({generative.model} model)"
     theta, source = _generative_theta(generative, num_classes)
 
     def theta_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:

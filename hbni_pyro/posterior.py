@@ -11,11 +11,9 @@ import torch
 from pyro.ops.stats import effective_sample_size, split_gelman_rubin
 from torch import Tensor
 
-from hbni_pyro.density import concentrations
-from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants import MODELS, check_model, site_shapes
+from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from infra.checks import as_names
 from infra.tensorfile import load_tensors, save_tensors
 
@@ -23,26 +21,18 @@ _KIND = "hbni_pyro.HBNIPosterior"
 _VERSION = 2  # format version of saved posteriors
 
 
-def _num_classes(model: str, samples: dict[str, Tensor]) -> int:
-    key = "loc" if model == "sequence" else "theta"
-    if key not in samples:
-        raise ValueError(f"samples: missing sites [{key!r}], expected {list(site_shapes(model, 2))} for model {model!r}")
-    x = samples[key]
-    return x.shape[-2] if model == "sequence" and x.dim() >= 2 else x.shape[-1]
-
-
 @dataclass
 class HBNIPosterior:
     """Posterior draws by chain.
 
     Attributes:
-        samples: site -> ``(chains, draws, *site shape)``; the sites of each model are in
-            :func:`hbni_pyro.variants.site_shapes` (paper: ``theta (M,)``, ``kappa``, ``gamma``).
+        samples: site -> ``(chains, draws, *site shape)``; the sites of each model are its spec's
+            ``site_shapes`` (:mod:`hbni_pyro.variants`; paper: ``theta (M,)``, ``kappa``, ``gamma``).
         class_prior: ``(M,)`` class prior ``p`` used in the fit.
         hyperprior: the :class:`HyperPrior` used in the fit.
         label_probs: ``(N, M)`` posterior probability of each training output's class, or ``None``.
         info: JSON-serialisable fit metadata (method, settings, sampler diagnostics).
-        model: the noise model, one of :data:`hbni_pyro.variants.MODELS` (default ``"paper"``).
+        model: the noise model's name, a key of :data:`hbni_pyro.variants.NOISE_MODELS` (default ``"paper"``).
         class_names: the name of each class, in the order of the outputs' columns (``None``: unnamed); filters,
             tables and streams built on the posterior check their names against it.
     """
@@ -56,9 +46,9 @@ class HBNIPosterior:
     class_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
-        check_model(self.model)
-        self.class_names = as_names("class_names", self.class_names, _num_classes(self.model, self.samples))
-        shapes = site_shapes(self.model, _num_classes(self.model, self.samples))
+        self.model = self.noise_model.name
+        self.class_names = as_names("class_names", self.class_names, self.num_classes)
+        shapes = self.noise_model.site_shapes(self.num_classes)
         missing = [k for k in shapes if k not in self.samples]
         if missing:
             raise ValueError(f"samples: missing sites {missing}, expected {list(shapes)} for model {self.model!r}")
@@ -71,8 +61,13 @@ class HBNIPosterior:
                 raise ValueError(f"samples[{k!r}]: expected shape {tuple(lead) + shape}, got {tuple(self.samples[k].shape)}")
 
     @property
+    def noise_model(self) -> NoiseModel:
+        """The spec of :attr:`model` (:mod:`hbni_pyro.variants`)."""
+        return noise_model(self.model)
+
+    @property
     def num_classes(self) -> int:
-        return _num_classes(self.model, self.samples)
+        return self.noise_model.num_classes(self.samples)
 
     @property
     def num_chains(self) -> int:
@@ -127,7 +122,7 @@ class HBNIPosterior:
         for name, x in self.samples.items():
             shape = x.shape[2:]
             for index in torch.cartesian_prod(*(torch.arange(n) for n in shape)).reshape(-1, len(shape)).tolist() if shape else [[]]:
-                if not _free_entry(name, index):
+                if not self.noise_model.free_entry(name, index):
                     continue
                 label = f"{name}[{', '.join(map(str, index))}]" if index else name
                 sites[label] = x[(slice(None), slice(None), *index)]
@@ -160,14 +155,7 @@ class HBNIPosterior:
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g)
-        classes = torch.full((num_streams, num_frames), true_class, dtype=torch.long)
-        if self.model == "paper":
-            return sample_outputs(draws["theta"][idx].unsqueeze(1), classes, g)
-        if self.model == "confusion":
-            alpha = concentrations(draws["theta"][idx], draws["beta"][idx])[:, true_class]
-            return sample_dirichlet(alpha.unsqueeze(1).expand(num_streams, num_frames, -1), g)
-        return sample_sequences(draws["loc"][idx, true_class], draws["between"][idx, true_class],
-                                draws["within"][idx].unsqueeze(1), torch.arange(num_streams), num_frames, g)
+        return self.noise_model.sample_streams({k: v[idx] for k, v in draws.items()}, true_class, num_frames, g)
 
     def _check_class(self, true_class: int) -> None:
         if not (isinstance(true_class, int) and not isinstance(true_class, bool) and 0 <= true_class < self.num_classes):
@@ -188,12 +176,13 @@ class HBNIPosterior:
         """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
         tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         model = meta.get("model", "paper")
-        if model not in MODELS:
-            raise ValueError(f"{path}: unknown noise model {model!r} in saved {_KIND}, expected one of {MODELS}")
+        if model not in model_names():
+            raise ValueError(f"{path}: unknown noise model {model!r} in saved {_KIND}, expected one of {model_names()}")
+        spec = noise_model(model)
         try:
-            num_classes = _num_classes(model, tensors)
+            num_classes = spec.num_classes(tensors)
             return cls(
-                samples={k: tensors[k] for k in site_shapes(model, num_classes)},
+                samples={k: tensors[k] for k in spec.site_shapes(num_classes)},
                 class_prior=tensors["class_prior"],
                 hyperprior=HyperPrior(**meta["hyperprior"]),
                 label_probs=tensors.get("label_probs"),
@@ -212,7 +201,7 @@ class HBNIPosterior:
             raise ImportError("to_arviz() needs arviz: pip install arviz") from exc
         return arviz.from_dict(
             posterior={k: v.numpy() for k, v in self.samples.items()},
-            dims={"theta": ["class"], "beta": ["class", "class_to"], "loc": ["class", "coord"]},
+            dims=self.noise_model.arviz_dims,
             coords={"class": list(range(self.num_classes)), "class_to": list(range(self.num_classes)),
                     "coord": list(range(self.num_classes - 1))},
         )
@@ -222,16 +211,6 @@ class HBNIPosterior:
         if "theta" in self.samples:
             head += ", theta mean=[" + ", ".join(f"{float(v):.3g}" for v in self.theta_point()) + "]"
         return head + f", method={self.info.get('method')!r})"
-
-
-def _free_entry(name: str, index: list[int]) -> bool:
-    """Whether entry ``index`` of site ``name`` is a free parameter (not ``beta``'s fixed diagonal,
-    not a covariance's mirrored lower triangle)."""
-    if name == "beta":
-        return index[0] != index[1]
-    if name in ("between", "between_mean", "within"):
-        return index[-2] <= index[-1]
-    return True
 
 
 def posterior_from_samples(

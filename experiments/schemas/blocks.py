@@ -71,9 +71,9 @@ class HBNIBlock:
     filter: FilterBlock = field(default_factory=FilterBlock)
 
     def check(self, path: str) -> None:
-        from hbni_pyro.variants import MODELS
+        from hbni_pyro.variants import model_names
 
-        one_of("model", self.model, MODELS)
+        one_of("model", self.model, model_names())
 
 
 @dataclass

@@ -468,10 +468,10 @@ class NoiseStudy:
     images_calibration: float = 0.5
 
     def check(self, path: str) -> None:
-        from hbni_pyro.variants import MODELS
+        from hbni_pyro.variants import model_names
 
-        if not self.models or any(m not in MODELS for m in self.models) or len(set(self.models)) != len(self.models):
-            raise ValueError(f"models: expected distinct models of {list(MODELS)}, got {list(self.models)}")
+        if not self.models or any(m not in model_names() for m in self.models) or len(set(self.models)) != len(self.models):
+            raise ValueError(f"models: expected distinct models of {list(model_names())}, got {list(self.models)}")
         for name in ("thresholds", "curve_thresholds"):
             values = getattr(self, name)
             if not values:

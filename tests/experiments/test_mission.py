@@ -65,7 +65,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
                              "macro_hbni_generative", "controller_perfect", "controller_hbni", "controller_ssbf",
                              "controller_max_of_mean", "controller_hbni_generative"}
     generative = MacroObservationModel.load(mission_run / "macro_hbni_generative.safetensors")
-    assert generative.info["generative"] == "posterior predictive" and generative.info["num_streams"] == 50
+    assert generative.info["generative"] == "posterior predictive (paper model)" and generative.info["num_streams"] == 50
 
 
 def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, tmp_path, repo_root):
@@ -78,7 +78,7 @@ def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, t
         assert again["variants"][name]["executed"]["value"] == entry["executed"]["value"]
 
 
-@pytest.mark.parametrize("model, source", [("paper", "posterior predictive"),
+@pytest.mark.parametrize("model, source", [("paper", "posterior predictive (paper model)"),
                                            ("sequence", "posterior predictive (sequence model)")])
 def test_generative_planning_model(tmp_path, repo_root, model, source):
     """Every noise model (hbni.model) simulates the streams of its own posterior predictive for the generative table."""
