@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from omegaconf import MISSING
+
 from experiments.schemas.targets import target_schema
 from hbni_pyro import HBNIFilter
 from hbni_pyro.fit import METHODS
@@ -39,10 +41,10 @@ def one_of(name: str, value: Any, choices: tuple) -> None:
 class FitBlock:
     """``hbni.fit``: the MCMC settings of :func:`hbni_pyro.fit`."""
 
-    method: str = "mh"
-    num_chains: int = 16
-    num_samples: int = 1000
-    warmup_steps: int = 500
+    method: str = MISSING
+    num_chains: int = MISSING
+    num_samples: int = MISSING
+    warmup_steps: int = MISSING
 
     def check(self, path: str) -> None:
         one_of("method", self.method, METHODS)
@@ -55,7 +57,7 @@ class FitBlock:
 class FilterBlock:
     """``hbni.filter``: how the HBNI filter uses the posterior."""
 
-    mode: str = "marginal"
+    mode: str = MISSING
 
     def check(self, path: str) -> None:
         one_of("mode", self.mode, HBNIFilter.MODES)
@@ -65,7 +67,7 @@ class FilterBlock:
 class HBNIBlock:
     """``hbni``: noise model, hyperprior, fitting settings and filter mode."""
 
-    model: str = "paper"
+    model: str = MISSING
     hyperprior: Any = field(default_factory=HyperPriorBlock)
     fit: FitBlock = field(default_factory=FitBlock)
     filter: FilterBlock = field(default_factory=FilterBlock)
@@ -83,9 +85,9 @@ class PlanningStudy:
     ``shared_controller``: every planner searches one controller the whole team runs.
     """
 
-    shared_controller: bool = False
-    reeval_rollouts: int = 1000
-    threads: int = 1
+    shared_controller: bool = MISSING
+    reeval_rollouts: int = MISSING
+    threads: int = MISSING
 
     def check(self, path: str) -> None:
         positive_int("reeval_rollouts", self.reeval_rollouts, 2)
@@ -99,9 +101,9 @@ class BaselineStudy(PlanningStudy):
     ``seeded`` holds :class:`decpomdp.search.PlannerConfig` overrides of the G-DICE preset for the seeded run.
     """
 
-    random_controllers: int = 1000
-    seeded: dict[str, Any] = field(default_factory=dict)
-    select_rollouts: int = 1000
+    random_controllers: int = MISSING
+    seeded: dict[str, Any] = MISSING
+    select_rollouts: int = MISSING
 
     def check(self, path: str) -> None:
         super().check(path)

@@ -33,11 +33,11 @@ class Root:
     """Keys every experiment has."""
 
     paths: Paths = field(default_factory=Paths)
-    name: str = "?"
-    entry: str = "?"
-    headline: list[str] = field(default_factory=list)  # metrics a sweep report shows (paths into metrics.json)
-    seed: int = 0
-    progress: bool = True
+    name: str = MISSING
+    entry: str = MISSING
+    headline: list[str] = MISSING  # metrics a sweep report shows (paths into metrics.json)
+    seed: int = MISSING
+    progress: bool = MISSING
     hbni: HBNIBlock = field(default_factory=HBNIBlock)
 
 
@@ -58,8 +58,8 @@ def _check_conditions(name: str, overrides: dict[str, Any] | None) -> None:
 
 @dataclass
 class ToyBlock:
-    theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
-    per_class: int = 5
+    theta: list[float] = MISSING
+    per_class: int = MISSING
     near_perfect_hyperprior: Any = field(default_factory=HyperPriorBlock)
 
     def check(self, path: str) -> None:
@@ -74,13 +74,13 @@ class HBNIToy(Root):
 
 @dataclass
 class FilteringStudy:
-    true_theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
-    training_sizes: list[int] = field(default_factory=lambda: [15, 30, 60, 150])
-    num_training_sets: int = 20
-    num_trials: int = 2000
-    max_len: int = 50
-    filter_draws: int = 1000
-    targets: list[float] = field(default_factory=lambda: [0.05, 0.01, 0.005])
+    true_theta: list[float] = MISSING
+    training_sizes: list[int] = MISSING
+    num_training_sets: int = MISSING
+    num_trials: int = MISSING
+    max_len: int = MISSING
+    filter_draws: int = MISSING
+    targets: list[float] = MISSING
 
     def check(self, path: str) -> None:
         _check_theta("true_theta", self.true_theta)
@@ -99,12 +99,12 @@ class FilteringError(Root):
 
 @dataclass
 class MacroStudy:
-    true_theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
-    training_per_class: int = 5
-    threshold: float = 0.95
-    max_frames: int = 50
-    num_streams: int = 2000
-    filter_draws: int = 1000
+    true_theta: list[float] = MISSING
+    training_per_class: int = MISSING
+    threshold: float = MISSING
+    max_frames: int = MISSING
+    num_streams: int = MISSING
+    filter_draws: int = MISSING
 
     def check(self, path: str) -> None:
         _check_theta("true_theta", self.true_theta)
@@ -120,14 +120,14 @@ class MacroObservation(Root):
 
 @dataclass
 class ReplayStudy:
-    classes: list[str] = field(default_factory=lambda: ["irobot", "quadrotor", "racecar"])
-    train_per_class: int = 100
-    augment: int = 1
-    calib_sequences: int = 10
-    test_sequences: int = 30
-    frames: int = 15
-    threshold: float = 0.95
-    mission: dict[str, Any] = field(default_factory=dict)
+    classes: list[str] = MISSING
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    calib_sequences: int = MISSING
+    test_sequences: int = MISSING
+    frames: int = MISSING
+    threshold: float = MISSING
+    mission: dict[str, Any] = MISSING
 
     def check(self, path: str) -> None:
         from classifiers.data import OBJECTS
@@ -150,8 +150,8 @@ class PerceptionReplay(Root):
 
 @dataclass
 class PackageStudy(BaselineStudy):
-    alpha_sweep: list[float] = field(default_factory=lambda: [0.05, 0.1, 0.2, 0.4])
-    sweep_iterations: int = 100
+    alpha_sweep: list[float] = MISSING
+    sweep_iterations: int = MISSING
 
     def check(self, path: str) -> None:
         super().check(path)
@@ -185,7 +185,7 @@ class PaperComparison:
 
     domain: Any = field(default_factory=PackageDeliveryBlock)
     planner: Any = field(default_factory=PlannerBlock)
-    runs: int = 3
+    runs: int = MISSING
 
     def check(self, path: str) -> None:
         positive_int("runs", self.runs)
@@ -205,9 +205,9 @@ class DisasterReliefExperiment(PlanningExperiment):
 
 @dataclass
 class Caps:
-    iterations: Optional[int] = None
-    samples: Optional[int] = None
-    restarts: Optional[int] = None
+    iterations: Optional[int] = MISSING
+    samples: Optional[int] = MISSING
+    restarts: Optional[int] = MISSING
 
     def check(self, path: str) -> None:
         for name in ("iterations", "samples", "restarts"):
@@ -219,15 +219,15 @@ class Caps:
 class BenchmarkRow:
     """One row of ``dpomdp_benchmarks``: a shipped problem, its horizon (None: infinite) and optimum."""
 
-    problem: str = "?"
-    gamma: float = 1.0
-    horizon: Optional[int] = None
-    optimum: Optional[float] = None
-    source: str = ""
-    evaluator: str = "exact"
+    problem: str = MISSING
+    gamma: float = MISSING
+    horizon: Optional[int] = MISSING
+    optimum: Optional[float] = MISSING
+    source: str = MISSING
+    evaluator: str = "exact"  # a row's own defaults: a dict of rows has no YAML default per row
     rollouts: int = 200
-    restarts: int = 1
-    gdice: dict[str, Any] = field(default_factory=dict)
+    restarts: int = MISSING
+    gdice: dict[str, Any] = MISSING
 
     def check(self, path: str) -> None:
         from decpomdp.dpomdp import problem_names
@@ -251,8 +251,8 @@ class BenchmarkRow:
 class PaperBudget:
     """The planner settings of each row's run at the paper's budget (N_s samples, N_k iterations)."""
 
-    ce_samples: int = 100
-    ce_iterations: int = 100
+    ce_samples: int = MISSING
+    ce_iterations: int = MISSING
 
     def check(self, path: str) -> None:
         positive_int("ce_samples", self.ce_samples)
@@ -261,11 +261,11 @@ class PaperBudget:
 
 @dataclass
 class BenchmarkStudy:
-    threads: int = 1
-    random_controllers: int = 1000
+    threads: int = MISSING
+    random_controllers: int = MISSING
     paper_budget: PaperBudget = field(default_factory=PaperBudget)
     caps: Caps = field(default_factory=Caps)
-    rows: dict[str, BenchmarkRow] = field(default_factory=dict)
+    rows: dict[str, BenchmarkRow] = MISSING
 
     def check(self, path: str) -> None:
         positive_int("threads", self.threads)
@@ -292,9 +292,9 @@ PLANNING_MODELS = ("empirical", "generative")
 class BankBlock:
     """``mission.bank``: the held-out sequences of the closed loop (per class), their cache and builders."""
 
-    sequences: int = 40
-    cache_dir: str = ".cache/banks"
-    workers: int = 1
+    sequences: int = MISSING
+    cache_dir: str = MISSING
+    workers: int = MISSING
 
     def check(self, path: str) -> None:
         positive_int("sequences", self.sequences, 2)
@@ -307,8 +307,8 @@ class BankBlock:
 class BootstrapBlock:
     """``mission.bootstrap``: stream standard errors by bootstrap over sequence indices."""
 
-    replicates: int = 16
-    rollouts: int = 200
+    replicates: int = MISSING
+    rollouts: int = MISSING
 
     def check(self, path: str) -> None:
         positive_int("replicates", self.replicates, 2)
@@ -320,17 +320,17 @@ class MissionBlock:
     """``mission``: the perception side of the mission (data sizes, inference threshold, temper, imaging),
     the planning model and the closed loop."""
 
-    train_per_class: int = 30
-    augment: int = 1
-    calib_sequences: int = 8
-    char_sequences: int = 16
-    frames: int = 30
-    threshold: float = 0.95
-    temper: Any = "fit"
-    conditions: Optional[dict[str, Any]] = None
-    planning_model: str = "empirical"
-    compare_planning_models: bool = True
-    generative_streams: int = 1000
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    calib_sequences: int = MISSING
+    char_sequences: int = MISSING
+    frames: int = MISSING
+    threshold: float = MISSING
+    temper: Any = MISSING
+    conditions: Optional[dict[str, Any]] = MISSING
+    planning_model: str = MISSING
+    compare_planning_models: bool = MISSING
+    generative_streams: int = MISSING
     bank: BankBlock = field(default_factory=BankBlock)
     bootstrap: BootstrapBlock = field(default_factory=BootstrapBlock)
 
@@ -353,10 +353,10 @@ MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
 class Mission(Root):
     classifier: Any = field(default_factory=ClassifierBlock)
     planner: Any = field(default_factory=PlannerBlock)  # plans perfect perception (and every variant without warm starts)
-    warm_start: bool = True  # perception variants start from the perfect-perception plan
+    warm_start: bool = MISSING  # perception variants start from the perfect-perception plan
     warm_planner: Any = field(default_factory=PlannerBlock)  # the planner settings of those warm starts
     domain: Any = field(default_factory=DisasterReliefBlock)
-    perception: Any = field(default_factory=lambda: list(MISSION_VARIANTS))
+    perception: Any = MISSING
     mission: MissionBlock = field(default_factory=MissionBlock)
     study: PlanningStudy = field(default_factory=PlanningStudy)
 
@@ -374,17 +374,17 @@ ANNOTATIONS = ("video", "strip")
 class StreamBlock:
     """``stream``: where frames come from, the saved models, the macro-observation process, the pictures."""
 
-    source: Any = 0  # a video file, a folder of frames or a camera index
-    max_input_frames: Optional[int] = None
-    run: Optional[str] = "latest"  # a mission run directory; latest: the newest completed one under outputs/mission
-    classifier: Optional[str] = None
-    posterior: Optional[str] = None
-    classes: Optional[list[str]] = None
-    temper: Optional[float] = None
-    threshold: float = 0.95
-    max_frames: int = 30
-    batch: int = 8
-    annotate: list[str] = field(default_factory=lambda: list(ANNOTATIONS))
+    source: Any = MISSING  # a video file, a folder of frames or a camera index
+    max_input_frames: Optional[int] = MISSING
+    run: Optional[str] = MISSING  # a mission run directory; latest: the newest completed one under outputs/mission
+    classifier: Optional[str] = MISSING
+    posterior: Optional[str] = MISSING
+    classes: Optional[list[str]] = MISSING
+    temper: Optional[float] = MISSING
+    threshold: float = MISSING
+    max_frames: int = MISSING
+    batch: int = MISSING
+    annotate: list[str] = MISSING
 
     def check(self, path: str) -> None:
         from pathlib import Path
@@ -420,13 +420,13 @@ class Stream(Root):
 
 @dataclass
 class NoiseToyBlock:
-    theta: list[float] = field(default_factory=lambda: [1.0, 6.0, 20.0])
-    training_size: int = 15
-    num_training_sets: int = 20
-    num_trials: int = 2000
-    max_len: int = 50
-    filter_draws: int = 1000
-    target: float = 0.01
+    theta: list[float] = MISSING
+    training_size: int = MISSING
+    num_training_sets: int = MISSING
+    num_trials: int = MISSING
+    max_len: int = MISSING
+    filter_draws: int = MISSING
+    target: float = MISSING
 
     def check(self, path: str) -> None:
         _check_theta("theta", self.theta)
@@ -441,11 +441,11 @@ class NoiseToyBlock:
 
 @dataclass
 class NoiseMissionBlock:
-    train_per_class: int = 30
-    augment: int = 1
-    calib_sequences: int = 20
-    test_sequences: int = 50
-    frames: int = 30
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    calib_sequences: int = MISSING
+    test_sequences: int = MISSING
+    frames: int = MISSING
 
     def check(self, path: str) -> None:
         for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
@@ -457,15 +457,15 @@ class NoiseMissionBlock:
 class NoiseStudy:
     """``study`` of the noise-model comparison."""
 
-    models: list[str] = field(default_factory=lambda: ["paper", "confusion", "sequence"])
-    thresholds: list[float] = field(default_factory=lambda: [0.9, 0.95, 0.99])
-    curve_thresholds: list[float] = field(default_factory=lambda: [0.5, 0.9, 0.95, 0.99])
-    cache_dir: Optional[str] = None
+    models: list[str] = MISSING
+    thresholds: list[float] = MISSING
+    curve_thresholds: list[float] = MISSING
+    cache_dir: Optional[str] = MISSING
     toy: NoiseToyBlock = field(default_factory=NoiseToyBlock)
     mission: NoiseMissionBlock = field(default_factory=NoiseMissionBlock)
-    conditions: dict[str, Any] = field(default_factory=dict)
-    images: Optional[str] = None
-    images_calibration: float = 0.5
+    conditions: dict[str, Any] = MISSING
+    images: Optional[str] = MISSING
+    images_calibration: float = MISSING
 
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names

@@ -127,3 +127,33 @@ def test_the_mission_plans_with_no_hand_written_controller():
     full = _compose("experiment=mission_full")
     assert full.warm_start and full.planner.budget > main.planner.budget
     assert full.planner.ce_reactive and full.warm_planner.budget > main.warm_planner.budget
+
+
+def _schema_fields(schema, seen):
+    """(class, field) of every field of ``schema`` and the blocks below it, the generated target blocks excepted."""
+    import dataclasses
+
+    from experiments.schemas.targets import TargetBlock
+
+    if schema in seen or issubclass(schema, TargetBlock):
+        return
+    seen.add(schema)
+    for f in dataclasses.fields(schema):
+        if f.default_factory is not dataclasses.MISSING and dataclasses.is_dataclass(f.default_factory):
+            yield from _schema_fields(f.default_factory, seen)
+        else:
+            yield schema, f
+
+
+def test_the_yaml_is_the_only_place_for_defaults():
+    """Every schema field is MISSING (or a block): a default lives in conf/, and every experiment sets every key."""
+    from omegaconf import MISSING, OmegaConf
+
+    seen: set = set()
+    defaults = [(cls.__name__, f.name) for schema in SCHEMAS.values() for cls, f in _schema_fields(schema, seen)
+                if f.default is not MISSING]
+    assert defaults == []
+    for name in EXPERIMENTS:
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[f"experiment={name}"])
+        assert OmegaConf.missing_keys(cfg) == set(), name
