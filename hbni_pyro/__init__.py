@@ -3,7 +3,7 @@
 Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: ``model="paper"``,
 ``"confusion"`` or ``"sequence"``, each a :class:`NoiseModel` in :mod:`hbni_pyro.variants`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
-the streaming filters (:class:`HBNIFilter`, :class:`SSBF`, :class:`VotingFilter`,
+the streaming filters (:class:`HBNIFilter`, :class:`StaticStateBayesFilter`, :class:`VotingFilter`,
 :class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
@@ -17,7 +17,7 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
-from hbni_pyro.filters import FILTERS, SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide, make_filter
+from hbni_pyro.filters import FILTERS, StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide, make_filter
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import (
@@ -39,7 +39,7 @@ __all__ = [
     "FILTERS",
     "NOISE_MODELS",
     "OUTPUT_FLOOR",
-    "SSBF",
+    "StaticStateBayesFilter",
     "ConfusionMetropolis",
     "HBNIFilter",
     "HBNIMetropolis",

@@ -4,15 +4,15 @@ Every filter here summarises a stream ``o_1, ..., o_N`` by a running sum of one 
 feature vector (``(M,)``) and the frame count ``N``; its class posterior is a pure function of
 that sum and ``N``:
 
-========================  ======================  ===============================================
-filter                    per-frame feature        posterior after N frames
-========================  ======================  ===============================================
-:class:`VotingFilter`     one-hot vote             vote counts / N
-:class:`MaxOfMeanFilter`  ``o``                    mean output
-:class:`SSBF`             ``log o``                ``∝ p_m * prod_i o_i,m / p_m``
-:class:`HBNIFilter`       ``log o`` (or ``ilr o``  ``∝ p_m * E_draws p(o_1:N | c = m)^tau`` under the fitted noise model
-                          and its square)
-========================  ======================  ===============================================
+===============================  ======================  ===============================================
+filter                           per-frame feature       posterior after N frames
+===============================  ======================  ===============================================
+:class:`VotingFilter`            one-hot vote            vote counts / N
+:class:`MaxOfMeanFilter`         ``o``                   mean output
+:class:`StaticStateBayesFilter`  ``log o``               ``∝ p_m * prod_i o_i,m / p_m`` (SSBF)
+:class:`HBNIFilter`              ``log o`` (or ``ilr o``  ``∝ p_m * E_draws p(o_1:N | c = m)^tau`` under the fitted noise model
+                                 and its square)
+===============================  ======================  ===============================================
 
 The streaming path (:meth:`StreamingFilter.update`) adds one feature to the running sum;
 the batched path (:meth:`StreamingFilter.run`) takes a cumulative sum over frames. Both
@@ -159,8 +159,8 @@ class _LogLinearFilter(StreamingFilter):
         raise NotImplementedError
 
 
-class SSBF(_LogLinearFilter):
-    """Static-state Bayes filter: ``P_N(m) ∝ o_N,m / p_m * P_N-1(m)``, ``P_0 = p``.
+class StaticStateBayesFilter(_LogLinearFilter):
+    """Static-state Bayes filter (SSBF, ``make_filter("ssbf")``): ``P_N(m) ∝ o_N,m / p_m * P_N-1(m)``, ``P_0 = p``.
 
     It treats each output as a (prior-divided) likelihood, so after N frames
     ``P_N(m) ∝ p_m * prod_i (o_i,m / p_m)``.
@@ -330,4 +330,4 @@ def make_filter(name: str, posterior: Any = None, *, num_classes: int | None = N
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
-    return {"ssbf": SSBF, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](num_classes, **options)
+    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](num_classes, **options)

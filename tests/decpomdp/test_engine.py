@@ -52,7 +52,7 @@ def replay() -> hbni_pyro.StreamReplay:
     theta = torch.tensor([1.0, 3.0, 2.0, 6.0, 4.0, 1.5])
     truth = torch.arange(6).repeat_interleave(7)
     streams = torch.stack([sample_outputs(theta, c.repeat(20), g(int(i))) for i, c in enumerate(truth)])
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(6), threshold=0.9, max_frames=20)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(6), threshold=0.9, max_frames=20)
     return hbni_pyro.StreamReplay(process, streams, truth)
 
 

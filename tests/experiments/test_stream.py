@@ -171,7 +171,7 @@ def test_streaming_steps_reject_bad_input(saved):
     clf = FrameClassifier.load(saved["classifier"])
     with pytest.raises(ValueError, match="batch: expected a positive int"):
         next(classify_frames([], clf, CLASSES, batch=0))
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), 0.95, 6)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.95, 6)
     with pytest.raises(ValueError, match="classes: expected 3 names"):
         next(macro_observations([], process, CLASSES[:2]))
     assert list(macro_observations([], process, CLASSES)) == []

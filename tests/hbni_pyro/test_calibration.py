@@ -10,7 +10,7 @@ from hbni_pyro.calibration import (
     stream_reliability,
     threshold_checks,
 )
-from hbni_pyro.filters import SSBF, HBNIFilter
+from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationProcess
 
@@ -37,7 +37,7 @@ def test_a_filter_that_knows_the_truth_is_calibrated():
     streams = sample_outputs(THETA, truth[:, None].expand(600, 10), g)
     r = stream_reliability(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), streams, truth)
     assert r.ece < 0.03 and r.count.sum() == 6000
-    bad = stream_reliability(SSBF(3), streams, truth)  # SSBF treats each output as a likelihood: overconfident
+    bad = stream_reliability(StaticStateBayesFilter(3), streams, truth)  # SSBF treats each output as a likelihood: overconfident
     assert bad.ece > r.ece
 
 

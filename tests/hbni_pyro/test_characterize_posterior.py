@@ -19,7 +19,7 @@ def test_a_posterior_table_is_the_mixture_of_its_draws_tables():
     """Two draws (a noisy and a clean classifier): every confusion cell and mean frame count within 5 s.e. of
     the mixture of the two single-draw tables (n = 6000 streams per class each; s.e. from all three's variances)."""
     noisy, clean = torch.tensor([0.8, 1.5, 3.0], dtype=DT), torch.tensor([6.0, 9.0, 20.0], dtype=DT)
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=0.9, max_frames=8)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.9, max_frames=8)
     n = 6000
     mixed = hbni_pyro.characterize(process, DrawsPosterior(torch.stack([noisy, clean])), n, seed=0)
     a = hbni_pyro.characterize(process, noisy, n, seed=1)
@@ -53,7 +53,7 @@ def _posterior(model, **sites):
 def test_a_paper_posterior_gives_the_same_table_as_its_theta_draws():
     """The generative planning model of a paper posterior is unchanged: bit for bit the table of its theta draws."""
     theta = torch.tensor([[0.8, 1.5, 3.0], [6.0, 9.0, 20.0], [2.0, 2.0, 2.0]], dtype=DT)
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=0.9, max_frames=6)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.9, max_frames=6)
     a = hbni_pyro.characterize(process, _posterior("paper", theta=theta), 300, seed=4)
     b = hbni_pyro.characterize(process, DrawsPosterior(theta), 300, seed=4)
     assert torch.equal(a.joint, b.joint) and torch.equal(a.timed_out, b.timed_out)
@@ -62,7 +62,7 @@ def test_a_paper_posterior_gives_the_same_table_as_its_theta_draws():
 def test_a_confusion_posterior_with_uniform_confusions_gives_the_paper_table():
     """``beta = 1`` everywhere is the paper's model: every cell and mean frame count within 5 s.e. (n = 4000 per class)."""
     theta = torch.tensor([[0.8, 1.5, 3.0]], dtype=DT)
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=0.9, max_frames=6)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.9, max_frames=6)
     n = 4000
     conf = hbni_pyro.characterize(process, _posterior("confusion", theta=theta, beta=torch.ones(1, 3, 3)), n, seed=0)
     paper = hbni_pyro.characterize(process, theta[0], n, seed=1)
@@ -76,7 +76,7 @@ def test_a_confusion_posterior_simulates_its_confusions():
     theta = torch.tensor([[1.0, 6.0, 6.0]], dtype=DT)
     beta = torch.ones(1, 3, 3, dtype=DT)
     beta[0, 0, 1] = 4.0
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=0.9, max_frames=4)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.9, max_frames=4)
     table = hbni_pyro.characterize(process, _posterior("confusion", theta=theta, beta=beta), 2000, seed=0)
     assert table.confusion[0, 1] > 0.2 and table.confusion[0, 1] > 5 * table.confusion[0, 2]
 
@@ -104,7 +104,7 @@ def test_a_sequence_posterior_simulates_streams_that_share_a_look():
 
 
 def test_a_posterior_over_other_classes_is_refused():
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(2), threshold=0.9, max_frames=4)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(2), threshold=0.9, max_frames=4)
     with pytest.raises(ValueError, match="generative: expected a posterior over 2 classes, got 3"):
         hbni_pyro.characterize(process, _posterior("confusion", theta=torch.ones(1, 3)), 10, seed=0)
     with pytest.raises(TypeError, match="generator: expected a torch.Generator or None, got int"):

@@ -9,7 +9,7 @@ import pytest
 import scipy.stats
 import torch
 
-from hbni_pyro.filters import FILTERS, SSBF, HBNIFilter, MaxOfMeanFilter, StreamingFilter, VotingFilter, decide, make_filter
+from hbni_pyro.filters import FILTERS, StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, StreamingFilter, VotingFilter, decide, make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.validation import OUTPUT_FLOOR
@@ -33,8 +33,8 @@ def all_filters():
     return [
         VotingFilter(3),
         MaxOfMeanFilter(3),
-        SSBF(3),
-        SSBF(3, class_prior=[0.5, 0.3, 0.2]),
+        StaticStateBayesFilter(3),
+        StaticStateBayesFilter(3, class_prior=[0.5, 0.3, 0.2]),
         HBNIFilter(post),
         HBNIFilter(post, "plugin"),
         HBNIFilter(post, class_prior=[0.2, 0.3, 0.5], num_draws=50),
@@ -75,7 +75,7 @@ def test_max_of_mean_is_the_running_mean():
 
 def test_ssbf_matches_the_recursion_by_hand():
     prior = [0.5, 0.25, 0.25]
-    probs = SSBF(3, class_prior=prior).run(torch.tensor([OBS], dtype=DT))[0]
+    probs = StaticStateBayesFilter(3, class_prior=prior).run(torch.tensor([OBS], dtype=DT))[0]
     belief = list(prior)
     for n, o in enumerate(OBS):
         belief = [o[m] / prior[m] * belief[m] for m in range(3)]
@@ -158,7 +158,7 @@ def test_hbni_with_the_true_theta_beats_ssbf():
     obs, truth = toy_streams(4000, 3, seed=11)
     oracle = DrawsPosterior(THETA.unsqueeze(0))
     err_hbni = (decide(HBNIFilter(oracle).run(obs)[:, -1]) != truth).double().mean()
-    err_ssbf = (decide(SSBF(3).run(obs)[:, -1]) != truth).double().mean()
+    err_ssbf = (decide(StaticStateBayesFilter(3).run(obs)[:, -1]) != truth).double().mean()
     se = math.sqrt((err_hbni * (1 - err_hbni) + err_ssbf * (1 - err_ssbf)) / 4000)
     assert err_hbni + 5 * se < err_ssbf
 
@@ -186,13 +186,13 @@ def test_at_one_frame_voting_max_of_mean_and_ssbf_decide_alike():
     obs, _ = toy_streams(3000, 1, seed=6)
     ties = torch.tensor([[[0.4, 0.4, 0.2]], [[0.2, 0.4, 0.4]], [[1 / 3, 1 / 3, 1 / 3]], [[0.5, 0.0, 0.5]]], dtype=DT)
     obs = torch.cat([obs, ties])
-    decisions = [decide(f.run(obs)[:, 0]) for f in (VotingFilter(3), MaxOfMeanFilter(3), SSBF(3))]
+    decisions = [decide(f.run(obs)[:, 0]) for f in (VotingFilter(3), MaxOfMeanFilter(3), StaticStateBayesFilter(3))]
     assert torch.equal(decisions[0], decisions[1]) and torch.equal(decisions[1], decisions[2])
     assert decisions[0][-4:].tolist() == [0, 1, 0, 0]
 
 
 def test_exact_zeros_are_floored():
-    f = SSBF(3)
+    f = StaticStateBayesFilter(3)
     probs = f.update([0.0, 1.0, 0.0])
     assert torch.isfinite(probs).all() and probs.min() > 0
     torch.testing.assert_close(probs[0], torch.tensor(OUTPUT_FLOOR, dtype=DT), rtol=1e-5, atol=0)
@@ -225,17 +225,17 @@ def test_shape_and_argument_errors():
     with pytest.raises(ValueError, match="num_classes"):
         VotingFilter(1)
     with pytest.raises(ValueError, match="num_classes"):
-        SSBF(True)
+        StaticStateBayesFilter(True)
     with pytest.raises(ValueError, match="one output"):
-        SSBF(3).update(torch.full((2, 3), 1 / 3))
+        StaticStateBayesFilter(3).update(torch.full((2, 3), 1 / 3))
     with pytest.raises(ValueError, match=r"\(B, N, M\)"):
-        SSBF(3).run(torch.full((2, 2, 2, 3), 1 / 3))
+        StaticStateBayesFilter(3).run(torch.full((2, 2, 2, 3), 1 / 3))
     with pytest.raises(ValueError, match="at least 3"):
-        SSBF(3).run(torch.full((2, 3), 1 / 3))
+        StaticStateBayesFilter(3).run(torch.full((2, 3), 1 / 3))
     with pytest.raises(TypeError, match="obs"):
-        SSBF(3).run("abc")
+        StaticStateBayesFilter(3).run("abc")
     with pytest.raises(ValueError, match="class_prior"):
-        SSBF(3, class_prior=[0.5, 0.5])
+        StaticStateBayesFilter(3, class_prior=[0.5, 0.5])
     post = DrawsPosterior(scattered_draws(5))
     with pytest.raises(ValueError, match="mode"):
         HBNIFilter(post, mode="mean")
@@ -254,7 +254,7 @@ def test_make_filter_builds_every_named_filter():
     post = DrawsPosterior(THETA[None].expand(4, -1).clone())
     obs = sample_outputs(THETA, torch.tensor([0, 1, 2]), torch.Generator().manual_seed(0)).reshape(1, 3, -1)
     built = {name: make_filter(name, post) for name in FILTERS}
-    want = {"hbni": HBNIFilter(post), "ssbf": SSBF(len(THETA)), "max_of_mean": MaxOfMeanFilter(len(THETA)),
+    want = {"hbni": HBNIFilter(post), "ssbf": StaticStateBayesFilter(len(THETA)), "max_of_mean": MaxOfMeanFilter(len(THETA)),
             "voting": VotingFilter(len(THETA))}
     for name in FILTERS:
         assert type(built[name]) is type(want[name])

@@ -17,19 +17,19 @@ def _outputs(n: int = 9, seed: int = 0) -> torch.Tensor:
 
 
 def test_a_numpy_threshold_and_frame_budget_are_accepted():
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=np.float32(0.9), max_frames=np.int64(7))
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=np.float32(0.9), max_frames=np.int64(7))
     assert math.isclose(process.threshold, 0.9, rel_tol=1e-6) and process.max_frames == 7
-    assert hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=torch.tensor(0.95)).threshold == pytest.approx(0.95)
+    assert hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=torch.tensor(0.95)).threshold == pytest.approx(0.95)
     with pytest.raises(ValueError, match=r"threshold: expected a finite number in \(0, 1\], got 1.5"):
-        hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=np.float64(1.5))
+        hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=np.float64(1.5))
     with pytest.raises(TypeError, match="max_frames: expected an int"):
-        hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), max_frames=2.5)
+        hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), max_frames=2.5)
 
 
 def test_a_bad_frame_is_named_by_its_place_in_the_stream():
     stream = _outputs(6)
     stream[2, 0] = float("nan")
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=1.0, max_frames=6)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=1.0, max_frames=6)
     with pytest.raises(ValueError, match=r"o \(frame 3 of the stream\): the output contains NaN or inf"):
         process.run(stream)
 

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from hbni_pyro.filters import SSBF, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
+from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.posterior import HBNIPosterior
@@ -40,7 +40,7 @@ def test_stops_at_the_first_frame_over_the_threshold_and_reads_no_further():
             read.append(i)
             yield o
 
-    result = MacroObservationProcess(SSBF(3), threshold=0.95, max_frames=10).run(stream())
+    result = MacroObservationProcess(StaticStateBayesFilter(3), threshold=0.95, max_frames=10).run(stream())
     assert (result.label, result.frames_used, result.timed_out) == (0, 3, False)
     assert result.confidence == pytest.approx(0.7**3 / (0.7**3 + 0.2**3 + 0.1**3), rel=1e-12)
     assert len(read) == 3
@@ -64,7 +64,7 @@ def test_threshold_one_and_voting_stop_at_the_first_frame():
 
 @pytest.mark.parametrize(
     "make_filter",
-    [VotingFilter, MaxOfMeanFilter, SSBF, lambda M: HBNIFilter(scattered_posterior()),
+    [VotingFilter, MaxOfMeanFilter, StaticStateBayesFilter, lambda M: HBNIFilter(scattered_posterior()),
      lambda M: HBNIFilter(scattered_posterior(), "plugin")],
     ids=["voting", "max_of_mean", "ssbf", "hbni", "hbni_plugin"],
 )
@@ -87,17 +87,17 @@ def test_process_errors():
         MacroObservationProcess("ssbf")
     for bad in (0.0, 1.5):
         with pytest.raises(ValueError, match="threshold"):
-            MacroObservationProcess(SSBF(3), threshold=bad)
+            MacroObservationProcess(StaticStateBayesFilter(3), threshold=bad)
     for bad in (True, "0.9"):  # not numbers
         with pytest.raises(TypeError, match="threshold"):
-            MacroObservationProcess(SSBF(3), threshold=bad)
+            MacroObservationProcess(StaticStateBayesFilter(3), threshold=bad)
     for bad in (0, -3):
         with pytest.raises(ValueError, match="max_frames"):
-            MacroObservationProcess(SSBF(3), max_frames=bad)
+            MacroObservationProcess(StaticStateBayesFilter(3), max_frames=bad)
     for bad in (2.5, True):  # not ints
         with pytest.raises(TypeError, match="max_frames"):
-            MacroObservationProcess(SSBF(3), max_frames=bad)
-    process = MacroObservationProcess(SSBF(3))
+            MacroObservationProcess(StaticStateBayesFilter(3), max_frames=bad)
+    process = MacroObservationProcess(StaticStateBayesFilter(3))
     with pytest.raises(ValueError, match="empty"):
         process.run(iter([]))
     with pytest.raises(ValueError, match=r"\(N, M\)"):
@@ -112,7 +112,7 @@ def test_process_errors():
 
 
 def test_characterize_tables_are_distributions_and_seeded():
-    process = MacroObservationProcess(SSBF(3), threshold=0.95, max_frames=12)
+    process = MacroObservationProcess(StaticStateBayesFilter(3), threshold=0.95, max_frames=12)
     model = characterize(process, THETA, num_streams=400, seed=3)
     assert model.num_classes == 3 and model.max_frames == 12
     torch.testing.assert_close(model.confusion.sum(1), torch.ones(3, dtype=DT), rtol=0, atol=1e-12)
@@ -150,7 +150,7 @@ def test_characterize_from_a_posterior_predictive_and_errors():
                           "gamma": torch.ones(2, 25, dtype=DT)}, torch.full((3,), 1 / 3, dtype=DT))
     assert torch.equal(characterize(process, real, num_streams=100, seed=0).joint, model.joint)
     with pytest.raises(TypeError, match="process"):
-        characterize(SSBF(3), THETA, 10, 0)
+        characterize(StaticStateBayesFilter(3), THETA, 10, 0)
     with pytest.raises(ValueError, match="num_streams"):
         characterize(process, THETA, 0, 0)
     with pytest.raises(ValueError, match="3 classes"):

@@ -18,7 +18,7 @@ def _bank(n_per_class=5, frames=8, seed=0):
 
 def _process(kind="hbni"):
     filt = hbni_pyro.HBNIFilter(DrawsPosterior(THETA[None] * torch.tensor([[0.8], [1.0], [1.3]])), temper=0.7) \
-        if kind == "hbni" else hbni_pyro.SSBF(3)
+        if kind == "hbni" else hbni_pyro.StaticStateBayesFilter(3)
     return hbni_pyro.MacroObservationProcess(filt, threshold=0.9, max_frames=6)
 
 
@@ -69,7 +69,7 @@ def test_bad_input_is_a_clear_error():
     streams, truth = _bank()
     process = _process("ssbf")
     with pytest.raises(TypeError, match="process: expected a MacroObservationProcess"):
-        hbni_pyro.StreamReplay(hbni_pyro.SSBF(3), streams, truth)
+        hbni_pyro.StreamReplay(hbni_pyro.StaticStateBayesFilter(3), streams, truth)
     with pytest.raises(TypeError, match="true_class: expected a 1-D integer tensor"):
         hbni_pyro.StreamReplay(process, streams, truth.double())
     with pytest.raises(ValueError, match=r"streams: expected shape \(15, N, 3\)"):

@@ -13,9 +13,9 @@ def test_tabulate_counts_by_hand():
     strong0 = torch.tensor([0.99, 0.01]).expand(3, 2)
     weak1 = torch.tensor([0.3, 0.7]).expand(3, 2)
     streams = torch.stack([strong0, weak1, weak1])
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(2), threshold=0.95, max_frames=3)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(2), threshold=0.95, max_frames=3)
     model = tabulate(process, streams, torch.tensor([0, 1, 0]))
-    # SSBF(0.7 / 0.3 per frame): posterior on class 1 after k frames = 0.7^k / (0.7^k + 0.3^k):
+    # StaticStateBayesFilter(0.7 / 0.3 per frame): posterior on class 1 after k frames = 0.7^k / (0.7^k + 0.3^k):
     # 0.7, 0.845, 0.927 -> never reaches 0.95 in 3 frames: timed out, label 1, frames 3.
     torch.testing.assert_close(model.confusion, torch.tensor([[0.5, 0.5], [0.0, 1.0]], dtype=torch.float64))
     assert model.joint[0, 0, 0] == 0.5 and model.joint[0, 1, 2] == 0.5 and model.joint[1, 1, 2] == 1.0
@@ -28,7 +28,7 @@ def test_tabulate_agrees_with_characterize_on_simulated_streams():
     within 5 binomial standard errors per confusion cell."""
     theta = torch.tensor([1.0, 6.0, 20.0])
     n = 3000
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(3), threshold=0.95, max_frames=10)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.95, max_frames=10)
     truth = torch.arange(3).repeat_interleave(n)
     streams = sample_outputs(theta, truth.unsqueeze(-1).expand(-1, 10), torch.Generator().manual_seed(1))
     recorded = tabulate(process, streams, truth)
@@ -39,7 +39,7 @@ def test_tabulate_agrees_with_characterize_on_simulated_streams():
 
 
 def test_tabulate_errors():
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.SSBF(2), threshold=0.9, max_frames=2)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(2), threshold=0.9, max_frames=2)
     streams = torch.full((2, 2, 2), 0.5)
     with pytest.raises(ValueError, match="missing \\[1\\]"):
         tabulate(process, streams, torch.tensor([0, 0]))
