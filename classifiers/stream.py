@@ -14,6 +14,7 @@ import numpy as np
 from torch import Tensor
 
 from classifiers.pipeline import FrameClassifier
+from infra.checks import as_int
 
 
 def class_columns(clf: FrameClassifier, classes: Sequence[str]) -> list[int]:
@@ -38,8 +39,7 @@ def classify_frames(
         batch: frames per classifier call (1: lowest latency on a live camera; 8: the backbone's
             batch and the best throughput).
     """
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise ValueError(f"batch: expected a positive int, got {batch!r}")
+    batch = as_int("batch", batch, minimum=1)
     order = class_columns(clf, classes)
     pending: list[np.ndarray] = []
     for frame in frames:

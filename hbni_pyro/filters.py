@@ -35,6 +35,7 @@ from torch import Tensor
 
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
 from hbni_pyro.variants import noise_model
+from infra.checks import as_float, as_int
 from infra.threads import single_thread
 
 
@@ -67,9 +68,7 @@ class StreamingFilter:
         return self.num_classes
 
     def __init__(self, num_classes: int) -> None:
-        if isinstance(num_classes, bool) or not isinstance(num_classes, int) or num_classes < 2:
-            raise ValueError(f"num_classes: expected an int >= 2, got {num_classes!r}")
-        self.num_classes = num_classes
+        self.num_classes = as_int("num_classes", num_classes, minimum=2)
         self.reset()
 
     def features(self, obs: Tensor) -> Tensor:
@@ -227,10 +226,8 @@ class HBNIFilter(StreamingFilter):
     ) -> None:
         if mode not in self.MODES:
             raise ValueError(f"mode: expected one of {self.MODES}, got {mode!r}")
-        if num_draws is not None and (isinstance(num_draws, bool) or not isinstance(num_draws, int) or num_draws < 1):
-            raise ValueError(f"num_draws: expected a positive int or None, got {num_draws!r}")
-        if isinstance(temper, bool) or not isinstance(temper, (int, float)) or not 0 < temper <= 1:
-            raise ValueError(f"temper: expected a float in (0, 1], got {temper!r}")
+        num_draws = None if num_draws is None else as_int("num_draws", num_draws, minimum=1)
+        temper = as_float("temper", temper, 0.0, 1.0, low_open=True)
         spec = noise_model(getattr(posterior, "model", "paper"))
         self.model = spec.name
         self.class_names = getattr(posterior, "class_names", None)

@@ -14,7 +14,7 @@ from torch import Tensor
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
-from infra.checks import as_names
+from infra.checks import as_int, as_names
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
@@ -131,10 +131,8 @@ class HBNIPosterior:
     def sample_outputs(self, true_class: int, n: int, seed: int = 0) -> Tensor:
         """Posterior-predictive classifier outputs ``(n, M)`` for class ``true_class``, each from its own
         posterior draw (and, under the sequence model, its own sequence)."""
-        self._check_class(true_class)
-        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
-            raise ValueError(f"n: expected a positive int, got {n!r}")
-        return self.sample_streams(true_class, n, 1, seed)[:, 0]
+        true_class = self._check_class(true_class)
+        return self.sample_streams(true_class, as_int("n", n, minimum=1), 1, seed)[:, 0]
 
     def sample_streams(
         self, true_class: int, num_streams: int, num_frames: int, seed: int = 0, *, generator: torch.Generator | None = None
@@ -145,10 +143,8 @@ class HBNIPosterior:
         models) or share one new look (the sequence model). ``generator``, when given, is used (and
         advanced) instead of a new one seeded with ``seed``.
         """
-        self._check_class(true_class)
-        for name, v in (("num_streams", num_streams), ("num_frames", num_frames)):
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise ValueError(f"{name}: expected a positive int, got {v!r}")
+        true_class = self._check_class(true_class)
+        num_streams, num_frames = as_int("num_streams", num_streams, minimum=1), as_int("num_frames", num_frames, minimum=1)
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
         g = generator if generator is not None else torch.Generator().manual_seed(seed)
@@ -157,9 +153,10 @@ class HBNIPosterior:
         idx = torch.randint(first.shape[0], (num_streams,), generator=g)
         return self.noise_model.sample_streams({k: v[idx] for k, v in draws.items()}, true_class, num_frames, g)
 
-    def _check_class(self, true_class: int) -> None:
-        if not (isinstance(true_class, int) and not isinstance(true_class, bool) and 0 <= true_class < self.num_classes):
+    def _check_class(self, true_class: int) -> int:
+        if not 0 <= as_int("true_class", true_class) < self.num_classes:
             raise ValueError(f"true_class: expected an int in [0, {self.num_classes}), got {true_class!r}")
+        return int(true_class)
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write draws and metadata to one safetensors file, atomically."""

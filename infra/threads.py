@@ -14,6 +14,8 @@ from collections.abc import Iterator
 
 import torch
 
+from infra.checks import as_int
+
 _workers: int | None = None  # None: every core this process may run on
 
 
@@ -36,8 +38,8 @@ def single_thread() -> contextlib.AbstractContextManager[None]:
 
 
 def _check(threads: int | None) -> None:
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads: expected an int >= 1 or None, got {threads!r}")
+    if threads is not None:
+        as_int("threads", threads, minimum=1)
 
 
 def worker_threads() -> int:

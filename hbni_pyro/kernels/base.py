@@ -18,6 +18,7 @@ from torch import Tensor
 
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
+from infra.checks import as_int
 
 
 def rm_rate(t: int) -> float:
@@ -91,8 +92,7 @@ class BatchedKernel(MCMCKernel):
     def __init__(
         self, num_chains: int = 16, hyperprior: HyperPrior = HyperPrior(), class_prior: Tensor | None = None, seed: int = 0
     ) -> None:
-        if isinstance(num_chains, bool) or not isinstance(num_chains, int) or num_chains < 1:
-            raise ValueError(f"num_chains: expected a positive int, got {num_chains!r}")
+        num_chains = as_int("num_chains", num_chains, minimum=1)
         if not isinstance(hyperprior, HyperPrior):
             raise TypeError(f"hyperprior: expected a HyperPrior, got {type(hyperprior).__name__}")
         self.num_chains = num_chains

@@ -88,7 +88,7 @@ def test_generative_planning_model(tmp_path, repo_root, model, source):
     assert metrics["closed_loop"]["planning"] == {"perfect": "exact", "hbni": "generative", "ssbf": "generative",
                                                   "hbni_empirical": "empirical"}
     ssbf = MacroObservationModel.load(tmp_path / "macro_ssbf_generative.safetensors")
-    assert ssbf.info["generative"] == source and "SSBF" in ssbf.info["filter"]
+    assert ssbf.info["generative"] == source and "StaticStateBayesFilter" in ssbf.info["filter"]
     assert HBNIPosterior.load(tmp_path / "posterior.safetensors").model == model
     assert f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
 

@@ -224,7 +224,7 @@ def test_bad_rows_are_rejected_with_the_row_named(row, message):
 def test_shape_and_argument_errors():
     with pytest.raises(ValueError, match="num_classes"):
         VotingFilter(1)
-    with pytest.raises(ValueError, match="num_classes"):
+    with pytest.raises(TypeError, match="num_classes: expected an int, got True"):
         StaticStateBayesFilter(True)
     with pytest.raises(ValueError, match="one output"):
         StaticStateBayesFilter(3).update(torch.full((2, 3), 1 / 3))
