@@ -169,7 +169,7 @@ def test_classes_that_are_not_the_classifiers_are_a_clear_error(tmp_path, saved,
 
 def test_streaming_steps_reject_bad_input(saved):
     clf = FrameClassifier.load(saved["classifier"])
-    with pytest.raises(ValueError, match="batch: expected a positive int"):
+    with pytest.raises(ValueError, match="batch: expected an int >= 1, got 0"):
         next(classify_frames([], clf, CLASSES, batch=0))
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.95, 6)
     with pytest.raises(ValueError, match="classes: expected 3 names"):
