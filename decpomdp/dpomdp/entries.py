@@ -17,6 +17,7 @@ import numpy as np
 from decpomdp.dpomdp.model import DPOMDPModel, SparseTransitions
 from decpomdp.dpomdp.syntax import (
     PROB_TOL,
+    ROUNDING,
     DPOMDPSyntaxError,
     Index,
     Joint,
@@ -305,8 +306,10 @@ def parse_entries(lines: Lines, head: dict, check_probabilities: bool, budget: i
     if check_probabilities:
         _check_rows(transition.row_sums(), t_line, "T", "transition", lines.last)
         _check_rows(obs.sum(-1), o_line, "O", "observation", lines.last)
-        transition.data /= transition.row_sums().ravel()[transition.rows()]
-        obs /= obs.sum(-1, keepdims=True)
+        t_sums = transition.row_sums().ravel()
+        transition.data /= np.where(np.abs(t_sums - 1.0) > ROUNDING, t_sums, 1.0)[transition.rows()]
+        o_sums = obs.sum(-1, keepdims=True)
+        obs /= np.where(np.abs(o_sums - 1.0) > ROUNDING, o_sums, 1.0)
     reward = rewards.build()
     return DPOMDPModel(
         agent_names=head["agents"], state_names=states, action_names=acts, obs_names=obs_names,

@@ -11,6 +11,9 @@ IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 ENTRY = re.compile(r"^[TOR]\s*:")
 HEADER = ("agents", "discount", "values", "states", "start", "actions", "observations")
 PROB_TOL = 1e-6
+ROUNDING = 1e-12
+"""A distribution whose sum is within this of 1 is kept as written (renormalising it again would move it by
+rounding alone, and a written model would not read back the same)."""
 DEFAULT_MEMORY_BUDGET = 2 * 1024**3
 """Bytes the parsed model may occupy by default (2 GiB)."""
 NAME_BYTES = 64  # a generated name ('1234') with its list slot and index entry

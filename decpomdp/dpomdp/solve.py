@@ -1,0 +1,158 @@
+"""One call from a ``.dpomdp`` problem to a policy, its exact value and a certified gap.
+
+:func:`solve` plans joint finite-state controllers with the cold-start planner on exact scores
+(:class:`~decpomdp.search.ExactScorer`), restarting it on independent random streams, and bounds the
+optimum from above (:mod:`decpomdp.dpomdp.bounds`): ``gap = (bound - value) / |bound|`` is how far,
+at most, the value is from the optimum.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from decpomdp.controller import JointController
+from decpomdp.dpomdp.best_response import jesp
+from decpomdp.dpomdp.bounds import Bounds, upper_bounds
+from decpomdp.dpomdp.exact import exact_value
+from decpomdp.dpomdp.model import DPOMDPModel
+from decpomdp.dpomdp.parser import load_dpomdp
+from decpomdp.dpomdp.problems import load_problem, problem_names
+from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from infra.checks import as_float, as_int
+from infra.streams import stream_seed, torch_stream
+from infra.threads import torch_threads
+
+MAX_FINITE_NODES = 32
+"""Largest default controller for a finite horizon (``min(max(8, 3 h), 32)`` nodes)."""
+INFINITE_NODES = 8
+"""Default node budget of an infinite-horizon controller."""
+
+
+@dataclass
+class Solution:
+    """What :func:`solve` found.
+
+    Attributes:
+        controller: the joint controller (K = 1; node 0 starts), named with the problem's actions and observations.
+        value: its exact value from the start belief.
+        bound: an upper bound on the optimal value (the smallest of ``bounds``).
+        gap: ``(bound - value) / |bound|`` (a zero bound: 0 if met, else inf): the value is within this fraction of the optimum.
+        seconds: wall-clock time of the search and the bounds.
+        horizon, gamma: the problem solved (``math.inf``: the discounted infinite horizon).
+        bounds: the relaxations behind ``bound`` (:class:`~decpomdp.dpomdp.bounds.Bounds`).
+        restarts: planner runs made; ``values`` the exact value every start reached (planner runs, then JESP's
+            random starts).
+    """
+
+    controller: JointController
+    value: float
+    bound: float
+    gap: float
+    seconds: float
+    horizon: float
+    gamma: float
+    bounds: Bounds
+    restarts: int
+    values: list[float] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        h = "inf" if math.isinf(self.horizon) else f"{self.horizon:g}"
+        return (f"Solution(value={self.value:.6g}, bound={self.bound:.6g}, gap={self.gap:.3%}, horizon={h}, "
+                f"gamma={self.gamma:g}, nodes={self.controller.num_nodes}, restarts={self.restarts}, "
+                f"seconds={self.seconds:.1f})")
+
+
+def _problem(problem: Any) -> DPOMDPModel:
+    if isinstance(problem, DPOMDPModel):
+        return problem
+    if isinstance(problem, TabularDecPOSMDP):
+        return problem.model
+    if isinstance(problem, str) and problem in problem_names():
+        return load_problem(problem)
+    if isinstance(problem, (str, os.PathLike)):
+        return load_dpomdp(Path(problem))
+    raise TypeError(f"problem: expected a shipped problem's name, a .dpomdp path, a DPOMDPModel or a TabularDecPOSMDP, "
+                    f"got {type(problem).__name__}")
+
+
+def solve(
+    problem: str | os.PathLike | DPOMDPModel | TabularDecPOSMDP,
+    horizon: float,
+    gamma: float | None = None,
+    *,
+    seed: int = 0,
+    restarts: int = 2,
+    jesp_restarts: int = 20,
+    time_budget: float | None = None,
+    num_nodes: int | None = None,
+    threads: int | None = 1,
+    **planner: Any,
+) -> Solution:
+    """Plan a joint controller for ``problem`` and certify how far its value is from the optimum.
+
+    Args:
+        problem: a shipped problem's name (:func:`~decpomdp.dpomdp.problem_names`), a ``.dpomdp`` path, a
+            parsed :class:`~decpomdp.dpomdp.DPOMDPModel` or a :class:`~decpomdp.dpomdp.TabularDecPOSMDP`.
+        horizon: steps ``h >= 1``, or ``math.inf`` for the discounted infinite horizon.
+        gamma: discount (``None``: the file's; an infinite horizon needs ``gamma < 1``).
+        seed: restart ``r`` plans on the stream ``(seed, "solve", r)``: the same seed, the same solution.
+        restarts: planner runs, each from scratch on its own stream; the best is kept. At a finite horizon each
+            result is then improved by exact best responses (:func:`~decpomdp.dpomdp.best_response.jesp`).
+        jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
+            streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
+        time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
+            result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
+        num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 8 for an infinite horizon).
+        threads: torch threads for exact evaluation.
+        **planner: other :class:`~decpomdp.search.PlannerConfig` settings.
+
+    Returns:
+        A :class:`Solution`.
+    """
+    from decpomdp.baselines import random_controllers  # decpomdp.search and baselines import this package
+    from decpomdp.search import ExactScorer, PlannerConfig, plan
+
+    model = _problem(problem)
+    env = TabularDecPOSMDP(model, gamma, horizon=horizon)
+    restarts = as_int("restarts", restarts, minimum=1)
+    seed = as_int("seed", seed)
+    budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
+    finite = math.isfinite(env.horizon)
+    if num_nodes is None:
+        num_nodes = min(max(8, 3 * int(env.horizon)), MAX_FINITE_NODES) if finite else INFINITE_NODES
+    config = PlannerConfig(num_nodes=as_int("num_nodes", num_nodes, minimum=1), **planner)
+    start = time.perf_counter()
+    jesp_restarts = as_int("jesp_restarts", jesp_restarts, minimum=0)
+    scorer = ExactScorer(env, threads=threads)
+    best, values = None, []
+
+    def keep(controller: JointController) -> None:
+        nonlocal best
+        with torch_threads(threads):
+            value = float(exact_value(env, controller)[0])
+        if finite:
+            controller, value, _ = jesp(env, controller, value)
+        values.append(value)
+        if best is None or value > best[1]:
+            best = (controller, value)
+
+    runs = 0
+    while runs < restarts or (budget is not None and time.perf_counter() - start < budget):
+        keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
+        runs += 1
+    for k in range(jesp_restarts if finite else 0):
+        keep(random_controllers(1, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
+                                num_obs=env.num_obs, generator=torch_stream(seed, "solve", "jesp", k)))
+    bounds = upper_bounds(env)
+    controller, value = best
+    bound = bounds.best
+    if value > bound + 1e-9 * max(1.0, abs(bound)):
+        raise RuntimeError(f"the bound {bound!r} lies below the value {value!r} of a controller: a bug in decpomdp.dpomdp.bounds")
+    gap = max(0.0, bound - value) / abs(bound) if bound else (0.0 if value >= bound else math.inf)
+    return Solution(controller.named(env.action_names, env.obs_names), value, bound, gap, time.perf_counter() - start,
+                    env.horizon, env.gamma, bounds, runs, values)
