@@ -1,0 +1,200 @@
+"""``decpomdp.dpomdp.solve`` and its parts: upper bounds against exhaustive optima and independent
+recursions, exact best responses against exhaustive search, solutions at published optima, the
+writer's round trip, and errors."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from decpomdp import random_controllers
+from decpomdp.dpomdp import (
+    TabularDecPOSMDP,
+    controller_text,
+    dpomdp_text,
+    exact_value,
+    load_dpomdp,
+    load_problem,
+    parse_dpomdp,
+    problem_names,
+    save_dpomdp,
+    solve,
+    upper_bounds,
+)
+from decpomdp.dpomdp.best_response import best_response, jesp
+from decpomdp.dpomdp.bounds import lookahead_bound, q_fib, q_mdp
+from decpomdp.dpomdp.exhaustive import exhaustive_optimum, tree_controllers
+from dpomdp_synthetic import synthetic_text
+
+SMALL = ["dectiger", "broadcastChannel", "recycling", "GridSmall"]
+PUBLISHED = {  # MADP toolbox, src/tests/optimalValueDatabase (undiscounted)
+    ("dectiger", 3): 5.190812499999996, ("dectiger", 4): 4.802755156249994, ("broadcastChannel", 4): 3.89,
+    ("recycling", 3): 10.660125, ("recycling", 4): 13.38, ("GridSmall", 3): 1.550444,
+}
+
+
+def env(name, horizon, gamma=1.0):
+    return TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
+
+
+@pytest.mark.parametrize("name", SMALL)
+def test_bounds_hold_the_exhaustive_optimum_and_are_ordered(name):
+    e = env(name, 2)
+    optimum, _ = exhaustive_optimum(e, 2)
+    b = upper_bounds(e)
+    assert b.depth == 2 and optimum <= b.lookahead + 1e-9  # the belief tree is the whole horizon: exact V_POMDP
+    assert b.lookahead <= b.fib + 1e-9 <= b.q_mdp + 2e-9 and b.best == b.lookahead
+
+
+@pytest.mark.parametrize("row", sorted(PUBLISHED))
+def test_bounds_hold_the_published_optima(row):
+    assert upper_bounds(env(*row)).best >= PUBLISHED[row] - 1e-9
+
+
+def _dense(e):
+    t = e.model.transition.toarray()  # (JA, S, S')
+    return t, e.expected_reward.numpy(), e.observation.numpy(), e.start_dist.numpy()
+
+
+def test_q_mdp_and_fib_against_dense_recursions():
+    e = env("GridSmall", 4, 0.9)
+    t, r, o, _ = _dense(e)
+    q = r.copy()
+    for _ in range(3):
+        q = r + 0.9 * np.einsum("ast,t->as", t, q.max(0))
+    np.testing.assert_allclose(q_mdp(e), q, rtol=0, atol=1e-12)
+    f = r.copy()
+    for _ in range(3):  # sum_o max_a' sum_s' T(s'|s,a) O(o|a,s') Q(a', s')
+        f = r + 0.9 * np.einsum("asto,bt->asob", t[..., None] * o[:, None], f).max(-1).sum(-1)
+    np.testing.assert_allclose(q_fib(e), f, rtol=0, atol=1e-12)
+
+
+def _pomdp_value(t, r, o, belief, steps, gamma):
+    """The centralised POMDP's optimum by plain recursion over normalised beliefs."""
+    if steps == 0:
+        return 0.0
+    best = -math.inf
+    for a in range(r.shape[0]):
+        value = belief @ r[a]
+        pred = belief @ t[a]
+        for jo in range(o.shape[2]):
+            joint = pred * o[a, :, jo]
+            mass = joint.sum()
+            if mass > 0:
+                value += gamma * mass * _pomdp_value(t, r, o, joint / mass, steps - 1, gamma)
+        best = max(best, value)
+    return best
+
+
+@pytest.mark.parametrize("name, horizon", [("dectiger", 3), ("broadcastChannel", 3), ("recycling", 2)])
+def test_the_belief_tree_is_the_centralised_pomdp(name, horizon):
+    e = env(name, horizon)
+    t, r, o, b0 = _dense(e)
+    value, depth = lookahead_bound(e)
+    assert depth == horizon
+    assert value == pytest.approx(_pomdp_value(t, r, o, b0, horizon, 1.0), abs=1e-10)
+
+
+def test_infinite_horizon_bounds_hold_every_controller():
+    e = env("dectiger", math.inf, 0.9)
+    b = upper_bounds(e)
+    ctrl = random_controllers(200, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0))
+    assert float(exact_value(e, ctrl).max()) <= b.best and b.lookahead <= b.fib + 1e-9 <= b.q_mdp + 2e-9
+
+
+@pytest.mark.parametrize("name", ["dectiger", "broadcastChannel"])
+def test_a_best_response_is_the_best_policy_tree_against_the_other(name):
+    """Against a fixed controller of agent 1, the best response's value is the max over every policy tree of agent 0."""
+    e = env(name, 2)
+    other = random_controllers(1, num_agents=2, num_nodes=2, num_actions=e.num_actions, num_obs=e.num_obs,
+                               generator=torch.Generator().manual_seed(3))
+    response, value = best_response(e, other, 0)
+    assert float(exact_value(e, response)[0]) == pytest.approx(value, abs=1e-12)
+    trees = tree_controllers(2, e.num_actions, e.num_obs, 2)
+    mine = trees.action[:, 0].unique(dim=0)  # every tree of agent 0 (3 nodes)
+    pad = other.num_nodes - 3 if other.num_nodes > 3 else 0
+    a = torch.nn.functional.pad(mine, (0, pad))
+    n = torch.nn.functional.pad(trees.next_node[: len(mine), 0], (0, 0, 0, pad))
+    nodes = max(3, other.num_nodes)
+    k = len(mine)
+    act = torch.zeros(k, 2, nodes, dtype=torch.long)
+    nxt = torch.zeros(k, 2, nodes, e.num_obs, dtype=torch.long)
+    act[:, 0], nxt[:, 0] = a, n
+    act[:, 1, : other.num_nodes], nxt[:, 1, : other.num_nodes] = other.action[0, 1], other.next_node[0, 1]
+    from decpomdp import JointController
+
+    assert value == pytest.approx(float(exact_value(e, JointController(act, nxt)).max()), abs=1e-12)
+
+
+def test_jesp_never_loses_value_and_refuses_trees_too_large():
+    e = env("GridSmall", 3)
+    start = random_controllers(1, num_agents=2, num_nodes=3, num_actions=5, num_obs=2, generator=torch.Generator().manual_seed(1))
+    v0 = float(exact_value(e, start)[0])
+    ctrl, value, accepted = jesp(e, start, v0)
+    assert value >= v0 and accepted >= 1 and float(exact_value(e, ctrl)[0]) == pytest.approx(value, abs=1e-12)
+    assert best_response(e, start, 0, max_entries=10) is None
+
+
+@pytest.mark.parametrize("row", [("dectiger", 3), ("broadcastChannel", 4), ("GridSmall", 3)])
+def test_solve_reaches_published_optima_with_a_valid_gap(row):
+    s = solve(*row, 1.0, seed=0, restarts=1)
+    assert s.value == pytest.approx(PUBLISHED[row], abs=1e-6)
+    assert s.value == pytest.approx(float(exact_value(env(*row), s.controller)[0]), abs=1e-12)
+    assert s.bound >= PUBLISHED[row] - 1e-9 and s.gap == pytest.approx((s.bound - s.value) / abs(s.bound))
+    assert s.controller.action_names is not None and s.horizon == row[1] and s.seconds > 0
+
+
+def test_solve_is_seeded_and_takes_files_models_and_the_infinite_horizon(tmp_path):
+    a, b = solve("dectiger", 2, seed=4, restarts=1, jesp_restarts=2), solve("dectiger", 2, seed=4, restarts=1, jesp_restarts=2)
+    assert torch.equal(a.controller.action, b.controller.action) and a.values == b.values
+    path = save_dpomdp(load_problem("dectiger"), tmp_path / "tiger.dpomdp")
+    assert solve(path, 2, seed=4, restarts=1, jesp_restarts=2).value == a.value
+    inf = solve(load_problem("dectiger"), math.inf, 0.9, seed=0, restarts=1, num_nodes=2, ce_iterations=5)
+    assert inf.horizon == math.inf and inf.controller.num_nodes == 2 and inf.value <= inf.bound
+
+
+def test_solve_errors():
+    with pytest.raises(TypeError, match="problem: expected a shipped problem's name"):
+        solve(3, 2)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        solve("no_such_problem.dpomdp", 2)
+    with pytest.raises(ValueError, match="restarts: expected an int >= 1"):
+        solve("dectiger", 2, restarts=0)
+    with pytest.raises(ValueError, match="time_budget"):
+        solve("dectiger", 2, time_budget=-1.0)
+    with pytest.raises(ValueError, match="horizon: an infinite horizon needs gamma < 1"):
+        solve("dectiger", math.inf, 1.0)
+
+
+@pytest.mark.parametrize("name", [n for n in problem_names() if n != "example"])
+def test_a_written_problem_reads_back_the_same(name, tmp_path):
+    m = load_problem(name)
+    back = load_dpomdp(save_dpomdp(m, tmp_path / f"{name}.dpomdp.gz"))
+    _same(m, back)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_written_synthetic_problem_reads_back_the_same(seed):
+    m = parse_dpomdp(synthetic_text(seed), check_probabilities=False)
+    _same(m, parse_dpomdp(dpomdp_text(m), check_probabilities=False))
+
+
+def _same(m, back):
+    for k in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(m.transition, k), getattr(back.transition, k)), k
+    for k in ("observation", "reward", "start"):
+        assert np.array_equal(getattr(m, k), getattr(back, k)), k
+    assert (m.agent_names, m.state_names, m.action_names, m.obs_names, m.discount) == (
+        back.agent_names, back.state_names, back.action_names, back.obs_names, back.discount)
+
+
+def test_controller_text_lists_every_node():
+    s = solve("dectiger", 2, seed=0, restarts=1, jesp_restarts=1)
+    text = controller_text(s.controller)
+    assert text.count("\nagent ") + text.startswith("agent ") == 2
+    assert "listen" in text and len(text.strip().splitlines()) == 2 + 2 * (1 + s.controller.num_nodes)
+    with pytest.raises(TypeError, match="controller: expected a JointController"):
+        controller_text("x")
+    with pytest.raises(TypeError, match="model: expected a DPOMDPModel"):
+        dpomdp_text("x")
