@@ -89,7 +89,7 @@ def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int
         choice.append(total.argmax(1))
         value = total.max(1)
     choice.reverse()
-    tree = _compress(*_tree(choice, n_act, n_obs, h), n_obs, h)
+    tree = _merge_layers(*_tree(choice, n_act, n_obs, h), [n_obs**t for t in range(h)])
     return _joint(controller, agent, tree), float(value[0])
 
 
@@ -114,31 +114,6 @@ def _tree(choice: list[np.ndarray], n_act: int, n_obs: int, horizon: int) -> tup
             succ.append(row)
         frontier, first = children, nxt_first
     return np.asarray(actions), np.asarray(succ)
-
-
-def _compress(action: np.ndarray, succ: np.ndarray, n_obs: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
-    """The tree with identical subtrees merged (a layered graph): bottom-up, two nodes of a layer are one
-    if they take the same action and their successors are the same. Node 0 stays the start."""
-    bounds = np.cumsum([0] + [n_obs**t for t in range(horizon)])
-    label = np.zeros(action.shape[0], dtype=np.int64)  # merged node of every tree node
-    layers: list[list[tuple]] = []
-    for t in reversed(range(horizon)):
-        keys: dict[tuple, int] = {}
-        for node in range(bounds[t], bounds[t + 1]):
-            key = (int(action[node]),) + (tuple(int(label[c]) for c in succ[node]) if t + 1 < horizon else ())
-            label[node] = keys.setdefault(key, len(keys))
-        layers.append(list(keys))
-    layers.reverse()
-    offsets = np.cumsum([0] + [len(layer) for layer in layers])
-    out_action, out_succ = [], []
-    for t, layer in enumerate(layers):
-        for key in layer:
-            out_action.append(key[0])
-            if t + 1 < horizon:
-                out_succ.append([offsets[t + 1] + c for c in key[1:]])
-            else:
-                out_succ.append([offsets[t] + layer.index(key)] * n_obs)
-    return np.asarray(out_action), np.asarray(out_succ, dtype=np.int64)
 
 
 def _joint(controller: JointController, agent: int, tree: tuple[np.ndarray, np.ndarray]) -> JointController:
@@ -171,3 +146,26 @@ def jesp(env: TabularDecPOSMDP, controller: JointController, value: float, horiz
             break
     return controller, value, accepted
 
+
+
+def _merge_layers(action: np.ndarray, succ: np.ndarray, sizes: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """A layered controller (layer ``t`` holds ``sizes[t]`` consecutive nodes, successors in layer ``t + 1``,
+    the last layer's in itself) with the nodes of a layer that act and move alike merged, bottom-up."""
+    bounds = np.cumsum([0] + list(sizes))
+    h = len(sizes)
+    label = np.zeros(action.shape[0], dtype=np.int64)
+    layers: list[list[tuple]] = []
+    for t in reversed(range(h)):
+        keys: dict[tuple, int] = {}
+        for node in range(bounds[t], bounds[t + 1]):
+            key = (int(action[node]),) + (tuple(int(label[c]) for c in succ[node]) if t + 1 < h else ())
+            label[node] = keys.setdefault(key, len(keys))
+        layers.append(list(keys))
+    layers.reverse()
+    offsets = np.cumsum([0] + [len(layer) for layer in layers])
+    out_action, out_succ = [], []
+    for t, layer in enumerate(layers):
+        for i, key in enumerate(layer):
+            out_action.append(key[0])
+            out_succ.append([offsets[t + 1] + c for c in key[1:]] if t + 1 < h else [offsets[t] + i] * succ.shape[1])
+    return np.asarray(out_action), np.asarray(out_succ, dtype=np.int64)

@@ -45,8 +45,8 @@ class Solution:
         seconds: wall-clock time of the search and the bounds.
         horizon, gamma: the problem solved (``math.inf``: the discounted infinite horizon).
         bounds: the relaxations behind ``bound`` (:class:`~decpomdp.dpomdp.bounds.Bounds`).
-        restarts: planner runs made; ``values`` the exact value every start reached (planner runs, then JESP's
-            random starts).
+        restarts: planner runs made (each a free graph and, at a finite horizon, a layered one); ``values`` the
+            exact value every start reached (planner runs in order, then JESP's random starts).
     """
 
     controller: JointController
@@ -87,6 +87,7 @@ def solve(
     *,
     seed: int = 0,
     restarts: int = 2,
+    layer_width: int = 3,
     jesp_restarts: int = 20,
     time_budget: float | None = None,
     num_nodes: int | None = None,
@@ -103,6 +104,9 @@ def solve(
         seed: restart ``r`` plans on the stream ``(seed, "solve", r)``: the same seed, the same solution.
         restarts: planner runs, each from scratch on its own stream; the best is kept. At a finite horizon each
             result is then improved by exact best responses (:func:`~decpomdp.dpomdp.best_response.jesp`).
+        layer_width: at a finite horizon, each restart also plans a layered controller (node 0, then
+            ``h - 1`` layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end)
+            by cross-entropy; 0 skips it.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
             streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
@@ -141,9 +145,16 @@ def solve(
         if best is None or value > best[1]:
             best = (controller, value)
 
+    layer_width = as_int("layer_width", layer_width, minimum=0)
+    layered = None
+    if finite and layer_width and env.horizon > 1:
+        size = 1 + layer_width * (int(env.horizon) - 1)
+        layered = config.replace(num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False)
     runs = 0
     while runs < restarts or (budget is not None and time.perf_counter() - start < budget):
         keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
+        if layered is not None:
+            keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
         runs += 1
     for k in range(jesp_restarts if finite else 0):
         keep(random_controllers(1, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
