@@ -1,4 +1,4 @@
-"""G-DICE on the standard Dec-POMDP benchmarks shipped with the package, against published optima.
+"""``solve`` and G-DICE on the standard Dec-POMDP benchmarks shipped with the package, against published optima.
 
 Every row of ``study.rows`` is one shipped problem at a finite horizon (undiscounted unless set) or
 discounted with an infinite horizon. The run checks every row before any work, then for each row runs
@@ -14,8 +14,12 @@ random-controller mean to the optimum that G-DICE closed, and, at horizon 2, the
 exhaustive search over every deterministic joint policy (a check that a published number belongs to
 the shipped file; where nothing is published it is the row's optimum, labelled as computed here).
 
-Writes ``metrics.json`` (the table), ``table.md``, ``dpomdp_benchmarks.png`` and one controller file
-per row in ``controllers/``.
+Every row also runs :func:`decpomdp.dpomdp.solve` with the one setting ``study.solve`` (no row tunes it):
+its exact value, fraction of the optimum, upper bound, certified gap ``(bound - value) / |bound|``,
+seconds and controller size; a row *meets* 99 % when that fraction is at least 0.99.
+
+Writes ``metrics.json`` (the table), ``table.md``, ``dpomdp_benchmarks.png`` and two controller files
+per row in ``controllers/`` (``<row>.safetensors``: G-DICE's, ``<row>_solve.safetensors``: solve's).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names
+from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names, solve
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search.cross_entropy import layered_mask, sample_controllers
@@ -144,9 +148,31 @@ def _search(row: Row, cfg: PlannerConfig, env: TabularDecPOSMDP, restarts: int, 
     return {"best": best, "values": values, "wall": walls, "cpu": cpus}
 
 
+def _solve(row: Row, env: TabularDecPOSMDP, study: DictConfig, seed: int, optimum: float | None,
+           random_mean: float) -> tuple[dict, object]:
+    """``solve`` on the row with ``study.solve`` (capped by ``study.caps``): its table entry and controller."""
+    kwargs = OmegaConf.to_container(study.solve, resolve=True)
+    defaults = PlannerConfig()
+    for cap, keys in (("iterations", ("ce_iterations",)), ("samples", ("ce_samples",)), ("restarts", ("restarts", "jesp_restarts"))):
+        if study.caps[cap] is not None:
+            for key in keys:
+                current = kwargs.get(key, getattr(defaults, key, None))
+                kwargs[key] = int(study.caps[cap]) if current is None else min(int(current), int(study.caps[cap]))
+    if "ce_samples" in kwargs:
+        kwargs["ce_elites"] = min(kwargs.get("ce_elites", defaults.ce_elites), kwargs["ce_samples"])
+    cpu = time.process_time()
+    found = solve(env, row.horizon, row.gamma, seed=stream_seed(seed, "solve"), threads=int(study.threads), **kwargs)
+    cpu = time.process_time() - cpu
+    frac = None if optimum is None else fraction_of_optimum(found.value, optimum, random_mean)
+    return {"value": found.value, "fraction_of_optimum": frac, "meets_99": None if frac is None else bool(frac >= 0.99 - 1e-12),
+            "bound": found.bound, "gap": found.gap, "bounds": found.bounds._asdict(), "seconds": found.seconds,
+            "cpu_seconds": cpu, "nodes": found.controller.num_nodes, "restarts": found.restarts,
+            "settings": kwargs}, found.controller
+
+
 def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictConfig, seed: int,
-              progress: bool) -> tuple[dict, object, list]:
-    """One row of the table, the best controller and its learning curve."""
+              progress: bool) -> tuple[dict, object, list, object]:
+    """One row of the table, G-DICE's best controller and its learning curve, and solve's controller."""
     env = TabularDecPOSMDP.from_problem(row.problem, gamma=row.gamma, horizon=row.horizon)
     restarts = row.restarts if study.caps.restarts is None else min(row.restarts, int(study.caps.restarts))
     found = _search(row, cfg, env, restarts, seed, progress)
@@ -161,6 +187,7 @@ def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictCon
     if optimum is None and exhaustive is not None:
         optimum, source = exhaustive, f"exhaustive search over all {searched} deterministic joint policies (this run)"
     frac = None if optimum is None else fraction_of_optimum(value, optimum, rand_mean)
+    solved, solved_controller = _solve(row, env, study, seed, optimum, rand_mean)
     table = {
         "problem": row.problem, "states": env.num_states, "gamma": row.gamma,
         "horizon": "inf" if row.horizon == math.inf else int(row.horizon), "evaluator": row.evaluator,
@@ -174,17 +201,21 @@ def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictCon
         "settings": {**dataclasses.asdict(cfg), "restarts": restarts},
         "paper_budget": {"samples": paper.ce_samples, "iterations": paper.ce_iterations, "value": at_paper["values"][0],
                          "seconds": at_paper["wall"][0], "cpu_seconds": at_paper["cpu"][0]},
+        "solve": solved,
     }
-    return table, found["best"].best, found["best"].history["best_sampled"]
+    return table, found["best"].best, found["best"].history["best_sampled"], solved_controller
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     rows = build_rows(cfg.study, cfg.planner)  # every row checked before any work
+    if cfg.study.only is not None:
+        rows = [r for r in rows if r[0].name in set(cfg.study.only)]
     set_threads(int(cfg.study.threads))  # torch and the rollout engine
     table, curves = {}, {}
     for row, gcfg, paper in rows:
-        entry, controller, curve = solve_row(row, gcfg, paper, cfg.study, int(cfg.seed), bool(cfg.progress))
+        entry, controller, curve, solved = solve_row(row, gcfg, paper, cfg.study, int(cfg.seed), bool(cfg.progress))
         controller.save(run_dir / "controllers" / f"{row.name}.safetensors")
+        solved.save(run_dir / "controllers" / f"{row.name}_solve.safetensors")
         table[row.name], curves[row.name] = entry, curve
         opt = "n/a" if entry["optimum"] is None else f"{entry['optimum']:.4f}"
         frac = "" if entry["fraction_of_optimum"] is None else f" ({100 * entry['fraction_of_optimum']:.1f} % of it)"
@@ -192,27 +223,37 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
               f"{entry['random_controller_mean']:.3f}; {max(entry['seconds_per_run']):.1f} s wall / "
               f"{max(entry['cpu_seconds_per_run']):.1f} s CPU per run; paper budget: "
               f"{entry['paper_budget']['value']:.4f} in {entry['paper_budget']['seconds']:.1f} s wall / "
-              f"{entry['paper_budget']['cpu_seconds']:.1f} s CPU", flush=True)
+              f"{entry['paper_budget']['cpu_seconds']:.1f} s CPU; solve {entry['solve']['value']:.4f} "
+              f"(bound {entry['solve']['bound']:.4f}, gap {100 * entry['solve']['gap']:.2f} %) in "
+              f"{entry['solve']['cpu_seconds']:.1f} s CPU", flush=True)
     _plot(table, run_dir / "dpomdp_benchmarks.png")
     atomic_write_text(run_dir / "table.md", markdown_table(table))
     print(f"wrote {run_dir / 'metrics.json'}, {run_dir / 'table.md'}, {run_dir / 'dpomdp_benchmarks.png'} and "
           f"{run_dir / 'controllers'}", flush=True)
     scored = [e["meets_95"] for e in table.values() if e["meets_95"] is not None]
+    solved = [e["solve"]["meets_99"] for e in table.values() if e["solve"]["meets_99"] is not None]
     return {"rows": table, "rows_scored": len(scored), "rows_meeting_95": sum(scored),
-            "rows_missing_95": [n for n, e in table.items() if e["meets_95"] is False]}
+            "rows_missing_95": [n for n, e in table.items() if e["meets_95"] is False],
+            "solve_rows_meeting_99": sum(solved),
+            "solve_rows_missing_99": [n for n, e in table.items() if e["solve"]["meets_99"] is False]}
 
 
 def markdown_table(table: dict) -> str:
     """The table for people: one line per row."""
-    header = ("| row | S | gamma | h | G-DICE | optimum | % of optimum | gap closed | random mean | wall s / CPU s per run "
-              "| paper budget: value, wall s / CPU s |")
-    lines = [header, "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    header = ("| row | S | gamma | h | optimum | solve | % of optimum | bound | gap | CPU s | nodes | G-DICE | % of optimum "
+              "| gap closed | random mean | wall s / CPU s per run | paper budget: value, wall s / CPU s |")
+    lines = [header, "|" + " --- |" * 17]
     for name, e in table.items():
         opt = "n/a" if e["optimum"] is None else f"{e['optimum']:.4f}"
         frac = "n/a" if e["fraction_of_optimum"] is None else (
             f"{100 * e['fraction_of_optimum']:.1f}" + ("" if e["meets_95"] else " (misses 95 %)"))
         gap = "n/a" if e["gap_closed"] is None else f"{e['gap_closed']:.3f}"
-        lines.append(f"| {name} | {e['states']} | {e['gamma']} | {e['horizon']} | {e['gdice_value']:.4f} | {opt} | {frac} "
+        sv = e["solve"]
+        s_frac = "n/a" if sv["fraction_of_optimum"] is None else (
+            f"{100 * sv['fraction_of_optimum']:.1f}" + ("" if sv["meets_99"] else " (misses 99 %)"))
+        lines.append(f"| {name} | {e['states']} | {e['gamma']} | {e['horizon']} | {opt} | {sv['value']:.4f} | {s_frac} "
+                     f"| {sv['bound']:.4f} | {100 * sv['gap']:.2f} % | {sv['cpu_seconds']:.1f} | {sv['nodes']} "
+                     f"| {e['gdice_value']:.4f} | {frac} "
                      f"| {gap} | {e['random_controller_mean']:.3f} | {max(e['seconds_per_run']):.1f} / "
                      f"{max(e['cpu_seconds_per_run']):.1f} | {e['paper_budget']['value']:.4f}, "
                      f"{e['paper_budget']['seconds']:.1f} / {e['paper_budget']['cpu_seconds']:.1f} |")
@@ -227,7 +268,10 @@ def _plot(table: dict, path: Path) -> None:
     frac = [table[n]["fraction_of_optimum"] for n in names]
     gap = [table[n]["gap_closed"] for n in names]
     colors = ["0.7" if f is None else ("C2" if f >= 0.95 - 1e-12 else "C3") for f in frac]
-    ax.barh(y, [0 if f is None else max(f, 0.0) for f in frac], color=colors)
+    ax.barh(y, [0 if f is None else max(f, 0.0) for f in frac], color=colors, label="G-DICE")
+    solved = [table[n]["solve"]["fraction_of_optimum"] for n in names]
+    ax.scatter([float("nan") if f is None else max(f, 0.0) for f in solved], y, marker="D", s=18, color="C0", zorder=4,
+               label="solve")
     ax.scatter([g if g is not None else float("nan") for g in gap], y, marker="|", s=120, color="k", zorder=3,
                label="share of the random-to-optimum gap closed")
     for i, f in enumerate(frac):
@@ -237,7 +281,7 @@ def _plot(table: dict, path: Path) -> None:
     ax.set_yticks(list(y), names, fontsize=8)
     ax.invert_yaxis()
     ax.set_xlim(0, 1.15)
-    ax.set_xlabel("G-DICE value as a fraction of the optimum (green: >= 95 %, red: below)")
+    ax.set_xlabel("value as a fraction of the optimum (bars: G-DICE, green >= 95 %, red below; diamonds: solve)")
     ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False)
     ax_t.barh(y, [table[n]["paper_budget"]["cpu_seconds"] for n in names], color="C0",
               label="CPU s, one run at the paper budget")
@@ -246,6 +290,6 @@ def _plot(table: dict, path: Path) -> None:
     ax_t.set_xscale("log")
     ax_t.set_xlabel("seconds per G-DICE run at N_s = 100, N_k = 100")
     ax_t.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False)
-    fig.suptitle("G-DICE on the shipped .dpomdp benchmarks, exact values of the best controller", y=1.02)
+    fig.suptitle("solve and G-DICE on the shipped .dpomdp benchmarks, exact values of the best controllers", y=1.02)
     fig.tight_layout()
     save_figure(fig, path)

@@ -29,8 +29,12 @@ from infra.threads import torch_threads
 
 MAX_FINITE_NODES = 32
 """Largest default controller for a finite horizon (``min(max(8, 3 h), 32)`` nodes)."""
-INFINITE_NODES = 8
-"""Default node budget of an infinite-horizon controller."""
+INFINITE_NODES = 4
+"""Default node budget of an infinite-horizon controller (each exact score solves a linear system over
+joint nodes x states, so larger controllers cost much more)."""
+EXACT_DEFAULTS = {"ls_candidates": 500}
+"""Planner settings :func:`solve` changes from the cold-start defaults: with exact scores, a local-search
+step needs no tens of thousands of candidates to see past noise (each costs an exact evaluation)."""
 
 
 @dataclass
@@ -88,6 +92,7 @@ def solve(
     seed: int = 0,
     restarts: int = 2,
     layer_width: int = 3,
+    max_layered_horizon: int = 20,
     jesp_restarts: int = 20,
     time_budget: float | None = None,
     num_nodes: int | None = None,
@@ -106,14 +111,14 @@ def solve(
             result is then improved by exact best responses (:func:`~decpomdp.dpomdp.best_response.jesp`).
         layer_width: at a finite horizon, each restart also plans a layered controller (node 0, then
             ``h - 1`` layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end)
-            by cross-entropy; 0 skips it.
+            by cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon); 0 skips it.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
             streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
-        num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 8 for an infinite horizon).
+        num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 4 for an infinite horizon).
         threads: torch threads for exact evaluation.
-        **planner: other :class:`~decpomdp.search.PlannerConfig` settings.
+        **planner: other :class:`~decpomdp.search.PlannerConfig` settings (over :data:`EXACT_DEFAULTS`).
 
     Returns:
         A :class:`Solution`.
@@ -129,7 +134,7 @@ def solve(
     finite = math.isfinite(env.horizon)
     if num_nodes is None:
         num_nodes = min(max(8, 3 * int(env.horizon)), MAX_FINITE_NODES) if finite else INFINITE_NODES
-    config = PlannerConfig(num_nodes=as_int("num_nodes", num_nodes, minimum=1), **planner)
+    config = PlannerConfig(num_nodes=as_int("num_nodes", num_nodes, minimum=1), **{**EXACT_DEFAULTS, **planner})
     start = time.perf_counter()
     jesp_restarts = as_int("jesp_restarts", jesp_restarts, minimum=0)
     scorer = ExactScorer(env, threads=threads)
@@ -146,8 +151,9 @@ def solve(
             best = (controller, value)
 
     layer_width = as_int("layer_width", layer_width, minimum=0)
+    max_layered_horizon = as_int("max_layered_horizon", max_layered_horizon, minimum=0)
     layered = None
-    if finite and layer_width and env.horizon > 1:
+    if finite and layer_width and 1 < env.horizon <= max_layered_horizon:
         size = 1 + layer_width * (int(env.horizon) - 1)
         layered = config.replace(num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False)
     runs = 0

@@ -265,10 +265,27 @@ class BenchmarkStudy:
     random_controllers: int = MISSING
     paper_budget: PaperBudget = field(default_factory=PaperBudget)
     caps: Caps = field(default_factory=Caps)
+    solve: dict[str, Any] = MISSING  # keyword arguments of decpomdp.dpomdp.solve, the same for every row
+    only: Optional[list[str]] = MISSING  # run these rows alone (None: every row)
     rows: dict[str, BenchmarkRow] = MISSING
 
     def check(self, path: str) -> None:
+        import dataclasses
+        import inspect
+
+        from decpomdp.dpomdp import solve
+        from decpomdp.search import PlannerConfig
+
+        known = {n for n, p in inspect.signature(solve).parameters.items() if p.kind is p.KEYWORD_ONLY}
+        known |= {f.name for f in dataclasses.fields(PlannerConfig)}
+        unknown = sorted(set(self.solve) - known - {"seed", "threads"})
+        if unknown:
+            raise ValueError(f"solve: unknown settings {unknown}; expected keywords of decpomdp.dpomdp.solve or "
+                             "PlannerConfig fields (seed and threads come from the study)")
         positive_int("threads", self.threads)
+        missing = sorted(set(self.only or ()) - set(self.rows))
+        if missing:
+            raise ValueError(f"only: unknown rows {missing}")
         positive_int("random_controllers", self.random_controllers, 2)
         if not self.rows:
             raise ValueError("rows: expected at least one row")

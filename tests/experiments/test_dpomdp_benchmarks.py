@@ -21,24 +21,32 @@ CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")
 PLANNER = OmegaConf.load(REPO / "conf" / "planner" / "gdice.yaml")
 
 
+SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4_monte_carlo", "recycling_inf"]
+
+
 def test_dpomdp_benchmarks_smoke(tmp_path):
     subprocess.run(
         [sys.executable, "-m", "experiments.run", "experiment=dpomdp_benchmarks", f"hydra.run.dir={tmp_path}",
          "progress=false", "study.caps.iterations=2", "study.caps.samples=20", "study.caps.restarts=1",
-         "study.random_controllers=10"],
+         "study.random_controllers=10", f"study.only=[{','.join(SMOKE_ROWS)}]"],
         cwd=REPO, check=True, capture_output=True,
     )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     rows = metrics["rows"]
-    assert set(rows) == set(CONFIG.study.rows)
+    assert set(rows) == set(SMOKE_ROWS) <= set(CONFIG.study.rows)
     for name, row in rows.items():
         assert row["controllers_per_run"] == 2 * 20 and row["paper_budget"]["samples"] == 20
         ctrl = JointController.load(tmp_path / "controllers" / f"{name}.safetensors")
         assert ctrl.num_controllers == 1
+        solved = row["solve"]
+        assert JointController.load(tmp_path / "controllers" / f"{name}_solve.safetensors").num_controllers == 1
+        assert solved["gap"] >= 0 and solved["value"] <= solved["bound"] + 1e-9 and solved["settings"]["restarts"] == 1
         if row["optimum"] is not None:
             assert row["gdice_value"] <= row["optimum"] + 1e-9  # no controller beats the optimum
             assert row["meets_95"] == (row["fraction_of_optimum"] >= 0.95)
-    assert rows["dectiger_h3"]["horizon"] == 3 and rows["recycling_inf"]["horizon"] == "inf"
+            assert solved["value"] <= row["optimum"] + 1e-9 <= solved["bound"] + 2e-9  # the bound holds the optimum
+            assert solved["meets_99"] == (solved["fraction_of_optimum"] >= 0.99)
+    assert rows["dectiger_h2"]["horizon"] == 2 and rows["recycling_inf"]["horizon"] == "inf"
     assert rows["firefighting_h2"]["optimum_source"].startswith("exhaustive search over all 4096")
     assert rows["firefighting_h4_monte_carlo"]["evaluator"] == "monte_carlo"
     assert metrics["rows_scored"] == sum(r["meets_95"] is not None for r in rows.values())
@@ -99,6 +107,8 @@ def test_infinite_rows_need_a_discount():
         ("study.rows.dectiger_h2.restarts=0", "study.rows.dectiger_h2.restarts: expected an int >= 1"),
         ("study.paper_budget.ce_samples=0", "study.paper_budget.ce_samples: expected an int >= 1"),
         ("study.rows.recycling_inf.evaluator=monte_carlo", "study.rows.recycling_inf.evaluator: monte_carlo rollouts"),
+        ("study.only=[dectiger_h2,nope]", r"study.only: unknown rows \['nope'\]"),
+        ("+study.solve.guess=1", r"study.solve: unknown settings \['guess'\]"),
     ],
 )
 def test_composed_config_fails_naming_the_key(override, message):
