@@ -16,11 +16,10 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import scipy.sparse as sp
 import torch
 
 from decpomdp.controller import JointController
-from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES
+from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, tables
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
 
@@ -31,10 +30,12 @@ def tree_size(env: TabularDecPOSMDP, horizon: int, others_nodes: int) -> int:
 
 
 def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int, horizon: int | None = None,
-                  max_entries: int = DEFAULT_MAX_ENTRIES) -> tuple[JointController, float] | None:
+                  max_entries: int = DEFAULT_MAX_ENTRIES, tabs: Tables | None = None
+                  ) -> tuple[JointController, float] | None:
     """Agent ``agent``'s best response to the others' controllers in ``controller`` (K = 1).
 
     Returns ``(joint controller, its exact value)``, or ``None`` when the belief tree exceeds ``max_entries``.
+    ``tabs`` (default ``tables(env)``) lets a caller build the problem's tables once.
     """
     h = int(env.horizon if horizon is None else horizon)
     n_agents, n_act, n_obs, gamma = env.num_agents, env.num_actions, env.num_obs, env.gamma
@@ -59,10 +60,8 @@ def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int
         jo_own[jo] = parts[agent]
         for k, q in enumerate(q_tuples):
             q_next[k, jo] = q_index[tuple(nxt[j, node, parts[j]] for j, node in zip(others, q))]
-    t = env.model.transition
-    n_s = t.num_states
-    trans = sp.csr_matrix((t.data, t.indices, t.indptr), shape=(t.shape[0] * n_s, n_s))
-    obs, reward = env.observation.numpy(), env.expected_reward.numpy()
+    trans, reward, obs = tabs or tables(env)
+    n_s = env.num_states
     # forwards: beliefs (n, Q, S) of every (action, observation) history, layer by layer
     start = np.zeros((1, n_q, n_s))
     start[0, q_index[tuple(0 for _ in others)]] = env.start_dist.numpy()
@@ -76,7 +75,7 @@ def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int
         for a in range(n_act):
             for k in range(n_q):
                 j = ja[a, k]
-                pred = (trans[j * n_s:(j + 1) * n_s].T @ b[:, k, :].T).T  # (n, S')
+                pred = (trans[j].T @ b[:, k, :].T).T  # (n, S')
                 for jo in range(obs.shape[2]):
                     child[:, a, jo_own[jo], q_next[k, jo]] += pred * obs[j, :, jo]
         layers.append(child.reshape(-1, n_q, n_s))
@@ -134,18 +133,17 @@ def jesp(env: TabularDecPOSMDP, controller: JointController, value: float, horiz
          max_entries: int = DEFAULT_MAX_ENTRIES, max_rounds: int = 20) -> tuple[JointController, float, int]:
     """Alternate exact best responses, agent after agent, from ``controller`` (of exact ``value``) until a
     round improves nothing. Returns (controller, value, best responses accepted)."""
-    accepted = 0
+    accepted, tabs = 0, tables(env)
     for _ in range(max_rounds):
         improved = False
         for agent in range(env.num_agents):
-            out = best_response(env, controller, agent, horizon, max_entries)
+            out = best_response(env, controller, agent, horizon, max_entries, tabs)
             if out is not None and out[1] > value + 1e-12 * max(1.0, abs(value)):
                 (controller, value), improved = out, True
                 accepted += 1
         if not improved:
             break
     return controller, value, accepted
-
 
 
 def _merge_layers(action: np.ndarray, succ: np.ndarray, sizes: list[int]) -> tuple[np.ndarray, np.ndarray]:

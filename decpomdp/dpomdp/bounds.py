@@ -47,12 +47,24 @@ class Bounds(NamedTuple):
         return min(self.q_mdp, self.fib, self.lookahead)
 
 
-def _tables(env: TabularDecPOSMDP) -> tuple[list[sp.csr_matrix], np.ndarray, np.ndarray]:
-    """Per joint action the sparse ``T_ja (S, S')``; ``R (JA, S)``; ``O (JA, S', JO)``."""
+class Tables(NamedTuple):
+    """A problem's dynamics as numpy arrays, built once and shared by the bounds and best responses."""
+
+    trans: list[sp.csr_matrix]
+    """Per joint action the sparse ``T_ja (S, S')``."""
+    reward: np.ndarray
+    """``R (JA, S)``."""
+    obs: np.ndarray
+    """``O (JA, S', JO)``."""
+
+
+def tables(env: TabularDecPOSMDP) -> Tables:
+    """The :class:`Tables` of ``env``."""
     t = env.model.transition
     n_ja, n_s = t.shape[:2]
     full = sp.csr_matrix((t.data, t.indices, t.indptr), shape=(n_ja * n_s, n_s))
-    return [full[ja * n_s:(ja + 1) * n_s] for ja in range(n_ja)], env.expected_reward.numpy(), env.observation.numpy()
+    return Tables([full[ja * n_s:(ja + 1) * n_s] for ja in range(n_ja)], env.expected_reward.numpy(),
+                  env.observation.numpy())
 
 
 def _iterate(env: TabularDecPOSMDP, horizon: float, backup, tol: float) -> np.ndarray:
@@ -74,18 +86,22 @@ def _iterate(env: TabularDecPOSMDP, horizon: float, backup, tol: float) -> np.nd
     return q
 
 
-def q_mdp(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10) -> np.ndarray:
-    """(JA, S) ``Q`` of the underlying MDP at step 0 (``horizon`` defaults to ``env.horizon``)."""
-    trans, _, _ = _tables(env)
+def q_mdp(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10,
+          tabs: Tables | None = None) -> np.ndarray:
+    """(JA, S) ``Q`` of the underlying MDP at step 0 (``horizon`` defaults to ``env.horizon``; ``tabs``
+    to ``tables(env)``)."""
+    trans = (tabs or tables(env)).trans
     return _iterate(env, env.horizon if horizon is None else horizon,
                     lambda q: np.stack([tr @ q.max(0) for tr in trans]), tol)
 
 
-def q_fib(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10) -> np.ndarray:
+def q_fib(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10,
+          tabs: Tables | None = None) -> np.ndarray:
     """(JA, S) fast informed bound ``Q`` at step 0: every policy's value from a belief ``b`` is at most
-    ``max_ja b . Q[ja]`` (``horizon`` defaults to ``env.horizon``)."""
-    trans, _, obs = _tables(env)
-    return _iterate(env, env.horizon if horizon is None else horizon, lambda q: _fib_backup(trans, obs, q), tol)
+    ``max_ja b . Q[ja]`` (``horizon`` defaults to ``env.horizon``; ``tabs`` to ``tables(env)``)."""
+    tabs = tabs or tables(env)
+    return _iterate(env, env.horizon if horizon is None else horizon, lambda q: _fib_backup(tabs.trans, tabs.obs, q),
+                    tol)
 
 
 def _fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -98,22 +114,23 @@ def _fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> n
 
 
 def lookahead_bound(env: TabularDecPOSMDP, horizon: float | None = None,
-                    max_entries: int = DEFAULT_MAX_ENTRIES) -> tuple[float, int]:
+                    max_entries: int = DEFAULT_MAX_ENTRIES, tabs: Tables | None = None) -> tuple[float, int]:
     """(bound, depth): the centralised POMDP's exact value over its belief tree ``depth`` steps deep, with
     the FIB of the remaining steps at the leaves.
 
     ``depth`` is the largest number of steps (at most the horizon) whose last layer of
     ``(JA * JO) ** depth`` beliefs over ``S`` states holds at most ``max_entries`` numbers (8 bytes
-    each); beliefs of probability zero are dropped as they arise.
+    each); beliefs of probability zero are dropped as they arise. ``tabs`` defaults to ``tables(env)``.
     """
     horizon = env.horizon if horizon is None else horizon
-    trans, reward, obs = _tables(env)
+    tabs = tabs or tables(env)
+    trans, reward, obs = tabs
     n_ja, n_jo = obs.shape[0], obs.shape[2]
     depth = 0
     while depth < horizon and (n_ja * n_jo) ** (depth + 1) * env.num_states <= max_entries:
         depth += 1
     rest = horizon - depth
-    leaf = q_fib(env, rest) if rest > 0 else None
+    leaf = q_fib(env, rest, tabs=tabs) if rest > 0 else None
     gamma = env.gamma
     # forward: the reachable unnormalised beliefs of each layer, with their parents
     layers = [env.start_dist.numpy()[None, :]]  # (N, S), each row P(s, history)
@@ -140,8 +157,8 @@ def lookahead_bound(env: TabularDecPOSMDP, horizon: float | None = None,
 def upper_bounds(env: TabularDecPOSMDP, horizon: float | None = None, max_entries: int = DEFAULT_MAX_ENTRIES) -> Bounds:
     """The three bounds from the start belief (``horizon`` defaults to ``env.horizon``)."""
     horizon = env.horizon if horizon is None else horizon
-    b0 = env.start_dist.numpy()
-    mdp = float((q_mdp(env, horizon) @ b0).max())
-    fib = float((q_fib(env, horizon) @ b0).max())
-    look, depth = lookahead_bound(env, horizon, max_entries)
+    b0, tabs = env.start_dist.numpy(), tables(env)
+    mdp = float((q_mdp(env, horizon, tabs=tabs) @ b0).max())
+    fib = float((q_fib(env, horizon, tabs=tabs) @ b0).max())
+    look, depth = lookahead_bound(env, horizon, max_entries, tabs)
     return Bounds(mdp, fib, look, depth)
