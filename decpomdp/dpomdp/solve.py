@@ -94,6 +94,7 @@ def solve(
     layer_width: int = 3,
     max_layered_horizon: int = 20,
     jesp_restarts: int = 20,
+    best_responses: bool = True,
     time_budget: float | None = None,
     num_nodes: int | None = None,
     threads: int | None = 1,
@@ -114,6 +115,8 @@ def solve(
             by cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon); 0 skips it.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
             streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
+        best_responses: ``False`` turns exact best responses off (no JESP after each run, no JESP restarts): the
+            planner's results alone, as in an ablation.
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
         num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 4 for an infinite horizon).
@@ -137,6 +140,9 @@ def solve(
     config = PlannerConfig(num_nodes=as_int("num_nodes", num_nodes, minimum=1), **{**EXACT_DEFAULTS, **planner})
     start = time.perf_counter()
     jesp_restarts = as_int("jesp_restarts", jesp_restarts, minimum=0)
+    if not isinstance(best_responses, bool):
+        raise TypeError(f"best_responses: expected True or False, got {best_responses!r}")
+    respond = finite and best_responses
     scorer = ExactScorer(env, threads=threads)
     best, values = None, []
 
@@ -144,7 +150,7 @@ def solve(
         nonlocal best
         with torch_threads(threads):
             value = float(exact_value(env, controller)[0])
-        if finite:
+        if respond:
             controller, value, _ = jesp(env, controller, value)
         values.append(value)
         if best is None or value > best[1]:
@@ -162,7 +168,7 @@ def solve(
         if layered is not None:
             keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
         runs += 1
-    for k in range(jesp_restarts if finite else 0):
+    for k in range(jesp_restarts if respond else 0):
         keep(random_controllers(1, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
                                 num_obs=env.num_obs, generator=torch_stream(seed, "solve", "jesp", k)))
     bounds = upper_bounds(env)

@@ -3,7 +3,8 @@
 :func:`race` runs successive stages ``(rollouts, keep)``: every surviving candidate is scored on
 ``rollouts`` fresh rollouts and the best ``keep`` of them (a fraction in (0, 1), at least ``minimum``,
 or a count >= 1) go on. Scores of different stages are independent, so a candidate that was lucky in
-one stage is scored afresh in the next; the survivors of the last stage are returned best first.
+one stage is scored afresh in the next; the survivors of the last stage are returned best first. An exact
+scorer (``scorer.exact``) scores every candidate once: its later stages only cut the ranking.
 
 :func:`duel` then scores the incumbent and the survivors on the same number of fresh rollouts and
 names the best survivor if it beats the incumbent by more than ``z`` standard errors of the
@@ -33,10 +34,12 @@ def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
     alive = torch.arange(count)
     scores = torch.zeros(count, dtype=torch.float64)
     first_mean = math.nan
-    for rollouts, keep in stages:
-        per = max(1, 200_000 // rollouts)  # candidates per batched call
-        scores = torch.cat([scorer(build(alive[i:i + per]), rollouts, generator)[0]
-                            for i in range(0, alive.numel(), per)])
+    exact = getattr(scorer, "exact", False)
+    for stage, (rollouts, keep) in enumerate(stages):
+        if stage == 0 or not exact:  # an exact score needs no second look: later stages only cut
+            per = max(1, 200_000 // rollouts)  # candidates per batched call
+            scores = torch.cat([scorer(build(alive[i:i + per]), rollouts, generator)[0]
+                                for i in range(0, alive.numel(), per)])
         first_mean = float(scores.mean()) if math.isnan(first_mean) else first_mean
         kept = int(keep) if keep >= 1 else max(minimum, math.ceil(keep * alive.numel()))
         order = torch.sort(scores, descending=True, stable=True).indices[:kept]

@@ -45,8 +45,10 @@ class Scorer(Protocol):
     Attributes:
         num_agents, num_actions, num_obs: sizes of the searched controllers (A, |MA|, O).
         rollouts_used: rollouts run so far (0 for exact scorers).
+        exact: whether scores are exact (standard error 0): a score is then never repeated to race candidates.
     """
 
+    exact: bool
     num_agents: int
     num_actions: int
     num_obs: int
@@ -109,7 +111,7 @@ class RolloutScorer:
         self.env, self.shared, self.backend = env, shared, resolve_backend(env, backend)
         self.num_agents = 1 if shared else env.num_agents
         self.num_actions, self.num_obs = env.num_actions, env.num_obs
-        self.rollouts_used = 0
+        self.rollouts_used, self.exact = 0, False
 
     def fingerprint(self) -> dict[str, Any]:
         return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env, "shared": self.shared,
@@ -162,6 +164,7 @@ class ExactScorer:
         if not isinstance(env, TabularDecPOSMDP):
             raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
         self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
+        self.exact = True
         self.num_agents, self.num_actions, self.num_obs = env.num_agents, env.num_actions, env.num_obs
         self.rollouts_used = 0
 

@@ -154,6 +154,40 @@ def test_solve_is_seeded_and_takes_files_models_and_the_infinite_horizon(tmp_pat
     assert inf.horizon == math.inf and inf.controller.num_nodes == 2 and inf.value <= inf.bound
 
 
+def test_without_best_responses_solve_keeps_the_planners_results_alone():
+    s = solve("dectiger", 3, seed=0, restarts=1, best_responses=False)
+    assert len(s.values) == 2  # one free-graph run and one layered run, no JESP restarts
+    with_br = solve("dectiger", 3, seed=0, restarts=1, jesp_restarts=0)
+    assert with_br.value >= s.value - 1e-12
+
+
+def test_exact_scores_are_never_raced():
+    """Under exact scores every candidate is scored once; the racing stages only cut the ranking, and the
+    survivors are those of a scorer that scores them again at every stage."""
+    from decpomdp.search import ExactScorer
+    from decpomdp.search.racing import race
+
+    problem = env("dectiger", 3)
+    pool = random_controllers(30, num_agents=2, num_nodes=3, num_actions=problem.num_actions,
+                              num_obs=problem.num_obs, generator=torch.Generator().manual_seed(0))
+
+    class Counting(ExactScorer):
+        def __init__(self, *args, exact):
+            super().__init__(*args)
+            self.exact, self.scored = exact, 0
+
+        def __call__(self, controller, rollouts, generator):
+            self.scored += controller.num_controllers
+            return super().__call__(controller, rollouts, generator)
+
+    stages = [(10, 0.5), (100, 0.5), (1000, 3)]
+    once, again = Counting(problem, exact=True), Counting(problem, exact=False)
+    a = race(once, 30, lambda i: pool[i], stages, torch.Generator())
+    b = race(again, 30, lambda i: pool[i], stages, torch.Generator())
+    assert once.scored == 30 and again.scored == 30 + 15 + 8
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+
+
 def test_solve_errors():
     with pytest.raises(TypeError, match="problem: expected a shipped problem's name"):
         solve(3, 2)
@@ -161,6 +195,8 @@ def test_solve_errors():
         solve("no_such_problem.dpomdp", 2)
     with pytest.raises(ValueError, match="restarts: expected an int >= 1"):
         solve("dectiger", 2, restarts=0)
+    with pytest.raises(TypeError, match="best_responses: expected True or False"):
+        solve("dectiger", 2, best_responses="no")
     with pytest.raises(ValueError, match="time_budget"):
         solve("dectiger", 2, time_budget=-1.0)
     with pytest.raises(ValueError, match="horizon: an infinite horizon needs gamma < 1"):
