@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import matplotlib.pyplot as plt
 import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -58,7 +59,7 @@ from experiments.artifacts import save_artifact
 from experiments.common import beats, ratio, save_figure
 from experiments.report import write_report
 from experiments.schemas.studies import MISSION_VARIANTS
-from experiments.steps import closed_loop
+from experiments.steps import closed_loop, honesty
 from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
@@ -131,10 +132,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         results, histories = plan(models, cfg, settings, run_dir)
         settings.clock.start("bank_wait", "waiting for the held-out bank")
         banked = bank.result(settings.progress)
-        execute_closed_loop(banked, outputs.held_out, noise, results, cfg, settings, run_dir)
+        reliability = execute_closed_loop(banked, outputs.held_out, noise, models, results, cfg, settings, run_dir)
     finally:
         bank.cancel()
-    return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank)
+    return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank, reliability)
 
 
 def read_settings(cfg: DictConfig) -> Settings:
@@ -190,6 +191,8 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
         return Noise(posterior, {"value": settings.temper, "fitted": False})
+    if posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
+        return Noise(posterior, {"value": 1.0, "fitted": False, "needed": False})
     M, frames = len(CLASSES), settings.frames
     truth = torch.arange(M).repeat_interleave(calib.shape[1])
     fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), truth, cfg.hbni.filter.mode)
@@ -316,18 +319,21 @@ def plan(
 
 
 def execute_closed_loop(
-    bank: torch.Tensor, held: torch.Tensor, noise: Noise, results: dict[str, dict], cfg: DictConfig,
-    settings: Settings, run_dir: Path,
-) -> None:
+    bank: torch.Tensor, held: torch.Tensor, noise: Noise, models: dict[str, hbni_pyro.MacroObservationModel],
+    results: dict[str, dict], cfg: DictConfig, settings: Settings, run_dir: Path,
+) -> plt.Figure | None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
     streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
     the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
-    executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences."""
+    executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences, the
+    distribution check of the entry's table against its process on the bank and the value test's power.
+    Returns the reliability diagram of every process on the bank (``None`` without variants)."""
     settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
     C, P = pooled.shape[:2]
+    processes = build_processes(noise, cfg, settings)
     on_pool = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
-               for name, p in build_processes(noise, cfg, settings).items()}
+               for name, p in processes.items()}
     boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
     for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
@@ -345,13 +351,20 @@ def execute_closed_loop(
         on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
             controller, resample, P, held.shape[1], cfg.domain, boot,
             stream_seed(settings.seed, "bootstrap", "table", name))
-        results[name]["executed"] = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
+        entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
+        table_streams = held.shape[1] if entry_planning(settings, name) == "empirical" else None
+        entry["distribution_check"] = honesty.distribution_check(models[name], replay, table_streams,
+                                                                 stream_seed(settings.seed, "honesty", name))
+        entry["value_power"] = honesty.value_power(results[name], entry, bank.shape[1])
+        results[name]["executed"] = entry
+    return honesty.reliability_figure(processes, *closed_loop.as_streams(bank), mission_report.LABELS,
+                                      float(cfg.mission.threshold)) if processes else None
 
 
 def write_outputs(
     run_dir: Path, cfg: DictConfig, settings: Settings, outputs: Outputs, noise: Noise,
     models: dict[str, hbni_pyro.MacroObservationModel], results: dict[str, dict], histories: dict[str, dict],
-    bank: BankBuild,
+    bank: BankBuild, reliability: plt.Figure | None,
 ) -> dict:
     """Figures, ``report.md``; returns the metrics."""
     planner, warm = planners(cfg)
@@ -363,6 +376,8 @@ def write_outputs(
             name: results["perfect"]["rollouts"] for name, r in results.items() if r.get("started_from") == "perfect"}),
         "closed_loop.png": closed_loop.figure(results, mission_report.LABELS),
     }
+    if reliability is not None:
+        figures["reliability.png"] = reliability
     for file, fig in figures.items():
         save_figure(fig, run_dir / file)
     st = cfg.mission
@@ -392,6 +407,7 @@ def write_outputs(
     }
     cl = metrics["closed_loop"]
     section = closed_loop.report_lines(results, mission_report.LABELS, cl["planning"], cl["bank"])
+    section += honesty.report_lines(results, mission_report.LABELS, CLASSES)
     cpu = metrics["cpu_seconds"]
     section.append(f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers. "
                    "Per stage of the main process (wall / CPU s): " + ", ".join(

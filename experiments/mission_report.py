@@ -73,12 +73,16 @@ def report(metrics: dict, figures: list[str]) -> str:
     explain = _explanation(metrics)
     temper = metrics["hbni_temper"]
     how = "fitted by log score on the labelled calibration sequences" if temper["fitted"] else "set in the config"
+    temper_line = ("HBNI's noise model is the sequence-aware one: it integrates each sequence's look out and uses no "
+                   "likelihood temper." if temper.get("needed") is False else
+                   f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as "
+                   "independent).")
     lines = [
         "# Mission report: disaster relief on semantic macro-observations", "",
         _planning_line(metrics),
         f"Frames: the `mission` imaging preset{_overrides(metrics['conditions']['overrides'])}.", "",
         *rows, "", "Macro-observation processes characterised on held-out classifier output streams:", "", *macro, "",
-        f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as independent).", "",
+        temper_line, "",
         *explain,
     ]
     if acc:

@@ -215,7 +215,7 @@ class BankBuild:
     def cancel(self) -> None:
         """Stop a background build (nothing is written): its worker processes end now, and its lock is released."""
         if self._pool is not None:
-            workers = list(getattr(self._pool, "_processes", {}).values())
+            workers = list((getattr(self._pool, "_processes", None) or {}).values())  # None once shut down
             self._pool.shutdown(wait=False, cancel_futures=True)
             for process in workers:  # a running task would otherwise finish first
                 process.terminate()

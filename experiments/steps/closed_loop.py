@@ -156,7 +156,10 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "hbni" not in results or "executed" not in results["hbni"]:
         return {}
     h = results["hbni"]["executed"]
-    out: dict[str, Any] = {"hbni_executed_over_perfect": ratio(h["value"], results["perfect"]["executed"]["value"])}
+    out: dict[str, Any] = {"hbni_executed_over_perfect": ratio(h["value"], results["perfect"]["executed"]["value"]),
+                           "hbni_executed_over_planned": ratio(h["value"], results["hbni"]["value"])}
+    if "distribution_check" in h:
+        out["hbni_distribution_check_passed"] = h["distribution_check"]["passed"]
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]

@@ -46,10 +46,16 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png", "closed_loop.png"):
         assert (mission_run / png).stat().st_size > 10_000
         assert f"]({png})" in report
-    temper = metrics["hbni_temper"]
-    assert temper["fitted"] and temper["value"] in temper["grid"]
-    assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
-    assert f"temper is {temper['value']:g}" in report
+    assert metrics["hbni_temper"] == {"value": 1.0, "fitted": False, "needed": False}  # the sequence model's
+    assert "uses no likelihood temper" in report
+    assert "## Honesty of the planning models" in report and "Value test (|gap| <= 3 total s.e.): power" in report
+    for name, entry in metrics["variants"].items():
+        if name != "perfect":
+            check = entry["executed"]["distribution_check"]
+            assert len(check["classes"]) == 6 and check["passed"] == all(c["passed"] for c in check["classes"])
+            assert 0 <= entry["executed"]["value_power"]["power"] <= 1
+    assert "hbni_distribution_check_passed" in loop["acceptance"]
+    assert (mission_run / "reliability.png").stat().st_size > 10_000 and "](reliability.png)" in report
     assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
     assert metrics["planner"]["budget"] == 3000 and metrics["planner"]["ce_result"] == "duel"  # no hand-written seed
     assert metrics["warm_planner"]["budget"] == 1000
@@ -65,7 +71,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
                              "macro_hbni_generative", "controller_perfect", "controller_hbni", "controller_ssbf",
                              "controller_max_of_mean", "controller_hbni_generative"}
     generative = MacroObservationModel.load(mission_run / "macro_hbni_generative.safetensors")
-    assert generative.info["generative"] == "posterior predictive (paper model)" and generative.info["num_streams"] == 50
+    assert generative.info["generative"] == "posterior predictive (sequence model)" and generative.info["num_streams"] == 50
 
 
 def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, tmp_path, repo_root):
@@ -91,6 +97,13 @@ def test_generative_planning_model(tmp_path, repo_root, model, source):
     assert ssbf.info["generative"] == source and "StaticStateBayesFilter" in ssbf.info["filter"]
     assert HBNIPosterior.load(tmp_path / "posterior.safetensors").model == model
     assert f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
+    temper = metrics["hbni_temper"]
+    if model == "paper":  # a frame-level model: the temper is fitted on the calibration sequences
+        assert temper["fitted"] and temper["value"] in temper["grid"]
+        assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
+        assert f"temper is {temper['value']:g}" in (tmp_path / "report.md").read_text()
+    else:
+        assert temper == {"value": 1.0, "fitted": False, "needed": False}
 
 
 def test_load_run_returns_ready_objects(mission_run):
@@ -101,7 +114,7 @@ def test_load_run_returns_ready_objects(mission_run):
     probs = run.classifier.predict_proba(images)
     assert probs.shape == (2, 6)
     torch.testing.assert_close(probs.sum(-1).double(), torch.ones(2, dtype=torch.float64), atol=1e-5, rtol=0)
-    assert "theta[0]" in run.posterior.summary()
+    assert run.posterior.model == "sequence" and "loc[0, 0]" in run.posterior.summary()  # the default model
     assert isinstance(HBNIPosterior.load(mission_run / "posterior.safetensors"), HBNIPosterior)
     label, frames = run.macro_hbni.sample(torch.zeros(10, dtype=torch.long), torch.Generator().manual_seed(0))
     assert label.shape == frames.shape == (10,) and (frames >= 1).all() and (frames <= 5).all()

@@ -1,0 +1,117 @@
+"""The planning models' honesty checks: the distribution check's level and power, and the value test's power."""
+
+import math
+
+import pytest
+import torch
+
+import hbni_pyro
+from experiments.steps import honesty
+from hbni_pyro.generative import sample_outputs
+
+M, FRAMES = 4, 10
+
+
+def _process(threshold: float = 0.95) -> hbni_pyro.MacroObservationProcess:
+    draws = torch.tensor([[3.0] * M], dtype=torch.float64)
+
+    class Posterior:  # the surface HBNIFilter reads
+        num_classes = M
+        class_prior = torch.full((M,), 1 / M, dtype=torch.float64)
+
+        def theta_draws(self):
+            return draws
+
+    return hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(Posterior()), threshold=threshold, max_frames=FRAMES)
+
+
+def _streams(theta: float, per_class: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    truth = torch.arange(M).repeat_interleave(per_class)
+    return sample_outputs(torch.full((M,), theta, dtype=torch.float64), truth[:, None].expand(-1, FRAMES), g), truth
+
+
+def test_wilson_interval_closed_form():
+    lo, hi = honesty.wilson_interval(8, 10)
+    assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)
+    assert honesty.wilson_interval(0, 20)[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_table_of_the_banks_own_streams_passes():
+    process = _process()
+    streams, truth = _streams(3.0, 40, seed=0)
+    replay = hbni_pyro.StreamReplay(process, streams, truth)
+    check = honesty.distribution_check(hbni_pyro.tabulate(process, streams, truth), replay, None, seed=0)
+    assert check["passed"]
+    for e in check["classes"]:
+        assert e["accuracy_p"] == pytest.approx(1.0, abs=1e-3) and e["frames_p"] == pytest.approx(1.0, abs=1e-3)
+        assert e["accuracy_interval"][0] <= e["bank_accuracy"] <= e["accuracy_interval"][1]
+        assert e["frames_interval"][0] <= e["bank_frames"] <= e["frames_interval"][1]
+
+
+def test_an_optimistic_table_fails():
+    """A table from clean streams (theta 12) judged on noisy ones (theta 2): wrong labels and frames show."""
+    process = _process()
+    clean, clean_truth = _streams(12.0, 400, seed=1)
+    table = hbni_pyro.tabulate(process, clean, clean_truth)
+    noisy, truth = _streams(2.0, 40, seed=2)
+    check = honesty.distribution_check(table, hbni_pyro.StreamReplay(process, noisy, truth), None, seed=0)
+    assert not check["passed"]
+    assert sum(not e["passed"] for e in check["classes"]) == M
+
+
+@pytest.mark.parametrize("table_streams", [None, 30])
+def test_level_of_the_class_test(table_streams):
+    """Under one law behind table and bank, a test at level 0.05 rejects at most 0.05 of the time: over 300
+    repetitions the rejection rate stays below 0.05 + 3 binomial s.e."""
+    g = torch.Generator().manual_seed(0)
+    pmf = torch.tensor([0.1, 0.3, 0.3, 0.2, 0.1], dtype=torch.float64)
+    acc, n, reps = 0.9, 40, 300
+    rejected = {"accuracy_p": 0, "frames_p": 0}
+    for _ in range(reps):
+        if table_streams is None:
+            table_pmf, table_acc = pmf, acc
+        else:
+            draws = torch.multinomial(pmf, table_streams, replacement=True, generator=g)
+            table_pmf = torch.bincount(draws, minlength=pmf.numel()).double() / table_streams
+            table_acc = float((torch.rand(table_streams, generator=g) < acc).double().mean())
+        right = torch.rand(n, generator=g) < acc
+        frames = torch.multinomial(pmf, n, replacement=True, generator=g) + 1
+        e = honesty.class_check(table_pmf, table_acc, right, frames, table_streams, 500, g)
+        for key in rejected:
+            rejected[key] += e[key] < 0.05
+    bound = 0.05 + 3 * math.sqrt(0.05 * 0.95 / reps)
+    assert all(count / reps <= bound for count in rejected.values()), rejected
+
+
+def test_value_power_closed_form_and_the_size_it_asks_for():
+    planned = {"value": 5.0, "stderr": 0.01}
+    executed = {"stderr": 0.01, "planned_stream_stderr": 0.0, "stream_stderr": 0.3}
+    p = honesty.value_power(planned, executed, bank_size=40)
+    se = math.sqrt(0.01**2 * 2 + 0.09)
+    z = 0.15 / se
+    phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))  # noqa: E731
+    assert p["power"] == pytest.approx(phi(z - 3) + phi(-z - 3), rel=1e-12)
+    need = p["sequences_for_target"]
+    bigger = dict(executed, stream_stderr=0.3 * math.sqrt(40 / need))
+    assert honesty.value_power(planned, bigger, bank_size=int(need))["power"] >= 0.8
+    smaller = dict(executed, stream_stderr=0.3 * math.sqrt(40 / (need - 2)))
+    assert honesty.value_power(planned, smaller, bank_size=int(need) - 2)["power"] < 0.8
+    hopeless = honesty.value_power({"value": 5.0, "stderr": 1.0}, executed, bank_size=40)
+    assert math.isinf(hopeless["sequences_for_target"])
+
+
+def test_distribution_check_rejects_a_table_of_other_classes():
+    process = _process()
+    streams, truth = _streams(3.0, 5, seed=0)
+    table = hbni_pyro.MacroObservationModel(torch.full((3, 3, FRAMES), 1 / (3 * FRAMES), dtype=torch.float64), torch.zeros(3))
+    with pytest.raises(ValueError, match="replay: expected 3 classes"):
+        honesty.distribution_check(table, hbni_pyro.StreamReplay(process, streams, truth), None, seed=0)
+
+
+def test_reliability_figure_draws_every_process(tmp_path):
+    streams, truth = _streams(3.0, 10, seed=0)
+    fig = honesty.reliability_figure({"hbni": _process(), "ssbf": _process(0.9)}, streams, truth, {}, 0.95)
+    assert len(fig.axes[0].get_legend().get_texts()) == 4  # calibrated, two processes, the threshold
+    fig.savefig(tmp_path / "r.png")
+    assert (tmp_path / "r.png").stat().st_size > 0
