@@ -15,6 +15,7 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
 
 from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
+from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
 from hbni_pyro.filters import FILTERS, StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide, make_filter
@@ -40,6 +41,7 @@ __all__ = [
     "NOISE_MODELS",
     "OUTPUT_FLOOR",
     "StaticStateBayesFilter",
+    "CheckResult",
     "ConfusionMetropolis",
     "HBNIFilter",
     "HBNIMetropolis",
@@ -56,6 +58,7 @@ __all__ = [
     "VotingFilter",
     "as_outputs",
     "characterize",
+    "check",
     "confusion_model",
     "decide",
     "macro_observations",
