@@ -13,6 +13,7 @@ from hbni_pyro.calibration import (
 from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationProcess
+from hbni_pyro.testing import assert_calibrated
 
 
 def test_reliability_by_hand():
@@ -39,6 +40,8 @@ def test_a_filter_that_knows_the_truth_is_calibrated():
     assert r.ece < 0.03 and r.count.sum() == 6000
     bad = stream_reliability(StaticStateBayesFilter(3), streams, truth)  # SSBF treats each output as a likelihood: overconfident
     assert bad.ece > r.ece
+    for threshold in (0.9, 0.95, 0.99):  # and its emitted labels keep the promise of each threshold
+        assert_calibrated(MacroObservationProcess(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), threshold, 10), streams, truth)
 
 
 def test_threshold_checks_agree_with_the_process():
@@ -58,4 +61,5 @@ def test_threshold_checks_agree_with_the_process():
         assert row["timeout_stderr"] == pytest.approx(binomial_stderr(row["timeout_rate"], 200))
         assert row["frames_stderr"] == pytest.approx(float(batch.frames_used.double().std()) / 200**0.5)
     assert checks["0.999999"]["timeout_rate"] > checks["0.9"]["timeout_rate"]
+    assert assert_calibrated(MacroObservationProcess(f, 0.9, 4), streams, truth) == checks["0.9"]
     assert binomial_stderr(0.5, 0) != binomial_stderr(0.5, 0)  # NaN with no trials
