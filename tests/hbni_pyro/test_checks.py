@@ -1,5 +1,10 @@
 """Posterior predictive checks: they pass on outputs drawn from the posterior itself and fail on a different noise."""
 
+import os
+import re
+import subprocess
+import sys
+
 import pytest
 import torch
 from hbni_stubs import DT, THETA
@@ -134,3 +139,14 @@ def test_false_alarms_at_most_alpha_over_seeds(paper):
     so 5 or more of 12 has probability < 0.005."""
     alarms = sum(not paper.check(*held_out(predictive(paper), 100 + seed), seed=seed).passed(0.1) for seed in range(12))
     assert alarms <= 4
+
+
+def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
+    """Each Python block of docs/checks.md runs alone in a fresh interpreter."""
+    blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "checks.md").read_text(), re.S)
+    assert len(blocks) == 2
+    for block in blocks:
+        proc = subprocess.run([sys.executable, "-c", block], cwd=tmp_path, capture_output=True, text=True,
+                              env=os.environ | {"PYTHONPATH": str(repo_root)}, timeout=300)
+        assert proc.returncode == 0, f"this block of docs/checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
+    assert (tmp_path / "check.png").stat().st_size > 1000
