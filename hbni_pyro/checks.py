@@ -133,11 +133,12 @@ class CheckResult:
         axes = fig.subplots(1, 2 if self.labelled else 1, squeeze=False)[0]
         if self.labelled and self.observed is not None and self.predicted is not None:
             ax = axes[0]
-            ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":")
+            ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":")  # perfect calibration
             for name, r in (("observed", self.observed), ("predicted", self.predicted)):
                 used = r.count > 0
                 ax.plot(r.confidence[used].numpy(), r.accuracy[used].numpy(), marker="o", label=f"{name} (ECE {r.ece:.3f})")
-            ax.set(xlabel="confidence at the stop", ylabel="share right", title="reliability", xlim=(0, 1), ylim=(0, 1.02))
+            ax.set(xlabel="confidence at the stop", ylabel="share right", title="reliability",
+                   xlim=(float(self.observed.edges[0]), 1), ylim=(0, 1.02))
             ax.legend()
         ax = axes[-1]
         top = int(max(int(v.max()) for v in self.frames.values()))

@@ -163,3 +163,17 @@ def test_the_tests_agree_with_scipy():
     x, y = torch.randint(1, 4, (90,), generator=g), torch.randint(1, 5, (1800,), generator=g)  # ties: frame counts
     assert ks_test(x, y) == pytest.approx(stats.ks_2samp(x.numpy(), y.numpy()).pvalue, rel=0.1)
     assert ks_test(x, x) == 1.0 and ks_test(x[:0], y) != ks_test(x[:0], y)
+
+
+def test_sequences_of_different_lengths_in_any_order(paper):
+    """Sequences of 2 and 7 frames, their ids interleaved: each is one stream, its frames in the order given."""
+    g = torch.Generator().manual_seed(7)
+    short, long = paper.sample_streams(0, 20, 2, generator=g), paper.sample_streams(2, 20, 7, generator=g)
+    outputs = torch.cat([short.reshape(-1, 3), long.reshape(-1, 3)])
+    ids = torch.cat([torch.arange(0, 40, 2).repeat_interleave(2), torch.arange(1, 40, 2).repeat_interleave(7)])
+    labels = torch.cat([torch.zeros(40, dtype=torch.long), torch.full((140,), 2)])
+    result = assert_check_passes(paper, outputs, labels, ids, alpha=ALPHA, max_frames=5)
+    assert [(row["class"], row["streams"]) for row in result.table] == [("0", 20), ("2", 20)]
+    assert result.frames["observed"].max() <= 5 and len(result.frames["predicted"]) == 40 * 20
+    named = hbni_pyro.HBNIPosterior(paper.samples, paper.class_prior, class_names=("cat", "dog", "owl"))
+    assert [row["class"] for row in named.check(outputs, labels, ids).table] == ["cat", "owl"]
