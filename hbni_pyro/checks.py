@@ -202,7 +202,7 @@ def check(
     if filter.num_classes != num_classes:
         raise ValueError(f"filter: expected {num_classes} classes like the posterior, got {filter.num_classes}")
     ids = torch.arange(n) if sequence_ids is None else as_sequence_ids(sequence_ids, n)
-    streams = [(ids == k).nonzero().squeeze(-1) for k in range(int(ids.max()) + 1)]
+    streams = list(torch.argsort(ids, stable=True).split(torch.bincount(ids).tolist()))  # frames in the order given
     truth = None if labels is None else _stream_labels(as_labels(labels, n, num_classes), streams)
     g = torch.Generator().manual_seed(seed)
     if truth is None:
@@ -236,14 +236,15 @@ def check(
 
 def _stream_labels(labels: Tensor, streams: list[Tensor]) -> Tensor:
     """One label per stream: every output of a stream must carry the same known class."""
-    out = torch.empty(len(streams), dtype=torch.long)
-    for k, rows in enumerate(streams):
-        first = labels[rows[0]]
-        if first < 0:
-            raise ValueError(f"labels: entry {int(rows[0])} is -1 (unknown); check needs every label, or labels=None")
-        if (labels[rows] != first).any():
-            raise ValueError(f"labels: the outputs of sequence {k} carry different classes {labels[rows].unique().tolist()}")
-        out[k] = first
+    first = torch.stack([rows[0] for rows in streams])
+    out = labels[first]
+    if (out < 0).any():
+        raise ValueError(f"labels: entry {int(first[out < 0][0])} is -1 (unknown); check needs every label, or labels=None")
+    lengths = torch.tensor([len(rows) for rows in streams])
+    mixed = labels[torch.cat(streams)] != out.repeat_interleave(lengths)
+    if mixed.any():
+        k = int(torch.arange(len(streams)).repeat_interleave(lengths)[mixed][0])
+        raise ValueError(f"labels: the outputs of sequence {k} carry different classes {labels[streams[k]].unique().tolist()}")
     return out
 
 
