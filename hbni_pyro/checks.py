@@ -25,6 +25,8 @@ The binomial tests (:func:`binomial_test`) take the simulated rate as exact; its
 ``1 / simulations`` of the observed one's variance. Kolmogorov-Smirnov (:func:`ks_test`) on frame counts (discrete)
 is conservative. :meth:`CheckResult.passed`
 corrects for the number of tests (Bonferroni), so a model that is right fails with probability at most ``alpha``.
+The comparison is with the average over the posterior's draws: a held-out set far larger than the training set
+can reject an honest but uncertain posterior.
 """
 
 from __future__ import annotations
