@@ -26,6 +26,7 @@ from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
+from hbni_pyro.variants import noise_model
 from classifiers import FrameClassifier, classify_frames
 from classifiers.sources import FrameSource, open_source
 from experiments.artifacts import latest_run, load_run
@@ -159,6 +160,12 @@ def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed
     return Streamed(segments, beliefs, thumbs, count, seconds, cpu_seconds, written)
 
 
+def _model_label(models: Models) -> str:
+    """The noise model and, for a frame-level one, its temper (the sequence model uses none)."""
+    model = noise_model(models.process.filter.model)
+    return f"{model.name} model" if model.sequences else f"{model.name} model, temper {models.temper:g}"
+
+
 def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_dir: Path) -> dict:
     """``macro_observations.jsonl``, ``strip.png``; prints where they are and returns the metrics."""
     records = [s.record() for s in streamed.segments]
@@ -166,7 +173,7 @@ def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_di
     written = {"records": str(jsonl)}
     if "strip" in settings.annotate:
         fig = strip_figure(streamed.segments, streamed.beliefs, streamed.thumbs, models.classes, settings.threshold,
-                           f"{settings.source}: HBNI macro-observations (temper {models.temper:g})")
+                           f"{settings.source}: HBNI macro-observations ({_model_label(models)})")
         written["strip"] = str(save_figure(fig, run_dir / "strip.png"))
     if streamed.video is not None:
         written["video"] = str(streamed.video)

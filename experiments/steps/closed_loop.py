@@ -8,7 +8,7 @@ variant's process (filter, threshold, frame budget) on it (:class:`hbni_pyro.Str
 *executed* value. Their gap, in standard errors, says how honest the planning model is.
 
 Two kinds of standard error enter that gap. Rollouts: each value is a Monte Carlo mean. Streams:
-a table tabulated on 16 recorded sequences per class, or a bank of 40, is itself a sample of
+a table tabulated on 24 recorded sequences per class, or a bank of 40, is itself a sample of
 imaging conditions (sequence ``i`` of every class shares its pose, light and background), so a
 planned or executed value carries the luck of its sequences too. :func:`stream_stderr` measures
 that part by bootstrap: if the planning model is honest, the table's recorded sequences and the

@@ -195,7 +195,8 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list
             lines += ["", f"Value test (|gap| <= 3 total s.e.): power {power['power']:.2f} against a "
                       f"{100 * power['shortfall']:.0f} % shortfall (total s.e. {power['total_stderr']:.3f}); "
                       f"{power['target_power']:.0%} power needs "
-                      + ("more than any bank: the rollout errors alone are too large" if math.isinf(need) else
+                      + ("more than any bank: the planned and executed values' rollout errors and the table's "
+                         "sequences alone are too large" if math.isinf(need) else
                          f"{need:.0f} bank sequences per class") + "."]
         lines.append("")
     return lines
