@@ -3,7 +3,8 @@
 ``o | c = m ~ Dir(theta_m e_m + 1)`` is drawn as normalised independent gammas:
 ``x_m ~ Ga(theta_m + 1, 1)`` and ``x_j ~ Ga(1, 1) = Exp(1)`` for ``j != m``. Gamma draws
 with shape >= 1 use Marsaglia and Tsang's squeeze method, vectorised over all entries,
-so every draw is reproducible from the generator alone.
+so every draw is reproducible from the generator alone. Draws are made on the device of the
+parameters, with a generator of that device.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ def sample_gamma(shape: Tensor, generator: torch.Generator) -> Tensor:
     while todo.any():
         idx = todo.nonzero(as_tuple=True)
         dd, cc = d[idx], c[idx]
-        x = torch.randn(dd.shape, generator=generator, dtype=shape.dtype)
-        u = torch.rand(dd.shape, generator=generator, dtype=shape.dtype)
+        x = torch.randn(dd.shape, generator=generator, dtype=shape.dtype, device=shape.device)
+        u = torch.rand(dd.shape, generator=generator, dtype=shape.dtype, device=shape.device)
         v = (1 + cc * x) ** 3
         ok = (v > 0) & (u.log() < 0.5 * x * x + dd - dd * v + dd * v.clamp_min(1e-300).log())
         out[tuple(i[ok] for i in idx)] = (dd * v)[ok]
@@ -41,7 +42,7 @@ def gamma_variates(shape: Tensor, scale: Tensor | float, generator: torch.Genera
     shape = torch.as_tensor(shape, dtype=DTYPE)
     small = shape < 1
     x = sample_gamma(torch.where(small, shape + 1, shape), generator)
-    u = torch.rand(shape.shape, generator=generator, dtype=DTYPE)
+    u = torch.rand(shape.shape, generator=generator, dtype=DTYPE, device=shape.device)
     return torch.where(small, x * u ** (1 / shape), x) * scale
 
 
@@ -58,11 +59,11 @@ def sample_outputs(theta: Tensor, classes: Tensor, generator: torch.Generator) -
         float64 ``(*S, M)`` outputs on the simplex (entries floored at the smallest positive double).
     """
     theta = torch.as_tensor(theta, dtype=DTYPE)
-    classes = torch.as_tensor(classes, dtype=torch.long)
+    classes = torch.as_tensor(classes, dtype=torch.long, device=theta.device)
     num_classes = theta.shape[-1]
     one_hot = torch.nn.functional.one_hot(classes, num_classes).to(DTYPE)
     lifted = (theta * one_hot).sum(-1)
-    e = torch.rand(one_hot.shape, generator=generator, dtype=DTYPE).clamp_min(1e-300)
+    e = torch.rand(one_hot.shape, generator=generator, dtype=DTYPE, device=theta.device).clamp_min(1e-300)
     x = -e.log()
     g = sample_gamma(lifted + 1.0, generator)
     x = torch.where(one_hot.bool(), g.unsqueeze(-1), x)
@@ -79,7 +80,7 @@ def sample_dirichlet(alpha: Tensor, generator: torch.Generator) -> Tensor:
 def sample_gaussian(loc: Tensor, cov: Tensor, generator: torch.Generator) -> Tensor:
     """``N(loc, cov)`` draws for batches ``loc (..., d)``, ``cov (..., d, d)``."""
     loc, cov = torch.as_tensor(loc, dtype=DTYPE), torch.as_tensor(cov, dtype=DTYPE)
-    z = torch.randn(torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE)
+    z = torch.randn(torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE, device=loc.device)
     return loc + (torch.linalg.cholesky(cov) @ z.unsqueeze(-1)).squeeze(-1)
 
 
@@ -91,7 +92,7 @@ def sample_sequences(loc: Tensor, between: Tensor, within: Tensor, classes: Tens
     log-ratio coordinates ``y ~ N(mu_k, within)``, mapped to the simplex by ``softmax(H^T y)``.
     ``loc (M, d)``, ``between (M, d, d)``, ``within (d, d)`` (or ``(K, 1, d, d)``: one per sequence).
     """
-    classes = torch.as_tensor(classes, dtype=torch.long)
+    classes = torch.as_tensor(classes, dtype=torch.long, device=loc.device)
     look = sample_gaussian(loc[classes], between[classes], generator)
     y = sample_gaussian(look.unsqueeze(-2).expand(look.shape[:-1] + (num_frames, look.shape[-1])), within, generator)
-    return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1), -1).clamp_min(torch.finfo(DTYPE).tiny)
+    return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1).to(loc.device), -1).clamp_min(torch.finfo(DTYPE).tiny)

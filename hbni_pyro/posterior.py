@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +65,19 @@ class HBNIPosterior:
     def noise_model(self) -> NoiseModel:
         """The spec of :attr:`model` (:mod:`hbni_pyro.variants`)."""
         return noise_model(self.model)
+
+    @property
+    def device(self) -> torch.device:
+        """The device every tensor of the posterior is on."""
+        return next(iter(self.samples.values())).device
+
+    def to(self, device: str | torch.device) -> "HBNIPosterior":
+        """A copy with every tensor on ``device`` (filters, tables and predictive draws then run there)."""
+        device = torch.device(device)
+        moved = {k: v.to(device) for k, v in self.samples.items()}
+        return dataclasses.replace(self, samples=moved, class_prior=self.class_prior.to(device),
+                                   label_probs=None if self.label_probs is None else self.label_probs.to(device),
+                                   info=dict(self.info))
 
     @property
     def num_classes(self) -> int:
@@ -141,16 +155,16 @@ class HBNIPosterior:
 
         Each stream takes one posterior draw; its frames are then i.i.d. given it (frame-level
         models) or share one new look (the sequence model). ``generator``, when given, is used (and
-        advanced) instead of a new one seeded with ``seed``.
+        advanced) instead of a new one seeded with ``seed``; it must be on the posterior's device.
         """
         true_class = self._check_class(true_class)
         num_streams, num_frames = as_int("num_streams", num_streams, minimum=1), as_int("num_frames", num_frames, minimum=1)
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
-        g = generator if generator is not None else torch.Generator().manual_seed(seed)
+        g = generator if generator is not None else torch.Generator(self.device).manual_seed(seed)
         draws = self.draws()
         first = next(iter(draws.values()))
-        idx = torch.randint(first.shape[0], (num_streams,), generator=g)
+        idx = torch.randint(first.shape[0], (num_streams,), generator=g, device=self.device)
         return self.noise_model.sample_streams({k: v[idx] for k, v in draws.items()}, true_class, num_frames, g)
 
     def check(
@@ -170,18 +184,21 @@ class HBNIPosterior:
         return int(true_class)
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write draws and metadata to one safetensors file, atomically."""
-        tensors = {k: v.clone() for k, v in self.samples.items()}  # one buffer each, even if two sites share memory
-        tensors["class_prior"] = self.class_prior
+        """Write draws and metadata to one safetensors file, atomically (from any device; the file holds CPU tensors)."""
+        tensors = {k: v.cpu().clone() for k, v in self.samples.items()}  # one buffer each, even if two sites share memory
+        tensors["class_prior"] = self.class_prior.cpu()
         if self.label_probs is not None:
-            tensors["label_probs"] = self.label_probs
+            tensors["label_probs"] = self.label_probs.cpu()
         meta = {"model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info,
                 "class_names": None if self.class_names is None else list(self.class_names)}
         return save_tensors(path, _KIND, tensors, meta, version=_VERSION)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "HBNIPosterior":
-        """Read a file written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
+    def load(cls, path: str | os.PathLike, device: str | torch.device | None = None) -> "HBNIPosterior":
+        """Read a file written by :meth:`save` onto ``device`` (``None``: the CPU); a corrupt or foreign file
+        raises ``ValueError``."""
+        if device is not None:
+            return cls.load(path).to(device)
         tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         model = meta.get("model", "paper")
         if model not in model_names():

@@ -35,7 +35,7 @@ def concentration_statistics(params: Draws) -> dict[str, Tensor]:
 
 def sample_streams(draws: Draws, true_class: int, num_frames: int, generator: torch.Generator) -> Tensor:
     theta = draws["theta"]
-    classes = torch.full((theta.shape[0], num_frames), true_class, dtype=torch.long)
+    classes = torch.full((theta.shape[0], num_frames), true_class, dtype=torch.long, device=theta.device)
     return sample_outputs(theta.unsqueeze(1), classes, generator)
 
 
