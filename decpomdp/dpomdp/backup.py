@@ -31,13 +31,19 @@ DENSE_FRACTION = 0.25
 class TransitionOperator:
     """Per joint action, ``T[a]`` as an (S, S') torch CSR matrix (dense when dense enough), plus O and R tables.
 
+    Args:
+        env: the tabular problem.
+        device: where every table lives (CPU by default).
+
     Attributes:
+        device: the device of every table.
         matrices: per joint action, float64 (S, S') sparse CSR or dense tensor.
         obs_rows: float64 (JA * JO, S'), row ``a * JO + jo`` is ``O(jo | a, .)``.
         reward: float64 (JA, S) expected immediate reward.
     """
 
-    def __init__(self, env: TabularDecPOSMDP) -> None:
+    def __init__(self, env: TabularDecPOSMDP, device: torch.device | str = "cpu") -> None:
+        self.device = torch.device(device)
         t = env.model.transition
         n_ja, n_s = t.shape[:2]
         self.num_states, self.num_joint_obs = n_s, env.observation.shape[-1]
@@ -49,9 +55,9 @@ class TransitionOperator:
                 warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
                 csr = torch.sparse_csr_tensor(crow, torch.as_tensor(t.indices[lo:hi]), torch.as_tensor(t.data[lo:hi]),
                                               size=(n_s, n_s), dtype=torch.float64, check_invariants=True)
-            self.matrices.append(csr.to_dense() if hi - lo >= DENSE_FRACTION * n_s * n_s else csr)
-        self.obs_rows = env.observation.permute(0, 2, 1).reshape(-1, n_s).contiguous()
-        self.reward = env.expected_reward
+            self.matrices.append((csr.to_dense() if hi - lo >= DENSE_FRACTION * n_s * n_s else csr).to(self.device))
+        self.obs_rows = env.observation.permute(0, 2, 1).reshape(-1, n_s).contiguous().to(self.device)
+        self.reward = env.expected_reward.to(self.device)
 
     def dense(self, a: int) -> Tensor:
         """``T[a]`` as a dense (S, S') tensor."""
@@ -61,7 +67,7 @@ class TransitionOperator:
     def backup(self, v: Tensor, cols: Columns) -> Tensor:
         """``P V`` (C, S) for the columns ``cols``; ``v`` (C', S) holds the values of ``cols.next``'s targets."""
         jo_count = self.num_joint_obs
-        w = torch.zeros(cols.action.numel(), self.num_states, dtype=torch.float64)
+        w = torch.zeros(cols.action.numel(), self.num_states, dtype=torch.float64, device=self.device)
         obs_base = cols.action * jo_count
         for jo in range(jo_count):
             w.addcmul_(self.obs_rows.index_select(0, obs_base + jo), v.index_select(0, cols.next[:, jo]))
@@ -74,11 +80,13 @@ class TransitionOperator:
 _OPERATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def operator_for(env: TabularDecPOSMDP) -> TransitionOperator:
-    """The (cached) :class:`TransitionOperator` of ``env``."""
-    op = _OPERATORS.get(env)
+def operator_for(env: TabularDecPOSMDP, device: torch.device | str = "cpu") -> TransitionOperator:
+    """The (cached, one per device) :class:`TransitionOperator` of ``env`` on ``device``."""
+    device = torch.device(device)
+    per_device = _OPERATORS.setdefault(env, {})
+    op = per_device.get(device)
     if op is None:
-        op = _OPERATORS[env] = TransitionOperator(env)
+        op = per_device[device] = TransitionOperator(env, device)
     return op
 
 
@@ -103,22 +111,27 @@ class Columns:
 
 
 class JointNodes:
-    """Joint action and successors of the joint nodes of K joint controllers (first agent most significant)."""
+    """Joint action and successors of the joint nodes of K joint controllers (first agent most significant).
 
-    def __init__(self, env: TabularDecPOSMDP, controller: JointController) -> None:
+    Every index table lives on ``device`` (default: the controller's); ids passed to :meth:`columns` must too.
+    """
+
+    def __init__(self, env: TabularDecPOSMDP, controller: JointController, device: torch.device | str | None = None
+                 ) -> None:
         _, a, nn = controller.action.shape
+        self.device = controller.action.device if device is None else torch.device(device)
         self.num_nodes, self.num_joint = nn, nn**a
-        self.action, self.next_node = controller.action, controller.next_node
-        self.node_strides = torch.tensor([nn ** (a - 1 - i) for i in range(a)])
-        self.agent = torch.arange(a)
-        self.obs = env.split_obs(torch.arange(env.observation.shape[-1]))  # (JO, A)
-        self.env = env
+        self.action, self.next_node = controller.action.to(self.device), controller.next_node.to(self.device)
+        self.node_strides = torch.tensor([nn ** (a - 1 - i) for i in range(a)], device=self.device)
+        self.action_strides = env.action_strides.to(self.device)
+        self.agent = torch.arange(a, device=self.device)
+        self.obs = env.split_obs(torch.arange(env.observation.shape[-1])).to(self.device)  # (JO, A)
 
     def columns(self, ids: Tensor) -> Columns:
         """The :class:`Columns` for flat ids ``k * Q + q`` (any order; duplicates not allowed)."""
         k, q = ids // self.num_joint, ids % self.num_joint
         nodes = (q[:, None] // self.node_strides) % self.num_nodes  # (C, A)
-        ja = self.env.joint_action(self.action[k[:, None], self.agent, nodes])
+        ja = (self.action[k[:, None], self.agent, nodes] * self.action_strides).sum(-1)  # env.joint_action
         nxt = self.next_node[k[:, None, None], self.agent, nodes[:, None, :], self.obs[None, :, :]]  # (C, JO, A)
         next_ids = k[:, None] * self.num_joint + (nxt * self.node_strides).sum(-1)
         order = torch.sort(ja, stable=True).indices
@@ -126,11 +139,11 @@ class JointNodes:
         counts = torch.bincount(ja).tolist()
         ends = np.cumsum(counts)
         groups = [(a, int(e - c), int(e)) for a, (c, e) in enumerate(zip(counts, ends)) if c]
-        return Columns(ids, ja, torch.empty(0, dtype=torch.long), next_ids, groups)
+        return Columns(ids, ja, torch.empty(0, dtype=torch.long, device=self.device), next_ids, groups)
 
 
 def link(cols: Columns, targets: Columns, num_ids: int) -> None:
     """Point ``cols.next`` at the positions of ``cols.next_ids`` within ``targets`` (which must contain them)."""
-    pos = torch.full((num_ids,), -1, dtype=torch.long)
-    pos[targets.ids] = torch.arange(targets.ids.numel())
+    pos = torch.full((num_ids,), -1, dtype=torch.long, device=targets.ids.device)
+    pos[targets.ids] = torch.arange(targets.ids.numel(), device=targets.ids.device)
     cols.next = pos[cols.next_ids]

@@ -15,7 +15,8 @@ from the start node ``(0, ..., 0)`` are ever touched:
 
 The value is ``sum_s b0(s) V[(0, ..., 0), s]``: step ``k`` rewards discounted by ``gamma ** k``, the
 same convention as :class:`~decpomdp.dpomdp.tabular.TabularDecPOSMDP` under the simulator. Everything
-is float64; controllers are processed in chunks whose working memory stays within ``memory_budget``.
+is float64, on the device of the controller (or ``device=``); controllers are processed in chunks whose working
+memory stays within ``memory_budget``.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ def _check(env: TabularDecPOSMDP, controller: JointController, horizon: float | 
 def _finite(op: TransitionOperator, nodes: JointNodes, k: int, horizon: int, gamma: float, start: Tensor) -> Tensor:
     """Values (K,) at a finite horizon, over the joint nodes reachable at each step."""
     layers = []
-    ids = torch.arange(k) * nodes.num_joint  # start node (0, ..., 0) of every controller
+    ids = torch.arange(k, device=nodes.device) * nodes.num_joint  # start node (0, ..., 0) of every controller
     for t in range(horizon):
         cols = nodes.columns(ids)
         layers.append(cols)
@@ -80,8 +81,8 @@ def _finite(op: TransitionOperator, nodes: JointNodes, k: int, horizon: int, gam
 
 def _reachable(nodes: JointNodes, k: int) -> Columns:
     """All columns reachable from the start nodes, linked to themselves."""
-    seen = torch.zeros(k * nodes.num_joint, dtype=torch.bool)
-    frontier = torch.arange(k) * nodes.num_joint
+    seen = torch.zeros(k * nodes.num_joint, dtype=torch.bool, device=nodes.device)
+    frontier = torch.arange(k, device=nodes.device) * nodes.num_joint
     seen[frontier] = True
     while frontier.numel():
         nxt = torch.unique(nodes.columns(frontier).next_ids)
@@ -94,26 +95,27 @@ def _reachable(nodes: JointNodes, k: int) -> Columns:
 
 def _dense_solve(op: TransitionOperator, cols: Columns, owner: Tensor, k: int, gamma: float) -> Tensor:
     """Solve ``(I - gamma P) V = r`` per controller as a dense system; returns V (C, S)."""
-    n_s = op.num_states
+    n_s, dev = op.num_states, op.device
     count = torch.bincount(owner, minlength=k)
     first = torch.cumsum(count, 0) - count
     by_id = torch.argsort(cols.ids)  # ids k * Q + q group the columns by controller
     local = torch.empty_like(owner)
-    local[by_id] = torch.arange(owner.numel()) - first[owner[by_id]]  # column index within its controller
+    local[by_id] = torch.arange(owner.numel(), device=dev) - first[owner[by_id]]  # column index within its controller
     n = int(count.max()) * n_s
-    m = torch.zeros(k, n, n, dtype=torch.float64)
-    rows = (local[:, None] * n_s + torch.arange(n_s)).reshape(-1)  # (C * S,)
+    m = torch.zeros(k, n, n, dtype=torch.float64, device=dev)
+    arange_s = torch.arange(n_s, device=dev)
+    rows = (local[:, None] * n_s + arange_s).reshape(-1)  # (C * S,)
     for a, lo, hi in cols.groups:
         t_a = op.dense(a)
         for jo in range(op.num_joint_obs):
             block = t_a * op.obs_rows[a * op.num_joint_obs + jo][None, :]  # (S, S')
             tgt = local[cols.next[lo:hi, jo]]
-            r_idx = (local[lo:hi, None, None] * n_s + torch.arange(n_s)[None, :, None]).expand(-1, n_s, n_s)
-            c_idx = (tgt[:, None, None] * n_s + torch.arange(n_s)[None, None, :]).expand(-1, n_s, n_s)
+            r_idx = (local[lo:hi, None, None] * n_s + arange_s[None, :, None]).expand(-1, n_s, n_s)
+            c_idx = (tgt[:, None, None] * n_s + arange_s[None, None, :]).expand(-1, n_s, n_s)
             m.index_put_((owner[lo:hi, None, None].expand(-1, n_s, n_s), r_idx, c_idx),
                          block.expand(hi - lo, -1, -1), accumulate=True)
-    lhs = torch.eye(n, dtype=torch.float64) - gamma * m
-    rhs = torch.zeros(k, n, dtype=torch.float64)
+    lhs = torch.eye(n, dtype=torch.float64, device=dev) - gamma * m
+    rhs = torch.zeros(k, n, dtype=torch.float64, device=dev)
     rhs[owner.repeat_interleave(n_s), rows] = op.reward.index_select(0, cols.action).reshape(-1)
     sol = torch.linalg.solve(lhs, rhs)
     return sol[owner.repeat_interleave(n_s), rows].view(-1, n_s)
@@ -150,8 +152,9 @@ def exact_value(
     tol: float = 1e-10,
     memory_budget: int = DEFAULT_EVAL_BUDGET,
     threads: int | None = 1,
+    device: torch.device | str | None = None,
 ) -> Tensor:
-    """Exact value of each of the K joint controllers, float64 (K,).
+    """Exact value of each of the K joint controllers, float64 (K,), on ``device``.
 
     Args:
         env: the tabular problem (its ``gamma``; its ``horizon`` unless ``horizon`` is given).
@@ -163,6 +166,9 @@ def exact_value(
             (the per-controller need is bounded with every joint node reachable).
         threads: torch intra-op threads during the call (None: unchanged). One by default: the
             products are many and small, and thread hand-offs cost more than they save on a busy machine.
+        device: where the tables, the backups and the solves run, and where the values are returned
+            (``None``: the device of ``controller``'s tensors). On the CPU the values are bit-identical
+            to a call without ``device``.
 
     Raises:
         ValueError: bad arguments, or one controller alone needs more than ``memory_budget``.
@@ -174,14 +180,16 @@ def exact_value(
     if need > memory_budget:
         raise ValueError(f"memory_budget: one controller needs up to {need} bytes, more than {memory_budget}")
     chunk = memory_budget // need
+    device = controller.action.device if device is None else torch.device(device)
+    start = env.start_dist.to(device)
     out = []
     with torch_threads(threads):
-        op = operator_for(env)
+        op = operator_for(env, device)
         for i in range(0, controller.num_controllers, chunk):
             part = controller[i : i + chunk]
-            nodes, k = JointNodes(env, part), part.num_controllers
+            nodes, k = JointNodes(env, part, device), part.num_controllers
             if horizon == math.inf:
-                out.append(_infinite(op, nodes, k, env.gamma, env.start_dist, max_dense, tol))
+                out.append(_infinite(op, nodes, k, env.gamma, start, max_dense, tol))
             else:
-                out.append(_finite(op, nodes, k, int(horizon), env.gamma, env.start_dist))
+                out.append(_finite(op, nodes, k, int(horizon), env.gamma, start))
     return torch.cat(out)

@@ -3,7 +3,7 @@
 The unknowns of all systems are stacked as rows of one (C, S) tensor; ``owner[c]`` says which
 system row ``c`` belongs to. The operator is applied to the whole stack in one call (it must not
 mix systems); inner products, norms and the small least-squares problems are per system, so every
-system runs its own GMRES(m) iteration in lock step.
+system runs its own GMRES(m) iteration in lock step. Work tensors live on the device of ``b``.
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ _BREAKDOWN = 1e-12  # relative size of the orthogonalised vector below which the
 
 def _dot(x: Tensor, y: Tensor, owner: Tensor, k: int) -> Tensor:
     """Per-system inner products (K,) of stacked (C, S) tensors."""
-    return torch.zeros(k, dtype=x.dtype).index_add_(0, owner, (x * y).sum(1))
+    return torch.zeros(k, dtype=x.dtype, device=x.device).index_add_(0, owner, (x * y).sum(1))
 
 
 def _max_abs(x: Tensor, owner: Tensor, k: int) -> Tensor:
     """Per-system max-norms (K,)."""
-    return torch.zeros(k, dtype=x.dtype).scatter_reduce_(0, owner, x.abs().amax(1), "amax")
+    return torch.zeros(k, dtype=x.dtype, device=x.device).scatter_reduce_(0, owner, x.abs().amax(1), "amax")
 
 
 def gmres(apply: Callable[[Tensor], Tensor], b: Tensor, owner: Tensor, k: int, tol: float, restart: int = 30,
@@ -47,7 +47,7 @@ def gmres(apply: Callable[[Tensor], Tensor], b: Tensor, owner: Tensor, k: int, t
             return x
         beta = _dot(r, r, owner, k).sqrt()
         basis = [r / beta.clamp_min(_TINY)[owner, None]]
-        h = torch.zeros(k, restart + 1, restart, dtype=b.dtype)
+        h = torch.zeros(k, restart + 1, restart, dtype=b.dtype, device=b.device)
         for j in range(restart):
             w = apply(basis[j])
             before = _dot(w, w, owner, k).sqrt()
@@ -62,7 +62,7 @@ def gmres(apply: Callable[[Tensor], Tensor], b: Tensor, owner: Tensor, k: int, t
             norm = torch.where(norm > _BREAKDOWN * before, norm, 0.0)
             h[:, j + 1, j] = norm
             basis.append(torch.where((norm > 0)[owner, None], w / norm.clamp_min(_TINY)[owner, None], 0.0))
-        rhs = torch.zeros(k, restart + 1, dtype=b.dtype)
+        rhs = torch.zeros(k, restart + 1, dtype=b.dtype, device=b.device)
         rhs[:, 0] = beta
         y = torch.linalg.lstsq(h, rhs[..., None]).solution[..., 0]  # (K, m)
         for j in range(restart):
