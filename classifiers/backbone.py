@@ -9,6 +9,11 @@ batch-norm epsilon 1e-3, RGB input scaled as ``(x - 127) / 128``.
 
 AlexNet (the paper's network, fc8 scores) is an optional extra, available only where
 ``import torchvision`` works, from a local weights file.
+
+Devices: a backbone runs on the device given at construction (``device=``, CPU by default) or
+returned by :meth:`Backbone.to`; weights are always read onto the CPU first (``map_location="cpu"``),
+so any file loads on any device. Half precision (``dtype=torch.float16`` or ``bfloat16``) is offered on
+CUDA only. Scores come back as float32 on the CPU unless ``output_device`` says otherwise.
 """
 
 from __future__ import annotations
@@ -25,9 +30,14 @@ from torch import Tensor, nn
 
 from infra.threads import torch_threads
 
-__all__ = ["Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
+__all__ = ["HALF_TOLERANCE", "Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
 
 _BN_EPS = 1e-3
+_DTYPES = (torch.float32, torch.float16, torch.bfloat16)
+
+HALF_TOLERANCE = 1e-2
+"""Largest ``max |softmax(half) - softmax(float32)|`` the CUDA test accepts for the ImageNet scores of one batch
+(float16 carries about 3 decimal digits; ReLU6 keeps activations in [0, 6], far from its range limits)."""
 
 # (repeats, kernel, stride, expand ratio, in channels, out channels) for each stage.
 _LITE0_STAGES = (
@@ -183,13 +193,20 @@ class Backbone:
         name: ``"efficientnet_lite0"`` (default, weights from the installed package) or
             ``"alexnet"`` (needs torchvision and ``weights_path``).
         weights_path: a local ``.pth`` state dict; ``None`` uses the packaged Lite0 weights.
+        device: where the network runs (CPU by default; ``"cuda"``, ``"meta"`` for shapes only, ...).
+        dtype: compute precision, ``torch.float32`` (default) or, on CUDA, ``torch.float16``/``bfloat16``
+            (scores within :data:`HALF_TOLERANCE` of float32 after the softmax).
+        half: shorthand for ``dtype=torch.float16``.
 
     Attributes:
         input_size: square input side in pixels (224).
         mean, std: per-channel RGB normalisation in 0..255 pixel units.
+        device, dtype: where and in which precision the network runs.
     """
 
-    def __init__(self, name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None):
+    def __init__(self, name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None,
+                 device: str | torch.device = "cpu", dtype: torch.dtype | None = None, half: bool = False):
+        self.device, self.dtype = _device_and_dtype(device, dtype, half)
         if name not in _SPECS:
             raise ValueError(f"name: expected one of {sorted(_SPECS)}, got {name!r}")
         if weights_path is None:
@@ -206,38 +223,85 @@ class Backbone:
         for p in self.net.parameters():
             p.requires_grad_(False)
         runner = fuse_batchnorm(self.net) if name == "efficientnet_lite0" else copy.deepcopy(self.net)
-        self._runner = runner.to(memory_format=torch.channels_last)
+        self._cpu_runner = runner.to(memory_format=torch.channels_last)
+        self._runner = self._placed(self._cpu_runner)
+
+    def _placed(self, runner: nn.Module) -> nn.Module:
+        if self.device.type == "cpu" and self.dtype == torch.float32:
+            return runner
+        return copy.deepcopy(runner).to(device=self.device, dtype=self.dtype)
 
     @property
     def num_features(self) -> int:
         return 1000
 
-    def __call__(self, x: Tensor, batch_size: int = 8, threads: int | None = 1) -> Tensor:
-        """ImageNet scores (logits) ``(B, 1000)`` for normalised input ``(B, 3, S, S)`` float32.
+    def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> Backbone:
+        """This backbone on ``device`` (in ``dtype``, default float32): ``self`` when already there, else a new
+        :class:`Backbone` sharing the CPU weights (``self`` is unchanged: backbones are shared by :func:`load_backbone`).
+        """
+        device, dtype = _device_and_dtype(device, dtype, False)
+        if (device, dtype) == (self.device, self.dtype):
+            return self
+        moved = copy.copy(self)
+        moved.device, moved.dtype = device, dtype
+        moved._runner = moved._placed(self._cpu_runner)
+        return moved
 
-        Runs in chunks of ``batch_size`` (small chunks keep activations in cache on a CPU),
-        in eval mode under ``torch.inference_mode()``, with batch norms folded into the convs,
-        on ``threads`` intra-op threads (``None``: torch's global setting). One thread is the
-        default: on a small shared machine it is as fast as two when idle and many times
-        faster when other processes compete for the cores.
+    def __call__(self, x: Tensor, batch_size: int = 8, threads: int | None = 1,
+                 output_device: str | torch.device | None = "cpu") -> Tensor:
+        """ImageNet scores (logits) ``(B, 1000)`` float32 for normalised input ``(B, 3, S, S)``.
+
+        Runs in chunks of ``batch_size`` on :attr:`device` in :attr:`dtype` (small chunks keep
+        activations in cache on a CPU; on a GPU pass hundreds), in eval mode under
+        ``torch.inference_mode()``, with batch norms folded into the convs, on ``threads`` intra-op
+        threads (``None``: torch's global setting). One thread is the default: on a small shared
+        machine it is as fast as two when idle and many times faster when other processes compete
+        for the cores. ``x`` may live on any device; the scores are returned on ``output_device``
+        (CPU by default; ``None``: left on :attr:`device`).
         """
         if not isinstance(x, Tensor) or x.ndim != 4 or x.shape[1] != 3:
             raise ValueError(f"x: expected a (B, 3, H, W) float tensor, got {getattr(x, 'shape', type(x))}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
         with torch.inference_mode(), torch_threads(threads):
             outs = [
-                self._runner(x[i : i + batch_size].float().contiguous(memory_format=torch.channels_last))
+                self._runner(x[i : i + batch_size].to(self.device, self.dtype).contiguous(
+                    memory_format=torch.channels_last)).float()
                 for i in range(0, x.shape[0], batch_size)
             ]
-        return torch.cat(outs) if outs else x.new_zeros(0, 1000)
+            out = torch.cat(outs) if outs else torch.zeros(0, 1000, device=self.device)
+        return out if output_device is None else out.to(output_device)
 
 
-_CACHE: dict[tuple[str, str], Backbone] = {}
+def _device_and_dtype(device: str | torch.device, dtype: torch.dtype | None, half: bool) -> tuple[
+        torch.device, torch.dtype]:
+    """Checked ``(device, dtype)`` of a backbone; half precision only on CUDA (or ``meta``, shapes only)."""
+    try:
+        device = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device: not a torch device: {device!r}") from exc
+    if half and dtype not in (None, torch.float16):
+        raise ValueError(f"half: contradicts dtype={dtype}")
+    dtype = torch.float16 if half else (torch.float32 if dtype is None else dtype)
+    if dtype not in _DTYPES:
+        raise ValueError(f"dtype: expected one of {[str(d) for d in _DTYPES]}, got {dtype}")
+    if dtype != torch.float32 and device.type not in ("cuda", "meta"):
+        raise ValueError(f"dtype: half precision ({dtype}) is offered on CUDA only, device is {device}")
+    return device, dtype
 
 
-def load_backbone(name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None) -> Backbone:
-    """A shared :class:`Backbone` per ``(name, weights_path)`` (the network is read-only)."""
+_CACHE: dict[tuple[str, str, str, str], Backbone] = {}
+
+
+def load_backbone(name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None,
+                  device: str | torch.device = "cpu", dtype: torch.dtype | None = None) -> Backbone:
+    """A shared :class:`Backbone` per ``(name, weights_path)`` (the network is read-only), on ``device`` in ``dtype``.
+
+    The CPU float32 backbone is loaded once; other placements are :meth:`Backbone.to` of it.
+    """
     path = str(Path(weights_path).resolve()) if weights_path is not None else ""
-    key = (name, path)
-    if key not in _CACHE:
-        _CACHE[key] = Backbone(name, weights_path)
-    return _CACHE[key]
+    base = (name, path, "cpu", str(torch.float32))
+    if base not in _CACHE:
+        _CACHE[base] = Backbone(name, weights_path)
+    placed = _CACHE[base].to(device, dtype)
+    return _CACHE.setdefault((name, path, str(placed.device), str(placed.dtype)), placed)

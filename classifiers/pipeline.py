@@ -7,6 +7,11 @@ scaling and pairwise coupling (:class:`classifiers.svm.OneVsOneSVC`).
 A fitted classifier is saved to ONE safetensors file (head, standardisation, settings;
 no pickle). The backbone weights are not copied into it: they are read again from the
 installed package (or the recorded ``weights_path``) when the file is loaded.
+
+Devices: the backbone (the only heavy part) runs batched on ``device`` (CPU by default), optionally
+in half precision on CUDA; its features come back to the CPU once per batch, where the float64
+standardisation and the small SVM head run, so probabilities are float32 CPU tensors on every device.
+A saved file holds no device: :meth:`FrameClassifier.load` places it on any ``device``.
 """
 
 from __future__ import annotations
@@ -44,6 +49,8 @@ class FrameClassifier:
         threads: torch intra-op threads for feature extraction and prediction (``None``: torch's
             global setting). One thread is the default: on a small shared machine it is as fast as
             two when idle and many times faster when other processes compete for the cores.
+        device: where the backbone runs (CPU by default); see :meth:`to`.
+        dtype, half: backbone precision, half only on CUDA (see :class:`~classifiers.backbone.Backbone`).
 
     Raises:
         FileNotFoundError: ``weights_path`` does not exist.
@@ -59,12 +66,15 @@ class FrameClassifier:
         seed: int = 0,
         batch_size: int = 8,
         threads: int | None = 1,
+        device: str | torch.device = "cpu",
+        dtype: torch.dtype | None = None,
+        half: bool = False,
     ):
         if padding < 0:
             raise ValueError(f"padding: expected >= 0, got {padding}")
         if batch_size < 1:
             raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
-        self.backbone: Backbone = load_backbone(backbone, weights_path)
+        self.backbone: Backbone = load_backbone(backbone, weights_path).to(device, torch.float16 if half else dtype)
         self.weights_path = None if weights_path is None else str(weights_path)
         self.padding = float(padding)
         self.seed = int(seed)
@@ -79,6 +89,19 @@ class FrameClassifier:
     @property
     def classes_(self) -> list | None:
         return self.head.classes_
+
+    @property
+    def device(self) -> torch.device:
+        """Where the backbone runs."""
+        return self.backbone.device
+
+    def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> FrameClassifier:
+        """Run the backbone on ``device`` in ``dtype`` (default float32) from now on; returns ``self``.
+
+        The fitted head and standardisation stay on the CPU (outputs are CPU tensors on every device).
+        """
+        self.backbone = self.backbone.to(device, dtype)
+        return self
 
     # ---- features -------------------------------------------------------------------------------
     def _embed(self, crops: list[np.ndarray], progress: bool) -> Tensor:
@@ -165,8 +188,10 @@ class FrameClassifier:
         return save_tensors(path, _KIND, tensors, meta)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, weights_path: str | os.PathLike | None = None) -> FrameClassifier:
-        """Read a classifier written by :meth:`save`; ``weights_path`` overrides the recorded backbone weights.
+    def load(cls, path: str | os.PathLike, weights_path: str | os.PathLike | None = None,
+             device: str | torch.device = "cpu", dtype: torch.dtype | None = None) -> FrameClassifier:
+        """Read a classifier written by :meth:`save` (on any device); ``weights_path`` overrides the recorded
+        backbone weights; the backbone runs on ``device`` in ``dtype`` (tensors are read onto the CPU first).
 
         Raises:
             FileNotFoundError: ``path`` or the backbone weights do not exist.
@@ -178,7 +203,7 @@ class FrameClassifier:
             model = cls(
                 backbone=meta["backbone"], weights_path=weights_path or meta["weights_path"], C=head_meta["C"],
                 cv=head_meta["cv"], padding=meta["padding"], seed=meta["seed"], batch_size=meta["batch_size"],
-                threads=meta["threads"],
+                threads=meta["threads"], device=device, dtype=dtype,
             )
             model.mean_, model.scale_ = tensors["mean"].double(), tensors["scale"].double()
         except (KeyError, TypeError) as exc:
