@@ -8,14 +8,18 @@
 2. :func:`mission_outputs`: render the disaster-relief objects, train the frame classifier and
    classify labelled calibration and held-out sequences under each imaging condition
    (``study.conditions``: the default mission conditions and the in-flight preset), and from
-   a user's image folder (``study.images``). Outputs are cached on disk by their inputs.
+   a user's image folder (``study.images``). :func:`photo_outputs` does the same for real
+   photographs under a moving, dim, blurred and occluded camera (``study.photos``,
+   :mod:`classifiers.photos`). Outputs are cached on disk by their inputs.
 3. :func:`evaluate_condition`, per condition: fit every model on the calibration sequences (the
    paper's and the confusion-aware model also with the temper fitted on them), then on the
    held-out sequences score each filter: held-out log score (the mean log posterior of the
    true class over every prefix), argmax accuracy after all frames, reliability and expected
    calibration error, and the macro-observation process at each threshold (accuracy of the
    labels it emits, timeout rate, mean frames).
-4. :func:`acceptance`: the best model (by held-out log score) against the issue's floors.
+4. :func:`acceptance`: the best model (by held-out log score) against the issue's floors; on the
+   photographs also the default model (``sequence``) against its target, and :func:`honesty`:
+   for every filter and threshold ``t``, whether its emitted labels are right at least ``t - 0.03``.
 
 Writes ``metrics.json``, ``report.md`` (a table per condition), ``toy_error.png``,
 ``accuracy_vs_frames.png``, ``reliability.png`` and every fitted posterior (``artifacts.json``).
@@ -36,6 +40,7 @@ from tqdm.auto import tqdm
 import hbni_pyro
 from classifiers import FrameClassifier, class_columns
 from classifiers.data import ImageFolder, get_conditions
+from classifiers.photos import PHOTOS, photo_sequence, photo_snapshots
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments import noise_models_report as report
 from experiments.artifacts import save_artifact
@@ -68,8 +73,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     data = mission_outputs(cfg, s, run_dir)
     if cfg.study.images:
         data["images"] = folder_outputs(cfg, s)
+    if cfg.study.photos:
+        data["photos"] = photo_outputs(cfg, s, run_dir)
     conditions = {name: evaluate_condition(name, calib, held, cfg, s, run_dir) for name, (calib, held) in data.items()}
     metrics = {"toy": toy, "conditions": conditions, "acceptance": acceptance(toy, conditions, s),
+               "honesty": {name: honesty(cond) for name, cond in conditions.items()},
                "settings": OmegaConf.to_container(cfg.study)}
     figures = {"toy_error.png": report.toy_figure(toy), "accuracy_vs_frames.png": report.curve_figure(conditions),
                "reliability.png": report.reliability_figure(conditions)}
@@ -211,6 +219,36 @@ def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Te
     return outputs[:, :split], outputs[:, split:]
 
 
+def photo_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(calibration, held-out)`` outputs ``(C, S, F, C)`` on the photographs of :data:`classifiers.photos.PHOTOS`:
+    the classifier trained on ``"training"``-preset snapshots, the sequences in the ``"degraded"`` preset
+    (calibration and held-out on their own random streams); cached like the rendered conditions."""
+    p = cfg.study.photos
+    key = {"classes": list(PHOTOS), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
+           "code": source_identity("classifiers"), "seed": s.seed, **{k: int(v) for k, v in p.items()}}
+
+    def compute() -> dict[str, torch.Tensor]:
+        _step(s, "photos: training the frame classifier on training-preset snapshots")
+        clf: FrameClassifier = instantiate(cfg.classifier)
+        images = [im for name in PHOTOS for im in photo_snapshots(name, int(p.train_per_class), "training", s.seed)]
+        clf.fit(images, [name for name in PHOTOS for _ in range(int(p.train_per_class))], augment=int(p.augment),
+                progress=s.progress)
+        save_artifact(run_dir, "classifier_photos", clf)
+        order = class_columns(clf, list(PHOTOS))
+        out = {}
+        for part, count in (("calibration", int(p.calib_sequences)), ("held_out", int(p.test_sequences))):
+            seed = stream_seed(s.seed, "photos", part)
+            seqs = [[clf.predict_proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
+                     for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not s.progress)] for name in PHOTOS]
+            out[part] = torch.stack([torch.stack(row) for row in seqs]).double()
+        return out
+
+    tensors, path, hit = cached(s.cache_dir, "noise_models_photos", key, compute)
+    if hit:
+        _step(s, f"photos: classifier outputs from the cache {path}")
+    return tensors["calibration"], tensors["held_out"]
+
+
 # -- 3. per condition -----------------------------------------------------------------------------
 
 
@@ -238,7 +276,7 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     filters: dict[str, Any] = {}
     for model in s.models:
         post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model,
-                            class_names=None if name == "images" else list(CLASSES))  # a user's folder: its own
+                            class_names=_class_names(name))
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
         if not noise_model(model).sequences:  # frame-level models also run with the temper fitted on the calibration sequences
@@ -247,6 +285,11 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     for baseline in BASELINES:
         filters[baseline] = hbni_pyro.make_filter(baseline, num_classes=M)
     return filters
+
+
+def _class_names(condition: str) -> list[str] | None:
+    """The classes of a condition's outputs (a user's folder: its own, unnamed here)."""
+    return {"images": None, "photos": list(PHOTOS)}.get(condition, list(CLASSES))
 
 
 def score_filter(f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings) -> dict[str, Any]:
@@ -297,8 +340,28 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
             entry["final_accuracy_gain_over_paper"] = b["final_accuracy"] - p["final_accuracy"]
             entry["gain_stderr"] = se
             entry["beats_paper_outside_stderr"] = entry["final_accuracy_gain_over_paper"] > se
+        if name == "photos" and "sequence" in rows:
+            entry["sequence_target"] = _photo_target(rows["sequence"], ssbf)
         out[name] = entry
     return out
+
+
+def _photo_target(seq: dict[str, Any], ssbf: dict[str, Any]) -> dict[str, Any]:
+    """The default model's target on the photographs at threshold 0.95: emitted labels right at least
+    0.95 of the time, timeouts at most 10 %, mean frames at most SSBF's."""
+    a, b = seq["thresholds"].get("0.95"), ssbf["thresholds"].get("0.95")
+    if a is None:
+        return {}
+    right, timeouts, frames = a["emitted_accuracy"] >= 0.95, a["timeout_rate"] <= 0.10, a["mean_frames"] <= b["mean_frames"]
+    return {"emitted_right": right, "timeouts_at_most_0.1": timeouts, "frames_at_most_ssbf": frames,
+            "met": right and timeouts and frames}
+
+
+def honesty(condition: dict[str, Any]) -> dict[str, dict[str, bool]]:
+    """Per filter and threshold ``t``: whether the emitted labels are right at least ``t - 0.03`` of the time
+    (``False`` when none is emitted)."""
+    return {name: {t: v["emitted"] > 0 and v["emitted_accuracy"] >= float(t) - 0.03 for t, v in row["thresholds"].items()}
+            for name, row in condition["filters"].items()}
 
 
 def _step(s: Settings, message: str) -> None:

@@ -18,7 +18,8 @@ STYLE = {
     "confusion_tempered": ("tab:purple", "--"), "sequence": ("tab:red", "-"), "ssbf": ("tab:green", "-"),
     "max_of_mean": ("tab:orange", "-"),
 }
-CONDITION_TITLES = {"default": "default mission conditions", "in_flight": "in-flight preset", "images": "user image folder"}
+CONDITION_TITLES = {"default": "default mission conditions", "in_flight": "in-flight preset", "images": "user image folder",
+                    "photos": "real photographs, degraded moving camera"}
 
 
 def _label(name: str) -> str:
@@ -138,5 +139,9 @@ def markdown(metrics: dict[str, Any], figures: list[str]) -> str:
             lines += ["Checks (best model by held-out log score, " + f"{_label(a['best_model'])}): "
                       + ", ".join(f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}"
                                   for k, v in a.items() if k != "best_model"), ""]
+        honest = metrics.get("honesty", {}).get(cond)
+        if honest:
+            lines += ["Honest (emitted labels right at least t - 0.03) at t = " + ", ".join(thresholds) + ": " + "; ".join(
+                f"{_label(k)} " + "/".join("yes" if v[t] else "no" for t in thresholds) for k, v in honest.items()), ""]
     lines += [f"![{f}]({f})" for f in figures]
     return "\n".join(lines) + "\n"

@@ -471,6 +471,22 @@ class NoiseMissionBlock:
 
 
 @dataclass
+class NoisePhotosBlock:
+    """``study.photos``: sizes of the real-photo condition."""
+
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    calib_sequences: int = MISSING
+    test_sequences: int = MISSING
+    frames: int = MISSING
+
+    def check(self, path: str) -> None:
+        for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
+            positive_int(name, getattr(self, name))
+        positive_int("augment", self.augment, 0)
+
+
+@dataclass
 class NoiseStudy:
     """``study`` of the noise-model comparison."""
 
@@ -483,6 +499,7 @@ class NoiseStudy:
     conditions: dict[str, Any] = MISSING
     images: Optional[str] = MISSING
     images_calibration: float = MISSING
+    photos: Optional[NoisePhotosBlock] = None
 
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names
@@ -497,8 +514,8 @@ class NoiseStudy:
                 probability(name, t)
         for name, overrides in self.conditions.items():
             _check_conditions(f"conditions.{name}", overrides)
-        if not self.conditions and self.images is None:
-            raise ValueError("conditions: expected at least one imaging condition (or study.images)")
+        if not self.conditions and self.images is None and self.photos is None:
+            raise ValueError("conditions: expected at least one imaging condition (or study.images, study.photos)")
         if not 0 < self.images_calibration < 1:
             raise ValueError(f"images_calibration: expected a share in (0, 1), got {self.images_calibration}")
 

@@ -25,6 +25,8 @@ TINY = [
     "study.mission.test_sequences=2", "study.mission.frames=4", "study.toy.num_trials=40", "study.toy.num_training_sets=2",
     "study.toy.max_len=6", "study.toy.filter_draws=50", "hbni.fit.num_chains=2", "hbni.fit.num_samples=30",
     "hbni.fit.warmup_steps=30", "study.curve_thresholds=[0.5,0.95]", "classifier.cv=2",
+    "study.photos.train_per_class=5", "study.photos.augment=0", "study.photos.calib_sequences=2",
+    "study.photos.test_sequences=2", "study.photos.frames=4",
 ]
 
 
@@ -43,7 +45,7 @@ def study(tmp_path_factory, repo_root):
 
 def test_study_writes_tables_figures_and_every_posterior(study):
     metrics = json.loads((study / "first" / "metrics.json").read_text())
-    assert set(metrics["conditions"]) == {"default", "in_flight"}
+    assert set(metrics["conditions"]) == {"default", "in_flight", "photos"}
     filters = {"paper", "paper_tempered", "confusion", "confusion_tempered", "sequence", "ssbf", "max_of_mean"}
     for cond in metrics["conditions"].values():
         assert set(cond["filters"]) == filters
@@ -51,12 +53,13 @@ def test_study_writes_tables_figures_and_every_posterior(study):
             assert set(row["thresholds"]) == {"0.9", "0.95", "0.99"} and set(row["curve"]) == {"0.5", "0.95"}
             assert row["log_score"] <= 0 and 0 <= row["final_accuracy"] <= 1 and 0 <= row["ece"] <= 1
     assert set(metrics["toy"]["crossing_n"]) == {"paper", "confusion", "sequence", "ssbf", "max_of_mean"}
-    for cond in ("default", "in_flight"):
+    for cond in ("default", "in_flight", "photos"):
         assert metrics["acceptance"][cond]["best_model"] in ("paper", "confusion", "sequence")
     report = (study / "first" / "report.md").read_text()
     for png in ("toy_error.png", "accuracy_vs_frames.png", "reliability.png"):
         assert (study / "first" / png).stat().st_size > 10_000 and f"]({png})" in report
     assert "## In-flight preset" in report and "## Default mission conditions" in report
+    assert "## Real photographs, degraded moving camera" in report
     run = load_run(study / "first")
     for cond in ("default", "in_flight"):
         for model in ("paper", "confusion", "sequence"):
@@ -68,8 +71,28 @@ def test_second_run_reuses_the_cached_outputs_and_gets_the_same_numbers(study):
     first = json.loads((study / "first" / "metrics.json").read_text())
     second = json.loads((study / "second" / "metrics.json").read_text())
     assert first["conditions"] == second["conditions"] and first["toy"] == second["toy"]
-    assert len(list((study / "cache").glob("*.safetensors"))) == 2
+    assert len(list((study / "cache").glob("*.safetensors"))) == 3
     assert not (study / "second" / "classifier.safetensors").exists(), "the classifier is not retrained when cached"
+
+
+def test_the_photo_condition_reports_sizes_honesty_and_the_default_models_target(study):
+    metrics = json.loads((study / "first" / "metrics.json").read_text())
+    cond = metrics["conditions"]["photos"]
+    assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 12, "frames": 4}
+    honesty = metrics["honesty"]["photos"]
+    assert set(honesty) == set(cond["filters"])
+    assert all(set(v) == {"0.9", "0.95", "0.99"} and all(isinstance(b, bool) for b in v.values()) for v in honesty.values())
+    target = metrics["acceptance"]["photos"]["sequence_target"]
+    assert set(target) == {"emitted_right", "timeouts_at_most_0.1", "frames_at_most_ssbf", "met"}
+    assert list(load_run(study / "first").posterior_photos_sequence.class_names) == [
+        "astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "immunohistochemistry"]
+
+
+def test_the_photo_condition_alone_is_a_study(tmp_path, repo_root):
+    _run(repo_root, tmp_path / "run", "study.conditions={}", "study.cache_dir=null", "study.models=[sequence]")
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert set(metrics["conditions"]) == {"photos"}
+    assert set(metrics["conditions"]["photos"]["filters"]) == {"sequence", "ssbf", "max_of_mean"}
 
 
 def _write_folder(root: Path, classes: list[str]) -> None:
@@ -88,7 +111,7 @@ def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
     classes = ["irobot", "quadrotor", "racecar"]
     _write_folder(tmp_path / "images", classes)
     _run(repo_root, tmp_path / "run", f"study.images={tmp_path / 'images'}", "study.conditions={}", "study.cache_dir=null",
-         "study.models=[paper,sequence]")
+         "study.models=[paper,sequence]", "study.photos=null")
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     cond = metrics["conditions"]["images"]
     assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
@@ -106,6 +129,8 @@ def _compose(*overrides):
     ("study.images_calibration=1.5", "study.images_calibration"),
     ("study.thresholds=[0.9,1.2]", "study.thresholds"),
     ("study.toy.training_size=16", "study.toy.training_size"),
+    ("study.photos.frames=0", "study.photos.frames"),
+    ("study.photos.augment=-1", "study.photos.augment"),
     ("hbni.model=mixture", "hbni.model: expected one of"),
 ])
 def test_bad_settings_fail_before_any_work(override, match):
