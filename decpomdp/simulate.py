@@ -10,7 +10,8 @@ each live rollout to its next completion time ``t_next = min_a end_time``, lets 
 completing at ``t_next`` collect reward and a macro-observation, moves those agents along their
 controllers and starts their next MA. Rollouts whose next completion lies beyond the horizon
 stop; once a quarter of the batch has stopped the live rollouts are compacted, so long tails
-cost little. See :mod:`decpomdp.core` for the time convention.
+cost little. See :mod:`decpomdp.core` for the time convention. The torch simulator runs on the
+device of its generator (every tensor is made there).
 """
 
 from __future__ import annotations
@@ -63,18 +64,18 @@ def resolve_backend(env: DecPOSMDP, backend: str | None) -> str:
     return "engine" if supported else "torch"
 
 
-def _flat_tables(controller: JointController, rollouts: int) -> tuple[Tensor, Tensor, Tensor]:
+def _flat_tables(controller: JointController, rollouts: int, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
     """int32 flat ``action`` and ``next_node`` tables, and each rollout's offset into them.
 
     int32 because int64 elementwise ops cost several times more on CPU. The offset of rollout ``b``
     (of controller ``b // rollouts``) for agent ``a`` is where that controller's agent-``a`` rows
-    start in the ``(K, A, Nn)`` table: (K * rollouts, A).
+    start in the ``(K, A, Nn)`` table: (K * rollouts, A). All three live on ``device``.
     """
     k_count, a_count, n_nodes = controller.action.shape
-    act_table = controller.action.reshape(-1).to(torch.int32)
-    next_table = controller.next_node.reshape(-1).to(torch.int32)
-    owner = torch.arange(k_count).repeat_interleave(rollouts)[:, None]
-    base = ((owner * a_count + torch.arange(a_count)) * n_nodes).to(torch.int32)
+    act_table = controller.action.reshape(-1).to(device, torch.int32)
+    next_table = controller.next_node.reshape(-1).to(device, torch.int32)
+    owner = torch.arange(k_count, device=device).repeat_interleave(rollouts)[:, None]
+    base = ((owner * a_count + torch.arange(a_count, device=device)) * n_nodes).to(torch.int32)
     return act_table, next_table, base
 
 
@@ -93,11 +94,14 @@ def simulate(
         env: the Dec-POSMDP.
         controller: K joint controllers.
         rollouts_per_controller: R >= 1.
-        generator: the only source of randomness (the engine draws one seed from it per call).
+        generator: the only source of randomness (the engine draws one seed from it per call); the torch
+            simulator runs on its device (a CUDA generator needs ``backend="torch"`` and a domain whose torch
+            methods support it, e.g. :class:`~decpomdp.dpomdp.TabularDecPOSMDP`).
         backend: ``"engine"``, ``"torch"`` or ``None`` (the engine where ``env`` is written for it).
 
     Returns:
-        float64 (K, R): return of rollout ``r`` of controller ``k``.
+        float64 (K, R): return of rollout ``r`` of controller ``k`` (on the generator's device for the torch
+        simulator, on the CPU for the engine).
     """
     check(env, controller)
     rollouts_per_controller = as_int("rollouts_per_controller", rollouts_per_controller, minimum=1)
@@ -109,7 +113,7 @@ def simulate(
 def simulate_torch(
     env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator
 ) -> Tensor:
-    """:func:`simulate` on the batched torch simulator (arguments already checked).
+    """:func:`simulate` on the batched torch simulator (arguments already checked), on ``generator.device``.
 
     The event loop stays in one function on purpose: its steps share a dozen live-row tensors that
     compaction replaces together, and splitting it would pass them all back and forth.
@@ -117,19 +121,21 @@ def simulate_torch(
     k_count, a_count = controller.num_controllers, controller.num_agents
     batch = k_count * rollouts_per_controller
     n_obs = controller.num_obs
-    act_table, next_table, base = _flat_tables(controller, rollouts_per_controller)
-    values = torch.zeros(batch, dtype=torch.float64)
-    rows = torch.arange(batch)  # original index of each live row
+    dev = generator.device
+    act_table, next_table, base = _flat_tables(controller, rollouts_per_controller, dev)
+    values = torch.zeros(batch, dtype=torch.float64, device=dev)
+    rows = torch.arange(batch, device=dev)  # original index of each live row
 
     state = env.reset(batch, generator)
-    node = torch.zeros(batch, a_count, dtype=torch.int32)
+    node = torch.zeros(batch, a_count, dtype=torch.int32, device=dev)
     actions = lookup(act_table, base)
-    t = torch.zeros(batch, dtype=torch.float64)
-    all_agents = torch.ones(batch, a_count, dtype=torch.bool)
-    end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64), generator)
+    t = torch.zeros(batch, dtype=torch.float64, device=dev)
+    all_agents = torch.ones(batch, a_count, dtype=torch.bool, device=dev)
+    end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64, device=dev),
+                         generator)
     log_gamma = math.log(float(env.gamma))
     horizon = float(env.horizon)
-    value = torch.zeros(batch, dtype=torch.float64)
+    value = torch.zeros(batch, dtype=torch.float64, device=dev)
     t_prev = t
 
     while rows.numel() > 0:

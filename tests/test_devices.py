@@ -1,4 +1,4 @@
-"""Device handling of the CNN backbone, the frame classifier and exact controller evaluation.
+"""Device handling of the CNN backbone, the frame classifier, exact controller evaluation and the torch simulator.
 
 On the CPU every device-aware call must return its tensors on the requested device and equal the default path
 exactly; ``"meta"`` tensors check shapes where no values are needed. CUDA variants run only where CUDA is present.
@@ -12,7 +12,7 @@ import torch
 
 from classifiers import FrameClassifier, load_backbone
 from classifiers.backbone import HALF_TOLERANCE, Backbone
-from decpomdp import random_controllers
+from decpomdp import random_controllers, simulate
 from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 from decpomdp.dpomdp.backup import operator_for
 
@@ -120,6 +120,19 @@ def test_operator_is_cached_per_device(tiger):
     assert op.reward.device == op.obs_rows.device == torch.device("cpu")
 
 
+# ---- torch simulator ----------------------------------------------------------------------------------------
+def test_torch_simulator_on_cpu_generator_device(tiger, controllers):
+    returns = simulate(tiger, controllers, 50, torch.Generator(device="cpu").manual_seed(1), backend="torch")
+    assert returns.device == torch.device("cpu") and returns.shape == (6, 50) and returns.dtype == torch.float64
+    assert torch.equal(returns, simulate(tiger, controllers, 50, torch.Generator().manual_seed(1), backend="torch"))
+
+
+def test_tabular_index_helpers_keep_the_device(tiger):
+    jo = torch.arange(4, device="meta")
+    assert tiger.split_obs(jo).device == torch.device("meta") and tiger.split_obs(jo).shape == (4, 2)
+    assert tiger.joint_action(torch.zeros(3, 2, dtype=torch.long, device="meta")).shape == (3,)
+
+
 # ---- CUDA ---------------------------------------------------------------------------------------------------
 @cuda
 @needs_cuda
@@ -158,3 +171,15 @@ def test_exact_cuda_matches_cpu(tiger, controllers, horizon, max_dense):
     assert on_input.device.type == "cuda"
     assert torch.allclose(gpu.cpu(), cpu, atol=1e-9, rtol=0)
     assert torch.allclose(on_input.cpu(), cpu, atol=1e-9, rtol=0)
+
+
+@cuda
+@needs_cuda
+def test_torch_simulator_cuda_within_monte_carlo_error(tiger, controllers):
+    rollouts = 4000
+    cpu = simulate(tiger, controllers, rollouts, torch.Generator().manual_seed(1), backend="torch")
+    gpu = simulate(tiger, controllers, rollouts, torch.Generator(device="cuda").manual_seed(1), backend="torch")
+    assert gpu.device.type == "cuda" and gpu.shape == cpu.shape
+    gpu = gpu.cpu()
+    se = ((cpu.var(1) + gpu.var(1)) / rollouts).sqrt()  # standard error of the difference of the two means
+    assert ((cpu.mean(1) - gpu.mean(1)).abs() <= 4 * se + 1e-12).all()

@@ -8,6 +8,9 @@ at ``k + 1``; ``horizon = h`` runs ``h`` steps. ``complete`` samples ``s' ~ T(.|
 row of ``(ja, s)``, ``jo ~ O(.|ja, s')`` and returns ``R(s, ja, s', jo) / gamma``, so with the
 simulator's ``gamma ** (k+1)`` step ``k``'s reward is discounted by ``gamma ** k`` as in the
 Dec-POMDP literature. Memory is that of the compact model: nothing is (JA, S, S') dense.
+
+The torch methods run on the device of their generator (or index tensors): the sampling tables are
+copied there once per device, and the CPU uses the tables themselves.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ _ROW_TOL = 1e-6
 
 def _sample(cum: Tensor, generator: torch.Generator) -> Tensor:
     """One index per row of cumulative probabilities ``cum`` (B, n)."""
-    u = torch.rand(cum.shape[0], 1, generator=generator, dtype=cum.dtype) * cum[:, -1:]
+    u = torch.rand(cum.shape[0], 1, generator=generator, dtype=cum.dtype, device=cum.device) * cum[:, -1:]
     return torch.searchsorted(cum, u, right=True).squeeze(1).clamp_(max=cum.shape[1] - 1)
 
 
@@ -103,6 +106,17 @@ class TabularDecPOSMDP(DecPOSMDP):
         a = self.num_agents
         self.action_strides = torch.tensor([self.num_actions ** (a - 1 - i) for i in range(a)])
         self.obs_strides = torch.tensor([self.num_obs ** (a - 1 - i) for i in range(a)])
+        self._placed: dict[torch.device, dict[str, Tensor]] = {}
+
+    def _on(self, device: torch.device) -> dict[str, Tensor]:
+        """The sampling tables on ``device`` (the tables themselves on the CPU, copies made once elsewhere)."""
+        names = ("_start_cum", "_o_cum", "_t_indptr", "_t_indices", "_t_cum", "_t_cum0", "_reward",
+                 "action_strides", "obs_strides")
+        if device.type == "cpu":
+            return {n: getattr(self, n) for n in names}
+        if device not in self._placed:
+            self._placed[device] = {n: getattr(self, n).to(device) for n in names}
+        return self._placed[device]
 
     @classmethod
     def from_file(cls, path: str | os.PathLike, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
@@ -126,29 +140,33 @@ class TabularDecPOSMDP(DecPOSMDP):
 
     def joint_action(self, actions: Tensor) -> Tensor:
         """(..., A) individual actions -> (...) joint index (first agent most significant)."""
-        return (actions * self.action_strides).sum(-1)
+        strides = self.action_strides if actions.device.type == "cpu" else self._on(actions.device)["action_strides"]
+        return (actions * strides).sum(-1)
 
     def split_obs(self, jo: Tensor) -> Tensor:
         """(...) joint observation -> (..., A) individual observations."""
-        return (jo[..., None] // self.obs_strides) % self.num_obs
+        strides = self.obs_strides if jo.device.type == "cpu" else self._on(jo.device)["obs_strides"]
+        return (jo[..., None] // strides) % self.num_obs
 
     def sample_next_state(self, ja: Tensor, s: Tensor, generator: torch.Generator) -> Tensor:
         """``s' ~ T(. | s, ja)`` for (B,) joint actions and states, from the sparse rows."""
+        tab = self._on(generator.device)
         row = ja * self.num_states + s
-        lo, hi = self._t_indptr[row], self._t_indptr[row + 1]
-        base, total = self._t_cum0[lo], self._t_cum0[hi] - self._t_cum0[lo]
-        target = base + torch.rand(row.shape, generator=generator, dtype=torch.float64) * total
-        idx = torch.searchsorted(self._t_cum, target, right=True)
-        return self._t_indices[torch.minimum(torch.maximum(idx, lo), hi - 1)]
+        lo, hi = tab["_t_indptr"][row], tab["_t_indptr"][row + 1]
+        base, total = tab["_t_cum0"][lo], tab["_t_cum0"][hi] - tab["_t_cum0"][lo]
+        target = base + torch.rand(row.shape, generator=generator, dtype=torch.float64, device=generator.device) * total
+        idx = torch.searchsorted(tab["_t_cum"], target, right=True)
+        return tab["_t_indices"][torch.minimum(torch.maximum(idx, lo), hi - 1)]
 
     def reward_of(self, ja: Tensor, s: Tensor, s2: Tensor, jo: Tensor) -> Tensor:
         """``R(ja, s, s', jo)`` for (B,) index tensors."""
         st = self._reward_strides
-        return self._reward[ja * st[0] + s * st[1] + s2 * st[2] + jo * st[3]]
+        return self._on(ja.device)["_reward"][ja * st[0] + s * st[1] + s2 * st[2] + jo * st[3]]
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
-        u = torch.rand(batch, generator=generator, dtype=torch.float64) * self._start_cum[-1]
-        return {"s": torch.searchsorted(self._start_cum, u, right=True).clamp_(max=self.num_states - 1)}
+        start_cum = self._on(generator.device)["_start_cum"]
+        u = torch.rand(batch, generator=generator, dtype=torch.float64, device=generator.device) * start_cum[-1]
+        return {"s": torch.searchsorted(start_cum, u, right=True).clamp_(max=self.num_states - 1)}
 
     def start(self, state, agents, actions, t, end_time, generator) -> Tensor:
         return torch.where(agents, t[:, None] + 1.0, end_time)
@@ -158,7 +176,7 @@ class TabularDecPOSMDP(DecPOSMDP):
         s = state["s"]
         ja = self.joint_action(actions)
         s2 = self.sample_next_state(ja, s, generator)
-        jo = _sample(self._o_cum[ja, s2], generator)
+        jo = _sample(self._on(generator.device)["_o_cum"][ja, s2], generator)
         reward = torch.where(act, self.reward_of(ja, s, s2, jo) / self.gamma, 0.0)
         state["s"] = torch.where(act, s2, s)
         return reward, self.split_obs(jo)
