@@ -40,7 +40,8 @@ class PerceptionModel(Protocol):
             generator: the only source of randomness.
 
         Returns:
-            label long (B,) in ``[0, C)``, frames long (B,) >= 1.
+            label long (B,) in ``[0, C)``, frames long (B,) >= 1, on the device of ``true_class`` (the
+            torch simulator's device, that of ``generator``).
         """
         ...
 

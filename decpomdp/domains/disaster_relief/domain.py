@@ -4,7 +4,8 @@
 :func:`decpomdp.simulate` runs by default. The batched torch methods below (``reset``, ``start``,
 ``complete``, over a batch of rollouts) implement the same rules a second time, as the test oracle of
 the engine (``backend="torch"``); perception models without an outcome table (``outcomes()``) run
-on them too.
+on them too. They run on the generator's device (the perception model's ``sample`` must keep
+the device of ``true_class``, as :class:`~decpomdp.perception.PerfectPerception` does).
 
 State of the torch oracle (batch first): ``loc``, ``carry`` (class or -1), ``health``, ``ma``,
 ``ok``, ``label``, ``frames``, ``fresh``, ``belief`` (B, A); ``objects`` (B, 2) classes waiting at
@@ -31,6 +32,16 @@ from infra.checks import as_float, as_int, as_probability
 _DESTINATION = torch.as_tensor(rules.DESTINATION)
 _TRAVEL = torch.as_tensor(rules.TRAVEL)
 _SLOWDOWN = torch.as_tensor(rules.SLOWDOWN)
+_PLACED: dict[torch.device, tuple[Tensor, Tensor, Tensor]] = {}
+
+
+def _tables(device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+    """``(destination, travel, slowdown)`` on ``device`` (the module tables on the CPU, copies made once elsewhere)."""
+    if device.type == "cpu":
+        return _DESTINATION, _TRAVEL, _SLOWDOWN
+    if device not in _PLACED:
+        _PLACED[device] = (_DESTINATION.to(device), _TRAVEL.to(device), _SLOWDOWN.to(device))
+    return _PLACED[device]
 
 
 class DisasterRelief(DecPOSMDP):
@@ -88,19 +99,19 @@ class DisasterRelief(DecPOSMDP):
         return EngineModel(rules.ENGINE, p, rules.tables(), table)
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
-        shape = (batch, self.num_agents)
+        shape, dev = (batch, self.num_agents), generator.device
         return {
-            "loc": (torch.arange(self.num_agents) % 2).expand(shape).clone(),
-            "carry": torch.full(shape, -1, dtype=torch.long),
-            "health": torch.zeros(shape, dtype=torch.long),
-            "ma": torch.full(shape, INFER, dtype=torch.long),
-            "ok": torch.zeros(shape, dtype=torch.bool),
-            "label": torch.zeros(shape, dtype=torch.long),
-            "frames": torch.zeros(shape, dtype=torch.long),
-            "fresh": torch.zeros(shape, dtype=torch.bool),
-            "belief": torch.full(shape, -1, dtype=torch.long),
-            "objects": torch.randint(0, len(CLASSES), (batch, 2), generator=generator),
-            **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
+            "loc": (torch.arange(self.num_agents, device=dev) % 2).expand(shape).clone(),
+            "carry": torch.full(shape, -1, dtype=torch.long, device=dev),
+            "health": torch.zeros(shape, dtype=torch.long, device=dev),
+            "ma": torch.full(shape, INFER, dtype=torch.long, device=dev),
+            "ok": torch.zeros(shape, dtype=torch.bool, device=dev),
+            "label": torch.zeros(shape, dtype=torch.long, device=dev),
+            "frames": torch.zeros(shape, dtype=torch.long, device=dev),
+            "fresh": torch.zeros(shape, dtype=torch.bool, device=dev),
+            "belief": torch.full(shape, -1, dtype=torch.long, device=dev),
+            "objects": torch.randint(0, len(CLASSES), (batch, 2), generator=generator, device=dev),
+            **{key: torch.zeros(batch, dtype=torch.long, device=dev) for key in COUNTERS},
         }
 
     def _preconditions(self, state: dict[str, Tensor], actions: Tensor) -> Tensor:
@@ -124,14 +135,15 @@ class DisasterRelief(DecPOSMDP):
     def start(self, state, agents, actions, t, end_time, generator):
         loc, health = state["loc"], state["health"]
         ok = self._preconditions(state, actions) & agents
-        slow = _SLOWDOWN[health]
-        trip = _TRAVEL[loc, actions.clamp(max=GO_CRATE)]
-        to_repair = _TRAVEL[loc, REPAIR]
+        destination, travel, slowdown = _tables(loc.device)
+        slow = slowdown[health]
+        trip = travel[loc, actions.clamp(max=GO_CRATE)]
+        to_repair = travel[loc, REPAIR]
         mean = torch.where(
             actions <= GO_CRATE, trip * slow, torch.where(actions == REPAIR_MA, to_repair * slow + REPAIR_TIME, HANDLING_TIME * slow)
         )
-        noise = (1.0 + rules.DURATION_NOISE * torch.randn(actions.shape, generator=generator, dtype=torch.float64)).clamp(
-            min=rules.MIN_NOISE_FACTOR)
+        noise = (1.0 + rules.DURATION_NOISE * torch.randn(actions.shape, generator=generator, dtype=torch.float64,
+                                                          device=generator.device)).clamp(min=rules.MIN_NOISE_FACTOR)
         duration = torch.where(ok, mean * noise, FAIL_DURATION)
         infer = ok & (actions == INFER)
         if bool(infer.any()):
@@ -142,14 +154,15 @@ class DisasterRelief(DecPOSMDP):
             state["frames"][row, col] = frames.long()
             duration[row, col] = frames.to(torch.float64) * self.frame_period
         pick = ok & (actions == PICK)
-        state["belief"] = torch.where(pick, torch.where(state["fresh"], _DESTINATION[state["label"]] - HOSPITAL, -1), state["belief"])
+        state["belief"] = torch.where(pick, torch.where(state["fresh"], destination[state["label"]] - HOSPITAL, -1), state["belief"])
         state["fresh"] = state["fresh"] & ~(agents & ((actions <= REPAIR_MA) | pick))  # leaving or picking uses it up
         for a in range(self.num_agents):  # robots in index order: each takes what waits when it starts
             row = pick[:, a].nonzero().squeeze(1)
             if row.numel():
                 base = loc[row, a]
                 state["carry"][row, a] = state["objects"][row, base]
-                state["objects"][row, base] = torch.randint(0, len(CLASSES), (row.numel(),), generator=generator)
+                state["objects"][row, base] = torch.randint(0, len(CLASSES), (row.numel(),), generator=generator,
+                                                            device=generator.device)
         state["ma"] = torch.where(agents, actions, state["ma"])
         state["ok"] = torch.where(agents, ok, state["ok"])
         return torch.where(agents, t[:, None] + duration, end_time)
@@ -161,7 +174,8 @@ class DisasterRelief(DecPOSMDP):
         repaired = effective & (ma == REPAIR_MA)
         loc = state["loc"] = torch.where(moves, ma.clamp(max=GO_CRATE), torch.where(repaired, REPAIR, loc))
         put = effective & (ma == PUT)
-        right = put & (_DESTINATION[state["carry"].clamp(min=0)] == loc)
+        destination = _tables(loc.device)[0]
+        right = put & (destination[state["carry"].clamp(min=0)] == loc)
         wrong = put & ~right
         reward = (right.sum(dim=1) - self.wrong_penalty * wrong.sum(dim=1)).to(torch.float64)
         state["delivered"] += right.sum(dim=1)
@@ -171,7 +185,7 @@ class DisasterRelief(DecPOSMDP):
         inferred = effective & (ma == INFER)
         state["inferences"] += inferred.sum(dim=1)
         state["inference_frames"] += (state["frames"] * inferred).sum(dim=1)
-        u = torch.rand(agents.shape + (3,), generator=generator, dtype=torch.float64)
+        u = torch.rand(agents.shape + (3,), generator=generator, dtype=torch.float64, device=generator.device)
         degrade = agents & ~repaired & (u[..., 0] < self.degrade_prob)
         health = state["health"] = torch.where(repaired, 0, (state["health"] + degrade.long()).clamp(max=2))
         shift = 1 + (u[..., 2] < 0.5).long()  # a wrong reading is one of the two other levels
@@ -182,6 +196,6 @@ class DisasterRelief(DecPOSMDP):
         context = torch.where(
             carrying,
             torch.where(at_base, loaded, AT_SITE_LOADED),
-            torch.where(inferred, SAW + _DESTINATION[state["label"]] - HOSPITAL, torch.where(at_base, AT_BASE, AWAY)),
+            torch.where(inferred, SAW + destination[state["label"]] - HOSPITAL, torch.where(at_base, AT_BASE, AWAY)),
         )
         return reward, 3 * context + reading
