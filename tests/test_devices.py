@@ -13,6 +13,8 @@ import torch
 from classifiers import FrameClassifier, load_backbone
 from classifiers.backbone import HALF_TOLERANCE, Backbone
 from decpomdp import random_controllers, simulate
+from decpomdp.domains.disaster_relief import DisasterRelief
+from decpomdp.domains.package_delivery import PackageDelivery
 from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 from decpomdp.dpomdp.backup import operator_for
 
@@ -127,6 +129,20 @@ def test_torch_simulator_on_cpu_generator_device(tiger, controllers):
     assert torch.equal(returns, simulate(tiger, controllers, 50, torch.Generator().manual_seed(1), backend="torch"))
 
 
+def _domain_controllers(env, count: int = 3):
+    return random_controllers(count, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
+                              num_obs=env.num_obs, generator=torch.Generator().manual_seed(5))
+
+
+@pytest.mark.parametrize("env", [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
+                         ids=["disaster_relief", "package_delivery", "package_delivery_successors"])
+def test_domain_oracles_on_cpu_generator_device(env):
+    ctrl = _domain_controllers(env)
+    returns = simulate(env, ctrl, 20, torch.Generator(device="cpu").manual_seed(1), backend="torch")
+    assert returns.device == torch.device("cpu") and returns.shape == (3, 20)
+    assert torch.equal(returns, simulate(env, ctrl, 20, torch.Generator().manual_seed(1), backend="torch"))
+
+
 def test_tabular_index_helpers_keep_the_device(tiger):
     jo = torch.arange(4, device="meta")
     assert tiger.split_obs(jo).device == torch.device("meta") and tiger.split_obs(jo).shape == (4, 2)
@@ -182,4 +198,18 @@ def test_torch_simulator_cuda_within_monte_carlo_error(tiger, controllers):
     assert gpu.device.type == "cuda" and gpu.shape == cpu.shape
     gpu = gpu.cpu()
     se = ((cpu.var(1) + gpu.var(1)) / rollouts).sqrt()  # standard error of the difference of the two means
+    assert ((cpu.mean(1) - gpu.mean(1)).abs() <= 4 * se + 1e-12).all()
+
+
+@cuda
+@needs_cuda
+@pytest.mark.parametrize("env", [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
+                         ids=["disaster_relief", "package_delivery", "package_delivery_successors"])
+def test_domain_oracles_cuda_within_monte_carlo_error(env):
+    rollouts, ctrl = 2000, _domain_controllers(env)
+    cpu = simulate(env, ctrl, rollouts, torch.Generator().manual_seed(1), backend="torch")
+    gpu = simulate(env, ctrl, rollouts, torch.Generator(device="cuda").manual_seed(1), backend="torch")
+    assert gpu.device.type == "cuda"
+    gpu = gpu.cpu()
+    se = ((cpu.var(1) + gpu.var(1)) / rollouts).sqrt()
     assert ((cpu.mean(1) - gpu.mean(1)).abs() <= 4 * se + 1e-12).all()

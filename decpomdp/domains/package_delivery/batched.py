@@ -4,7 +4,8 @@
 batched torch methods here are its test oracle (``backend="torch"``). The rules are compiled into lookup tables over (location, load, package at the base, MA), so a
 batch step is a handful of gathers and elementwise ops on uint8 masks (see :mod:`decpomdp.batched`).
 ``tests/decpomdp/test_package_delivery.py`` checks this implementation against a plain-Python
-simulator of the same rules, one rollout at a time.
+simulator of the same rules, one rollout at a time. The torch methods run on the generator's device
+(the tables are copied there once per device; the CPU uses them as they are).
 """
 
 from __future__ import annotations
@@ -95,6 +96,18 @@ class PackageDelivery(DecPOSMDP):
         self._start = _START[self.reference_pickup]
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
+        self._cpu_tables = {**self._start, "ma_kind": _MA_KIND, "target": _TARGET,
+                            **self._complete_tables}
+        self._placed: dict[torch.device, dict[str, Tensor]] = {}
+
+    def _tables(self, device: torch.device) -> dict[str, Tensor]:
+        """Start, MA and completion tables on ``device`` (the tables themselves on the CPU, copies made once
+        elsewhere): ``flags``, ``mean``, ``ma_kind``, ``target``, ``reward``, ``packed_counts``."""
+        if device.type == "cpu":
+            return self._cpu_tables
+        if device not in self._placed:
+            self._placed[device] = {k: v.to(device) for k, v in self._cpu_tables.items()}
+        return self._placed[device]
 
     def __repr__(self) -> str:
         return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
@@ -119,20 +132,22 @@ class PackageDelivery(DecPOSMDP):
     def sample_packages(count: int, generator: torch.Generator) -> Tensor:
         """int32 (count,) new package codes (see ``PACKAGES``)."""
         arrival = rules.ARRIVAL  # read at call time, so a test can pin the package stream
-        return arrival[torch.randint(0, len(arrival), (count,), generator=generator)]
+        index = torch.randint(0, len(arrival), (count,), generator=generator, device=generator.device)
+        return arrival.to(generator.device)[index]
 
     def reset(self, batch: int, generator: torch.Generator) -> dict[str, Tensor]:
+        dev = generator.device
         state = {
-            "loc": torch.full((batch, 2), BASE1, dtype=torch.int32),
-            "load": torch.zeros(batch, 2, dtype=torch.int32),
+            "loc": torch.full((batch, 2), BASE1, dtype=torch.int32, device=dev),
+            "load": torch.zeros(batch, 2, dtype=torch.int32, device=dev),
             "base": self.sample_packages(2 * batch, generator).view(batch, 2),
-            "ma": torch.full((batch, 2), GO_B1 if self.successor_rule else WAIT, dtype=torch.int32),
-            "ok": torch.zeros(batch, 2, dtype=torch.bool),
-            "waiting": torch.zeros(batch, 2, dtype=torch.bool),
-            **{key: torch.zeros(batch, dtype=torch.long) for key in COUNTERS},
+            "ma": torch.full((batch, 2), GO_B1 if self.successor_rule else WAIT, dtype=torch.int32, device=dev),
+            "ok": torch.zeros(batch, 2, dtype=torch.bool, device=dev),
+            "waiting": torch.zeros(batch, 2, dtype=torch.bool, device=dev),
+            **{key: torch.zeros(batch, dtype=torch.long, device=dev) for key in COUNTERS},
         }
         if self.successor_rule:  # a put-down that failed by the successor rule alone, paying when it ends
-            state["pays"] = torch.zeros(batch, 2, dtype=torch.bool)
+            state["pays"] = torch.zeros(batch, 2, dtype=torch.bool, device=dev)
         return state
 
     def start(self, state, agents, actions, t, end_time, generator):
@@ -140,15 +155,17 @@ class PackageDelivery(DecPOSMDP):
         agents_u8 = as_u8(agents)
         here = self._here(state)
         situation = (loc * _N_LOAD + load) * (_N_PKG * _N_MA) + here * _N_MA  # the table index without the MA
-        flags = lookup(self._start["flags"], situation + actions) * agents_u8
+        tables = self._tables(loc.device)
+        flags = lookup(tables["flags"], situation + actions) * agents_u8
         drafted = self._draft(state, agents_u8, actions, (flags >> 2) & 1)
         if drafted is not None:
             actions = drafted
-            flags = lookup(self._start["flags"], situation + actions) * agents_u8
-        mean = lookup(self._start["mean"], situation + actions)
+            flags = lookup(tables["flags"], situation + actions) * agents_u8
+        mean = lookup(tables["mean"], situation + actions)
         if self.successor_rule:
             flags, mean = self._successors(state, agents_u8, actions, flags, mean)
-        noise = torch.randn(actions.shape, generator=generator).mul_(rules.DURATION_NOISE).clamp_(min=MIN_NOISE_FACTOR - 1.0)
+        noise = torch.randn(actions.shape, generator=generator, device=generator.device).mul_(rules.DURATION_NOISE).clamp_(
+            min=MIN_NOISE_FACTOR - 1.0)
         noise.mul_(flags & _NOISY).add_(1.0)
         finish = torch.addcmul(pair(t), mean, noise)
         ok, joint, solo_pick = (flags >> 1) & 1, (flags >> 2) & 1, (flags >> 3) & 1
@@ -180,7 +197,7 @@ class PackageDelivery(DecPOSMDP):
 
         ``agents`` (the starting robots) and ``flags`` are uint8 (B, 2); ``flags`` imply ``agents``.
         """
-        allowed = lookup(_SUCCESSOR, state["ma"] * _N_MA + actions) | (agents ^ 1)
+        allowed = lookup(_SUCCESSOR.to(actions.device), state["ma"] * _N_MA + actions) | (agents ^ 1)
         drop = ((actions - PUT) * (actions - JPUT) == 0).to(torch.uint8)
         pays = (flags >> 1) & 1 & (allowed ^ 1) & drop
         state["pays"] = ((as_u8(state["pays"]) & (agents ^ 1)) | pays).view(torch.bool)
@@ -255,21 +272,21 @@ class PackageDelivery(DecPOSMDP):
     def complete(self, state, agents, actions, t, generator):
         ma, waiting, agents = state["ma"], as_u8(state["waiting"]), as_u8(agents)
         active = as_u8(state["ok"]) & (waiting ^ 1)  # running an MA whose preconditions held, not waiting for the partner
-        kind = lookup(_MA_KIND, ma) * active
+        table = self._tables(ma.device)
+        kind = lookup(table["ma_kind"], ma) * active
         travelling = (kind & _GO) & (agents ^ 1)
         kind *= agents  # the effective completions
         state["waiting"] = (waiting & (agents ^ 1)).view(torch.bool)  # a wait that runs out is a failed joint MA
         loc = state["loc"]
-        loc = state["loc"] = loc + (kind & _GO) * (lookup(_TARGET, ma) - loc)
+        loc = state["loc"] = loc + (kind & _GO) * (lookup(table["target"], ma) - loc)
         load = state["load"]
-        reward = torch.zeros(agents.shape[0], dtype=torch.float64)
+        reward = torch.zeros(agents.shape[0], dtype=torch.float64, device=ma.device)
         dropped = (kind >> 1) & 1
         if self.successor_rule:  # failed put-downs that still pay
             dropped = dropped | (as_u8(state["pays"]) & agents)
             state["pays"] = (as_u8(state["pays"]) & (agents ^ 1)).view(torch.bool)
         if any_true(dropped):
             index = (ma * _N_LOC + loc) * _N_LOAD + load
-            table = self._complete_tables
             jput = (kind >> 3) & 1
             paired = jput[:, 0] & jput[:, 1]  # a joint put-down by both robots
             credit = lookup(table["reward"], index) * dropped
