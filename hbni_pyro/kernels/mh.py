@@ -20,6 +20,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+import numpy as np
+
+from hbni_pyro.density import lifted_normaliser
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.kernels.base import (
     AdaptiveWalk,
@@ -28,6 +31,7 @@ from hbni_pyro.kernels.base import (
     flatten_chains,
     fraction,
 )
+from hbni_pyro.kernels.class_move_numba import class_move_stats
 from hbni_pyro.kernels.mh_steps import (
     MHState,
     alias_draw,
@@ -63,6 +67,22 @@ class FrameData:
         self.data = frame_data(obs[:, self.free].unsqueeze(1), labels[:, self.free].unsqueeze(1), log_prior,
                                counts.unsqueeze(1), sums.unsqueeze(1))
         self.label_counts = torch.zeros(D, int(self.free.sum()), M, dtype=DTYPE)
+        self.compiled = obs.device.type == "cpu"
+        if self.compiled:
+            d = self.data
+            self._arrays = tuple(np.ascontiguousarray(t[:, 0].numpy()) for t in (d.labels, d.log_obs, d.log_proposal,
+                                                                                   d.alias_prob, d.alias))
+
+    def compiled_move(self, c: Tensor, log_theta: Tensor, stay_prob: float, seed: int, iteration: int,
+                      record: bool) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        """The class move of every chain on the CPU (:func:`class_move_stats`), in place on ``c (D, Cp, N)``;
+        returns the accepted moves and the statistics ``counts, sums (D, Cp, M)``, recording the labels if asked."""
+        theta = log_theta.exp()
+        offset = lifted_normaliser(theta, self.num_classes) + self.data.log_prior
+        counts, sums, accepted = class_move_stats(c.numpy(), *self._arrays, np.ascontiguousarray(offset.numpy()),
+                                                  np.ascontiguousarray(theta.numpy()), stay_prob, np.uint64(seed),
+                                                  np.int64(iteration), self.label_counts.numpy(), record)
+        return torch.from_numpy(accepted).sum(), (torch.from_numpy(counts), torch.from_numpy(sums))
 
     def initial_classes(self, batch: tuple[int, int], generator: torch.Generator) -> Tensor:
         """``(D, Cp, N_free)`` classes drawn from the proposal weights (given labels kept)."""
@@ -139,10 +159,13 @@ class HBNIMetropolis(BatchedKernel):
         return {k: flatten_chains(v.exp()) for k, v in (("theta", s.log_theta), ("kappa", s.log_kappa), ("gamma", s.log_gamma))}
 
     def _step(self, warm: bool) -> dict[str, float]:
-        s, g, data = self._state, self._gen, self.frames.data
-        c, acc_c = update_classes(s, data, self.stay_prob, g)
-        s = s._replace(c=c)
-        log_theta, acc_t = update_theta(s, data, self._walk_theta.step, g)
+        s, g, data, frames = self._state, self._gen, self.frames.data, self.frames
+        if frames.compiled:
+            acc_c, stats = frames.compiled_move(s.c, s.log_theta, self.stay_prob, self.seed, self._t, not warm)
+        else:
+            (c, acc_c), stats = update_classes(s, data, self.stay_prob, g), None
+            s = s._replace(c=c)
+        log_theta, acc_t = update_theta(s, data, self._walk_theta.step, g, stats)
         s = s._replace(log_theta=log_theta)
         log_kappa, log_gamma, acc_h = update_hyper(s, self.hyperprior, self._walk_hyper.chol, g)
         self._state = s._replace(log_kappa=log_kappa, log_gamma=log_gamma)
@@ -150,8 +173,8 @@ class HBNIMetropolis(BatchedKernel):
             self._walk_theta.adapt(acc_t, self._t)
             x = torch.stack([log_kappa, log_gamma], -1)
             self._walk_hyper.adapt(x, acc_h, self._t, self._warmup_steps)
-        else:
-            self.frames.record(c)
+        elif not frames.compiled:
+            frames.record(s.c)
         return {"c": fraction(acc_c, self._class_moves), "theta": fraction(acc_t), "hyper": fraction(acc_h)}
 
     @property

@@ -205,17 +205,19 @@ def theta_log_target(log_theta: Tensor, counts: Tensor, sum_log: Tensor, kappa: 
 
 
 def update_theta(
-    state: MHState, data: MHData, step: Tensor, generator: torch.Generator
+    state: MHState, data: MHData, step: Tensor, generator: torch.Generator,
+    stats: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on every ``log theta_m`` in parallel (independent given c, kappa, gamma).
 
     Args:
         step: ``(..., M)`` proposal standard deviations on the log scale.
+        stats: the unlabelled outputs' :func:`sufficient_stats` of ``state.c`` if already known.
 
     Returns:
         new ``log_theta (..., M)`` and ``accepted (..., M)`` bool.
     """
-    counts, sum_log = sufficient_stats(state.c, data.log_obs)
+    counts, sum_log = sufficient_stats(state.c, data.log_obs) if stats is None else stats
     counts = counts + data.known_counts
     known = data.known_sums
     sum_log = sum_log + (known.diagonal(dim1=-2, dim2=-1) if isinstance(known, Tensor) else known)

@@ -1,0 +1,80 @@
+"""The compiled class move of the paper's model against exact enumeration and the torch move; seeded determinism."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hbni_pyro.density import lifted_normaliser
+from hbni_pyro.kernels.class_move_numba import class_move_stats
+from hbni_pyro.kernels.mh_steps import MHState, frame_data, sufficient_stats, update_classes
+
+M, N, CHAINS, STEPS = 3, 4, 20000, 40
+OBS = torch.tensor([[0.7, 0.2, 0.1], [0.1, 0.3, 0.6], [0.34, 0.33, 0.33], [0.05, 0.9, 0.05]], dtype=torch.float64)
+THETA = torch.tensor([2.0, 5.0, 1.0], dtype=torch.float64)
+LOG_PRIOR = torch.tensor([0.2, 0.5, 0.3], dtype=torch.float64).log()
+
+
+def _exact() -> torch.Tensor:
+    """``(N, M)`` ``p(c_i = k | o_i, theta)`` by enumeration of the classes."""
+    log_p = lifted_normaliser(THETA, M) + LOG_PRIOR + THETA * OBS.log()
+    return torch.softmax(log_p, -1)
+
+
+def _compiled(c: np.ndarray, seed: int, iteration: int, labels: np.ndarray | None = None) -> tuple:
+    data = frame_data(OBS, torch.full((N,), -1), LOG_PRIOR)
+    arrays = [np.ascontiguousarray(t.numpy()[None]) for t in (data.log_obs, data.log_proposal, data.alias_prob, data.alias)]
+    labels = np.full((1, N), -1, dtype=np.int64) if labels is None else labels
+    offset = (lifted_normaliser(THETA, M) + LOG_PRIOR).expand(1, c.shape[1], M).contiguous().numpy()
+    theta = THETA.expand(1, c.shape[1], M).contiguous().numpy()
+    counts = np.zeros((1, N, M))
+    out = class_move_stats(c, labels, *arrays[:1], *arrays[1:], offset, theta, 0.5, np.uint64(seed), np.int64(iteration),
+                           counts, True)
+    return out + (counts,)
+
+
+def _tolerance(p: torch.Tensor) -> torch.Tensor:
+    """Five Monte Carlo standard errors of a frequency over independent chains."""
+    return 5 * (p * (1 - p) / CHAINS).sqrt() + 1e-12
+
+
+def test_compiled_move_keeps_the_exact_conditional() -> None:
+    c = np.zeros((1, CHAINS, N), dtype=np.int64)
+    for t in range(STEPS):
+        _compiled(c, 3, t)
+    freq = torch.nn.functional.one_hot(torch.from_numpy(c[0]), M).double().mean(0)
+    exact = _exact()
+    assert ((freq - exact).abs() <= _tolerance(exact)).all(), (freq, exact)
+
+
+def test_torch_move_agrees_with_the_exact_conditional() -> None:
+    data = frame_data(OBS, torch.full((N,), -1), LOG_PRIOR)
+    state = MHState(torch.zeros(CHAINS, N, dtype=torch.long), THETA.log().expand(CHAINS, M), torch.zeros(CHAINS),
+                    torch.zeros(CHAINS))
+    g = torch.Generator().manual_seed(0)
+    for _ in range(STEPS):
+        update_classes(state, data, 0.5, g)
+    freq = torch.nn.functional.one_hot(state.c, M).double().mean(0)
+    exact = _exact()
+    assert ((freq - exact).abs() <= _tolerance(exact)).all(), (freq, exact)
+
+
+def test_compiled_statistics_labels_and_counts() -> None:
+    c = np.random.default_rng(0).integers(0, M, (1, 8, N))
+    labels = np.array([[-1, 2, -1, 0]])
+    c[0, :, 1], c[0, :, 3] = 2, 0
+    counts, sums, accepted, recorded = _compiled(c, 1, 0, labels)
+    want_counts, want_sums = sufficient_stats(torch.from_numpy(c), OBS.log())
+    assert np.array_equal(counts, want_counts.numpy()) and np.allclose(sums, want_sums.numpy())
+    assert (c[0, :, 1] == 2).all() and (c[0, :, 3] == 0).all()
+    assert np.array_equal(recorded[0], torch.nn.functional.one_hot(torch.from_numpy(c[0]), M).sum(0).double().numpy())
+    assert accepted.shape == (1, 8) and (accepted >= 0).all()
+
+
+def test_compiled_move_is_seeded() -> None:
+    start = np.random.default_rng(1).integers(0, M, (1, 64, N))
+    a, b, d = start.copy(), start.copy(), start.copy()
+    _compiled(a, 5, 7)
+    _compiled(b, 5, 7)
+    _compiled(d, 6, 7)
+    assert np.array_equal(a, b) and not np.array_equal(a, d)
