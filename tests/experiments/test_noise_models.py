@@ -89,7 +89,8 @@ def test_the_photo_condition_reports_sizes_honesty_and_the_default_models_target
 
 
 def test_the_photo_condition_alone_is_a_study(tmp_path, repo_root):
-    _run(repo_root, tmp_path / "run", "study.conditions={}", "study.cache_dir=null", "study.models=[sequence]")
+    _run(repo_root, tmp_path / "run", "~study.conditions.default", "~study.conditions.in_flight", "study.cache_dir=null",
+         "study.models=[sequence]")
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics["conditions"]) == {"photos"}
     assert set(metrics["conditions"]["photos"]["filters"]) == {"sequence", "ssbf", "max_of_mean"}
