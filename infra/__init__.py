@@ -5,6 +5,7 @@ A leaf package: it imports nothing of the project and holds no domain code.
 * :mod:`infra.files`: atomic, fsynced file writes that respect the umask.
 * :mod:`infra.tensorfile`: one-file storage of named tensors plus JSON metadata (safetensors, no pickle).
 * :mod:`infra.fingerprint`: what produced a checkpoint or cache, and a check that names the field that differs.
+* :mod:`infra.counter_random`: counter-based SplitMix64 random streams for compiled (numba) loops.
 * :mod:`infra.threads`: one thread setting for torch's intra-op threads and compiled loops' worker threads.
 
 See ``docs/architecture.md`` for where this sits in the project.

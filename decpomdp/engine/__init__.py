@@ -16,7 +16,7 @@ CACHE_DIR = use_cache_dir()  # before any engine function is decorated
 
 from decpomdp.engine.domain import EngineDomain, EngineModel, StateLayout  # noqa: E402
 from decpomdp.engine.perception import OutcomeTable, no_perception, outcome_table, sample_outcome  # noqa: E402
-from decpomdp.engine.random import below, draw_seed, normal, uniform  # noqa: E402
+from infra.counter_random import below, draw_seed, normal, uniform  # noqa: E402
 from decpomdp.engine.simulate import EngineRun, engine_model, run  # noqa: E402
 
 __all__ = [

@@ -5,7 +5,7 @@ horizon), the completing agents' ``complete`` rule (reward, observation), each o
 its controller, and their ``start`` rule begins the next MA. Rollouts are split into chunks that
 threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
 each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)``
-(:mod:`decpomdp.engine.random`), so the returns do not depend on the thread count or the chunking.
+(:mod:`infra.counter_random`), so the returns do not depend on the thread count or the chunking.
 
 A domain's rules are three compiled scalar functions on one rollout's state, an int64 vector ``si``
 and a float64 vector ``sf`` (see :class:`decpomdp.engine.EngineDomain`), marked
@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 from numba.core.compiler import Compiler
 
-from decpomdp.engine.random import stream_key
+from infra.counter_random import stream_key
 
 ZERO_DURATION = 1  # error flag: a rule returned an end time not after the event that started it
 

@@ -6,7 +6,7 @@ probability ``stay_prob``, else propose from the alias tables of ``w_i``, accept
 ratio. Under the paper's model ``log p(c_i = k) + log Dir(o_i; theta_k e_k + 1)`` is
 ``offset_k + theta_k log o_ik``, so a move is ``O(1)`` per output.
 
-Random numbers are counter-based (SplitMix64, :mod:`decpomdp.engine.random`), one stream per
+Random numbers are counter-based (SplitMix64, :mod:`infra.counter_random`), one stream per
 (iteration, chain, block of :data:`ROWS` outputs), and the statistics are summed block by block in
 a fixed order, so a seed gives the same draws whatever the thread count.
 
@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from decpomdp.engine.random import stream_key, uniform
+from infra.counter_random import stream_key, uniform
 
 ROWS = 512
 """Outputs per block (one random stream and one partial sum per chain and block)."""

@@ -1,11 +1,12 @@
-"""Counter-based random numbers for the compiled engine: one SplitMix64 stream per rollout.
+"""Counter-based random numbers for compiled loops: one SplitMix64 stream per unit of work.
 
-A rollout's stream is keyed by ``(seed, controller, rollout)``: its key is a hash of the three, and
+A stream is keyed by three integers, e.g. ``(seed, controller, rollout)`` in the rollout engine or
+``(seed, iteration, chain and block)`` in the compiled MH class move: its key is a hash of the three, and
 its ``i``-th draw is ``mix64(key + i * GOLDEN)`` (SplitMix64, Steele, Lea and Flood, OOPSLA 2014).
-A draw therefore depends on nothing but the key and how many draws the rollout made before it, so a
-seed gives the same returns whatever the thread count, the chunking or the order of the rollouts.
+A draw therefore depends on nothing but the key and how many draws were made from it before, so a
+seed gives the same results whatever the thread count, the chunking or the order of the work.
 
-The state of a stream is one ``uint64`` (``rng[0]``, a length-1 array the rollout owns).
+The state of a stream is one ``uint64`` (``rng[0]``, a length-1 array its owner keeps).
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def below(rng: np.ndarray, n: np.int64) -> np.int64:
 
 
 def draw_seed(generator) -> int:
-    """A 62-bit engine seed drawn from a ``torch.Generator`` (so a run seeded once stays reproducible)."""
+    """A 62-bit seed for these streams drawn from a ``torch.Generator`` (so a run seeded once stays reproducible)."""
     import torch
 
     return int(torch.randint(0, 2**62, (1,), generator=generator))
