@@ -458,21 +458,7 @@ class NoiseToyBlock:
 
 @dataclass
 class NoiseMissionBlock:
-    train_per_class: int = MISSING
-    augment: int = MISSING
-    calib_sequences: int = MISSING
-    test_sequences: int = MISSING
-    frames: int = MISSING
-
-    def check(self, path: str) -> None:
-        for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
-            positive_int(name, getattr(self, name))
-        positive_int("augment", self.augment, 0)
-
-
-@dataclass
-class NoisePhotosBlock:
-    """``study.photos``: sizes of the real-photo condition."""
+    """``study.mission`` and ``study.photos``: the sizes of a condition (snapshots, sequences, frames)."""
 
     train_per_class: int = MISSING
     augment: int = MISSING
@@ -499,7 +485,7 @@ class NoiseStudy:
     conditions: dict[str, Any] = MISSING
     images: Optional[str] = MISSING
     images_calibration: float = MISSING
-    photos: Optional[NoisePhotosBlock] = None
+    photos: Optional[NoiseMissionBlock] = None
 
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names
