@@ -485,7 +485,7 @@ class NoiseStudy:
     conditions: dict[str, Any] = MISSING
     images: Optional[str] = MISSING
     images_calibration: float = MISSING
-    photos: Optional[NoiseMissionBlock] = None
+    photos: Optional[NoiseMissionBlock] = MISSING
 
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names
