@@ -24,7 +24,11 @@ from hbni_pyro.sequence_model import SequenceStats, look_residuals
 from hbni_pyro.wishart import logdet_spd, sample_wishart
 
 LOOK_CHUNK = 4096
-"""Sequences per block when their looks are drawn."""
+"""Sequences per block when their looks are drawn by gathering each one's factors."""
+GROUPED_LOOKS = 32
+"""Up to this many (class, frame count) groups, every sequence's look is computed under every group's factors in
+one batched product and the right one kept (no d x d factor gathered per sequence); beyond it, the factors are
+gathered per sequence in blocks of LOOK_CHUNK."""
 
 
 class SequenceState(NamedTuple):
@@ -88,7 +92,9 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
 def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator: torch.Generator) -> Tensor:
     """Exact draw of every look ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)`` with
     ``P = B_c^-1 + n W^-1``. ``P`` depends only on the class and the frame count, so it is factored
-    once per (class, distinct count) and gathered per sequence in blocks of :data:`LOOK_CHUNK`."""
+    once per (class, distinct count); with at most :data:`GROUPED_LOOKS` such groups every sequence goes through
+    every group's factors in one batched product and keeps its own, else the factors are gathered per sequence
+    in blocks of :data:`LOOK_CHUNK`."""
     counts, which = torch.unique(stats.count, return_inverse=True)
     prec_between = torch.linalg.inv(state.between)  # (..., M, d, d)
     prec_within = torch.linalg.inv(state.within)  # (..., d, d)
@@ -96,10 +102,19 @@ def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator:
     cov = torch.linalg.inv(prec)
     flat_cov, flat_tril = cov.flatten(-4, -3), torch.linalg.cholesky(cov).flatten(-4, -3)  # (..., M * U, d, d)
     pb_loc = (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1)  # (..., M, d)
-    wy = (prec_within.unsqueeze(-3) @ stats.sum_y.unsqueeze(-1)).squeeze(-1)  # (..., K, d)
-    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype)
+    wy = stats.sum_y @ prec_within.transpose(-1, -2)  # (..., K, d): W^-1 sum y per sequence
+    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype,
+                    device=state.loc.device)
     group = c * counts.shape[0] + which.expand(c.shape)
-    look = torch.empty(z.shape, dtype=z.dtype)
+    if flat_cov.shape[-3] <= GROUPED_LOOKS:  # few groups: every sequence through every group's factors at once
+        d = z.shape[-1]
+        lhs = torch.cat([_per_sequence(pb_loc, c) + wy, z], -1)  # (..., K, 2d)
+        factors = torch.cat([flat_cov.transpose(-1, -2), flat_tril.transpose(-1, -2)], -2)  # (..., G, 2d, d)
+        factors = factors.movedim(-3, -2).flatten(-2)  # (..., 2d, G * d)
+        drawn = (lhs @ factors).unflatten(-1, (-1, d))  # (..., K, G, d): mean + tril z under every group
+        index = group[..., None, None].expand(group.shape + (1, d))
+        return drawn.gather(-2, index).squeeze(-2)
+    look = torch.empty(z.shape, dtype=z.dtype, device=z.device)
     for start in range(0, c.shape[-1], LOOK_CHUNK):
         rows = slice(start, start + LOOK_CHUNK)
         rhs = _per_sequence(pb_loc, c[..., rows]) + wy[..., rows, :]
