@@ -65,10 +65,13 @@ def exact_rates(count: int) -> dict[str, dict[str, float | None]]:
     from decpomdp import random_controllers
     from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 
-    ctrl = random_controllers(count, num_agents=2, num_nodes=3, num_actions=3, num_obs=2,
-                              generator=torch.Generator().manual_seed(0))
-    cases = {"dectiger h=4": (TabularDecPOSMDP.from_problem("dectiger", horizon=4), 4),
-             "dectiger gamma=0.9 h=inf": (TabularDecPOSMDP.from_problem("dectiger", gamma=0.9, horizon=4), math.inf)}
+    ctrl = random_controllers(
+        count, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
+    )
+    cases = {
+        "dectiger h=4": (TabularDecPOSMDP.from_problem("dectiger", horizon=4), 4),
+        "dectiger gamma=0.9 h=inf": (TabularDecPOSMDP.from_problem("dectiger", gamma=0.9, horizon=4), math.inf),
+    }
     out: dict[str, dict[str, float | None]] = {}
     for name, (env, horizon) in cases.items():
         out[name] = {}
@@ -76,8 +79,11 @@ def exact_rates(count: int) -> dict[str, dict[str, float | None]]:
             if device == "cuda" and not torch.cuda.is_available():
                 out[name][device] = None
                 continue
-            out[name][device] = _rate(lambda env=env, horizon=horizon, device=device: exact_value(
-                env, ctrl, horizon=horizon, device=device), count, device)
+            out[name][device] = _rate(
+                lambda env=env, horizon=horizon, device=device: exact_value(env, ctrl, horizon=horizon, device=device),
+                count,
+                device,
+            )
     return out
 
 

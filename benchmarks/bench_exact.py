@@ -62,12 +62,21 @@ def random_problem(n_states: int, n_actions: int, n_obs: int, per_row: int, seed
     n_ja, n_jo = n_actions**2, n_obs**2
     cols = np.sort(np.stack([rng.choice(n_states, per_row, replace=False) for _ in range(n_ja * n_states)]), axis=1)
     data = rng.dirichlet(np.ones(per_row), size=n_ja * n_states)
-    trans = SparseTransitions(n_ja, n_states, np.arange(0, n_ja * n_states * per_row + 1, per_row),
-                              cols.ravel().astype(np.int64), data.ravel())
+    trans = SparseTransitions(
+        n_ja,
+        n_states,
+        np.arange(0, n_ja * n_states * per_row + 1, per_row),
+        cols.ravel().astype(np.int64),
+        data.ravel(),
+    )
     model = DPOMDPModel(
-        agent_names=["0", "1"], state_names=[str(i) for i in range(n_states)],
-        action_names=[[str(i) for i in range(n_actions)]] * 2, obs_names=[[str(i) for i in range(n_obs)]] * 2,
-        discount=1.0, start=np.full(n_states, 1.0 / n_states), transition=trans,
+        agent_names=["0", "1"],
+        state_names=[str(i) for i in range(n_states)],
+        action_names=[[str(i) for i in range(n_actions)]] * 2,
+        obs_names=[[str(i) for i in range(n_obs)]] * 2,
+        discount=1.0,
+        start=np.full(n_states, 1.0 / n_states),
+        transition=trans,
         observation=rng.dirichlet(np.ones(n_jo), size=(n_ja, n_states)),
         reward=rng.normal(size=(n_ja, n_states, 1, 1)),
     )
@@ -98,9 +107,16 @@ def bench_evaluators(args: argparse.Namespace) -> None:
         ("random S=432, JO=4", random_problem(432, 4, 2, 8, stream_seed(args.seed, "S=432")), 7, 3),
         ("random S=81, JO=81", random_problem(81, 3, 9, 6, stream_seed(args.seed, "S=81")), 10, 4),
         ("random S=256, JO=64", random_problem(256, 3, 8, 8, stream_seed(args.seed, "S=256")), 7, 3),
-        ("fireFighting_2_4_3 S=2025, JO=4", TabularDecPOSMDP.from_problem("fireFighting_2_4_3", gamma=1.0, horizon=4), 10, 4),
+        (
+            "fireFighting_2_4_3 S=2025, JO=4",
+            TabularDecPOSMDP.from_problem("fireFighting_2_4_3", gamma=1.0, horizon=4),
+            10,
+            4,
+        ),
     ]
-    print(f"{'problem':34s} {'nodes':>5s} {'h':>2s} {'new ctrl/s':>11s} {'dense ctrl/s':>13s} {'speed-up':>9s} {'max |diff|':>10s}")
+    print(
+        f"{'problem':34s} {'nodes':>5s} {'h':>2s} {'new ctrl/s':>11s} {'dense ctrl/s':>13s} {'speed-up':>9s} {'max |diff|':>10s}"
+    )
     for name, env, nodes, horizon in cases:
         ctrl = layered_controllers(env, args.controllers, nodes, args.seed)
         exact_value(env, ctrl[:2], horizon=horizon)  # warm-up (operator build)
@@ -108,16 +124,20 @@ def bench_evaluators(args: argparse.Namespace) -> None:
         q, s, jo = nodes**2, env.num_states, env.observation.shape[-1]
         dense_bytes = q * s * s * jo * 8 * 2
         if dense_bytes > 4 * 1024**3:
-            print(f"{name:34s} {nodes:5d} {horizon:2d} {args.controllers / t_new:11.1f} {'n/a':>13s} {'n/a':>9s} {'':>10s}"
-                  f"  (dense product needs {dense_bytes / 1024**3:.0f} GB per controller)")
+            print(
+                f"{name:34s} {nodes:5d} {horizon:2d} {args.controllers / t_new:11.1f} {'n/a':>13s} {'n/a':>9s} {'':>10s}"
+                f"  (dense product needs {dense_bytes / 1024**3:.0f} GB per controller)"
+            )
             continue
         ref = ctrl[: args.reference]
         t_ref, v_ref = cpu_time(dense_reference_value, env, ref, horizon)
         diff = float((v_ref - v_new[: args.reference]).abs().max())
         new_rate, ref_rate = args.controllers / t_new, args.reference / t_ref
-        print(f"{name:34s} {nodes:5d} {horizon:2d} {new_rate:11.1f} {ref_rate:13.3f} {new_rate / ref_rate:8.0f}x {diff:10.1e}"
-              f"  ({'floor 50x met' if new_rate / ref_rate >= 50 else 'floor 50x NOT met'}; "
-              f"{'agree' if diff <= 1e-9 else 'DISAGREE'})")
+        print(
+            f"{name:34s} {nodes:5d} {horizon:2d} {new_rate:11.1f} {ref_rate:13.3f} {new_rate / ref_rate:8.0f}x {diff:10.1e}"
+            f"  ({'floor 50x met' if new_rate / ref_rate >= 50 else 'floor 50x NOT met'}; "
+            f"{'agree' if diff <= 1e-9 else 'DISAGREE'})"
+        )
 
 
 def bench_parser() -> None:

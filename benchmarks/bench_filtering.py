@@ -58,30 +58,40 @@ def main() -> None:
     args = parser.parse_args()
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
+        cfg = compose(
+            config_name="config", overrides=["experiment=filtering_error", "progress=false", f"seed={args.seed}"]
+        )
     s = cfg.study
-    print(f"filtering_error study: {s.num_trials} trials x N = 1..{s.max_len} x 5 methods x training sizes "
-          f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {cfg.hbni.fit.num_chains} chains, "
-          f"{cfg.hbni.fit.warmup_steps} + {cfg.hbni.fit.num_samples} steps), HBNI mode {cfg.hbni.filter.mode}, "
-          f"torch threads {torch.get_num_threads()}")
+    print(
+        f"filtering_error study: {s.num_trials} trials x N = 1..{s.max_len} x 5 methods x training sizes "
+        f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {cfg.hbni.fit.num_chains} chains, "
+        f"{cfg.hbni.fit.warmup_steps} + {cfg.hbni.fit.num_samples} steps), HBNI mode {cfg.hbni.filter.mode}, "
+        f"torch threads {torch.get_num_threads()}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         start, cpu = time.perf_counter(), time.process_time()
         metrics = run_study(cfg, Path(tmp))
         study_seconds, study_cpu = time.perf_counter() - start, time.process_time() - cpu
         fit_seconds = sum(f["seconds"] for f in metrics["fits"].values())
         posterior = HBNIPosterior.load(Path(tmp) / "posterior_train15_set0.safetensors")
-    print(f"  full study: {study_seconds:.1f} s wall, {study_cpu:.1f} s CPU over all threads (MH fits {fit_seconds:.1f} s wall)"
-          f"   floor < {STUDY_FLOOR_SECONDS:.0f} s: "
-          f"{'PASS' if study_seconds < STUDY_FLOOR_SECONDS else 'FAIL'}")
+    print(
+        f"  full study: {study_seconds:.1f} s wall, {study_cpu:.1f} s CPU over all threads (MH fits {fit_seconds:.1f} s wall)"
+        f"   floor < {STUDY_FLOOR_SECONDS:.0f} s: "
+        f"{'PASS' if study_seconds < STUDY_FLOOR_SECONDS else 'FAIL'}"
+    )
     for size, cross in metrics["crossing_n"].items():
-        print(f"  training {size:>3}: N at error <= 5% / 1% / 0.5%: "
-              + ", ".join(f"{m} {'/'.join(str(v) for v in c.values())}" for m, c in cross.items()))
+        print(
+            f"  training {size:>3}: N at error <= 5% / 1% / 0.5%: "
+            + ", ".join(f"{m} {'/'.join(str(v) for v in c.values())}" for m, c in cross.items())
+        )
 
     filt = HBNIFilter(posterior, "marginal", num_draws=1000)
     g = torch.Generator().manual_seed(args.seed)
     trials, length = int(s.num_trials), int(s.max_len)
     truth = torch.randint(3, (trials,), generator=g)
-    obs = sample_outputs(torch.tensor(list(s.true_theta), dtype=torch.float64), truth[:, None].expand(trials, length), g)
+    obs = sample_outputs(
+        torch.tensor(list(s.true_theta), dtype=torch.float64), truth[:, None].expand(trials, length), g
+    )
     start = time.perf_counter()
     batched = filt.run(obs)
     batched_rate = trials * length / (time.perf_counter() - start)
@@ -94,7 +104,9 @@ def main() -> None:
     ratio = batched_rate / reference_rate
     print(f"HBNI marginal filter, {filt.theta.shape[0]} posterior draws, M = {filt.num_classes}:")
     print(f"  batched run over {trials} x {length} frames: {batched_rate:,.0f} frame updates/s")
-    print(f"  scipy.stats.dirichlet.logpdf per-frame loop ({frames} frames, extrapolated): {reference_rate:,.2f} frame updates/s")
+    print(
+        f"  scipy.stats.dirichlet.logpdf per-frame loop ({frames} frames, extrapolated): {reference_rate:,.2f} frame updates/s"
+    )
     print(f"  ratio: {ratio:,.0f}x   floor >= {RATIO_FLOOR:.0f}x: {'PASS' if ratio >= RATIO_FLOOR else 'FAIL'}")
 
 

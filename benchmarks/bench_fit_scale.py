@@ -62,8 +62,14 @@ def case_fit(kind: str, model: str) -> dict:
     base = _peak_bytes()
     wall, cpu = time.perf_counter(), time.process_time()
     post = hbni_pyro.fit(obs, classes if kind == "labelled" else None, model=model, sequence_ids=ids, progress=False)
-    return {"case": f"{kind} fit {n} x 10, {model}", "wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu,
-            "peak_gb": _peak_bytes() / GB, "data_gb": base / GB, "draws": post.num_chains * post.num_draws}
+    return {
+        "case": f"{kind} fit {n} x 10, {model}",
+        "wall_s": time.perf_counter() - wall,
+        "cpu_s": time.process_time() - cpu,
+        "peak_gb": _peak_bytes() / GB,
+        "data_gb": base / GB,
+        "draws": post.num_chains * post.num_draws,
+    }
 
 
 def case_filter() -> list[dict]:
@@ -74,21 +80,37 @@ def case_filter() -> list[dict]:
     torch.set_num_threads(2)
     M, C, S = 6, 16, 1000
     g = torch.Generator().manual_seed(0)
-    theta = torch.linspace(1.0, 20.0, M, dtype=torch.float64) * torch.exp(0.2 * torch.randn(C, S, M, generator=g, dtype=torch.float64))
+    theta = torch.linspace(1.0, 20.0, M, dtype=torch.float64) * torch.exp(
+        0.2 * torch.randn(C, S, M, generator=g, dtype=torch.float64)
+    )
     ones = torch.ones(C, S, dtype=torch.float64)
-    beta = torch.exp(0.3 * torch.randn(C, S, M, M, generator=g, dtype=torch.float64)).masked_fill(torch.eye(M, dtype=torch.bool), 1.0)
+    beta = torch.exp(0.3 * torch.randn(C, S, M, M, generator=g, dtype=torch.float64)).masked_fill(
+        torch.eye(M, dtype=torch.bool), 1.0
+    )
     d = M - 1
     a = 0.3 * torch.randn(C, S, M, d, d, generator=g, dtype=torch.float64)
     b = 0.2 * torch.randn(C, S, d, d, generator=g, dtype=torch.float64)
     eye = torch.eye(d, dtype=torch.float64)
     posts = {
-        "paper": HBNIPosterior({"theta": theta, "kappa": ones, "gamma": ones}, torch.full((M,), 1 / M, dtype=torch.float64)),
-        "confusion": HBNIPosterior({"theta": theta, "beta": beta, "kappa": ones, "gamma": ones, "beta_loc": 0 * ones,
-                                    "beta_scale": ones}, torch.full((M,), 1 / M, dtype=torch.float64), model="confusion"),
-        "sequence": HBNIPosterior({"loc": torch.randn(C, S, M, d, generator=g, dtype=torch.float64),
-                                   "between": a @ a.transpose(-1, -2) + 0.1 * eye, "between_mean": 0.1 * eye.expand(C, S, d, d),
-                                   "between_pooling": ones, "within": b @ b.transpose(-1, -2) + 0.1 * eye},
-                                  torch.full((M,), 1 / M, dtype=torch.float64), model="sequence"),
+        "paper": HBNIPosterior(
+            {"theta": theta, "kappa": ones, "gamma": ones}, torch.full((M,), 1 / M, dtype=torch.float64)
+        ),
+        "confusion": HBNIPosterior(
+            {"theta": theta, "beta": beta, "kappa": ones, "gamma": ones, "beta_loc": 0 * ones, "beta_scale": ones},
+            torch.full((M,), 1 / M, dtype=torch.float64),
+            model="confusion",
+        ),
+        "sequence": HBNIPosterior(
+            {
+                "loc": torch.randn(C, S, M, d, generator=g, dtype=torch.float64),
+                "between": a @ a.transpose(-1, -2) + 0.1 * eye,
+                "between_mean": 0.1 * eye.expand(C, S, d, d),
+                "between_pooling": ones,
+                "within": b @ b.transpose(-1, -2) + 0.1 * eye,
+            },
+            torch.full((M,), 1 / M, dtype=torch.float64),
+            model="sequence",
+        ),
     }
     frames = sample_outputs(torch.full((M,), 5.0, dtype=torch.float64), torch.zeros(200, dtype=torch.long), g)
     out = []
@@ -102,8 +124,13 @@ def case_filter() -> list[dict]:
             for o in frames:
                 f.update(o)
             n = len(frames)
-            out.append({"case": f"filter update, {name}, {f.draws[next(iter(f.draws))].shape[0]} draws",
-                        "wall_ms": 1e3 * (time.perf_counter() - wall) / n, "cpu_ms": 1e3 * (time.process_time() - cpu) / n})
+            out.append(
+                {
+                    "case": f"filter update, {name}, {f.draws[next(iter(f.draws))].shape[0]} draws",
+                    "wall_ms": 1e3 * (time.perf_counter() - wall) / n,
+                    "cpu_ms": 1e3 * (time.process_time() - cpu) / n,
+                }
+            )
     return out
 
 
@@ -136,12 +163,21 @@ def main() -> None:
 
 def _print_row(r: dict) -> None:
     if "peak_gb" in r:
-        floor = {"labelled fit 1000000 x 10, paper": "floor 10 s, 1 GB", "labelled fit 1000000 x 10, sequence": "floor 60 CPU s, 1 GB",
-                 "unlabelled fit 200000 x 10, paper": "floor 60 CPU s, 1 GB"}
-        print(f"{r['case']:42s} wall {r['wall_s']:7.2f} s  cpu {r['cpu_s']:7.2f} s  peak {r['peak_gb']:.2f} GB "
-              f"(after data and imports {r['data_gb']:.2f} GB)  {floor.get(r['case'], '')}", flush=True)
+        floor = {
+            "labelled fit 1000000 x 10, paper": "floor 10 s, 1 GB",
+            "labelled fit 1000000 x 10, sequence": "floor 60 CPU s, 1 GB",
+            "unlabelled fit 200000 x 10, paper": "floor 60 CPU s, 1 GB",
+        }
+        print(
+            f"{r['case']:42s} wall {r['wall_s']:7.2f} s  cpu {r['cpu_s']:7.2f} s  peak {r['peak_gb']:.2f} GB "
+            f"(after data and imports {r['data_gb']:.2f} GB)  {floor.get(r['case'], '')}",
+            flush=True,
+        )
     else:
-        print(f"{r['case']:42s} wall {r['wall_ms']:7.3f} ms  cpu {r['cpu_ms']:7.3f} ms per frame  floor 2 ms", flush=True)
+        print(
+            f"{r['case']:42s} wall {r['wall_ms']:7.3f} ms  cpu {r['cpu_ms']:7.3f} ms per frame  floor 2 ms", flush=True
+        )
+
 
 if __name__ == "__main__":
     main()

@@ -39,8 +39,9 @@ def default_planner() -> PlannerConfig:
     """The planner settings of ``conf/planner/cold.yaml``."""
     from pathlib import Path
 
-    with initialize_config_dir(config_dir=str(Path(__file__).resolve().parents[1] / "conf" / "planner"),
-                               version_base=None):
+    with initialize_config_dir(
+        config_dir=str(Path(__file__).resolve().parents[1] / "conf" / "planner"), version_base=None
+    ):
         return instantiate(compose(config_name="cold"))
 
 
@@ -54,8 +55,9 @@ def tiger_iteration_cpu(seed: int) -> float:
     """CPU seconds of one G-DICE iteration's evaluation on Dec-Tiger (horizon 50, 100 samples x 80 rollouts)."""
     tiger = TabularDecPOSMDP.from_problem("dectiger", gamma=0.99, horizon=50)
     gen = torch.Generator().manual_seed(seed)
-    ctrl = random_controllers(100, num_agents=2, num_nodes=13,
-                              num_actions=tiger.num_actions, num_obs=tiger.num_obs, generator=gen)
+    ctrl = random_controllers(
+        100, num_agents=2, num_nodes=13, num_actions=tiger.num_actions, num_obs=tiger.num_obs, generator=gen
+    )
     return timed(lambda: RolloutScorer(tiger)(ctrl, 80, gen))[1]
 
 
@@ -78,16 +80,24 @@ def main() -> None:
     if not args.skip_default:
         runs.append(("cold-start planner, default budget", default))
     for name, cfg in runs:
-        out, cpu, wall = timed(lambda cfg=cfg: plan(RolloutScorer(env, shared=True), cfg, seed=args.seed, progress=True))
+        out, cpu, wall = timed(
+            lambda cfg=cfg: plan(RolloutScorer(env, shared=True), cfg, seed=args.seed, progress=True)
+        )
         rows.append((name, out.rollouts, cpu, wall, *reeval(out.best)))
     ref = rows[0][2]
-    print(f"\npackage delivery, shared controller, seed {args.seed}; values re-evaluated on {args.reeval} fresh rollouts")
+    print(
+        f"\npackage delivery, shared controller, seed {args.seed}; values re-evaluated on {args.reeval} fresh rollouts"
+    )
     print("| run | rollouts | CPU s | wall s | CPU / paper G-DICE | value +- s.e. |\n|---|---|---|---|---|---|")
     for name, rollouts, cpu, wall, mean, se in rows:
-        print(f"| {name} | {rollouts:,} | {cpu:.1f} | {wall:.1f} | {cpu / ref:.2f} | {float(mean):.3f} +- {float(se):.3f} |")
+        print(
+            f"| {name} | {rollouts:,} | {cpu:.1f} | {wall:.1f} | {cpu / ref:.2f} | {float(mean):.3f} +- {float(se):.3f} |"
+        )
     tab = tiger_iteration_cpu(args.seed)
-    print(f"one G-DICE iteration (CPU s): package delivery {ref / paper.ce_iterations:.3f} vs Dec-Tiger horizon 50 "
-          f"(8000 rollouts, 50 events) {tab:.3f}; ratio {ref / paper.ce_iterations / tab:.2f}")
+    print(
+        f"one G-DICE iteration (CPU s): package delivery {ref / paper.ce_iterations:.3f} vs Dec-Tiger horizon 50 "
+        f"(8000 rollouts, 50 events) {tab:.3f}; ratio {ref / paper.ce_iterations / tab:.2f}"
+    )
 
 
 if __name__ == "__main__":

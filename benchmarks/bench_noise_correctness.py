@@ -23,7 +23,11 @@ from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequen
 from hbni_pyro.sbc import run_sbc
 from infra.streams import stream_seed
 
-SBC_CASES = {"paper": dict(labelled=False, size=15), "confusion": dict(size=30), "sequence": dict(size=12, num_frames=5)}
+SBC_CASES = {
+    "paper": dict(labelled=False, size=15),
+    "confusion": dict(size=30),
+    "sequence": dict(size=12, num_frames=5),
+}
 
 
 def sbc(datasets: int, seed: int) -> None:
@@ -32,8 +36,10 @@ def sbc(datasets: int, seed: int) -> None:
         r = run_sbc(model, datasets, seed=seed, **kw)
         floor = 0.01 / len(r.p_value)
         worst = min(r.p_value, key=r.p_value.get)
-        print(f"SBC {model:9s} {datasets} datasets, {r.num_draws} draws each, cpu {time.process_time() - cpu:6.1f} s: "
-              f"smallest p = {r.p_value[worst]:.4f} ({worst}), floor {floor:.4f} -> {'uniform' if r.p_value[worst] > floor else 'NOT uniform'}")
+        print(
+            f"SBC {model:9s} {datasets} datasets, {r.num_draws} draws each, cpu {time.process_time() - cpu:6.1f} s: "
+            f"smallest p = {r.p_value[worst]:.4f} ({worst}), floor {floor:.4f} -> {'uniform' if r.p_value[worst] > floor else 'NOT uniform'}"
+        )
         print("   " + ", ".join(f"{k} {p:.3f}" for k, p in r.p_value.items()))
 
 
@@ -59,19 +65,45 @@ def datasets(seed: int) -> dict[str, tuple]:
 def mh_vs_nuts(seed: int, nuts_samples: int) -> None:
     for model, (obs, labels, extra) in datasets(seed).items():
         cpu = time.process_time()
-        mh = hbni_pyro.fit(obs, labels, model=model, num_chains=64, num_samples=2000, warmup_steps=1000, seed=seed,
-                           progress=False, **extra)
+        mh = hbni_pyro.fit(
+            obs,
+            labels,
+            model=model,
+            num_chains=64,
+            num_samples=2000,
+            warmup_steps=1000,
+            seed=seed,
+            progress=False,
+            **extra,
+        )
         mh_cpu, cpu = time.process_time() - cpu, time.process_time()
-        nuts = hbni_pyro.fit(obs, labels, model=model, method="nuts", num_chains=2, num_samples=nuts_samples,
-                             warmup_steps=nuts_samples // 2, seed=stream_seed(seed, "nuts"), progress=False, **extra)
+        nuts = hbni_pyro.fit(
+            obs,
+            labels,
+            model=model,
+            method="nuts",
+            num_chains=2,
+            num_samples=nuts_samples,
+            warmup_steps=nuts_samples // 2,
+            seed=stream_seed(seed, "nuts"),
+            progress=False,
+            **extra,
+        )
         nuts_cpu = time.process_time() - cpu
         a, b = mh.summary(), nuts.summary()
-        z = {k: (a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"]) for k in a}
+        z = {
+            k: (a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
+            for k in a
+        }
         worst = max(z, key=lambda k: abs(z[k]))
-        print(f"MH vs NUTS {model:9s} MH cpu {mh_cpu:6.1f} s, NUTS cpu {nuts_cpu:6.1f} s ({nuts.info['divergences']} divergences): "
-              f"{len(z)} scalars, largest |z| = {abs(z[worst]):.2f} ({worst}); |z| > 3 for {sum(abs(v) > 3 for v in z.values())}")
+        print(
+            f"MH vs NUTS {model:9s} MH cpu {mh_cpu:6.1f} s, NUTS cpu {nuts_cpu:6.1f} s ({nuts.info['divergences']} divergences): "
+            f"{len(z)} scalars, largest |z| = {abs(z[worst]):.2f} ({worst}); |z| > 3 for {sum(abs(v) > 3 for v in z.values())}"
+        )
         for k in a:
-            print(f"   {k:18s} MH {a[k]['mean']:9.4f} (ess {a[k]['ess']:7.0f})  NUTS {b[k]['mean']:9.4f} (ess {b[k]['ess']:6.0f})  z {z[k]:6.2f}")
+            print(
+                f"   {k:18s} MH {a[k]['mean']:9.4f} (ess {a[k]['ess']:7.0f})  NUTS {b[k]['mean']:9.4f} (ess {b[k]['ess']:6.0f})  z {z[k]:6.2f}"
+            )
 
 
 def main() -> None:

@@ -39,13 +39,24 @@ def _features(clf: FrameClassifier, n: int, conditions: str, seed: int) -> tuple
 
 
 def bench_frame_rate(clf: FrameClassifier, x_cal: torch.Tensor, y_cal: np.ndarray, frames: int, seed: int) -> None:
-    posterior = hbni_pyro.fit(clf.proba_from_features(x_cal).double(), torch.as_tensor(y_cal), num_chains=8,
-                              num_samples=500, warmup_steps=300, seed=seed, progress=False)
+    posterior = hbni_pyro.fit(
+        clf.proba_from_features(x_cal).double(),
+        torch.as_tensor(y_cal),
+        num_chains=8,
+        num_samples=500,
+        warmup_steps=300,
+        seed=seed,
+        progress=False,
+    )
     filt = hbni_pyro.HBNIFilter(posterior, mode="marginal")
     per_class = frames // len(VEHICLES) + 1
-    seq = np.concatenate([render_sequence(name, per_class, "mission", seed=stream_seed(seed, "sequence")) for name in VEHICLES])[:frames]
-    print(f"[frame rate] {len(seq)} mission frames one at a time (crop, backbone, head, HBNI marginal update over "
-          f"{filt.theta.shape[0]} draws)")
+    seq = np.concatenate(
+        [render_sequence(name, per_class, "mission", seed=stream_seed(seed, "sequence")) for name in VEHICLES]
+    )[:frames]
+    print(
+        f"[frame rate] {len(seq)} mission frames one at a time (crop, backbone, head, HBNI marginal update over "
+        f"{filt.theta.shape[0]} draws)"
+    )
     for threads in (1, 2):
         clf.threads = threads
         for frame in seq[:3]:  # warm-up
@@ -62,10 +73,14 @@ def bench_frame_rate(clf: FrameClassifier, x_cal: torch.Tensor, y_cal: np.ndarra
             t_filter += t2 - t1
         total = t_clf + t_filter
         fps = len(seq) / total
-        print(f"  backbone threads={threads}: backbone+head {1e3 * t_clf / len(seq):.1f} ms/frame, "
-              f"HBNI update {1e3 * t_filter / len(seq):.2f} ms/frame")
-        print(f"    throughput {fps:.1f} fps (floor {FLOOR_FPS:.0f} fps: {'met' if fps >= FLOOR_FPS else 'NOT met'}, "
-              f"ratio to floor {fps / FLOOR_FPS:.2f}x); HBNI share of frame time {100 * t_filter / total:.2f} %")
+        print(
+            f"  backbone threads={threads}: backbone+head {1e3 * t_clf / len(seq):.1f} ms/frame, "
+            f"HBNI update {1e3 * t_filter / len(seq):.2f} ms/frame"
+        )
+        print(
+            f"    throughput {fps:.1f} fps (floor {FLOOR_FPS:.0f} fps: {'met' if fps >= FLOOR_FPS else 'NOT met'}, "
+            f"ratio to floor {fps / FLOOR_FPS:.2f}x); HBNI share of frame time {100 * t_filter / total:.2f} %"
+        )
 
 
 def bench_head(x_tr, y_tr, x_te, y_te, seed: int) -> None:
@@ -83,10 +98,14 @@ def bench_head(x_tr, y_tr, x_te, y_te, seed: int) -> None:
         ref = SVC(kernel="linear", probability=True, C=1.0, random_state=seed).fit(a, y_tr)
         t_ref = time.perf_counter() - t0
     p, p_ref = head.predict_proba(b).numpy(), ref.predict_proba(b)
-    print(f"[head] {len(y_tr)} training-condition snapshots to train, {len(y_te)} mission-condition snapshots to test, "
-          f"{a.shape[1]} features, 3 classes")
-    print(f"  train time: torch OvO SVC {t_ours:.2f} s, sklearn SVC {t_ref:.2f} s "
-          f"(ratio ours/sklearn {t_ours / t_ref:.1f}x)")
+    print(
+        f"[head] {len(y_tr)} training-condition snapshots to train, {len(y_te)} mission-condition snapshots to test, "
+        f"{a.shape[1]} features, 3 classes"
+    )
+    print(
+        f"  train time: torch OvO SVC {t_ours:.2f} s, sklearn SVC {t_ref:.2f} s "
+        f"(ratio ours/sklearn {t_ours / t_ref:.1f}x)"
+    )
     acc, acc_ref = accuracy_score(y_te, head.predict(b)), accuracy_score(y_te, ref.predict(b))
     print(f"  accuracy: ours {acc:.3f}, sklearn {acc_ref:.3f}")
     print(f"  log-loss: ours {log_loss(y_te, p):.3f}, sklearn {log_loss(y_te, p_ref):.3f}")

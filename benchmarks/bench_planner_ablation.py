@@ -74,8 +74,14 @@ def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, see
     cpu = time.process_time() - cpu
     team = shared(best, env.num_agents) if shared_controller else best
     returns, _ = rollout_counters(env, team, reeval, torch_stream(seed, "reeval"))
-    return {"variant": name, "value": float(returns.mean()), "stderr": float(returns.std() / reeval**0.5),
-            "rollouts": rollouts, "cpu_seconds": cpu, "nodes": best.num_nodes}
+    return {
+        "variant": name,
+        "value": float(returns.mean()),
+        "stderr": float(returns.std() / reeval**0.5),
+        "rollouts": rollouts,
+        "cpu_seconds": cpu,
+        "nodes": best.num_nodes,
+    }
 
 
 def main() -> None:
@@ -98,15 +104,22 @@ def main() -> None:
         cfg = dataclasses.replace(base, **VARIANTS.get(name, {}))
         rows.append(run_variant(env, shared_controller, name, cfg, args.seed, args.reeval))
         r = rows[-1]
-        print(f"{args.domain} | {name} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} s",
-              flush=True)
+        print(
+            f"{args.domain} | {name} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} s",
+            flush=True,
+        )
     print(f"\n{args.domain}, budget {base.budget:,} rollouts, seed {args.seed}, values on {args.reeval} fresh rollouts")
     print("| variant | value +- s.e. | rollouts | CPU s |\n|---|---|---|---|")
     for r in rows:
-        print(f"| {r['variant']} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} |")
+        print(
+            f"| {r['variant']} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} |"
+        )
     if args.out is not None:
-        atomic_write_text(args.out, json.dumps({"domain": args.domain, "budget": base.budget, "seed": args.seed,
-                                                "rows": rows}, indent=2) + "\n")
+        atomic_write_text(
+            args.out,
+            json.dumps({"domain": args.domain, "budget": base.budget, "seed": args.seed, "rows": rows}, indent=2)
+            + "\n",
+        )
         print(f"wrote {args.out}")
 
 

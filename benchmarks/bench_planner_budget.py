@@ -33,8 +33,10 @@ def main() -> None:
     parser.add_argument("--dr-budget", type=float, default=20e6)
     parser.add_argument("--reeval", type=int, default=4000)
     args = parser.parse_args()
-    domains = {"package delivery": (PackageDelivery(), True, int(args.pd_budget)),
-               "disaster relief, perfect perception": (DisasterRelief(), False, int(args.dr_budget))}
+    domains = {
+        "package delivery": (PackageDelivery(), True, int(args.pd_budget)),
+        "disaster relief, perfect perception": (DisasterRelief(), False, int(args.dr_budget)),
+    }
     print("| domain | seed | rollouts | CPU s | value ± s.e. | floor within 60 CPU s |\n|---|---|---|---|---|---|")
     with threads(1):
         for name, (env, share, budget) in domains.items():
@@ -45,8 +47,11 @@ def main() -> None:
                 best = shared(result.best, env.num_agents) if share else result.best
                 mean, se = evaluate(env, best, args.reeval, torch_stream(seed, "reeval"))
                 ok = float(mean) >= FLOORS[name] and cpu <= 60
-                print(f"| {name} | {seed} | {result.rollouts / 1e6:.1f} M | {cpu:.0f} | {float(mean):.3f} ± "
-                      f"{float(se):.3f} | {'yes' if ok else 'no'} |", flush=True)
+                print(
+                    f"| {name} | {seed} | {result.rollouts / 1e6:.1f} M | {cpu:.0f} | {float(mean):.3f} ± "
+                    f"{float(se):.3f} | {'yes' if ok else 'no'} |",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

@@ -35,23 +35,44 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    obs = sample_outputs(torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch.Generator().manual_seed(args.seed))
-    mh = hbni_pyro.fit(obs, method="mh", num_chains=args.mh_chains, num_samples=args.mh_samples,
-                       warmup_steps=args.mh_warmup, seed=args.seed, progress=False)
-    nuts = hbni_pyro.fit(obs, method="nuts", num_chains=args.nuts_chains, num_samples=args.nuts_samples,
-                         warmup_steps=args.nuts_warmup, seed=args.seed, progress=False, jit=True)
+    obs = sample_outputs(
+        torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch.Generator().manual_seed(args.seed)
+    )
+    mh = hbni_pyro.fit(
+        obs,
+        method="mh",
+        num_chains=args.mh_chains,
+        num_samples=args.mh_samples,
+        warmup_steps=args.mh_warmup,
+        seed=args.seed,
+        progress=False,
+    )
+    nuts = hbni_pyro.fit(
+        obs,
+        method="nuts",
+        num_chains=args.nuts_chains,
+        num_samples=args.nuts_samples,
+        warmup_steps=args.nuts_warmup,
+        seed=args.seed,
+        progress=False,
+        jit=True,
+    )
     rows = []
     for name, post in (("MH (vectorised)", mh), ("NUTS (jit)", nuts)):
         ess, rate, summary = min_ess_per_second(post)
         rows.append((name, post, ess, rate, summary))
-        print(f"{name:16s} chains={post.num_chains:4d} draws/chain={post.num_draws:5d} "
-              f"time={post.info['seconds']:7.2f}s  min-ESS={ess:9.0f}  min-ESS/s={rate:10.1f}")
+        print(
+            f"{name:16s} chains={post.num_chains:4d} draws/chain={post.num_draws:5d} "
+            f"time={post.info['seconds']:7.2f}s  min-ESS={ess:9.0f}  min-ESS/s={rate:10.1f}"
+        )
     print(f"ratio MH / NUTS in min-ESS/s: {rows[0][3] / rows[1][3]:.0f}x  (floor 100x)")
     print("posterior means (MH vs NUTS, difference in Monte Carlo standard errors):")
     a, b = rows[0][4], rows[1][4]
     for k in a:
         se = math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
-        print(f"  {k:9s} {a[k]['mean']:8.3f} vs {b[k]['mean']:8.3f}   |diff| = {abs(a[k]['mean'] - b[k]['mean']) / se:.2f} SE")
+        print(
+            f"  {k:9s} {a[k]['mean']:8.3f} vs {b[k]['mean']:8.3f}   |diff| = {abs(a[k]['mean'] - b[k]['mean']) / se:.2f} SE"
+        )
 
 
 if __name__ == "__main__":

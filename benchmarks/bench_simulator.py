@@ -54,8 +54,9 @@ def hbni_table(seed: int) -> hbni_pyro.MacroObservationModel:
     """An HBNI process's table on disaster relief's six classes (noise levels like the mission's)."""
     theta = torch.tensor([[[3.0, 6.0, 2.0, 8.0, 4.0, 5.0]]], dtype=torch.float64).expand(1, 50, -1)
     ones = torch.ones(1, 50, dtype=torch.float64)
-    posterior = hbni_pyro.posterior.posterior_from_samples({"theta": theta.clone(), "kappa": 2 * ones, "gamma": 10 * ones},
-                                                           torch.full((6,), 1 / 6), HyperPrior())
+    posterior = hbni_pyro.posterior.posterior_from_samples(
+        {"theta": theta.clone(), "kappa": 2 * ones, "gamma": 10 * ones}, torch.full((6,), 1 / 6), HyperPrior()
+    )
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(posterior), threshold=0.95, max_frames=30)
     return hbni_pyro.characterize(process, theta[0, 0], 1000, seed)
 
@@ -75,11 +76,15 @@ def main() -> None:
     parser.add_argument("--patterns", nargs="+", default=["8000x8", "400x80"], help="controllers x rollouts")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    rows = {"disaster relief, perfect perception": (DisasterRelief(), dr.greedy_controller()),
-            "disaster relief, HBNI table": (DisasterRelief(perception=hbni_table(args.seed)), dr.greedy_controller()),
-            "package delivery": (PackageDelivery(), pd.greedy_controller())}
-    print(f"{'row':38s} {'pattern':>8s} {'engine/CPU-s':>13s} {'torch/CPU-s':>12s} {'ratio':>7s} "
-          f"{'2 thr/1 thr':>11s} {'engine mean':>11s} {'torch mean':>10s}")
+    rows = {
+        "disaster relief, perfect perception": (DisasterRelief(), dr.greedy_controller()),
+        "disaster relief, HBNI table": (DisasterRelief(perception=hbni_table(args.seed)), dr.greedy_controller()),
+        "package delivery": (PackageDelivery(), pd.greedy_controller()),
+    }
+    print(
+        f"{'row':38s} {'pattern':>8s} {'engine/CPU-s':>13s} {'torch/CPU-s':>12s} {'ratio':>7s} "
+        f"{'2 thr/1 thr':>11s} {'engine mean':>11s} {'torch mean':>10s}"
+    )
     worst, worst_scaling = float("inf"), float("inf")
     for name, (env, greedy) in rows.items():
         for pattern in args.patterns:
@@ -99,10 +104,14 @@ def main() -> None:
                 means = (engine_mean, torch_mean, engine_cpu, torch_cpu)
             ratio, scale = sorted(ratios)[len(ratios) // 2], sorted(scaling)[len(scaling) // 2]
             worst, worst_scaling = min(worst, ratio), min(worst_scaling, scale)
-            print(f"{name:38s} {pattern:>8s} {means[2]:13.0f} {means[3]:12.0f} {ratio:6.1f}x {scale:10.2f}x "
-                  f"{means[0]:11.3f} {means[1]:10.3f}")
-    print(f"smallest ratio at one thread: {worst:.1f}x (floor 10x, aim 30x); "
-          f"smallest two-thread scaling: {worst_scaling:.2f}x (floor 1.7x)")
+            print(
+                f"{name:38s} {pattern:>8s} {means[2]:13.0f} {means[3]:12.0f} {ratio:6.1f}x {scale:10.2f}x "
+                f"{means[0]:11.3f} {means[1]:10.3f}"
+            )
+    print(
+        f"smallest ratio at one thread: {worst:.1f}x (floor 10x, aim 30x); "
+        f"smallest two-thread scaling: {worst_scaling:.2f}x (floor 1.7x)"
+    )
 
 
 if __name__ == "__main__":

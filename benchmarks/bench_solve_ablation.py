@@ -26,8 +26,12 @@ from pathlib import Path
 from decpomdp.dpomdp import solve
 
 OPTIMA = {  # (problem, horizon) -> optimum, MADP toolbox optimalValueDatabase
-    ("dectiger", 4): 4.802755, ("dectiger", 5): 7.026451, ("broadcastChannel", 6): 5.69,
-    ("recycling", 6): 19.5542, ("recycling", 9): 28.7870366, ("GridSmall", 4): 2.241577,
+    ("dectiger", 4): 4.802755,
+    ("dectiger", 5): 7.026451,
+    ("broadcastChannel", 6): 5.69,
+    ("recycling", 6): 19.5542,
+    ("recycling", 9): 28.7870366,
+    ("GridSmall", 4): 2.241577,
 }
 VARIANTS = {
     "full": {},
@@ -46,10 +50,17 @@ def run(rows: list[tuple[str, int]], seed: int) -> dict[str, dict[str, dict[str,
         for problem, horizon in rows:
             cpu = time.process_time()
             s = solve(problem, horizon, 1.0, seed=seed, **settings)
-            out[name][f"{problem} h{horizon}"] = {"value": s.value, "fraction": s.value / OPTIMA[problem, horizon],
-                                                  "gap": s.gap, "cpu_s": time.process_time() - cpu}
-            print(f"{name:>18} {problem} h{horizon}: {s.value:.4f} ({s.value / OPTIMA[problem, horizon]:.4f} of the "
-                  f"optimum) in {out[name][f'{problem} h{horizon}']['cpu_s']:.1f} CPU s", flush=True)
+            out[name][f"{problem} h{horizon}"] = {
+                "value": s.value,
+                "fraction": s.value / OPTIMA[problem, horizon],
+                "gap": s.gap,
+                "cpu_s": time.process_time() - cpu,
+            }
+            print(
+                f"{name:>18} {problem} h{horizon}: {s.value:.4f} ({s.value / OPTIMA[problem, horizon]:.4f} of the "
+                f"optimum) in {out[name][f'{problem} h{horizon}']['cpu_s']:.1f} CPU s",
+                flush=True,
+            )
     return out
 
 
@@ -64,8 +75,12 @@ def table(results: dict[str, dict[str, dict[str, float]]]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", nargs="*", default=[f"{p}:{h}" for p, h in OPTIMA],
-                        help="problem:horizon pairs among the published optima")
+    parser.add_argument(
+        "--rows",
+        nargs="*",
+        default=[f"{p}:{h}" for p, h in OPTIMA],
+        help="problem:horizon pairs among the published optima",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()

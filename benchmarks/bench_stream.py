@@ -42,15 +42,29 @@ def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
     images = [im for name in CLASSES for im in render_images(name, 10, "training", seed=seed)]
     clf = FrameClassifier(seed=seed).fit(images, [name for name in CLASSES for _ in range(10)])
     order = class_columns(clf, CLASSES)
-    calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order] for n in CLASSES])
-    posterior = hbni_pyro.fit(calib.double(), torch.arange(len(CLASSES)).repeat_interleave(10), num_chains=8,
-                              num_samples=500, warmup_steps=300, seed=seed, progress=False)
+    calib = torch.cat(
+        [
+            clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order]
+            for n in CLASSES
+        ]
+    )
+    posterior = hbni_pyro.fit(
+        calib.double(),
+        torch.arange(len(CLASSES)).repeat_interleave(10),
+        num_chains=8,
+        num_samples=500,
+        warmup_steps=300,
+        seed=seed,
+        progress=False,
+    )
     return clf, posterior
 
 
 def _video(path: Path, frames: int, seed: int) -> Path:
     per_class = -(-frames // len(CLASSES))
-    clip = np.concatenate([render_sequence(n, per_class, "mission", seed=stream_seed(seed, "clip")) for n in CLASSES])[:frames]
+    clip = np.concatenate([render_sequence(n, per_class, "mission", seed=stream_seed(seed, "clip")) for n in CLASSES])[
+        :frames
+    ]
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (clip.shape[2], clip.shape[1]))
     for f in clip:
         writer.write(f)
@@ -66,8 +80,10 @@ def _timed(fn) -> tuple[int, float, float]:
 
 def _line(name: str, n: int, wall: float, cpu: float, reference: float) -> None:
     fps = n / wall
-    print(f"  {name:<44} {fps:6.1f} fps  {1e3 * cpu / n:6.1f} ms CPU/frame  floor ratio {fps / FLOOR_FPS:4.2f}x "
-          f"({'met' if fps >= FLOOR_FPS else 'NOT met'})  time / decoding {wall / reference:5.1f}x")
+    print(
+        f"  {name:<44} {fps:6.1f} fps  {1e3 * cpu / n:6.1f} ms CPU/frame  floor ratio {fps / FLOOR_FPS:4.2f}x "
+        f"({'met' if fps >= FLOOR_FPS else 'NOT met'})  time / decoding {wall / reference:5.1f}x"
+    )
 
 
 def main() -> None:
@@ -79,8 +95,10 @@ def main() -> None:
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(posterior, temper=0.4), 0.95, 30)
     with tempfile.TemporaryDirectory() as tmp:
         video = _video(Path(tmp) / "clip.mp4", args.frames, args.seed)
-        print(f"[stream] {args.frames} frames 320x240 mp4v; HBNI over {process.filter.theta.shape[0]} draws; "
-              f"torch threads available {torch.get_num_threads()}")
+        print(
+            f"[stream] {args.frames} frames 320x240 mp4v; HBNI over {process.filter.theta.shape[0]} draws; "
+            f"torch threads available {torch.get_num_threads()}"
+        )
         n, wall, cpu = _timed(lambda: sum(1 for _ in open_source(video)))
         reference = wall
         _line("decode", n, wall, cpu, reference)
@@ -93,9 +111,16 @@ def main() -> None:
             out = Path(tmp) / f"run{threads}"
             settings = Settings(str(video), None, None, None, None, list(CLASSES), 0.4, 0.95, 30, 8, ("video",), False)
             streamed = stream_frames(settings, Models(clf, process, list(CLASSES), 0.4), out)
-            _line(f"stream experiment loop (threads={threads})", streamed.frames, streamed.seconds,
-                  streamed.cpu_seconds, reference)
-        print(f"  macro-observations: {len(streamed.segments)}, mean frames {streamed.frames / len(streamed.segments):.1f}")
+            _line(
+                f"stream experiment loop (threads={threads})",
+                streamed.frames,
+                streamed.seconds,
+                streamed.cpu_seconds,
+                reference,
+            )
+        print(
+            f"  macro-observations: {len(streamed.segments)}, mean frames {streamed.frames / len(streamed.segments):.1f}"
+        )
 
 
 if __name__ == "__main__":

@@ -204,8 +204,14 @@ class Backbone:
         device, dtype: where and in which precision the network runs.
     """
 
-    def __init__(self, name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None,
-                 device: str | torch.device = "cpu", dtype: torch.dtype | None = None, half: bool = False):
+    def __init__(
+        self,
+        name: str = "efficientnet_lite0",
+        weights_path: str | os.PathLike | None = None,
+        device: str | torch.device = "cpu",
+        dtype: torch.dtype | None = None,
+        half: bool = False,
+    ):
         self.device, self.dtype = _device_and_dtype(device, dtype, half)
         if name not in _SPECS:
             raise ValueError(f"name: expected one of {sorted(_SPECS)}, got {name!r}")
@@ -247,8 +253,9 @@ class Backbone:
         moved._runner = moved._placed(self._cpu_runner)
         return moved
 
-    def __call__(self, x: Tensor, batch_size: int = 8, threads: int | None = 1,
-                 output_device: str | torch.device | None = "cpu") -> Tensor:
+    def __call__(
+        self, x: Tensor, batch_size: int = 8, threads: int | None = 1, output_device: str | torch.device | None = "cpu"
+    ) -> Tensor:
         """ImageNet scores (logits) ``(B, 1000)`` float32 for normalised input ``(B, 3, S, S)``.
 
         Runs in chunks of ``batch_size`` on :attr:`device` in :attr:`dtype` (small chunks keep
@@ -265,16 +272,18 @@ class Backbone:
             raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
         with torch.inference_mode(), torch_threads(threads):
             outs = [
-                self._runner(x[i : i + batch_size].to(self.device, self.dtype).contiguous(
-                    memory_format=torch.channels_last)).float()
+                self._runner(
+                    x[i : i + batch_size].to(self.device, self.dtype).contiguous(memory_format=torch.channels_last)
+                ).float()
                 for i in range(0, x.shape[0], batch_size)
             ]
             out = torch.cat(outs) if outs else torch.zeros(0, 1000, device=self.device)
         return out if output_device is None else out.to(output_device)
 
 
-def _device_and_dtype(device: str | torch.device, dtype: torch.dtype | None, half: bool) -> tuple[
-        torch.device, torch.dtype]:
+def _device_and_dtype(
+    device: str | torch.device, dtype: torch.dtype | None, half: bool
+) -> tuple[torch.device, torch.dtype]:
     """Checked ``(device, dtype)`` of a backbone; half precision only on CUDA (or ``meta``, shapes only)."""
     try:
         device = torch.device(device)
@@ -293,8 +302,12 @@ def _device_and_dtype(device: str | torch.device, dtype: torch.dtype | None, hal
 _CACHE: dict[tuple[str, str, str, str], Backbone] = {}
 
 
-def load_backbone(name: str = "efficientnet_lite0", weights_path: str | os.PathLike | None = None,
-                  device: str | torch.device = "cpu", dtype: torch.dtype | None = None) -> Backbone:
+def load_backbone(
+    name: str = "efficientnet_lite0",
+    weights_path: str | os.PathLike | None = None,
+    device: str | torch.device = "cpu",
+    dtype: torch.dtype | None = None,
+) -> Backbone:
     """A shared :class:`Backbone` per ``(name, weights_path)`` (the network is read-only), on ``device`` in ``dtype``.
 
     The CPU float32 backbone is loaded once; other placements are :meth:`Backbone.to` of it.

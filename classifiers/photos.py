@@ -51,10 +51,28 @@ class PhotoConditions:
 
 
 PHOTO_CONDITIONS: dict[str, PhotoConditions] = {
-    "training": PhotoConditions(crop=(0.3, 0.9), drift=(0.0, 0.0), jitter=0.0, gain=(0.6, 1.1), gain_drift=0.0,
-                                cast=0.1, blur=(0.0, 3.0), noise=(0.0, 5.0), occluder=(0.0, 0.0)),
-    "degraded": PhotoConditions(crop=(0.3, 0.6), drift=(0.005, 0.02), jitter=0.02, gain=(0.3, 0.7), gain_drift=0.05,
-                                cast=0.25, blur=(2.0, 8.0), noise=(6.0, 15.0), occluder=(0.2, 0.4)),
+    "training": PhotoConditions(
+        crop=(0.3, 0.9),
+        drift=(0.0, 0.0),
+        jitter=0.0,
+        gain=(0.6, 1.1),
+        gain_drift=0.0,
+        cast=0.1,
+        blur=(0.0, 3.0),
+        noise=(0.0, 5.0),
+        occluder=(0.0, 0.0),
+    ),
+    "degraded": PhotoConditions(
+        crop=(0.3, 0.6),
+        drift=(0.005, 0.02),
+        jitter=0.02,
+        gain=(0.3, 0.7),
+        gain_drift=0.05,
+        cast=0.25,
+        blur=(2.0, 8.0),
+        noise=(6.0, 15.0),
+        occluder=(0.2, 0.4),
+    ),
 }
 
 
@@ -75,8 +93,9 @@ def get_photo_conditions(preset: str) -> PhotoConditions:
     return PHOTO_CONDITIONS[preset]
 
 
-def photo_sequence(name: str, frames: int, conditions: PhotoConditions | str, seed: int, index: int = 0,
-                   size: int = 160) -> np.ndarray:
+def photo_sequence(
+    name: str, frames: int, conditions: PhotoConditions | str, seed: int, index: int = 0, size: int = 160
+) -> np.ndarray:
     """``frames`` correlated frames ``(frames, size, size, 3)`` uint8 BGR of photograph ``name``.
 
     The sequence is a function of ``(name, seed, index)`` and the conditions only.
@@ -111,7 +130,7 @@ def photo_sequence(name: str, frames: int, conditions: PhotoConditions | str, se
         frame = frame * (gain * cast) + rng.normal(0, noise, frame.shape).astype(np.float32)
         if occ is not None:
             x, y = (np.clip(occ + occ_step * f, 0, size - occ_side)).astype(int)
-            frame[y:y + int(occ_side), x:x + int(occ_side)] = occ_colour
+            frame[y : y + int(occ_side), x : x + int(occ_side)] = occ_colour
         out[f] = np.clip(frame, 0, 255).astype(np.uint8)
         gain *= float(np.exp(rng.normal(0, c.gain_drift)))
     return out

@@ -147,13 +147,15 @@ class FrameClassifier:
         self.head.fit((x - self.mean_) / self.scale_, y)
         return self
 
-    def fit(self, images: Any, labels: Sequence | np.ndarray | Tensor, augment: int = 0,
-            progress: bool = False) -> FrameClassifier:
+    def fit(
+        self, images: Any, labels: Sequence | np.ndarray | Tensor, augment: int = 0, progress: bool = False
+    ) -> FrameClassifier:
         """Train on ``images`` with ``labels`` (one per image); ``augment`` extra random crops/mirrors each."""
         batch = as_image_batch(images)
         if isinstance(labels, (str, bytes)) or not hasattr(labels, "__len__"):
-            raise TypeError(f"labels: expected one class name per image (a list, array or tensor), got "
-                            f"{type(labels).__name__}")
+            raise TypeError(
+                f"labels: expected one class name per image (a list, array or tensor), got {type(labels).__name__}"
+            )
         labels = list(labels.tolist() if isinstance(labels, (Tensor, np.ndarray)) else labels)
         if len(labels) != len(batch):
             raise ValueError(f"labels: expected {len(batch)} labels, got {len(labels)}")
@@ -182,14 +184,25 @@ class FrameClassifier:
             raise RuntimeError("FrameClassifier: nothing to save, call fit() first")
         tensors, head_meta = self.head.state()
         tensors = {f"head.{k}": v for k, v in tensors.items()} | {"mean": self.mean_, "scale": self.scale_}
-        meta = {"head": head_meta, "backbone": self.backbone.name, "weights_path": self.weights_path,
-                "padding": self.padding, "seed": self.seed, "batch_size": self.batch_size,
-                "threads": self.threads}
+        meta = {
+            "head": head_meta,
+            "backbone": self.backbone.name,
+            "weights_path": self.weights_path,
+            "padding": self.padding,
+            "seed": self.seed,
+            "batch_size": self.batch_size,
+            "threads": self.threads,
+        }
         return save_tensors(path, _KIND, tensors, meta)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, weights_path: str | os.PathLike | None = None,
-             device: str | torch.device = "cpu", dtype: torch.dtype | None = None) -> FrameClassifier:
+    def load(
+        cls,
+        path: str | os.PathLike,
+        weights_path: str | os.PathLike | None = None,
+        device: str | torch.device = "cpu",
+        dtype: torch.dtype | None = None,
+    ) -> FrameClassifier:
         """Read a classifier written by :meth:`save` (on any device); ``weights_path`` overrides the recorded
         backbone weights; the backbone runs on ``device`` in ``dtype`` (tensors are read onto the CPU first).
 
@@ -201,9 +214,16 @@ class FrameClassifier:
         try:
             head_meta = meta["head"]
             model = cls(
-                backbone=meta["backbone"], weights_path=weights_path or meta["weights_path"], C=head_meta["C"],
-                cv=head_meta["cv"], padding=meta["padding"], seed=meta["seed"], batch_size=meta["batch_size"],
-                threads=meta["threads"], device=device, dtype=dtype,
+                backbone=meta["backbone"],
+                weights_path=weights_path or meta["weights_path"],
+                C=head_meta["C"],
+                cv=head_meta["cv"],
+                padding=meta["padding"],
+                seed=meta["seed"],
+                batch_size=meta["batch_size"],
+                threads=meta["threads"],
+                device=device,
+                dtype=dtype,
             )
             model.mean_, model.scale_ = tensors["mean"].double(), tensors["scale"].double()
         except (KeyError, TypeError) as exc:

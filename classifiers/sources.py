@@ -141,9 +141,11 @@ class FrameFolder(FrameSource):
             raise FileNotFoundError(f"source: no such folder {str(self.path)!r}")
         self._folder = ImageFolder(self.path)
         if self._folder.labelled:
-            raise ValueError(f"source: {str(self.path)!r} holds <class>/ folders of images, not a flat folder of "
-                             "frames (a labelled folder is read by classifiers.data.ImageFolder)")
-        self.files = [f for f, _ in self._folder.samples][:self.max_frames]
+            raise ValueError(
+                f"source: {str(self.path)!r} holds <class>/ folders of images, not a flat folder of "
+                "frames (a labelled folder is read by classifiers.data.ImageFolder)"
+            )
+        self.files = [f for f, _ in self._folder.samples][: self.max_frames]
         self.fps = fps
         self.num_frames = len(self.files)
 
@@ -203,7 +205,9 @@ def open_source(source: str | int | os.PathLike, max_frames: int | None = None) 
     """
     max_frames = _frame_limit(max_frames)
     if isinstance(source, bool) or not isinstance(source, (str, int, os.PathLike)):
-        raise TypeError(f"source: expected a video file, a folder of frames or a camera index, got {type(source).__name__}")
+        raise TypeError(
+            f"source: expected a video file, a folder of frames or a camera index, got {type(source).__name__}"
+        )
     if isinstance(source, int):
         return Camera(source, max_frames)
     path = Path(source)

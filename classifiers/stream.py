@@ -26,7 +26,9 @@ def class_columns(clf: FrameClassifier, classes: Sequence[str]) -> list[int]:
     if clf.classes_ is None:
         raise ValueError("clf: the classifier is not fitted")
     if sorted(classes) != sorted(clf.classes_) or len(set(classes)) != len(classes):
-        raise ValueError(f"classes: expected a reordering of the classifier's classes {clf.classes_}, got {list(classes)}")
+        raise ValueError(
+            f"classes: expected a reordering of the classifier's classes {clf.classes_}, got {list(classes)}"
+        )
     return [clf.classes_.index(name) for name in classes]
 
 
@@ -51,6 +53,8 @@ def classify_frames(
         yield from _classified(pending, clf, order)
 
 
-def _classified(frames: list[np.ndarray], clf: FrameClassifier, order: list[int]) -> Iterator[tuple[np.ndarray, Tensor]]:
+def _classified(
+    frames: list[np.ndarray], clf: FrameClassifier, order: list[int]
+) -> Iterator[tuple[np.ndarray, Tensor]]:
     probs = clf.predict_proba(frames)[:, order].double()
     yield from zip(frames, probs)

@@ -229,8 +229,13 @@ class OneVsOneSVC:
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
         """Tensors and JSON metadata that :meth:`from_state` restores."""
         self._check_fitted()
-        tensors = {"coef": self.coef_, "intercept": self.intercept_, "prob_a": self.prob_a_, "prob_b": self.prob_b_,
-                   "pairs": self.pairs_}
+        tensors = {
+            "coef": self.coef_,
+            "intercept": self.intercept_,
+            "prob_a": self.prob_a_,
+            "prob_b": self.prob_b_,
+            "pairs": self.pairs_,
+        }
         meta = {"classes": self.classes_, "C": self.C, "cv": self.cv, "seed": self.seed}
         return tensors, meta
 

@@ -16,8 +16,13 @@ def random_controllers(
     count: int, *, num_agents: int, num_nodes: int, num_actions: int, num_obs: int, generator: torch.Generator
 ) -> JointController:
     """``count`` joint controllers with every node action and transition drawn uniformly."""
-    for name, value in (("count", count), ("num_agents", num_agents), ("num_nodes", num_nodes),
-                        ("num_actions", num_actions), ("num_obs", num_obs)):
+    for name, value in (
+        ("count", count),
+        ("num_agents", num_agents),
+        ("num_nodes", num_nodes),
+        ("num_actions", num_actions),
+        ("num_obs", num_obs),
+    ):
         as_int(name, value, 1)
     action = torch.randint(0, num_actions, (count, num_agents, num_nodes), generator=generator)
     next_node = torch.randint(0, num_nodes, (count, num_agents, num_nodes, num_obs), generator=generator)
@@ -36,7 +41,13 @@ class SearchResult:
 
 
 def monte_carlo_search(
-    scorer: Scorer, *, num_nodes: int, budget: int, rollouts: int, seed: int = 0, batch: int = 100,
+    scorer: Scorer,
+    *,
+    num_nodes: int,
+    budget: int,
+    rollouts: int,
+    seed: int = 0,
+    batch: int = 100,
     reeval_rollouts: int | None = None,
 ) -> SearchResult:
     """Score ``budget`` uniformly random controllers of ``scorer``'s agents (in batches of ``batch``, each on
@@ -48,8 +59,14 @@ def monte_carlo_search(
     generator = torch.Generator().manual_seed(as_int("seed", seed, 0))
     best, best_value, all_values = None, -float("inf"), []
     for start in range(0, budget, batch):
-        ctrl = random_controllers(min(batch, budget - start), num_agents=scorer.num_agents, num_nodes=num_nodes,
-                                  num_actions=scorer.num_actions, num_obs=scorer.num_obs, generator=generator)
+        ctrl = random_controllers(
+            min(batch, budget - start),
+            num_agents=scorer.num_agents,
+            num_nodes=num_nodes,
+            num_actions=scorer.num_actions,
+            num_obs=scorer.num_obs,
+            generator=generator,
+        )
         values = scorer(ctrl, rollouts, generator)[0].to(torch.float64)
         all_values.append(values)
         top = int(values.argmax())

@@ -22,14 +22,21 @@ from infra.tensorfile import load_tensors, save_tensors
 from infra.fingerprint import check_fingerprint
 
 
-def save_checkpoint(path: str | os.PathLike, kind: str, version: int, fingerprint: dict[str, Any],
-                    tensors: dict[str, Tensor], state: dict[str, Any]) -> Path:
+def save_checkpoint(
+    path: str | os.PathLike,
+    kind: str,
+    version: int,
+    fingerprint: dict[str, Any],
+    tensors: dict[str, Tensor],
+    state: dict[str, Any],
+) -> Path:
     """Atomically write a checkpoint (``state`` must be JSON-serialisable)."""
     return save_tensors(path, kind, tensors, {"fingerprint": fingerprint, **state}, version=version)
 
 
-def load_checkpoint(path: str | os.PathLike, kind: str, version: int,
-                    fingerprint: dict[str, Any]) -> tuple[dict[str, Tensor], dict[str, Any]]:
+def load_checkpoint(
+    path: str | os.PathLike, kind: str, version: int, fingerprint: dict[str, Any]
+) -> tuple[dict[str, Tensor], dict[str, Any]]:
     """Read a checkpoint written by :func:`save_checkpoint` for a run with this ``fingerprint``."""
     tensors, meta = load_tensors(path, kind, version=version)
     check_fingerprint(meta.get("fingerprint"), fingerprint, "checkpoint", path)
@@ -54,19 +61,26 @@ def read_number(meta: dict[str, Any], name: str, path: str | os.PathLike) -> flo
     return float(value)
 
 
-def read_history(meta: dict[str, Any], keys: tuple[str, ...], length: int, path: str | os.PathLike,
-                 none: float = -math.inf) -> dict[str, list[float]]:
+def read_history(
+    meta: dict[str, Any], keys: tuple[str, ...], length: int, path: str | os.PathLike, none: float = -math.inf
+) -> dict[str, list[float]]:
     """``meta["history"]``: a dict of ``keys`` to lists of ``length`` numbers (``None`` read as ``none``)."""
     history = meta.get("history")
     if not isinstance(history, dict) or set(history) != set(keys):
-        raise ValueError(f"checkpoint: {str(path)!r} has history = {type(history).__name__}, "
-                         f"expected a dict with keys {sorted(keys)}")
+        raise ValueError(
+            f"checkpoint: {str(path)!r} has history = {type(history).__name__}, "
+            f"expected a dict with keys {sorted(keys)}"
+        )
     out = {}
     for key in keys:
         values = history[key]
-        if not isinstance(values, list) or len(values) != length or not all(
-                v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values):
-            raise ValueError(f"checkpoint: {str(path)!r} has history[{key!r}] inconsistent with "
-                             f"{length} recorded iterations")
+        if (
+            not isinstance(values, list)
+            or len(values) != length
+            or not all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values)
+        ):
+            raise ValueError(
+                f"checkpoint: {str(path)!r} has history[{key!r}] inconsistent with {length} recorded iterations"
+            )
         out[key] = [none if v is None else float(v) for v in values]
     return out

@@ -38,8 +38,10 @@ class JointController:
     def __post_init__(self) -> None:
         for name, value in (("action", self.action), ("next_node", self.next_node)):
             if not isinstance(value, Tensor) or value.dtype != torch.long:
-                raise TypeError(f"{name}: expected a torch.long tensor, got {type(value).__name__}"
-                                f"{'' if not isinstance(value, Tensor) else ' of ' + str(value.dtype)}")
+                raise TypeError(
+                    f"{name}: expected a torch.long tensor, got {type(value).__name__}"
+                    f"{'' if not isinstance(value, Tensor) else ' of ' + str(value.dtype)}"
+                )
         if self.action.dim() != 3:
             raise ValueError(f"action: expected shape (K, A, Nn), got {tuple(self.action.shape)}")
         k, a, nn = self.action.shape
@@ -96,14 +98,17 @@ class JointController:
     @staticmethod
     def cat(controllers: list[JointController]) -> JointController:
         """Concatenate controllers along K (each already checked)."""
-        return JointController.trusted(torch.cat([c.action for c in controllers]),
-                                       torch.cat([c.next_node for c in controllers]))
+        return JointController.trusted(
+            torch.cat([c.action for c in controllers]), torch.cat([c.next_node for c in controllers])
+        )
 
     def save(self, path: str | os.PathLike) -> Path:
         """Atomically write the controllers to one safetensors file (no pickle)."""
-        meta = {"shape": list(self.next_node.shape),
-                "action_names": None if self.action_names is None else list(self.action_names),
-                "obs_names": None if self.obs_names is None else list(self.obs_names)}
+        meta = {
+            "shape": list(self.next_node.shape),
+            "action_names": None if self.action_names is None else list(self.action_names),
+            "obs_names": None if self.obs_names is None else list(self.obs_names),
+        }
         return save_tensors(path, _KIND, {"action": self.action, "next_node": self.next_node}, meta, version=_VERSION)
 
     @classmethod
@@ -111,10 +116,10 @@ class JointController:
         """Read controllers written by :meth:`save`; a corrupt or foreign file raises ``ValueError``."""
         tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         if set(tensors) != {"action", "next_node"}:
-            raise ValueError(f"path: {str(path)!r} holds {sorted(tensors)}, expected a JointController's action and "
-                             "next_node")
+            raise ValueError(
+                f"path: {str(path)!r} holds {sorted(tensors)}, expected a JointController's action and next_node"
+            )
         try:
             return cls(tensors["action"], tensors["next_node"], meta.get("action_names"), meta.get("obs_names"))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid controller ({exc})") from None
-

@@ -103,5 +103,7 @@ class DecPOSMDP:
         raise self._no_torch_rules()
 
     def _no_torch_rules(self) -> NotImplementedError:
-        return NotImplementedError(f"{type(self).__name__} is written for the compiled engine only: the torch "
-                                   "simulator (backend='torch') needs reset, start and complete")
+        return NotImplementedError(
+            f"{type(self).__name__} is written for the compiled engine only: the torch "
+            "simulator (backend='torch') needs reset, start and complete"
+        )

@@ -10,8 +10,9 @@ from decpomdp.core import DecPOSMDP
 from decpomdp.search.scoring import RolloutScorer
 
 
-def evaluate(env: DecPOSMDP, controller: JointController, rollouts: int, generator: torch.Generator,
-             backend: str | None = None) -> tuple[Tensor, Tensor]:
+def evaluate(
+    env: DecPOSMDP, controller: JointController, rollouts: int, generator: torch.Generator, backend: str | None = None
+) -> tuple[Tensor, Tensor]:
     """Mean discounted return of each of the K controllers over ``rollouts`` rollouts, and its standard error.
 
     Args:

@@ -41,8 +41,10 @@ def _index(value: Any, name: str, size: int) -> int:
     """``value`` as an int in ``[0, size)``: a Python or numpy integer, or a 0-d integer tensor."""
     if isinstance(value, torch.Tensor):
         if value.numel() != 1 or value.dim() > 1 or value.is_floating_point() or value.dtype == torch.bool:
-            raise TypeError(f"{name}: expected an integer or a name, got a tensor of shape {tuple(value.shape)} "
-                            f"and dtype {value.dtype}")
+            raise TypeError(
+                f"{name}: expected an integer or a name, got a tensor of shape {tuple(value.shape)} "
+                f"and dtype {value.dtype}"
+            )
         value = int(value.item())
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name}: expected an integer index or a name, got {type(value).__name__}")
@@ -89,16 +91,21 @@ class ControllerExecutor:
         if not isinstance(controller, JointController):
             raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
         if controller.num_controllers != 1:
-            raise ValueError(f"controller: expected one joint controller (K = 1), got K = {controller.num_controllers}; "
-                             "select one with controller[k]")
+            raise ValueError(
+                f"controller: expected one joint controller (K = 1), got K = {controller.num_controllers}; "
+                "select one with controller[k]"
+            )
         self.agent = _index(agent, "agent", controller.num_agents)
         self._action = controller.action[0, self.agent].clone()  # (Nn,)
         self._next = controller.next_node[0, self.agent].clone()  # (Nn, O)
         top = int(self._action.max()) + 1
-        self.action_names = _names(action_names, top if action_names is None else len(action_names), "action_names", "ma")
+        self.action_names = _names(
+            action_names, top if action_names is None else len(action_names), "action_names", "ma"
+        )
         if top > len(self.action_names):
-            raise ValueError(f"action_names: the controller uses MA {top - 1}, but only {len(self.action_names)} "
-                             "names are given")
+            raise ValueError(
+                f"action_names: the controller uses MA {top - 1}, but only {len(self.action_names)} names are given"
+            )
         self.obs_names = _names(obs_names, controller.num_obs, "obs_names", "obs")
         self._obs_index = {n: i for i, n in enumerate(self.obs_names)}
         self._fingerprint = {"controller": digest(self._action, self._next), "agent": self.agent}
@@ -113,15 +120,21 @@ class ControllerExecutor:
         if not isinstance(controller, JointController):
             raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
         if controller.num_obs != env.num_obs or controller.num_agents != env.num_agents:
-            raise ValueError(f"controller: has {controller.num_agents} agents and {controller.num_obs} observations, "
-                             f"env has {env.num_agents} and {env.num_obs}")
-        for kind, planned, domain in (("action_names", controller.action_names, env.action_names),
-                                      ("obs_names", controller.obs_names, env.obs_names)):
+            raise ValueError(
+                f"controller: has {controller.num_agents} agents and {controller.num_obs} observations, "
+                f"env has {env.num_agents} and {env.num_obs}"
+            )
+        for kind, planned, domain in (
+            ("action_names", controller.action_names, env.action_names),
+            ("obs_names", controller.obs_names, env.obs_names),
+        ):
             if planned is not None and tuple(planned) != tuple(domain):
                 first = first_difference(planned, domain)
-                raise ValueError(f"controller: planned for other {kind} than env's (first difference at index {first}: "
-                                 f"{planned[first] if first < len(planned) else None!r} there, "
-                                 f"{domain[first] if first < len(domain) else None!r} here)")
+                raise ValueError(
+                    f"controller: planned for other {kind} than env's (first difference at index {first}: "
+                    f"{planned[first] if first < len(planned) else None!r} there, "
+                    f"{domain[first] if first < len(domain) else None!r} here)"
+                )
         return cls(controller, agent, env.action_names, env.obs_names)
 
     @property
@@ -181,5 +194,7 @@ class ControllerExecutor:
         self.node, self.steps = node, steps
 
     def __repr__(self) -> str:
-        return (f"ControllerExecutor(agent={self.agent}, node={self.node}/{self.num_nodes}, steps={self.steps}, "
-                f"action={self.action.name!r})")
+        return (
+            f"ControllerExecutor(agent={self.agent}, node={self.node}/{self.num_nodes}, steps={self.steps}, "
+            f"action={self.action.name!r})"
+        )

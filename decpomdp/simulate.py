@@ -59,8 +59,10 @@ def resolve_backend(env: DecPOSMDP, backend: str | None) -> str:
         return "torch"
     supported = engine_model(env) is not None
     if backend == "engine" and not supported:
-        raise ValueError(f"backend: 'engine' needs a domain written for the compiled engine with a tabular perception "
-                         f"model; {type(env).__name__} is not (use backend='torch')")
+        raise ValueError(
+            f"backend: 'engine' needs a domain written for the compiled engine with a tabular perception "
+            f"model; {type(env).__name__} is not (use backend='torch')"
+        )
     return "engine" if supported else "torch"
 
 
@@ -85,7 +87,10 @@ def _rows(keep: Tensor, *tensors: Tensor) -> tuple[Tensor, ...]:
 
 
 def simulate(
-    env: DecPOSMDP, controller: JointController, rollouts_per_controller: int, generator: torch.Generator,
+    env: DecPOSMDP,
+    controller: JointController,
+    rollouts_per_controller: int,
+    generator: torch.Generator,
     backend: str | None = None,
 ) -> Tensor:
     """Discounted return of every rollout.
@@ -131,8 +136,9 @@ def simulate_torch(
     actions = lookup(act_table, base)
     t = torch.zeros(batch, dtype=torch.float64, device=dev)
     all_agents = torch.ones(batch, a_count, dtype=torch.bool, device=dev)
-    end_time = env.start(state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64, device=dev),
-                         generator)
+    end_time = env.start(
+        state, all_agents, actions, t, torch.zeros(batch, a_count, dtype=torch.float64, device=dev), generator
+    )
     log_gamma = math.log(float(env.gamma))
     horizon = float(env.horizon)
     value = torch.zeros(batch, dtype=torch.float64, device=dev)
@@ -150,7 +156,8 @@ def simulate_torch(
             if int(live.sum()) * 4 <= rows.numel() * 3:
                 keep = live.nonzero().squeeze(1)
                 rows, base, value, node, actions, end_time, t_next, live = _rows(
-                    keep, rows, base, value, node, actions, end_time, t_next, live)
+                    keep, rows, base, value, node, actions, end_time, t_next, live
+                )
                 state = {key: v[keep] for key, v in state.items()}
                 some_dead = False
                 if rows.numel() == 0:

@@ -92,8 +92,9 @@ class Artifacts(Mapping):
             try:
                 self._loaded[name] = _loader(entry["kind"])(path)
             except (ValueError, OSError) as exc:
-                raise ValueError(f"run_dir: artefact {name!r} ({entry['kind']}) in {str(path)!r} cannot be read: "
-                                 f"{exc}") from None
+                raise ValueError(
+                    f"run_dir: artefact {name!r} ({entry['kind']}) in {str(path)!r} cannot be read: {exc}"
+                ) from None
         return self._loaded[name]
 
     def __iter__(self) -> Iterator[str]:
@@ -165,10 +166,14 @@ def latest_run(name: str, root: str | os.PathLike | None = None) -> Path:
         FileNotFoundError: no completed run of ``name`` under ``root``.
     """
     root = outputs_root() if root is None else Path(root)
-    runs = sorted(p for p in (root / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed")
+    runs = sorted(
+        p for p in (root / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed"
+    )
     if not runs:
-        raise FileNotFoundError(f"name: no completed {name!r} run under {str(Path(root) / name)!r}; "
-                                f"run `python -m experiments.run experiment={name}` first")
+        raise FileNotFoundError(
+            f"name: no completed {name!r} run under {str(Path(root) / name)!r}; "
+            f"run `python -m experiments.run experiment={name}` first"
+        )
     return runs[-1]
 
 
@@ -177,6 +182,8 @@ def _check_completed(run_dir: Path, metrics_path: Path) -> None:
     status = read_status(run_dir)
     hint = "pass allow_incomplete=True to read what it left"
     if status is not None and status["status"] == "failed":
-        raise ValueError(f"run_dir: the run in {str(run_dir)!r} failed ({status.get('error', 'no error recorded')}); {hint}")
+        raise ValueError(
+            f"run_dir: the run in {str(run_dir)!r} failed ({status.get('error', 'no error recorded')}); {hint}"
+        )
     if (status is not None and status["status"] != "completed") or not metrics_path.is_file():
         raise ValueError(f"run_dir: the run in {str(run_dir)!r} did not finish (no metrics.json); {hint}")

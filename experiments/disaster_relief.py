@@ -37,21 +37,33 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     env = instantiate(cfg.domain)
     entries, metrics = compare_planners(cfg, env, greedy_controller(env.num_agents), "disaster relief", run_dir)
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")
-    write_report(run_dir / "report.md", "\n".join([
-        "# Disaster relief: planners side by side", "", f"Perception: {env.perception!r}. Every controller "
-        f"re-evaluated on {metrics['reeval_rollouts']} rollouts that its search never saw.", "",
-        *comparison_table(entries)]) + "\n")
+    write_report(
+        run_dir / "report.md",
+        "\n".join(
+            [
+                "# Disaster relief: planners side by side",
+                "",
+                f"Perception: {env.perception!r}. Every controller "
+                f"re-evaluated on {metrics['reeval_rollouts']} rollouts that its search never saw.",
+                "",
+                *comparison_table(entries),
+            ]
+        )
+        + "\n",
+    )
     save_figure(_counters_figure({k: v for k, v in entries.items() if k != "random"}), run_dir / "counters.png")
     planner, gdice, seeded = metrics["planner_cold_start"], metrics["gdice"], metrics["gdice_seeded"]
     greedy, mcs = metrics["baselines"]["greedy"], metrics["baselines"]["monte_carlo_search"]
     return {
         **metrics,
-        "acceptance": {"planner_beats_greedy": beats(planner, greedy),
-                       "planner_at_least_greedy": planner["value"] >= greedy["value"],
-                       "gdice_beats_greedy": beats(gdice, greedy),
-                       "gdice_beats_monte_carlo_search": beats(gdice, mcs),
-                       "seeded_gdice_beats_greedy": beats(seeded, greedy),
-                       "seeded_gdice_beats_monte_carlo_search": beats(seeded, mcs)},
+        "acceptance": {
+            "planner_beats_greedy": beats(planner, greedy),
+            "planner_at_least_greedy": planner["value"] >= greedy["value"],
+            "gdice_beats_greedy": beats(gdice, greedy),
+            "gdice_beats_monte_carlo_search": beats(gdice, mcs),
+            "seeded_gdice_beats_greedy": beats(seeded, greedy),
+            "seeded_gdice_beats_monte_carlo_search": beats(seeded, mcs),
+        },
     }
 
 
@@ -59,8 +71,13 @@ def _counters_figure(entries: dict[str, dict]) -> plt.Figure:
     fig, axes = plt.subplots(1, len(COUNTS), figsize=(13, 3.2))
     names = list(entries)
     for ax, key in zip(axes, COUNTS):
-        ax.bar(np.arange(len(names)), [entries[n][f"{key}_per_rollout"] for n in names],
-               yerr=[entries[n][f"{key}_stderr"] for n in names], capsize=3, color=["tab:blue", "tab:cyan", "tab:orange", "tab:green"])
+        ax.bar(
+            np.arange(len(names)),
+            [entries[n][f"{key}_per_rollout"] for n in names],
+            yerr=[entries[n][f"{key}_stderr"] for n in names],
+            capsize=3,
+            color=["tab:blue", "tab:cyan", "tab:orange", "tab:green"],
+        )
         ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right", fontsize=8)
         ax.set_title(key.replace("_", " ") + " / rollout", fontsize=9)
     fig.tight_layout()

@@ -93,10 +93,18 @@ def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, Planne
             raise ValueError(f"study.rows.{name}: unknown keys {sorted(unknown)} (known: {sorted(_ROW_KEYS)})")
         plain = OmegaConf.to_container(spec, resolve=True)
         horizon = math.inf if plain.get("horizon") is None else float(plain["horizon"])
-        row = Row(name=str(name), problem=plain["problem"], gamma=float(plain["gamma"]), horizon=horizon,
-                  optimum=plain.get("optimum"), source=plain.get("source", ""), evaluator=plain.get("evaluator", "exact"),
-                  rollouts=int(plain.get("rollouts", 200)), restarts=int(plain.get("restarts", 1)),
-                  gdice=plain.get("gdice", {}))
+        row = Row(
+            name=str(name),
+            problem=plain["problem"],
+            gamma=float(plain["gamma"]),
+            horizon=horizon,
+            optimum=plain.get("optimum"),
+            source=plain.get("source", ""),
+            evaluator=plain.get("evaluator", "exact"),
+            rollouts=int(plain.get("rollouts", 200)),
+            restarts=int(plain.get("restarts", 1)),
+            gdice=plain.get("gdice", {}),
+        )
         # plain containers (schemas stay apart), unresolved: start_nodes follows a row's num_nodes
         settings = {**OmegaConf.to_container(planner, resolve=False), **row.gdice}
         merged = OmegaConf.create(settings)
@@ -148,12 +156,17 @@ def _search(row: Row, cfg: PlannerConfig, env: TabularDecPOSMDP, restarts: int, 
     return {"best": best, "values": values, "wall": walls, "cpu": cpus}
 
 
-def _solve(row: Row, env: TabularDecPOSMDP, study: DictConfig, seed: int, optimum: float | None,
-           random_mean: float) -> tuple[dict, object]:
+def _solve(
+    row: Row, env: TabularDecPOSMDP, study: DictConfig, seed: int, optimum: float | None, random_mean: float
+) -> tuple[dict, object]:
     """``solve`` on the row with ``study.solve`` (capped by ``study.caps``): its table entry and controller."""
     kwargs = OmegaConf.to_container(study.solve, resolve=True)
     defaults = PlannerConfig()
-    for cap, keys in (("iterations", ("ce_iterations",)), ("samples", ("ce_samples",)), ("restarts", ("restarts", "jesp_restarts"))):
+    for cap, keys in (
+        ("iterations", ("ce_iterations",)),
+        ("samples", ("ce_samples",)),
+        ("restarts", ("restarts", "jesp_restarts")),
+    ):
         if study.caps[cap] is not None:
             for key in keys:
                 current = kwargs.get(key, getattr(defaults, key, None))
@@ -164,19 +177,31 @@ def _solve(row: Row, env: TabularDecPOSMDP, study: DictConfig, seed: int, optimu
     found = solve(env, row.horizon, row.gamma, seed=stream_seed(seed, "solve"), threads=int(study.threads), **kwargs)
     cpu = time.process_time() - cpu
     frac = None if optimum is None else fraction_of_optimum(found.value, optimum, random_mean)
-    return {"value": found.value, "fraction_of_optimum": frac, "meets_99": None if frac is None else bool(frac >= 0.99 - 1e-12),
-            "bound": found.bound, "gap": found.gap, "bounds": found.bounds._asdict(), "seconds": found.seconds,
-            "cpu_seconds": cpu, "nodes": found.controller.num_nodes, "restarts": found.restarts,
-            "settings": kwargs}, found.controller
+    return {
+        "value": found.value,
+        "fraction_of_optimum": frac,
+        "meets_99": None if frac is None else bool(frac >= 0.99 - 1e-12),
+        "bound": found.bound,
+        "gap": found.gap,
+        "bounds": found.bounds._asdict(),
+        "seconds": found.seconds,
+        "cpu_seconds": cpu,
+        "nodes": found.controller.num_nodes,
+        "restarts": found.restarts,
+        "settings": kwargs,
+    }, found.controller
 
 
-def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictConfig, seed: int,
-              progress: bool) -> tuple[dict, object, list, object]:
+def solve_row(
+    row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictConfig, seed: int, progress: bool
+) -> tuple[dict, object, list, object]:
     """One row of the table, G-DICE's best controller and its learning curve, and solve's controller."""
     env = TabularDecPOSMDP.from_problem(row.problem, gamma=row.gamma, horizon=row.horizon)
     restarts = row.restarts if study.caps.restarts is None else min(row.restarts, int(study.caps.restarts))
     found = _search(row, cfg, env, restarts, seed, progress)
-    at_paper = _search(row, paper, env, 1, stream_seed(seed, "paper settings"), progress)  # one run at N_s = 100, N_k = 100, timed
+    at_paper = _search(
+        row, paper, env, 1, stream_seed(seed, "paper settings"), progress
+    )  # one run at N_s = 100, N_k = 100, timed
     value = exact_value(env, found["best"].best).item()
     rand = exact_value(env, uniform_controllers(cfg, env, int(study.random_controllers), torch_stream(seed, "random")))
     rand_mean = rand.mean().item()
@@ -189,18 +214,33 @@ def solve_row(row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictCon
     frac = None if optimum is None else fraction_of_optimum(value, optimum, rand_mean)
     solved, solved_controller = _solve(row, env, study, seed, optimum, rand_mean)
     table = {
-        "problem": row.problem, "states": env.num_states, "gamma": row.gamma,
-        "horizon": "inf" if row.horizon == math.inf else int(row.horizon), "evaluator": row.evaluator,
-        "gdice_value": value, "restart_values": found["values"], "optimum": optimum, "optimum_source": source,
-        "published_optimum": row.optimum, "exhaustive_optimum_h2": exhaustive,
-        "fraction_of_optimum": frac, "meets_95": None if frac is None else bool(frac >= 0.95 - 1e-12),
+        "problem": row.problem,
+        "states": env.num_states,
+        "gamma": row.gamma,
+        "horizon": "inf" if row.horizon == math.inf else int(row.horizon),
+        "evaluator": row.evaluator,
+        "gdice_value": value,
+        "restart_values": found["values"],
+        "optimum": optimum,
+        "optimum_source": source,
+        "published_optimum": row.optimum,
+        "exhaustive_optimum_h2": exhaustive,
+        "fraction_of_optimum": frac,
+        "meets_95": None if frac is None else bool(frac >= 0.95 - 1e-12),
         "gap_closed": None if optimum is None or optimum == rand_mean else (value - rand_mean) / (optimum - rand_mean),
-        "random_controller_mean": rand_mean, "random_controller_stderr": (rand.std() / math.sqrt(rand.numel())).item(),
-        "seconds_per_run": found["wall"], "cpu_seconds_per_run": found["cpu"],
+        "random_controller_mean": rand_mean,
+        "random_controller_stderr": (rand.std() / math.sqrt(rand.numel())).item(),
+        "seconds_per_run": found["wall"],
+        "cpu_seconds_per_run": found["cpu"],
         "controllers_per_run": cfg.ce_iterations * cfg.ce_samples,
         "settings": {**dataclasses.asdict(cfg), "restarts": restarts},
-        "paper_budget": {"samples": paper.ce_samples, "iterations": paper.ce_iterations, "value": at_paper["values"][0],
-                         "seconds": at_paper["wall"][0], "cpu_seconds": at_paper["cpu"][0]},
+        "paper_budget": {
+            "samples": paper.ce_samples,
+            "iterations": paper.ce_iterations,
+            "value": at_paper["values"][0],
+            "seconds": at_paper["wall"][0],
+            "cpu_seconds": at_paper["cpu"][0],
+        },
         "solve": solved,
     }
     return table, found["best"].best, found["best"].history["best_sampled"], solved_controller
@@ -219,61 +259,96 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         table[row.name], curves[row.name] = entry, curve
         opt = "n/a" if entry["optimum"] is None else f"{entry['optimum']:.4f}"
         frac = "" if entry["fraction_of_optimum"] is None else f" ({100 * entry['fraction_of_optimum']:.1f} % of it)"
-        print(f"{row.name}: G-DICE {entry['gdice_value']:.4f}, optimum {opt}{frac}, random "
-              f"{entry['random_controller_mean']:.3f}; {max(entry['seconds_per_run']):.1f} s wall / "
-              f"{max(entry['cpu_seconds_per_run']):.1f} s CPU per run; paper budget: "
-              f"{entry['paper_budget']['value']:.4f} in {entry['paper_budget']['seconds']:.1f} s wall / "
-              f"{entry['paper_budget']['cpu_seconds']:.1f} s CPU; solve {entry['solve']['value']:.4f} "
-              f"(bound {entry['solve']['bound']:.4f}, gap {100 * entry['solve']['gap']:.2f} %) in "
-              f"{entry['solve']['cpu_seconds']:.1f} s CPU", flush=True)
+        print(
+            f"{row.name}: G-DICE {entry['gdice_value']:.4f}, optimum {opt}{frac}, random "
+            f"{entry['random_controller_mean']:.3f}; {max(entry['seconds_per_run']):.1f} s wall / "
+            f"{max(entry['cpu_seconds_per_run']):.1f} s CPU per run; paper budget: "
+            f"{entry['paper_budget']['value']:.4f} in {entry['paper_budget']['seconds']:.1f} s wall / "
+            f"{entry['paper_budget']['cpu_seconds']:.1f} s CPU; solve {entry['solve']['value']:.4f} "
+            f"(bound {entry['solve']['bound']:.4f}, gap {100 * entry['solve']['gap']:.2f} %) in "
+            f"{entry['solve']['cpu_seconds']:.1f} s CPU",
+            flush=True,
+        )
     _plot(table, run_dir / "dpomdp_benchmarks.png")
     atomic_write_text(run_dir / "table.md", markdown_table(table))
-    print(f"wrote {run_dir / 'metrics.json'}, {run_dir / 'table.md'}, {run_dir / 'dpomdp_benchmarks.png'} and "
-          f"{run_dir / 'controllers'}", flush=True)
+    print(
+        f"wrote {run_dir / 'metrics.json'}, {run_dir / 'table.md'}, {run_dir / 'dpomdp_benchmarks.png'} and "
+        f"{run_dir / 'controllers'}",
+        flush=True,
+    )
     scored = [e["meets_95"] for e in table.values() if e["meets_95"] is not None]
     solved = [e["solve"]["meets_99"] for e in table.values() if e["solve"]["meets_99"] is not None]
-    return {"rows": table, "rows_scored": len(scored), "rows_meeting_95": sum(scored),
-            "rows_missing_95": [n for n, e in table.items() if e["meets_95"] is False],
-            "solve_rows_meeting_99": sum(solved),
-            "solve_rows_missing_99": [n for n, e in table.items() if e["solve"]["meets_99"] is False]}
+    return {
+        "rows": table,
+        "rows_scored": len(scored),
+        "rows_meeting_95": sum(scored),
+        "rows_missing_95": [n for n, e in table.items() if e["meets_95"] is False],
+        "solve_rows_meeting_99": sum(solved),
+        "solve_rows_missing_99": [n for n, e in table.items() if e["solve"]["meets_99"] is False],
+    }
 
 
 def markdown_table(table: dict) -> str:
     """The table for people: one line per row."""
-    header = ("| row | S | gamma | h | optimum | solve | % of optimum | bound | gap | CPU s | nodes | G-DICE | % of optimum "
-              "| gap closed | random mean | wall s / CPU s per run | paper budget: value, wall s / CPU s |")
+    header = (
+        "| row | S | gamma | h | optimum | solve | % of optimum | bound | gap | CPU s | nodes | G-DICE | % of optimum "
+        "| gap closed | random mean | wall s / CPU s per run | paper budget: value, wall s / CPU s |"
+    )
     lines = [header, "|" + " --- |" * 17]
     for name, e in table.items():
         opt = "n/a" if e["optimum"] is None else f"{e['optimum']:.4f}"
-        frac = "n/a" if e["fraction_of_optimum"] is None else (
-            f"{100 * e['fraction_of_optimum']:.1f}" + ("" if e["meets_95"] else " (misses 95 %)"))
+        frac = (
+            "n/a"
+            if e["fraction_of_optimum"] is None
+            else (f"{100 * e['fraction_of_optimum']:.1f}" + ("" if e["meets_95"] else " (misses 95 %)"))
+        )
         gap = "n/a" if e["gap_closed"] is None else f"{e['gap_closed']:.3f}"
         sv = e["solve"]
-        s_frac = "n/a" if sv["fraction_of_optimum"] is None else (
-            f"{100 * sv['fraction_of_optimum']:.1f}" + ("" if sv["meets_99"] else " (misses 99 %)"))
-        lines.append(f"| {name} | {e['states']} | {e['gamma']} | {e['horizon']} | {opt} | {sv['value']:.4f} | {s_frac} "
-                     f"| {sv['bound']:.4f} | {100 * sv['gap']:.2f} % | {sv['cpu_seconds']:.1f} | {sv['nodes']} "
-                     f"| {e['gdice_value']:.4f} | {frac} "
-                     f"| {gap} | {e['random_controller_mean']:.3f} | {max(e['seconds_per_run']):.1f} / "
-                     f"{max(e['cpu_seconds_per_run']):.1f} | {e['paper_budget']['value']:.4f}, "
-                     f"{e['paper_budget']['seconds']:.1f} / {e['paper_budget']['cpu_seconds']:.1f} |")
+        s_frac = (
+            "n/a"
+            if sv["fraction_of_optimum"] is None
+            else (f"{100 * sv['fraction_of_optimum']:.1f}" + ("" if sv["meets_99"] else " (misses 99 %)"))
+        )
+        lines.append(
+            f"| {name} | {e['states']} | {e['gamma']} | {e['horizon']} | {opt} | {sv['value']:.4f} | {s_frac} "
+            f"| {sv['bound']:.4f} | {100 * sv['gap']:.2f} % | {sv['cpu_seconds']:.1f} | {sv['nodes']} "
+            f"| {e['gdice_value']:.4f} | {frac} "
+            f"| {gap} | {e['random_controller_mean']:.3f} | {max(e['seconds_per_run']):.1f} / "
+            f"{max(e['cpu_seconds_per_run']):.1f} | {e['paper_budget']['value']:.4f}, "
+            f"{e['paper_budget']['seconds']:.1f} / {e['paper_budget']['cpu_seconds']:.1f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
 def _plot(table: dict, path: Path) -> None:
     names = list(table)
-    fig, (ax, ax_t) = plt.subplots(1, 2, figsize=(12, 0.32 * len(names) + 1.6), sharey=True,
-                                   gridspec_kw={"width_ratios": [3, 2]})
+    fig, (ax, ax_t) = plt.subplots(
+        1, 2, figsize=(12, 0.32 * len(names) + 1.6), sharey=True, gridspec_kw={"width_ratios": [3, 2]}
+    )
     y = range(len(names))
     frac = [table[n]["fraction_of_optimum"] for n in names]
     gap = [table[n]["gap_closed"] for n in names]
     colors = ["0.7" if f is None else ("C2" if f >= 0.95 - 1e-12 else "C3") for f in frac]
     ax.barh(y, [0 if f is None else max(f, 0.0) for f in frac], color=colors, label="G-DICE")
     solved = [table[n]["solve"]["fraction_of_optimum"] for n in names]
-    ax.scatter([float("nan") if f is None else max(f, 0.0) for f in solved], y, marker="D", s=18, color="C0", zorder=4,
-               label="solve")
-    ax.scatter([g if g is not None else float("nan") for g in gap], y, marker="|", s=120, color="k", zorder=3,
-               label="share of the random-to-optimum gap closed")
+    ax.scatter(
+        [float("nan") if f is None else max(f, 0.0) for f in solved],
+        y,
+        marker="D",
+        s=18,
+        color="C0",
+        zorder=4,
+        label="solve",
+    )
+    ax.scatter(
+        [g if g is not None else float("nan") for g in gap],
+        y,
+        marker="|",
+        s=120,
+        color="k",
+        zorder=3,
+        label="share of the random-to-optimum gap closed",
+    )
     for i, f in enumerate(frac):
         label = "no published optimum" if f is None else f"{100 * f:.1f} %"
         ax.text(0.01 if f is None else max(f, 0.0) + 0.01, i, label, va="center", fontsize=7, color="0.2")
@@ -283,9 +358,15 @@ def _plot(table: dict, path: Path) -> None:
     ax.set_xlim(0, 1.15)
     ax.set_xlabel("value as a fraction of the optimum (bars: G-DICE, green >= 95 %, red below; diamonds: solve)")
     ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False)
-    ax_t.barh(y, [table[n]["paper_budget"]["cpu_seconds"] for n in names], color="C0",
-              label="CPU s, one run at the paper budget")
-    ax_t.scatter([table[n]["paper_budget"]["seconds"] for n in names], y, marker="x", color="k", label="wall s, same run")
+    ax_t.barh(
+        y,
+        [table[n]["paper_budget"]["cpu_seconds"] for n in names],
+        color="C0",
+        label="CPU s, one run at the paper budget",
+    )
+    ax_t.scatter(
+        [table[n]["paper_budget"]["seconds"] for n in names], y, marker="x", color="k", label="wall s, same run"
+    )
     ax_t.axvline(120, color="C3", ls=":", lw=1, label="2-minute floor")
     ax_t.set_xscale("log")
     ax_t.set_xlabel("seconds per G-DICE run at N_s = 100, N_k = 100")

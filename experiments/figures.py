@@ -9,10 +9,22 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-LABELS = {"perfect": "perfect perception", "hbni": "HBNI", "ssbf": "SSBF", "max_of_mean": "max-of-mean",
-          "hbni_generative": "HBNI (generative)", "hbni_empirical": "HBNI (empirical)"}
-COLORS = {"perfect": "tab:gray", "hbni": "tab:blue", "ssbf": "tab:orange", "max_of_mean": "tab:green",
-          "hbni_generative": "tab:purple", "hbni_empirical": "tab:cyan"}
+LABELS = {
+    "perfect": "perfect perception",
+    "hbni": "HBNI",
+    "ssbf": "SSBF",
+    "max_of_mean": "max-of-mean",
+    "hbni_generative": "HBNI (generative)",
+    "hbni_empirical": "HBNI (empirical)",
+}
+COLORS = {
+    "perfect": "tab:gray",
+    "hbni": "tab:blue",
+    "ssbf": "tab:orange",
+    "max_of_mean": "tab:green",
+    "hbni_generative": "tab:purple",
+    "hbni_empirical": "tab:cyan",
+}
 TITLE_SIZE, LABEL_SIZE, TICK_SIZE = 11, 10, 9
 PANEL_COLUMNS = 3  # panels per row: a figure of many variants wraps instead of growing wide
 
@@ -43,8 +55,15 @@ def heatmap(ax: plt.Axes, matrix: np.ndarray, ticks: list[str], title: str):
     image = ax.imshow(matrix, vmin=0, vmax=1, cmap="Blues")
     for i in range(matrix.shape[0]):
         for j in range(matrix.shape[1]):
-            ax.text(j, i, f"{matrix[i, j]:.2f}", ha="center", va="center", fontsize=TICK_SIZE - 1,
-                    color="white" if matrix[i, j] > 0.6 else "black")
+            ax.text(
+                j,
+                i,
+                f"{matrix[i, j]:.2f}",
+                ha="center",
+                va="center",
+                fontsize=TICK_SIZE - 1,
+                color="white" if matrix[i, j] > 0.6 else "black",
+            )
     ax.set_xticks(range(len(ticks)), ticks, fontsize=TICK_SIZE, rotation=30, ha="right")
     ax.set_yticks(range(len(ticks)), ticks, fontsize=TICK_SIZE)
     ax.set_title(title, fontsize=TITLE_SIZE)

@@ -42,7 +42,13 @@ LABELS = {
     "hbni": "HBNI",
     "hbni_oracle": "HBNI, true θ (oracle)",
 }
-COLORS = {"voting": "tab:gray", "max_of_mean": "tab:orange", "ssbf": "tab:green", "hbni": "tab:blue", "hbni_oracle": "k"}
+COLORS = {
+    "voting": "tab:gray",
+    "max_of_mean": "tab:orange",
+    "ssbf": "tab:green",
+    "hbni": "tab:blue",
+    "hbni_oracle": "k",
+}
 Z95 = 1.959963984540054
 
 
@@ -84,8 +90,14 @@ def _settings(cfg: DictConfig) -> dict[str, Any]:
     if bad:
         raise ValueError(f"study.training_sizes: {bad} are not positive multiples of M = {len(theta)} (balanced sets)")
     return {
-        "theta": theta, "sizes": sizes, "sets": sets, "trials": trials, "max_len": int(s.max_len),
-        "draws": int(s.filter_draws), "targets": [float(t) for t in s.targets], "mode": str(cfg.hbni.filter.mode),
+        "theta": theta,
+        "sizes": sizes,
+        "sets": sets,
+        "trials": trials,
+        "max_len": int(s.max_len),
+        "draws": int(s.filter_draws),
+        "targets": [float(t) for t in s.targets],
+        "mode": str(cfg.hbni.filter.mode),
     }
 
 
@@ -95,9 +107,10 @@ def _fit_sets(train: Tensor, cfg: DictConfig, seed: int) -> list[hbni_pyro.HBNIP
     hyperprior = instantiate(cfg.hbni.hyperprior)
     if method == "mh":
         return hbni_pyro.fit_many(train, **fit, seed=seed, progress=False, hyperprior=hyperprior)
-    return [hbni_pyro.fit(x, method=method, **fit, seed=stream_seed(seed, "fit", d), progress=False,
-                          hyperprior=hyperprior)
-            for d, x in enumerate(train)]
+    return [
+        hbni_pyro.fit(x, method=method, **fit, seed=stream_seed(seed, "fit", d), progress=False, hyperprior=hyperprior)
+        for d, x in enumerate(train)
+    ]
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -110,7 +123,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     def wrong_counts(probs: Tensor, rows: slice = slice(None)) -> Tensor:
         return (decide(probs) != truth[rows].unsqueeze(1)).sum(0)
 
-    fixed = {name: wrong_counts(make_filter(name, num_classes=M).run(obs)) for name in ("voting", "max_of_mean", "ssbf")}
+    fixed = {
+        name: wrong_counts(make_filter(name, num_classes=M).run(obs)) for name in ("voting", "max_of_mean", "ssbf")
+    }
     fixed["hbni_oracle"] = wrong_counts(make_filter("hbni", _TrueTheta(theta), mode=s["mode"]).run(obs))
     per_set = trials // sets
     wrong: dict[int, dict[str, Tensor]] = {}
@@ -144,13 +159,23 @@ def _metrics(wrong: dict[int, dict[str, Tensor]], s: dict[str, Any]) -> dict[str
         error[size], crossing[size] = {}, {}
         for method in METHODS:
             lo, hi = wilson_interval(counts[method], trials)
-            error[size][method] = {"error": counts[method].to(DTYPE) / trials, "lo": lo, "hi": hi, "wrong": counts[method]}
+            error[size][method] = {
+                "error": counts[method].to(DTYPE) / trials,
+                "lo": lo,
+                "hi": hi,
+                "wrong": counts[method],
+            }
             crossing[size][method] = {f"{t:g}": first_crossing(counts[method].to(DTYPE) / trials, t) for t in targets}
     return {
         "settings": {
-            "true_theta": s["theta"], "training_sizes": s["sizes"], "num_training_sets": s["sets"],
-            "num_trials": trials, "max_len": s["max_len"], "hbni_filter_mode": s["mode"],
-            "hbni_filter_draws": s["draws"], "interval": "95% Wilson score",
+            "true_theta": s["theta"],
+            "training_sizes": s["sizes"],
+            "num_training_sets": s["sets"],
+            "num_trials": trials,
+            "max_len": s["max_len"],
+            "hbni_filter_mode": s["mode"],
+            "hbni_filter_draws": s["draws"],
+            "interval": "95% Wilson score",
         },
         "N": list(range(1, s["max_len"] + 1)),
         "error": error,
@@ -165,7 +190,9 @@ def _acceptance(error: dict, crossing: dict) -> dict[str, bool | None]:
     out: dict[str, bool | None] = {}
     if 15 in error:
         c = _compare(error[15], crossing[15])
-        out["train15_hbni_at_or_below_every_baseline_at_every_n"] = all(c[b]["hbni_at_or_below_every_n"] for b in BASELINES)
+        out["train15_hbni_at_or_below_every_baseline_at_every_n"] = all(
+            c[b]["hbni_at_or_below_every_n"] for b in BASELINES
+        )
         out["train15_intervals_separated_wherever_baseline_above_1pct"] = all(
             c[b]["intervals_separated_wherever_baseline_above_1pct"] for b in BASELINES
         )
@@ -216,8 +243,15 @@ def _curves_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
             err = e["error"].numpy()
             style = "--" if method == "hbni_oracle" else "-"
             ax.plot(N, np.where(err > 0, err, np.nan), style, color=COLORS[method], label=LABELS[method], lw=1.6)
-            ax.fill_between(N, np.maximum(e["lo"].numpy(), floor), e["hi"].numpy(), where=err > 0,
-                            color=COLORS[method], alpha=0.15, lw=0)
+            ax.fill_between(
+                N,
+                np.maximum(e["lo"].numpy(), floor),
+                e["hi"].numpy(),
+                where=err > 0,
+                color=COLORS[method],
+                alpha=0.15,
+                lw=0,
+            )
         for t in s["targets"]:
             ax.axhline(t, color="k", lw=0.5, ls=":")
         ax.set_yscale("log")
@@ -228,8 +262,11 @@ def _curves_figure(metrics: dict[str, Any], s: dict[str, Any]) -> plt.Figure:
         ax.grid(True, which="major", alpha=0.3)
     axes[0][0].set_ylabel(f"classification error ({s['trials']} trials per N)")
     axes[0][-1].legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"Error vs N, true θ = {s['theta'].tolist()}, HBNI mode {s['mode']}, 95% Wilson bands "
-                 "(zero-error points not drawn)", y=1.02)
+    fig.suptitle(
+        f"Error vs N, true θ = {s['theta'].tolist()}, HBNI mode {s['mode']}, 95% Wilson bands "
+        "(zero-error points not drawn)",
+        y=1.02,
+    )
     return fig
 
 

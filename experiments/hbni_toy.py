@@ -30,18 +30,28 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     classes = torch.arange(len(theta_true)).repeat_interleave(int(cfg.toy.per_class))
     obs = sample_outputs(theta_true, classes, torch_stream(int(cfg.seed), "outputs"))
     fit_kw = dict(cfg.hbni.fit)
-    posterior = hbni_pyro.fit(obs, **fit_kw, hyperprior=instantiate(cfg.hbni.hyperprior), seed=stream_seed(int(cfg.seed), "fit"),
-                             progress=cfg.progress)
+    posterior = hbni_pyro.fit(
+        obs,
+        **fit_kw,
+        hyperprior=instantiate(cfg.hbni.hyperprior),
+        seed=stream_seed(int(cfg.seed), "fit"),
+        progress=cfg.progress,
+    )
     confident = hbni_pyro.fit(
-        obs, **fit_kw, hyperprior=instantiate(cfg.toy.near_perfect_hyperprior), seed=stream_seed(int(cfg.seed), "fit", "near perfect"),
-        progress=cfg.progress
+        obs,
+        **fit_kw,
+        hyperprior=instantiate(cfg.toy.near_perfect_hyperprior),
+        seed=stream_seed(int(cfg.seed), "fit", "near perfect"),
+        progress=cfg.progress,
     )
     save_artifact(run_dir, "posterior", posterior)
     save_artifact(run_dir, "posterior_near_perfect", confident)
     save_figure(_theta_figure(posterior, theta_true), run_dir / "theta_posterior.png")
     save_figure(_hyper_figure(confident), run_dir / "hyperparameters.png")
     summary = posterior.summary()
-    inside = [summary[f"theta[{m}]"]["q5"] <= float(t) <= summary[f"theta[{m}]"]["q95"] for m, t in enumerate(theta_true)]
+    inside = [
+        summary[f"theta[{m}]"]["q5"] <= float(t) <= summary[f"theta[{m}]"]["q95"] for m, t in enumerate(theta_true)
+    ]
     return {
         "theta_true": theta_true,
         "outputs": len(classes),
@@ -64,7 +74,10 @@ def _theta_figure(posterior: hbni_pyro.HBNIPosterior, theta_true: torch.Tensor) 
         ax.set_title(f"class {m + 1}")
         ax.legend(fontsize=8)
     axes[0].set_ylabel("posterior density")
-    fig.suptitle(y=1.04, t=f"θ posteriors from {posterior.label_probs.shape[0]} unlabelled outputs (MH, {posterior.num_chains} chains)")
+    fig.suptitle(
+        y=1.04,
+        t=f"θ posteriors from {posterior.label_probs.shape[0]} unlabelled outputs (MH, {posterior.num_chains} chains)",
+    )
     return fig
 
 

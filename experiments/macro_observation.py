@@ -36,26 +36,39 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     M, seed = len(theta), int(cfg.seed)
     classes = torch.arange(M).repeat_interleave(int(s.training_per_class))
     train = sample_outputs(theta, classes, torch_stream(seed, "train"))
-    posterior = hbni_pyro.fit(train, **cfg.hbni.fit, hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=cfg.progress)
+    posterior = hbni_pyro.fit(
+        train, **cfg.hbni.fit, hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=cfg.progress
+    )
     posterior.save(run_dir / "posterior.safetensors")
-    filters = {"hbni": make_filter("hbni", posterior, mode=str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
-               "ssbf": make_filter("ssbf", num_classes=M)}
+    filters = {
+        "hbni": make_filter("hbni", posterior, mode=str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
+        "ssbf": make_filter("ssbf", num_classes=M),
+    }
     sources = {"true_theta": theta, "posterior_predictive": posterior}
     models: dict[str, dict[str, MacroObservationModel]] = {}
     for name, f in filters.items():
         process = MacroObservationProcess(f, threshold=float(s.threshold), max_frames=int(s.max_frames))
         models[name] = {}
         for k, (source, generative) in enumerate(sources.items()):
-            model = characterize(process, generative, int(s.num_streams), seed=stream_seed(seed, "characterize", k),
-                                    progress=cfg.progress)
+            model = characterize(
+                process,
+                generative,
+                int(s.num_streams),
+                seed=stream_seed(seed, "characterize", k),
+                progress=cfg.progress,
+            )
             model.save(run_dir / f"macro_{name}_{source}.safetensors")
             models[name][source] = model
     save_figure(_figure(models, theta, s), run_dir / "macro_observation.png")
     return {
         "settings": {
-            "true_theta": theta, "training_outputs": len(classes), "threshold": float(s.threshold),
-            "max_frames": int(s.max_frames), "num_streams_per_class": int(s.num_streams),
-            "hbni_filter_mode": str(cfg.hbni.filter.mode), "hbni_filter_draws": int(s.filter_draws),
+            "true_theta": theta,
+            "training_outputs": len(classes),
+            "threshold": float(s.threshold),
+            "max_frames": int(s.max_frames),
+            "num_streams_per_class": int(s.num_streams),
+            "hbni_filter_mode": str(cfg.hbni.filter.mode),
+            "hbni_filter_draws": int(s.filter_draws),
         },
         "theta_posterior_mean": posterior.theta_draws().mean(0),
         "processes": {name: {src: _describe(m) for src, m in per.items()} for name, per in models.items()},
@@ -86,8 +99,13 @@ def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Te
             model = per["true_theta"]
             pmf = model.frames_pmf[c].numpy()
             acc = float(model.accuracy[c])
-            ax.step(frames, pmf, where="mid", color=COLORS[name],
-                    label=f"{name.upper()}: mean {float(model.mean_frames[c]):.2f} frames, accuracy {acc:.3f}")
+            ax.step(
+                frames,
+                pmf,
+                where="mid",
+                color=COLORS[name],
+                label=f"{name.upper()}: mean {float(model.mean_frames[c]):.2f} frames, accuracy {acc:.3f}",
+            )
         ax.set_xlim(0.5, min(T, 25) + 0.5)
         ax.set_xlabel("frames used")
         ax.set_title(f"true class {c} (θ = {float(theta[c]):g})")
@@ -108,8 +126,11 @@ def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Te
         ax.axis("off")
     if M > 2:
         _mean_frames_bars(axes[1, 2], models, M)
-    fig.suptitle(f"Macro-observations at threshold {float(s.threshold):g} (true θ = {theta.tolist()}, "
-                 f"{int(s.num_streams)} streams per class)", y=1.0)
+    fig.suptitle(
+        f"Macro-observations at threshold {float(s.threshold):g} (true θ = {theta.tolist()}, "
+        f"{int(s.num_streams)} streams per class)",
+        y=1.0,
+    )
     fig.tight_layout()
     return fig
 
@@ -119,9 +140,15 @@ def _mean_frames_bars(ax: plt.Axes, models: dict[str, dict[str, MacroObservation
     pairs = [(name, source) for name in models for source in ("true_theta", "posterior_predictive")]
     for k, (name, source) in enumerate(pairs):
         predictive = source == "posterior_predictive"
-        ax.bar(np.arange(M) + (k - (len(pairs) - 1) / 2) * width, models[name][source].mean_frames.numpy(), width * 0.9,
-               color="none" if predictive else COLORS[name], edgecolor=COLORS[name], hatch="//" if predictive else None,
-               label=f"{name.upper()}, {source.replace('_', ' ')}")
+        ax.bar(
+            np.arange(M) + (k - (len(pairs) - 1) / 2) * width,
+            models[name][source].mean_frames.numpy(),
+            width * 0.9,
+            color="none" if predictive else COLORS[name],
+            edgecolor=COLORS[name],
+            hatch="//" if predictive else None,
+            label=f"{name.upper()}, {source.replace('_', ' ')}",
+        )
     ax.set_xticks(range(M))
     ax.set_xlabel("true class")
     ax.set_ylabel("mean frames used")

@@ -88,8 +88,10 @@ class StageClock:
     def seconds(self) -> dict[str, dict[str, float]]:
         """``{stage: {"wall": s, "cpu": s}}`` up to now."""
         ends = [mark[1:] for mark in self.marks[1:]] + [(time.perf_counter(), time.process_time())]
-        return {stage: {"wall": wall_end - wall, "cpu": cpu_end - cpu}
-                for (stage, wall, cpu), (wall_end, cpu_end) in zip(self.marks, ends)}
+        return {
+            stage: {"wall": wall_end - wall, "cpu": cpu_end - cpu}
+            for (stage, wall, cpu), (wall_end, cpu_end) in zip(self.marks, ends)
+        }
 
 
 class Settings(NamedTuple):
@@ -144,17 +146,30 @@ def read_settings(cfg: DictConfig) -> Settings:
     overrides = OmegaConf.to_container(st.conditions) if st.conditions else {}
     variants = list(cfg.perception) if isinstance(cfg.perception, ListConfig) else [str(cfg.perception)]
     temper = None if st.temper == "fit" else float(st.temper)
-    return Settings(int(cfg.seed), bool(cfg.progress), variants, temper, overrides, int(st.frames),
-                    closed_loop.read_loop_settings(cfg), StageClock(bool(cfg.progress)))
+    return Settings(
+        int(cfg.seed),
+        bool(cfg.progress),
+        variants,
+        temper,
+        overrides,
+        int(st.frames),
+        closed_loop.read_loop_settings(cfg),
+        StageClock(bool(cfg.progress)),
+    )
 
 
 def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> FrameClassifier:
     """Stage 1: the frame classifier, trained on training-condition snapshots (saved as ``classifier``)."""
     settings.clock.start("train", "1/6 training the frame classifier on training-condition snapshots")
     st = cfg.mission
-    clf = train_classifier(cfg.classifier, CLASSES, int(st.train_per_class), int(st.augment),
-                           stream_seed(settings.seed, "train"),
-                           settings.progress)
+    clf = train_classifier(
+        cfg.classifier,
+        CLASSES,
+        int(st.train_per_class),
+        int(st.augment),
+        stream_seed(settings.seed, "train"),
+        settings.progress,
+    )
     save_artifact(run_dir, "classifier", clf)
     return clf
 
@@ -163,8 +178,13 @@ def start_bank(clf: FrameClassifier, settings: Settings, run_dir: Path) -> BankB
     """Stage 1b: the held-out bank (its own random stream, ``"bank"``, apart from calibration and characterisation):
     loaded from ``mission.bank.cache_dir``, or rendered and classified by background workers."""
     loop = settings.loop
-    spec = BankSpec(tuple(CLASSES), get_conditions("mission", **settings.overrides), stream_seed(settings.seed, "bank"),
-                    loop.bank_sequences, settings.frames)
+    spec = BankSpec(
+        tuple(CLASSES),
+        get_conditions("mission", **settings.overrides),
+        stream_seed(settings.seed, "bank"),
+        loop.bank_sequences,
+        settings.frames,
+    )
     bank = BankBuild(spec, clf, run_dir / "classifier.safetensors", loop.cache_dir, loop.workers)
     how = "found in the cache" if bank.cached else f"building with {loop.workers} background worker(s)"
     settings.clock.say(f"held-out bank of {loop.bank_sequences} sequences per class: {how} ({bank.path})")
@@ -176,18 +196,35 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
     settings.clock.start("classify", "2/6 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
-    calib = sequence_outputs(clf, CLASSES, int(st.calib_sequences), settings.frames, mission, stream_seed(seed, "calibration"), progress,
-                             "calibration")[0]
-    held = sequence_outputs(clf, CLASSES, int(st.char_sequences), settings.frames, mission, stream_seed(seed, "held-out"), progress,
-                            "held-out")[0]
+    calib = sequence_outputs(
+        clf,
+        CLASSES,
+        int(st.calib_sequences),
+        settings.frames,
+        mission,
+        stream_seed(seed, "calibration"),
+        progress,
+        "calibration",
+    )[0]
+    held = sequence_outputs(
+        clf,
+        CLASSES,
+        int(st.char_sequences),
+        settings.frames,
+        mission,
+        stream_seed(seed, "held-out"),
+        progress,
+        "held-out",
+    )[0]
     return Outputs(calib.double(), held.double())
 
 
 def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Noise:
     """Stage 3: HBNI fitted on the labelled calibration outputs (saved as ``posterior``), and its temper."""
     settings.clock.start("fit", "3/6 fitting HBNI and its frame-correlation temper on labelled calibration outputs")
-    posterior = fit_labelled(calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress,
-                             class_names=list(CLASSES))
+    posterior = fit_labelled(
+        calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress, class_names=list(CLASSES)
+    )
     save_artifact(run_dir, "posterior", posterior)
     if settings.temper is not None:
         return Noise(posterior, {"value": settings.temper, "fitted": False})
@@ -196,8 +233,10 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
     M, frames = len(CLASSES), settings.frames
     truth = torch.arange(M).repeat_interleave(calib.shape[1])
     fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), truth, cfg.hbni.filter.mode)
-    return Noise(posterior, {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(),
-                             "log_score": fitted.log_score.tolist()})
+    return Noise(
+        posterior,
+        {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(), "log_score": fitted.log_score.tolist()},
+    )
 
 
 def characterize_processes(
@@ -218,9 +257,14 @@ def characterize_processes(
 def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
     """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
     options = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
-    return {name: hbni_pyro.MacroObservationProcess(
-        hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
-        threshold=float(cfg.mission.threshold), max_frames=settings.frames) for name in settings.variants}
+    return {
+        name: hbni_pyro.MacroObservationProcess(
+            hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
+            threshold=float(cfg.mission.threshold),
+            max_frames=settings.frames,
+        )
+        for name in settings.variants
+    }
 
 
 def characterize_generative(
@@ -232,21 +276,29 @@ def characterize_generative(
     of the fitted ``hbni.model`` (a posterior draw per stream; its frames i.i.d. given it under the
     frame-level models, sharing one look under ``sequence``); saved as ``macro_<variant>_generative``."""
     loop = settings.loop
-    needed = settings.variants if loop.planning_model == "generative" else (
-        [v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])
+    needed = (
+        settings.variants
+        if loop.planning_model == "generative"
+        else ([v for v in settings.variants if v == "hbni"] if loop.compare_planning_models else [])
+    )
     if needed:
-        settings.clock.start("characterize_generative", f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model")
+        settings.clock.start(
+            "characterize_generative",
+            f"4/6 characterising {', '.join(needed)} on streams simulated from the fitted HBNI model",
+        )
     processes = build_processes(noise, cfg, settings)
     models = {}
     for name in needed:
-        models[name] = hbni_pyro.characterize(processes[name], noise.posterior, loop.generative_streams,
-                                              stream_seed(settings.seed, "generative", name))
+        models[name] = hbni_pyro.characterize(
+            processes[name], noise.posterior, loop.generative_streams, stream_seed(settings.seed, "generative", name)
+        )
         save_artifact(run_dir, f"macro_{name}_generative", models[name])
     return models
 
 
 def planning_models(
-    empirical: dict[str, hbni_pyro.MacroObservationModel], generative: dict[str, hbni_pyro.MacroObservationModel],
+    empirical: dict[str, hbni_pyro.MacroObservationModel],
+    generative: dict[str, hbni_pyro.MacroObservationModel],
     settings: Settings,
 ) -> dict[str, hbni_pyro.MacroObservationModel]:
     """What each policy plans on: every variant on ``mission.planning_model``, and HBNI also on the other model
@@ -298,16 +350,24 @@ def plan(
         for name in ("perfect", *models):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
-            result, best, entry = run_planner(env, planner if start is None else warm, bool(study.shared_controller),
-                                              stream_seed(seed, "plan", name), settings.progress, reeval,
-                                              init=start)
+            result, best, entry = run_planner(
+                env,
+                planner if start is None else warm,
+                bool(study.shared_controller),
+                stream_seed(seed, "plan", name),
+                settings.progress,
+                reeval,
+                init=start,
+            )
             entry["search_seconds"] = entry.pop("seconds")
             entry["started_from"] = "scratch" if start is None else "perfect"
             if warm is not None and name == "perfect":
                 start = result.best
             save_artifact(run_dir, f"controller_{name}", best)
             hand = score(env, greedy, reeval, stream_seed(seed, "greedy", name))
-            entry["greedy"] = {key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")}
+            entry["greedy"] = {
+                key: hand[key] for key in ("value", "stderr", "delivered_per_rollout", "wrong_per_rollout")
+            }
             entry.update(delivery_rates(entry))
             if name != "perfect":
                 entry["macro_accuracy"] = models[name].accuracy.tolist()
@@ -319,8 +379,14 @@ def plan(
 
 
 def execute_closed_loop(
-    bank: torch.Tensor, held: torch.Tensor, noise: Noise, models: dict[str, hbni_pyro.MacroObservationModel],
-    results: dict[str, dict], cfg: DictConfig, settings: Settings, run_dir: Path,
+    bank: torch.Tensor,
+    held: torch.Tensor,
+    noise: Noise,
+    models: dict[str, hbni_pyro.MacroObservationModel],
+    results: dict[str, dict],
+    cfg: DictConfig,
+    settings: Settings,
+    run_dir: Path,
 ) -> plt.Figure | None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
     streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
@@ -332,8 +398,10 @@ def execute_closed_loop(
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
     C, P = pooled.shape[:2]
     processes = build_processes(noise, cfg, settings)
-    on_pool = {name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
-               for name, p in processes.items()}
+    on_pool = {
+        name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
+        for name, p in processes.items()
+    }
     boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
     for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
@@ -346,25 +414,55 @@ def execute_closed_loop(
         replay = closed_loop.resampled(pool, C, P, torch.arange(held.shape[1], P))  # the bank
         executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
         resample = functools.partial(closed_loop.resampled, pool, C, P)
-        on_bank = closed_loop.stream_stderr(controller, resample, P, bank.shape[1], cfg.domain, boot,
-                                              stream_seed(settings.seed, "bootstrap", "bank", name))
-        on_table = 0.0 if entry_planning(settings, name) != "empirical" else closed_loop.stream_stderr(
-            controller, resample, P, held.shape[1], cfg.domain, boot,
-            stream_seed(settings.seed, "bootstrap", "table", name))
+        on_bank = closed_loop.stream_stderr(
+            controller,
+            resample,
+            P,
+            bank.shape[1],
+            cfg.domain,
+            boot,
+            stream_seed(settings.seed, "bootstrap", "bank", name),
+        )
+        on_table = (
+            0.0
+            if entry_planning(settings, name) != "empirical"
+            else closed_loop.stream_stderr(
+                controller,
+                resample,
+                P,
+                held.shape[1],
+                cfg.domain,
+                boot,
+                stream_seed(settings.seed, "bootstrap", "table", name),
+            )
+        )
         entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
         table_streams = held.shape[1] if entry_planning(settings, name) == "empirical" else None
-        entry["distribution_check"] = honesty.distribution_check(models[name], replay, table_streams,
-                                                                 stream_seed(settings.seed, "honesty", name))
+        entry["distribution_check"] = honesty.distribution_check(
+            models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
+        )
         entry["value_power"] = honesty.value_power(results[name], entry, bank.shape[1])
         results[name]["executed"] = entry
-    return honesty.reliability_figure(processes, *closed_loop.as_streams(bank), mission_report.LABELS,
-                                      float(cfg.mission.threshold)) if processes else None
+    return (
+        honesty.reliability_figure(
+            processes, *closed_loop.as_streams(bank), mission_report.LABELS, float(cfg.mission.threshold)
+        )
+        if processes
+        else None
+    )
 
 
 def write_outputs(
-    run_dir: Path, cfg: DictConfig, settings: Settings, outputs: Outputs, noise: Noise,
-    models: dict[str, hbni_pyro.MacroObservationModel], results: dict[str, dict], histories: dict[str, dict],
-    bank: BankBuild, reliability: plt.Figure | None,
+    run_dir: Path,
+    cfg: DictConfig,
+    settings: Settings,
+    outputs: Outputs,
+    noise: Noise,
+    models: dict[str, hbni_pyro.MacroObservationModel],
+    results: dict[str, dict],
+    histories: dict[str, dict],
+    bank: BankBuild,
+    reliability: plt.Figure | None,
 ) -> dict:
     """Figures, ``report.md``; returns the metrics."""
     planner, warm = planners(cfg)
@@ -372,8 +470,10 @@ def write_outputs(
         "values.png": mission_report.value_figure(results),
         "confusion.png": mission_report.confusion_figure(models),
         "frames.png": mission_report.frames_figure(models),
-        "learning_curves.png": mission_report.curves_figure(histories, {
-            name: results["perfect"]["rollouts"] for name, r in results.items() if r.get("started_from") == "perfect"}),
+        "learning_curves.png": mission_report.curves_figure(
+            histories,
+            {name: results["perfect"]["rollouts"] for name, r in results.items() if r.get("started_from") == "perfect"},
+        ),
         "closed_loop.png": closed_loop.figure(results, mission_report.LABELS),
     }
     if reliability is not None:
@@ -386,10 +486,17 @@ def write_outputs(
         "classes": CLASSES,
         "variants": results,
         "acceptance": _acceptance(results),
-        "closed_loop": {"acceptance": closed_loop.acceptance(results),
-                        "planning": {name: entry_planning(settings, name) for name in results},
-                        "bank": {"path": str(bank.path), "cached": bank.cached, "seed": bank.spec.seed,
-                                 "sequences_per_class": bank.spec.sequences, "frames": bank.spec.frames}},
+        "closed_loop": {
+            "acceptance": closed_loop.acceptance(results),
+            "planning": {name: entry_planning(settings, name) for name in results},
+            "bank": {
+                "path": str(bank.path),
+                "cached": bank.cached,
+                "seed": bank.spec.seed,
+                "sequences_per_class": bank.spec.sequences,
+                "frames": bank.spec.frames,
+            },
+        },
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
@@ -399,8 +506,10 @@ def write_outputs(
         "wrong_penalty": float(cfg.domain.wrong_penalty),
         "frame_period": float(cfg.domain.frame_period),
         "sizes": {
-            "train_snapshots_per_class": int(st.train_per_class), "calibration_frames": int(calib[..., 0].numel()),
-            "held_out_streams": int(held.shape[0] * held.shape[1]), "frames_per_stream": settings.frames,
+            "train_snapshots_per_class": int(st.train_per_class),
+            "calibration_frames": int(calib[..., 0].numel()),
+            "held_out_streams": int(held.shape[0] * held.shape[1]),
+            "frames_per_stream": settings.frames,
         },
         "cpu_seconds": _cpu_seconds(),
         "stage_seconds": settings.clock.seconds(),
@@ -409,9 +518,12 @@ def write_outputs(
     section = closed_loop.report_lines(results, mission_report.LABELS, cl["planning"], cl["bank"])
     section += honesty.report_lines(results, mission_report.LABELS, CLASSES)
     cpu = metrics["cpu_seconds"]
-    section.append(f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers. "
-                   "Per stage of the main process (wall / CPU s): " + ", ".join(
-                       f"{stage} {t['wall']:.0f} / {t['cpu']:.0f}" for stage, t in metrics["stage_seconds"].items()) + ".")
+    section.append(
+        f"CPU time of this run: {cpu['main']:.0f} s in the main process, {cpu['workers']:.0f} s in bank workers. "
+        "Per stage of the main process (wall / CPU s): "
+        + ", ".join(f"{stage} {t['wall']:.0f} / {t['cpu']:.0f}" for stage, t in metrics["stage_seconds"].items())
+        + "."
+    )
     write_report(run_dir / "report.md", mission_report.report(metrics, list(figures)) + "\n" + "\n".join(section))
     return metrics
 
@@ -436,7 +548,9 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
         if other in results:
             o = results[other]
             out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)
-            out[f"hbni_minus_{other}_in_stderr"] = ratio(h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
+            out[f"hbni_minus_{other}_in_stderr"] = ratio(
+                h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+            )
     if "ssbf" in results:
         out["hbni_wrong_rate_below_ssbf"] = h["wrong_rate"] < results["ssbf"]["wrong_rate"]
     return out

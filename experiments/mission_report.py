@@ -47,17 +47,24 @@ def _planning_line(metrics: dict) -> str:
     """How the policies were searched."""
     first = "the paper's G-DICE" if metrics["planner"]["ce_result"] == "best_sampled" else "the cold-start planner"
     if metrics.get("warm_planner"):
-        return (f"Policies searched with no hand-written controller: {first} planned perfect perception "
-                f"from scratch ({metrics['planner']['budget'] / 1e6:g}M rollouts), then refined that plan for each perception "
-                f"variant ({metrics['warm_planner']['budget'] / 1e6:g}M rollouts each); every policy is re-evaluated on "
-                "independent rollouts.")
-    return (f"Policies searched from scratch with {first} ({metrics['planner']['budget'] / 1e6:g}M rollouts "
-            "each) and re-evaluated on independent rollouts.")
+        return (
+            f"Policies searched with no hand-written controller: {first} planned perfect perception "
+            f"from scratch ({metrics['planner']['budget'] / 1e6:g}M rollouts), then refined that plan for each perception "
+            f"variant ({metrics['warm_planner']['budget'] / 1e6:g}M rollouts each); every policy is re-evaluated on "
+            "independent rollouts."
+        )
+    return (
+        f"Policies searched from scratch with {first} ({metrics['planner']['budget'] / 1e6:g}M rollouts "
+        "each) and re-evaluated on independent rollouts."
+    )
 
 
 def report(metrics: dict, figures: list[str]) -> str:
-    rows = ["| perception | planned value (± s.e.) | delivered / run | wrong / run | wrong rate | mean inference frames "
-            "| greedy policy value (± s.e.) | planned - greedy (s.e.) |", "|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| perception | planned value (± s.e.) | delivered / run | wrong / run | wrong rate | mean inference frames "
+        "| greedy policy value (± s.e.) | planned - greedy (s.e.) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in metrics["variants"].items():
         rows.append(
             f"| {LABELS[name]} | {r['value']:.3f} ± {r['stderr']:.3f} | {r['delivered_per_rollout']:.2f} | "
@@ -67,26 +74,42 @@ def report(metrics: dict, figures: list[str]) -> str:
     macro = ["| process | label accuracy (mean over classes) | mean frames | timed out |", "|---|---|---|---|"]
     for name, r in metrics["variants"].items():
         if name != "perfect":
-            macro.append(f"| {LABELS[name]} | {float(np.mean(r['macro_accuracy'])):.3f} | "
-                         f"{float(np.mean(r['macro_mean_frames'])):.1f} | {float(np.mean(r['macro_timed_out'])):.3f} |")
+            macro.append(
+                f"| {LABELS[name]} | {float(np.mean(r['macro_accuracy'])):.3f} | "
+                f"{float(np.mean(r['macro_mean_frames'])):.1f} | {float(np.mean(r['macro_timed_out'])):.3f} |"
+            )
     acc = metrics["acceptance"]
     explain = _explanation(metrics)
     temper = metrics["hbni_temper"]
     how = "fitted by log score on the labelled calibration sequences" if temper["fitted"] else "set in the config"
-    temper_line = ("HBNI's noise model is the sequence-aware one: it integrates each sequence's look out and uses no "
-                   "likelihood temper." if temper.get("needed") is False else
-                   f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as "
-                   "independent).")
+    temper_line = (
+        "HBNI's noise model is the sequence-aware one: it integrates each sequence's look out and uses no "
+        "likelihood temper."
+        if temper.get("needed") is False
+        else f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as independent)."
+    )
     lines = [
-        "# Mission report: disaster relief on semantic macro-observations", "",
+        "# Mission report: disaster relief on semantic macro-observations",
+        "",
         _planning_line(metrics),
-        f"Frames: the `mission` imaging preset{_overrides(metrics['conditions']['overrides'])}.", "",
-        *rows, "", "Macro-observation processes characterised on held-out classifier output streams:", "", *macro, "",
-        temper_line, "",
+        f"Frames: the `mission` imaging preset{_overrides(metrics['conditions']['overrides'])}.",
+        "",
+        *rows,
+        "",
+        "Macro-observation processes characterised on held-out classifier output streams:",
+        "",
+        *macro,
+        "",
+        temper_line,
+        "",
         *explain,
     ]
     if acc:
-        lines += ["Checks: " + ", ".join(f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}" for k, v in acc.items()), ""]
+        lines += [
+            "Checks: "
+            + ", ".join(f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}" for k, v in acc.items()),
+            "",
+        ]
     lines += [f"![{f}]({f})" for f in figures]
     return "\n".join(lines) + "\n"
 
@@ -101,19 +124,43 @@ def value_figure(results: dict[str, dict]) -> plt.Figure:
     names = list(results)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     ticks = [figures.label(n) for n in names]
-    axes[0].bar(ticks, [results[n]["value"] for n in names], yerr=[results[n]["stderr"] for n in names], capsize=4,
-                color=[figures.color(n) for n in names])
-    axes[0].scatter(ticks, [results[n]["greedy"]["value"] for n in names], marker="_", s=900,
-                    color="black", zorder=3, label="greedy controller")
+    axes[0].bar(
+        ticks,
+        [results[n]["value"] for n in names],
+        yerr=[results[n]["stderr"] for n in names],
+        capsize=4,
+        color=[figures.color(n) for n in names],
+    )
+    axes[0].scatter(
+        ticks,
+        [results[n]["greedy"]["value"] for n in names],
+        marker="_",
+        s=900,
+        color="black",
+        zorder=3,
+        label="greedy controller",
+    )
     axes[0].legend(fontsize=figures.TICK_SIZE, loc="lower right", markerscale=0.3)
     axes[0].set_ylabel("discounted return (mean ± s.e.)", fontsize=figures.LABEL_SIZE)
     axes[0].set_title("Planned value per policy (on its planning model)", fontsize=figures.TITLE_SIZE)
     x = np.arange(len(names))
     colors = [figures.color(n) for n in names]
-    axes[1].bar(x - 0.2, [results[n]["delivered_per_rollout"] for n in names], 0.4, color=colors,
-                label="delivered right (solid)")
-    axes[1].bar(x + 0.2, [results[n]["wrong_per_rollout"] for n in names], 0.4, color=colors, alpha=0.35,
-                hatch="//", label="delivered wrong (hatched)")
+    axes[1].bar(
+        x - 0.2,
+        [results[n]["delivered_per_rollout"] for n in names],
+        0.4,
+        color=colors,
+        label="delivered right (solid)",
+    )
+    axes[1].bar(
+        x + 0.2,
+        [results[n]["wrong_per_rollout"] for n in names],
+        0.4,
+        color=colors,
+        alpha=0.35,
+        hatch="//",
+        label="delivered wrong (hatched)",
+    )
     axes[1].set_xticks(x, ticks)
     axes[1].set_ylabel("objects per mission", fontsize=figures.LABEL_SIZE)
     axes[1].set_ylim(top=1.3 * max(results[n]["delivered_per_rollout"] for n in names))  # room for the legend
@@ -169,8 +216,12 @@ def curves_figure(histories: dict[str, dict], offsets: dict[str, float] | None =
         key = "value" if sum(v == v for v in h["value"]) > 1 else "best_sampled"
         points = [((offsets.get(name, 0) + r) / 1e6, v) for r, v in zip(h["rollouts"], h[key]) if v == v]
         if points:
-            ax.step(*zip(*points), where="post", color=figures.color(name),
-                    label=figures.label(name) + (" (best sampled)" if key != "value" else ""))
+            ax.step(
+                *zip(*points),
+                where="post",
+                color=figures.color(name),
+                label=figures.label(name) + (" (best sampled)" if key != "value" else ""),
+            )
     ax.set_xlabel("rollouts spent (millions)")
     ax.set_ylabel("incumbent value on fresh rollouts")
     ax.set_title("Planner learning curves")

@@ -76,11 +76,18 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     if cfg.study.photos:
         data["photos"] = photo_outputs(cfg, s, run_dir)
     conditions = {name: evaluate_condition(name, calib, held, cfg, s, run_dir) for name, (calib, held) in data.items()}
-    metrics = {"toy": toy, "conditions": conditions, "acceptance": acceptance(toy, conditions, s),
-               "honesty": {name: honesty(cond) for name, cond in conditions.items()},
-               "settings": OmegaConf.to_container(cfg.study)}
-    figures = {"toy_error.png": report.toy_figure(toy), "accuracy_vs_frames.png": report.curve_figure(conditions),
-               "reliability.png": report.reliability_figure(conditions)}
+    metrics = {
+        "toy": toy,
+        "conditions": conditions,
+        "acceptance": acceptance(toy, conditions, s),
+        "honesty": {name: honesty(cond) for name, cond in conditions.items()},
+        "settings": OmegaConf.to_container(cfg.study),
+    }
+    figures = {
+        "toy_error.png": report.toy_figure(toy),
+        "accuracy_vs_frames.png": report.curve_figure(conditions),
+        "reliability.png": report.reliability_figure(conditions),
+    }
     for file, fig in figures.items():
         save_figure(fig, run_dir / file)
     write_report(run_dir / "report.md", report.markdown(metrics, list(figures)))
@@ -91,8 +98,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
 def read_settings(cfg: DictConfig) -> Settings:
     st = cfg.study
-    return Settings(int(cfg.seed), bool(cfg.progress), list(st.models), [float(t) for t in st.thresholds],
-                    [float(t) for t in st.curve_thresholds], None if st.cache_dir is None else str(st.cache_dir))
+    return Settings(
+        int(cfg.seed),
+        bool(cfg.progress),
+        list(st.models),
+        [float(t) for t in st.thresholds],
+        [float(t) for t in st.curve_thresholds],
+        None if st.cache_dir is None else str(st.cache_dir),
+    )
 
 
 # -- 1. the paper's toy ---------------------------------------------------------------------------
@@ -108,7 +121,13 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     """
     t = cfg.study.toy
     theta = torch.tensor(list(t.theta), dtype=DTYPE)
-    M, T, trials, sets, size = len(theta), int(t.max_len), int(t.num_trials), int(t.num_training_sets), int(t.training_size)
+    M, T, trials, sets, size = (
+        len(theta),
+        int(t.max_len),
+        int(t.num_trials),
+        int(t.num_training_sets),
+        int(t.training_size),
+    )
     g = torch_stream(s.seed, "toy")
     truth = torch.randint(M, (trials,), generator=g)
     obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
@@ -117,11 +136,19 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     per_set = trials // sets
     wrong: dict[str, torch.Tensor] = {
         name: (hbni_pyro.decide(hbni_pyro.make_filter(name, num_classes=M).run(obs)) != truth[:, None]).sum(0)
-        for name in ("ssbf", "max_of_mean")}
+        for name in ("ssbf", "max_of_mean")
+    }
     for k, model in enumerate(s.models):
         fit_kw = {key: v for key, v in OmegaConf.to_container(cfg.hbni.fit).items() if key != "method"}
-        posts = hbni_pyro.fit_many(train, model=model, sequence_ids=classes, **fit_kw, seed=stream_seed(s.seed, "fit", model, k),
-                                   progress=False, hyperprior=instantiate(cfg.hbni.hyperprior))
+        posts = hbni_pyro.fit_many(
+            train,
+            model=model,
+            sequence_ids=classes,
+            **fit_kw,
+            seed=stream_seed(s.seed, "fit", model, k),
+            progress=False,
+            hyperprior=instantiate(cfg.hbni.hyperprior),
+        )
         save_artifact(run_dir, f"toy_posterior_{model}", posts[0])
         counts = torch.zeros(T, dtype=torch.long)
         for d, post in enumerate(posts):
@@ -132,8 +159,15 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     error = {k: v.to(DTYPE) / trials for k, v in wrong.items()}
     target = float(t.target)
     crossing = {k: _first_at_most(e, target) for k, e in error.items()}
-    return {"error": error, "crossing_n": crossing, "target": target, "trials": trials, "training_size": size,
-            "training_sets": sets, "true_theta": theta}
+    return {
+        "error": error,
+        "crossing_n": crossing,
+        "target": target,
+        "trials": trials,
+        "training_size": size,
+        "training_sets": sets,
+        "true_theta": theta,
+    }
 
 
 def _first_at_most(error: torch.Tensor, target: float) -> int | None:
@@ -149,16 +183,25 @@ def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tu
     cache when a run with the same inputs stored them (the classifier is trained only if needed)."""
     m = cfg.study.mission
     # everything that decides the outputs: the classifier's settings and code, the renderer's code, seeds and sizes
-    base = {"classes": list(CLASSES), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
-            "code": source_identity("classifiers"), "seed": s.seed,
-            "train_per_class": int(m.train_per_class), "augment": int(m.augment), "frames": int(m.frames),
-            "calib_sequences": int(m.calib_sequences), "test_sequences": int(m.test_sequences)}
+    base = {
+        "classes": list(CLASSES),
+        "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
+        "code": source_identity("classifiers"),
+        "seed": s.seed,
+        "train_per_class": int(m.train_per_class),
+        "augment": int(m.augment),
+        "frames": int(m.frames),
+        "calib_sequences": int(m.calib_sequences),
+        "test_sequences": int(m.test_sequences),
+    }
     clf: list[FrameClassifier] = []
 
     def classifier() -> FrameClassifier:
         if not clf:
             _step(s, "training the frame classifier on training-condition snapshots")
-            clf.append(train_classifier(cfg.classifier, CLASSES, int(m.train_per_class), int(m.augment), s.seed, s.progress))
+            clf.append(
+                train_classifier(cfg.classifier, CLASSES, int(m.train_per_class), int(m.augment), s.seed, s.progress)
+            )
             save_artifact(run_dir, "classifier", clf[0])
         return clf[0]
 
@@ -166,21 +209,41 @@ def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tu
     for name, overrides in OmegaConf.to_container(cfg.study.conditions).items():
         conditions = get_conditions("mission", **(overrides or {}))
         compute = partial(_classify_condition, classifier, name, conditions, m, s)
-        tensors, path, hit = cached(s.cache_dir, f"noise_models_{name}", {**base, "conditions": conditions.to_dict()}, compute)
+        tensors, path, hit = cached(
+            s.cache_dir, f"noise_models_{name}", {**base, "conditions": conditions.to_dict()}, compute
+        )
         if hit:
             _step(s, f"{name}: classifier outputs from the cache {path}")
         out[name] = (tensors["calibration"], tensors["held_out"])
     return out
 
 
-def _classify_condition(classifier: Any, name: str, conditions: Any, m: DictConfig, s: Settings) -> dict[str, torch.Tensor]:
+def _classify_condition(
+    classifier: Any, name: str, conditions: Any, m: DictConfig, s: Settings
+) -> dict[str, torch.Tensor]:
     """Render and classify one condition's calibration and held-out sequences (their own random streams)."""
     _step(s, f"classifying {name} sequences")
     f = classifier()
-    calib = sequence_outputs(f, CLASSES, int(m.calib_sequences), int(m.frames), conditions, stream_seed(s.seed, "calibration"), s.progress,
-                             f"{name} calibration")[0]
-    held = sequence_outputs(f, CLASSES, int(m.test_sequences), int(m.frames), conditions, stream_seed(s.seed, "held-out"), s.progress,
-                            f"{name} held-out")[0]
+    calib = sequence_outputs(
+        f,
+        CLASSES,
+        int(m.calib_sequences),
+        int(m.frames),
+        conditions,
+        stream_seed(s.seed, "calibration"),
+        s.progress,
+        f"{name} calibration",
+    )[0]
+    held = sequence_outputs(
+        f,
+        CLASSES,
+        int(m.test_sequences),
+        int(m.frames),
+        conditions,
+        stream_seed(s.seed, "held-out"),
+        s.progress,
+        f"{name} held-out",
+    )[0]
     return {"calibration": calib.double(), "held_out": held.double()}
 
 
@@ -199,7 +262,9 @@ def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Te
     seq_root = root / "sequences"
     classes = sorted(p.name for p in seq_root.iterdir() if p.is_dir()) if seq_root.is_dir() else []
     if classes != train.classes:
-        raise ValueError(f"study.images: {str(seq_root)!r} must hold one folder per class of {train.classes}, found {classes}")
+        raise ValueError(
+            f"study.images: {str(seq_root)!r} must hold one folder per class of {train.classes}, found {classes}"
+        )
     order = class_columns(clf, classes)
     per_class = []
     for name in classes:
@@ -208,12 +273,16 @@ def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Te
         for p in tqdm(seqs, desc=f"images {name}", disable=not s.progress):
             frames_img = ImageFolder(p).load()[0]
             if len(frames_img) < frames:
-                raise ValueError(f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}")
+                raise ValueError(
+                    f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}"
+                )
             outs.append(clf.predict_proba(frames_img[:frames])[:, order].double())
         per_class.append(torch.stack(outs) if outs else torch.empty(0))
     counts = {len(p) for p in per_class}
     if len(counts) != 1 or 0 in counts or min(counts) < 2:
-        raise ValueError(f"study.images: expected the same number (>= 2) of sequences per class, got {[len(p) for p in per_class]}")
+        raise ValueError(
+            f"study.images: expected the same number (>= 2) of sequences per class, got {[len(p) for p in per_class]}"
+        )
     outputs = torch.stack(per_class)  # (C, S, F, C)
     split = max(1, min(outputs.shape[1] - 1, round(float(cfg.study.images_calibration) * outputs.shape[1])))
     return outputs[:, :split], outputs[:, split:]
@@ -224,22 +293,36 @@ def photo_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> tuple[torch.Te
     the classifier trained on ``"training"``-preset snapshots, the sequences in the ``"degraded"`` preset
     (calibration and held-out on their own random streams); cached like the rendered conditions."""
     p = cfg.study.photos
-    key = {"classes": list(PHOTOS), "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
-           "code": source_identity("classifiers"), "seed": s.seed, **{k: int(v) for k, v in p.items()}}
+    key = {
+        "classes": list(PHOTOS),
+        "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
+        "code": source_identity("classifiers"),
+        "seed": s.seed,
+        **{k: int(v) for k, v in p.items()},
+    }
 
     def compute() -> dict[str, torch.Tensor]:
         _step(s, "photos: training the frame classifier on training-preset snapshots")
         clf: FrameClassifier = instantiate(cfg.classifier)
         images = [im for name in PHOTOS for im in photo_snapshots(name, int(p.train_per_class), "training", s.seed)]
-        clf.fit(images, [name for name in PHOTOS for _ in range(int(p.train_per_class))], augment=int(p.augment),
-                progress=s.progress)
+        clf.fit(
+            images,
+            [name for name in PHOTOS for _ in range(int(p.train_per_class))],
+            augment=int(p.augment),
+            progress=s.progress,
+        )
         save_artifact(run_dir, "classifier_photos", clf)
         order = class_columns(clf, list(PHOTOS))
         out = {}
         for part, count in (("calibration", int(p.calib_sequences)), ("held_out", int(p.test_sequences))):
             seed = stream_seed(s.seed, "photos", part)
-            seqs = [[clf.predict_proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
-                     for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not s.progress)] for name in PHOTOS]
+            seqs = [
+                [
+                    clf.predict_proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
+                    for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not s.progress)
+                ]
+                for name in PHOTOS
+            ]
             out[part] = torch.stack([torch.stack(row) for row in seqs]).double()
         return out
 
@@ -252,8 +335,9 @@ def photo_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> tuple[torch.Te
 # -- 3. per condition -----------------------------------------------------------------------------
 
 
-def evaluate_condition(name: str, calib: torch.Tensor, held: torch.Tensor, cfg: DictConfig, s: Settings,
-                       run_dir: Path) -> dict[str, Any]:
+def evaluate_condition(
+    name: str, calib: torch.Tensor, held: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path
+) -> dict[str, Any]:
     """Fit every model on the calibration sequences and score every filter on the held-out ones."""
     _step(s, f"{name}: fitting {', '.join(s.models)} on {calib.shape[1]} calibration sequences per class")
     C, _, F, M = calib.shape
@@ -263,9 +347,16 @@ def evaluate_condition(name: str, calib: torch.Tensor, held: torch.Tensor, cfg: 
     for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not s.progress):
         rows[fname] = score_filter(f, streams, truth, s)
     frame_acc = float((held.argmax(-1) == torch.arange(C).view(-1, 1, 1)).to(DTYPE).mean())
-    return {"filters": rows, "temper": {k: f.temper for k, f in filters.items() if k.endswith("_tempered")},
-            "sizes": {"calibration_sequences_per_class": calib.shape[1], "held_out_sequences": int(truth.numel()),
-                      "frames": F}, "frame_accuracy": frame_acc}
+    return {
+        "filters": rows,
+        "temper": {k: f.temper for k, f in filters.items() if k.endswith("_tempered")},
+        "sizes": {
+            "calibration_sequences_per_class": calib.shape[1],
+            "held_out_sequences": int(truth.numel()),
+            "frames": F,
+        },
+        "frame_accuracy": frame_acc,
+    }
 
 
 def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
@@ -275,11 +366,12 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
     mode = cfg.hbni.filter.mode
     filters: dict[str, Any] = {}
     for model in s.models:
-        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model,
-                            class_names=_class_names(name))
+        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model, class_names=_class_names(name))
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
-        if not noise_model(model).sequences:  # frame-level models also run with the temper fitted on the calibration sequences
+        if not noise_model(
+            model
+        ).sequences:  # frame-level models also run with the temper fitted on the calibration sequences
             tau = hbni_pyro.fit_temper(post, calib_streams, calib_truth, mode).temper
             filters[f"{model}_tempered"] = hbni_pyro.make_filter("hbni", post, mode=mode, temper=tau)
     for baseline in BASELINES:
@@ -301,8 +393,10 @@ def score_filter(f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings
     return {
         "log_score": float(true_prob.clamp_min(1e-300).log().mean()),
         "log_score_stderr": float(true_prob.clamp_min(1e-300).log().mean(1).std() / math.sqrt(len(truth))),
-        "final_accuracy": final, "final_stderr": binomial_stderr(final, len(truth)),
-        "ece": rel.ece, "reliability": {"confidence": rel.confidence, "accuracy": rel.accuracy, "count": rel.count},
+        "final_accuracy": final,
+        "final_stderr": binomial_stderr(final, len(truth)),
+        "ece": rel.ece,
+        "reliability": {"confidence": rel.confidence, "accuracy": rel.accuracy, "count": rel.count},
         "thresholds": threshold_checks(f, streams, truth, s.thresholds),
         "curve": threshold_checks(f, streams, truth, s.curve),
     }
@@ -317,7 +411,11 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
     paper_n = toy["crossing_n"].get("paper")
     for model in s.models:
         n = toy["crossing_n"][model]
-        out["toy"][model] = {"n": n, "paper_n": paper_n, "within_one_frame": n is not None and paper_n is not None and n <= paper_n + 1}
+        out["toy"][model] = {
+            "n": n,
+            "paper_n": paper_n,
+            "within_one_frame": n is not None and paper_n is not None and n <= paper_n + 1,
+        }
     for name, cond in conditions.items():
         rows = cond["filters"]
         best = max(s.models, key=lambda m: rows[m]["log_score"])
@@ -331,8 +429,9 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
             ratio = at95["mean_frames"] / s95["mean_frames"]
             entry["timeouts_at_0.95"], entry["timeouts_stderr"] = at95["timeout_rate"], at95["timeout_stderr"]
             entry["frames_over_ssbf_at_0.95"] = ratio
-            entry["frames_ratio_stderr"] = ratio * math.hypot(at95["frames_stderr"] / at95["mean_frames"],
-                                                              s95["frames_stderr"] / s95["mean_frames"])
+            entry["frames_ratio_stderr"] = ratio * math.hypot(
+                at95["frames_stderr"] / at95["mean_frames"], s95["frames_stderr"] / s95["mean_frames"]
+            )
             entry["not_timid"] = entry["timeouts_at_0.95"] <= 0.15 and ratio <= 1.5
         if "paper" in rows and best != "paper":
             p = rows["paper"]
@@ -352,16 +451,26 @@ def _photo_target(seq: dict[str, Any], ssbf: dict[str, Any]) -> dict[str, Any]:
     a, b = seq["thresholds"].get("0.95"), ssbf["thresholds"].get("0.95")
     if a is None:
         return {}
-    right, timeouts, frames = a["emitted_accuracy"] >= 0.95, a["timeout_rate"] <= 0.10, a["mean_frames"] <= b["mean_frames"]
-    return {"emitted_right": right, "timeouts_at_most_0.1": timeouts, "frames_at_most_ssbf": frames,
-            "met": right and timeouts and frames}
+    right, timeouts, frames = (
+        a["emitted_accuracy"] >= 0.95,
+        a["timeout_rate"] <= 0.10,
+        a["mean_frames"] <= b["mean_frames"],
+    )
+    return {
+        "emitted_right": right,
+        "timeouts_at_most_0.1": timeouts,
+        "frames_at_most_ssbf": frames,
+        "met": right and timeouts and frames,
+    }
 
 
 def honesty(condition: dict[str, Any]) -> dict[str, dict[str, bool]]:
     """Per filter and threshold ``t``: whether the emitted labels are right at least ``t - 0.03`` of the time
     (``False`` when none is emitted)."""
-    return {name: {t: v["emitted"] > 0 and v["emitted_accuracy"] >= float(t) - 0.03 for t, v in row["thresholds"].items()}
-            for name, row in condition["filters"].items()}
+    return {
+        name: {t: v["emitted"] > 0 and v["emitted_accuracy"] >= float(t) - 0.03 for t, v in row["thresholds"].items()}
+        for name, row in condition["filters"].items()
+    }
 
 
 def _step(s: Settings, message: str) -> None:

@@ -9,17 +9,29 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 LABELS = {
-    "paper": "HBNI, paper's model", "paper_tempered": "HBNI, paper's + temper", "confusion": "HBNI, confusion-aware",
-    "confusion_tempered": "HBNI, confusion-aware + temper", "sequence": "HBNI, sequence-aware",
-    "ssbf": "SSBF", "max_of_mean": "max of mean",
+    "paper": "HBNI, paper's model",
+    "paper_tempered": "HBNI, paper's + temper",
+    "confusion": "HBNI, confusion-aware",
+    "confusion_tempered": "HBNI, confusion-aware + temper",
+    "sequence": "HBNI, sequence-aware",
+    "ssbf": "SSBF",
+    "max_of_mean": "max of mean",
 }
 STYLE = {
-    "paper": ("tab:blue", "-"), "paper_tempered": ("tab:blue", "--"), "confusion": ("tab:purple", "-"),
-    "confusion_tempered": ("tab:purple", "--"), "sequence": ("tab:red", "-"), "ssbf": ("tab:green", "-"),
+    "paper": ("tab:blue", "-"),
+    "paper_tempered": ("tab:blue", "--"),
+    "confusion": ("tab:purple", "-"),
+    "confusion_tempered": ("tab:purple", "--"),
+    "sequence": ("tab:red", "-"),
+    "ssbf": ("tab:green", "-"),
     "max_of_mean": ("tab:orange", "-"),
 }
-CONDITION_TITLES = {"default": "default mission conditions", "in_flight": "in-flight preset", "images": "user image folder",
-                    "photos": "real photographs, degraded moving camera"}
+CONDITION_TITLES = {
+    "default": "default mission conditions",
+    "in_flight": "in-flight preset",
+    "images": "user image folder",
+    "photos": "real photographs, degraded moving camera",
+}
 
 
 def _label(name: str) -> str:
@@ -39,16 +51,25 @@ def toy_figure(toy: dict[str, Any]) -> plt.Figure:
         n = np.arange(1, len(e) + 1)
         color, ls = STYLE.get(name, ("k", "-"))
         cross = toy["crossing_n"][name]
-        ax.plot(n, np.where(e > 0, e, np.nan), ls, color=color, lw=1.8,
-                label=f"{_label(name)} (N = {cross if cross is not None else '> ' + str(len(e))})")
+        ax.plot(
+            n,
+            np.where(e > 0, e, np.nan),
+            ls,
+            color=color,
+            lw=1.8,
+            label=f"{_label(name)} (N = {cross if cross is not None else '> ' + str(len(e))})",
+        )
     ax.axhline(toy["target"], color="k", lw=0.7, ls=":")
     ax.set_yscale("log")
     ax.set_ylim(floor, 1)
     ax.set_xlabel("number of outputs N")
     ax.set_ylabel(f"classification error ({toy['trials']} trials)")
     theta = ", ".join(f"{float(t):g}" for t in toy["true_theta"])
-    ax.set_title(f"Paper's toy: θ = ({theta}), {toy['training_size']} unlabelled training outputs ({toy['training_sets']} "
-                 f"sets); N to {toy['target']:.0%} error in the legend; zero error leaves a gap", fontsize=9)
+    ax.set_title(
+        f"Paper's toy: θ = ({theta}), {toy['training_size']} unlabelled training outputs ({toy['training_sets']} "
+        f"sets); N to {toy['target']:.0%} error in the legend; zero error leaves a gap",
+        fontsize=9,
+    )
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     return fig
@@ -85,7 +106,15 @@ def reliability_figure(conditions: dict[str, Any]) -> plt.Figure:
             conf, acc = np.asarray(rel["confidence"], dtype=float), np.asarray(rel["accuracy"], dtype=float)
             used = np.isfinite(conf)
             color, ls = STYLE.get(name, ("k", "-"))
-            ax.plot(conf[used], acc[used], ls, marker=".", color=color, lw=1.5, label=f"{_label(name)} (ECE {row['ece']:.3f})")
+            ax.plot(
+                conf[used],
+                acc[used],
+                ls,
+                marker=".",
+                color=color,
+                lw=1.5,
+                label=f"{_label(name)} (ECE {row['ece']:.3f})",
+            )
         ax.set_xlim(0.1, 1.01)
         ax.set_ylim(0, 1.01)
         ax.set_xlabel("stated confidence (top posterior probability)")
@@ -103,45 +132,82 @@ def _fmt_n(n: Any) -> str:
 
 def condition_table(data: dict[str, Any], thresholds: list[str]) -> list[str]:
     head = "| filter | held-out log score | accuracy after all frames | ECE |" + "".join(
-        f" emitted right at {t} | timeouts | frames |" for t in thresholds)
+        f" emitted right at {t} | timeouts | frames |" for t in thresholds
+    )
     lines = [head, "|" + "---|" * (4 + 3 * len(thresholds))]
     for name, r in data["filters"].items():
-        cells = [f"{_label(name)}", f"{r['log_score']:.3f} ± {r['log_score_stderr']:.3f}",
-                 f"{r['final_accuracy']:.3f} ± {r['final_stderr']:.3f}", f"{r['ece']:.3f}"]
+        cells = [
+            f"{_label(name)}",
+            f"{r['log_score']:.3f} ± {r['log_score_stderr']:.3f}",
+            f"{r['final_accuracy']:.3f} ± {r['final_stderr']:.3f}",
+            f"{r['ece']:.3f}",
+        ]
         for t in thresholds:
             v = r["thresholds"][t]
             acc = "-" if v["emitted"] == 0 else f"{v['emitted_accuracy']:.3f} ± {v['emitted_stderr']:.3f}"
-            cells += [acc, f"{v['timeout_rate']:.3f} ± {v['timeout_stderr']:.3f}",
-                      f"{v['mean_frames']:.1f} ± {v['frames_stderr']:.1f}"]
+            cells += [
+                acc,
+                f"{v['timeout_rate']:.3f} ± {v['timeout_stderr']:.3f}",
+                f"{v['mean_frames']:.1f} ± {v['frames_stderr']:.1f}",
+            ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
 def markdown(metrics: dict[str, Any], figures: list[str]) -> str:
     toy, acc = metrics["toy"], metrics["acceptance"]
-    lines = ["# Noise models: paper, confusion-aware and sequence-aware HBNI", "",
-             f"## The paper's toy ({toy['training_size']} unlabelled training outputs, {toy['trials']} trials)", "",
-             "| filter | smallest N with error at most " + f"{toy['target']:.0%} |", "|---|---|"]
+    lines = [
+        "# Noise models: paper, confusion-aware and sequence-aware HBNI",
+        "",
+        f"## The paper's toy ({toy['training_size']} unlabelled training outputs, {toy['trials']} trials)",
+        "",
+        "| filter | smallest N with error at most " + f"{toy['target']:.0%} |",
+        "|---|---|",
+    ]
     lines += [f"| {_label(k)} | {_fmt_n(v)} |" for k, v in toy["crossing_n"].items()]
-    lines += ["", "Within one frame of the paper's model: " + ", ".join(
-        f"{_label(k)} {'yes' if v['within_one_frame'] else 'no'}" for k, v in acc["toy"].items()), ""]
+    lines += [
+        "",
+        "Within one frame of the paper's model: "
+        + ", ".join(f"{_label(k)} {'yes' if v['within_one_frame'] else 'no'}" for k, v in acc["toy"].items()),
+        "",
+    ]
     for cond, data in metrics["conditions"].items():
         thresholds = list(next(iter(data["filters"].values()))["thresholds"])
         sz = data["sizes"]
-        lines += [f"## {_title(cond).capitalize()}", "",
-                  f"{sz['calibration_sequences_per_class']} labelled calibration sequences per class, "
-                  f"{sz['held_out_sequences']} held-out sequences of {sz['frames']} frames; per-frame classifier "
-                  f"accuracy {data['frame_accuracy']:.3f}; every number ± its standard error. Fitted tempers: "
-                  + ", ".join(f"{_label(k)} {v:g}" for k, v in data["temper"].items()) + ".", "",
-                  *condition_table(data, thresholds), ""]
+        lines += [
+            f"## {_title(cond).capitalize()}",
+            "",
+            f"{sz['calibration_sequences_per_class']} labelled calibration sequences per class, "
+            f"{sz['held_out_sequences']} held-out sequences of {sz['frames']} frames; per-frame classifier "
+            f"accuracy {data['frame_accuracy']:.3f}; every number ± its standard error. Fitted tempers: "
+            + ", ".join(f"{_label(k)} {v:g}" for k, v in data["temper"].items())
+            + ".",
+            "",
+            *condition_table(data, thresholds),
+            "",
+        ]
         a = acc.get(cond, {})
         if a:
-            lines += ["Checks (best model by held-out log score, " + f"{_label(a['best_model'])}): "
-                      + ", ".join(f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}"
-                                  for k, v in a.items() if k != "best_model"), ""]
+            lines += [
+                "Checks (best model by held-out log score, "
+                + f"{_label(a['best_model'])}): "
+                + ", ".join(
+                    f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}"
+                    for k, v in a.items()
+                    if k != "best_model"
+                ),
+                "",
+            ]
         honest = metrics.get("honesty", {}).get(cond)
         if honest:
-            lines += ["Honest (emitted labels right at least t - 0.03) at t = " + ", ".join(thresholds) + ": " + "; ".join(
-                f"{_label(k)} " + "/".join("yes" if v[t] else "no" for t in thresholds) for k, v in honest.items()), ""]
+            lines += [
+                "Honest (emitted labels right at least t - 0.03) at t = "
+                + ", ".join(thresholds)
+                + ": "
+                + "; ".join(
+                    f"{_label(k)} " + "/".join("yes" if v[t] else "no" for t in thresholds) for k, v in honest.items()
+                ),
+                "",
+            ]
     lines += [f"![{f}]({f})" for f in figures]
     return "\n".join(lines) + "\n"

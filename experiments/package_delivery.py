@@ -54,17 +54,30 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     sweep = {}
     for k, alpha in enumerate(study.alpha_sweep):
         sweep_cfg = dataclasses.replace(config, ce_alpha=float(alpha), ce_iterations=int(study.sweep_iterations))
-        res, _, entry = run_planner(env, sweep_cfg, bool(study.shared_controller), stream_seed(seed, "sweep", k),
-                                    bool(cfg.progress), reeval)
+        res, _, entry = run_planner(
+            env, sweep_cfg, bool(study.shared_controller), stream_seed(seed, "sweep", k), bool(cfg.progress), reeval
+        )
         sweep[str(alpha)] = {"alpha": float(alpha), "history_best": res.history["best_sampled"], **entry}
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
     ref = cfg.reference
-    paper = paper_comparison(env, instantiate(ref.domain), instantiate(ref.planner), int(ref.runs),
-                             stream_seed(seed, "preset"), reeval, bool(cfg.progress))
-    save_figure(bar_figure(entries, "Package delivery: re-evaluated values",
-                           {"paper G-DICE 14.44": PAPER["gdice_best_sampled"], "paper MCS 2.07": PAPER["monte_carlo_search"]}),
-                run_dir / "baselines.png")
+    paper = paper_comparison(
+        env,
+        instantiate(ref.domain),
+        instantiate(ref.planner),
+        int(ref.runs),
+        stream_seed(seed, "preset"),
+        reeval,
+        bool(cfg.progress),
+    )
+    save_figure(
+        bar_figure(
+            entries,
+            "Package delivery: re-evaluated values",
+            {"paper G-DICE 14.44": PAPER["gdice_best_sampled"], "paper MCS 2.07": PAPER["monte_carlo_search"]},
+        ),
+        run_dir / "baselines.png",
+    )
     write_report(run_dir / "report.md", _report(entries, paper, reeval))
     planner_value, greedy = metrics["planner_cold_start"]["value"], metrics["baselines"]["greedy"]["value"]
     gdice_value, seeded_value = metrics["gdice"]["value"], metrics["gdice_seeded"]["value"]
@@ -87,27 +100,39 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
 def _report(entries: dict[str, dict], paper: dict[str, dict], reeval: int) -> str:
     this, preset = paper["this_domain"], paper["preset"]
-    lines = ["# Package delivery: planners side by side", "",
-             f"Every controller re-evaluated on {reeval} rollouts that its search never saw.", "",
-             *comparison_table(entries), "",
-             "## The paper's 14.44, like for like", "",
-             "The paper's G-DICE (one controller shared by both robots), its best sampled value (a maximum over",
-             "noisy scores, what the paper reports) and its best controller re-evaluated, mean ± s.e. over "
-             f"{len(this['values'])} seeds:", "",
-             "| domain | best sampled | re-evaluated |", "|---|---|---|",
-             f"| this domain | {this['best_sampled_mean']:.2f} ± {this['best_sampled_stderr']:.2f} | "
-             f"{this['value']:.2f} ± {this['stderr']:.2f} |",
-             f"| reference-rules preset | {preset['best_sampled_mean']:.2f} ± {preset['best_sampled_stderr']:.2f} | "
-             f"{preset['value']:.2f} ± {preset['stderr']:.2f} |",
-             f"| paper (reference simulator) | {PAPER['gdice_best_sampled']:.2f} | – |", ""]
+    lines = [
+        "# Package delivery: planners side by side",
+        "",
+        f"Every controller re-evaluated on {reeval} rollouts that its search never saw.",
+        "",
+        *comparison_table(entries),
+        "",
+        "## The paper's 14.44, like for like",
+        "",
+        "The paper's G-DICE (one controller shared by both robots), its best sampled value (a maximum over",
+        "noisy scores, what the paper reports) and its best controller re-evaluated, mean ± s.e. over "
+        f"{len(this['values'])} seeds:",
+        "",
+        "| domain | best sampled | re-evaluated |",
+        "|---|---|---|",
+        f"| this domain | {this['best_sampled_mean']:.2f} ± {this['best_sampled_stderr']:.2f} | "
+        f"{this['value']:.2f} ± {this['stderr']:.2f} |",
+        f"| reference-rules preset | {preset['best_sampled_mean']:.2f} ± {preset['best_sampled_stderr']:.2f} | "
+        f"{preset['value']:.2f} ± {preset['stderr']:.2f} |",
+        f"| paper (reference simulator) | {PAPER['gdice_best_sampled']:.2f} | – |",
+        "",
+    ]
     return "\n".join(lines) + "\n"
 
 
 def _sweep_figure(sweep: dict[str, dict[str, Any]]) -> plt.Figure:
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     for entry in sweep.values():
-        ax.plot(range(1, len(entry["history_best"]) + 1), entry["history_best"],
-                label=f"alpha = {entry['alpha']:g} (re-evaluated {entry['value']:.2f})")
+        ax.plot(
+            range(1, len(entry["history_best"]) + 1),
+            entry["history_best"],
+            label=f"alpha = {entry['alpha']:g} (re-evaluated {entry['value']:.2f})",
+        )
     ax.set_xlabel("G-DICE iteration")
     ax.set_ylabel("best sampled value so far")
     ax.set_title("Package delivery: learning rate alpha")

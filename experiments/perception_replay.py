@@ -57,17 +57,28 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
     # 2. Fit HBNI on labelled mission-condition outputs.
     frames = int(st.frames)
-    calib, _ = sequence_outputs(clf, classes, int(st.calib_sequences), frames, mission, stream_seed(seed, "calibration"), progress,
-                                "calibration")
+    calib, _ = sequence_outputs(
+        clf,
+        classes,
+        int(st.calib_sequences),
+        frames,
+        mission,
+        stream_seed(seed, "calibration"),
+        progress,
+        "calibration",
+    )
     posterior = fit_labelled(calib, cfg.hbni, seed, progress, class_names=list(classes))
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
-    test, thumbs = sequence_outputs(clf, classes, int(st.test_sequences), frames, mission, stream_seed(seed, "test"), progress,
-                                    "test")
+    test, thumbs = sequence_outputs(
+        clf, classes, int(st.test_sequences), frames, mission, stream_seed(seed, "test"), progress, "test"
+    )
     test = test.double()
-    filters = {name: hbni_pyro.make_filter(name, posterior, **({"mode": cfg.hbni.filter.mode} if name == "hbni" else {}))
-               for name in ("ssbf", "hbni")}
+    filters = {
+        name: hbni_pyro.make_filter(name, posterior, **({"mode": cfg.hbni.filter.mode} if name == "hbni" else {}))
+        for name in ("ssbf", "hbni")
+    }
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
     per_class = _per_class(test, posts, classes, float(st.threshold))
     hardest = min(classes, key=lambda n: per_class[n]["frame_accuracy"])
@@ -77,8 +88,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     h = classes.index(hardest)
     disagree = ((posts["hbni"][h, :, -1].argmax(-1) == h) & (posts["ssbf"][h, :, -1].argmax(-1) != h)).nonzero()
     shown = int(disagree[0]) if len(disagree) else 0
-    save_figure(_sequence_figure(test[h, shown], posts, h, shown, classes, thumbs[h, shown], float(st.threshold)),
-                run_dir / "replay_sequence.png")
+    save_figure(
+        _sequence_figure(test[h, shown], posts, h, shown, classes, thumbs[h, shown], float(st.threshold)),
+        run_dir / "replay_sequence.png",
+    )
     save_figure(_accuracy_figure(per_class, classes), run_dir / "accuracy_vs_frames.png")
     return {
         "classes": classes,
@@ -89,19 +102,27 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "acceptance": {"hardest_gap_ge_0.15": gap >= 0.15, "overall_hbni_ge_ssbf": overall["hbni"] >= overall["ssbf"]},
         "theta_summary": {k: v for k, v in posterior.summary().items() if k.startswith("theta")},
         "figure_sequence": {"class": hardest, "index": shown},
-        "sizes": {"train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)),
-                  "calibration_frames": int(calib[..., 0].numel()),
-                  "test_sequences_per_class": int(st.test_sequences), "frames_per_sequence": frames},
+        "sizes": {
+            "train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)),
+            "calibration_frames": int(calib[..., 0].numel()),
+            "test_sequences_per_class": int(st.test_sequences),
+            "frames_per_sequence": frames,
+        },
         "mission_conditions": mission.to_dict(),
     }
 
 
-def _per_class(test: torch.Tensor, posts: dict[str, torch.Tensor], classes: list[str], threshold: float) -> dict[str, Any]:
+def _per_class(
+    test: torch.Tensor, posts: dict[str, torch.Tensor], classes: list[str], threshold: float
+) -> dict[str, Any]:
     """Per class: frame accuracy, mean output, and each filter's end accuracy, accuracy by frame and
     frames to put ``threshold`` on the true class (``test`` and each posterior ``(C, S, N, M)``)."""
     per_class: dict[str, Any] = {}
     for c, name in enumerate(classes):
-        entry = {"frame_accuracy": float((test[c].argmax(-1) == c).double().mean()), "mean_output": test[c].mean((0, 1))}
+        entry = {
+            "frame_accuracy": float((test[c].argmax(-1) == c).double().mean()),
+            "mean_output": test[c].mean((0, 1)),
+        }
         for k, post in posts.items():
             reach = _frames_to_reach(post[c], c, threshold)
             entry[k] = {
@@ -126,7 +147,9 @@ def _sequence_figure(obs, posts, h, s, classes, frames_img, threshold) -> plt.Fi
     ax0.set_axis_off()
     ax0.set_title(f"true class: {classes[h]} (held-out sequence {s}); frames {', '.join(str(i + 1) for i in picks)}")
     panels = [
-        ("raw classifier output", obs), ("SSBF posterior", posts["ssbf"][h, s]), ("HBNI posterior", posts["hbni"][h, s])
+        ("raw classifier output", obs),
+        ("SSBF posterior", posts["ssbf"][h, s]),
+        ("HBNI posterior", posts["hbni"][h, s]),
     ]
     for k, (title, y) in enumerate(panels):
         ax = fig.add_subplot(grid[k + 1])

@@ -77,14 +77,21 @@ def _job(job: Path) -> dict[str, Any]:
     status = read_status(job) or {"status": "no status (running, or stopped before it started)"}
     metrics_file = job / "metrics.json"
     values = headline_values(json.loads(metrics_file.read_text()), headline) if metrics_file.is_file() else {}
-    return {"name": job.name, "overrides": dict(o.split("=", 1) for o in overrides if "=" in o),
-            "status": status, "values": values}
+    return {
+        "name": job.name,
+        "overrides": dict(o.split("=", 1) for o in overrides if "=" in o),
+        "status": status,
+        "values": values,
+    }
 
 
 def multirun_report(sweep_dir: str | os.PathLike) -> str:
     """Markdown comparing the jobs of a sweep directory."""
     sweep_dir = Path(sweep_dir)
-    jobs = [_job(p) for p in sorted((p for p in sweep_dir.iterdir() if p.is_dir() and p.name.isdigit()), key=lambda p: int(p.name))]
+    jobs = [
+        _job(p)
+        for p in sorted((p for p in sweep_dir.iterdir() if p.is_dir() and p.name.isdigit()), key=lambda p: int(p.name))
+    ]
     keys = list(dict.fromkeys(k for j in jobs for k in j["overrides"]))
     swept = [k for k in keys if len({j["overrides"].get(k) for j in jobs}) > 1]
     common = [f"{k}={jobs[0]['overrides'][k]}" for k in keys if k not in swept and k in jobs[0]["overrides"]]

@@ -53,8 +53,9 @@ def _config_error(run_dir: Path, exc: Exception) -> None:
     if os.environ.get("HYDRA_FULL_ERROR") == "1":
         raise exc
     logging.shutdown()  # Hydra's log file lives in the run folder
-    if run_dir.is_dir() and not any(p.name not in (".hydra", "run.log", f"{HydraConfig.get().job.name}.log")
-                                    for p in run_dir.iterdir()):
+    if run_dir.is_dir() and not any(
+        p.name not in (".hydra", "run.log", f"{HydraConfig.get().job.name}.log") for p in run_dir.iterdir()
+    ):
         shutil.rmtree(run_dir, ignore_errors=True)
     print(f"config error: {exc}", file=sys.stderr)
     sys.exit(2)
@@ -83,7 +84,9 @@ def main(cfg: DictConfig) -> dict:
         write_json(run_dir / "metrics.json", metrics)
     except BaseException as exc:
         write_status(run_dir, "failed", error=f"{type(exc).__name__}: {exc}")
-        log.error("experiment %s failed after %.1f s: %s: %s", cfg.name, time.perf_counter() - tic, type(exc).__name__, exc)
+        log.error(
+            "experiment %s failed after %.1f s: %s: %s", cfg.name, time.perf_counter() - tic, type(exc).__name__, exc
+        )
         raise
     write_status(run_dir, "completed")
     log.info("experiment %s done in %.1f s; outputs in %s", cfg.name, time.perf_counter() - tic, run_dir)

@@ -34,6 +34,7 @@ from experiments.common import save_figure
 from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
 from infra.files import atomic_write_text
 
+
 class Settings(NamedTuple):
     """The stream's validated settings."""
 
@@ -92,10 +93,20 @@ def read_settings(cfg: DictConfig) -> Settings:
             run = None if st.classifier and st.posterior else latest_run("mission")
         except FileNotFoundError as exc:
             raise FileNotFoundError(f"stream.run: {str(exc).removeprefix('name: ')}") from None
-    return Settings(source, st.max_input_frames, _path(run), _path(st.classifier), _path(st.posterior),
-                    None if st.classes is None else [str(c) for c in st.classes],
-                    None if st.temper is None else float(st.temper), float(st.threshold), int(st.max_frames),
-                    int(st.batch), tuple(st.annotate), bool(cfg.progress))
+    return Settings(
+        source,
+        st.max_input_frames,
+        _path(run),
+        _path(st.classifier),
+        _path(st.posterior),
+        None if st.classes is None else [str(c) for c in st.classes],
+        None if st.temper is None else float(st.temper),
+        float(st.threshold),
+        int(st.max_frames),
+        int(st.batch),
+        tuple(st.annotate),
+        bool(cfg.progress),
+    )
 
 
 def _path(value: Any) -> Path | None:
@@ -109,12 +120,17 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
         lacking = [name for name in ("classifier", "posterior") if not hasattr(finished, name)]
         lacking += [f"metrics['{key}']" for key in ("classes", "hbni_temper") if key not in finished.metrics]
         if lacking:
-            raise ValueError(f"stream.run: {str(settings.run)!r} is not a mission run (it lacks {', '.join(lacking)}); "
-                             "expected a run of experiment=mission, or give stream.classifier and stream.posterior")
+            raise ValueError(
+                f"stream.run: {str(settings.run)!r} is not a mission run (it lacks {', '.join(lacking)}); "
+                "expected a run of experiment=mission, or give stream.classifier and stream.posterior"
+            )
     clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
-    classes = settings.classes or (list(posterior.class_names) if posterior.class_names is not None else None) or (
-        list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
+    classes = (
+        settings.classes
+        or (list(posterior.class_names) if posterior.class_names is not None else None)
+        or (list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
+    )
     if len(classes) != posterior.num_classes:
         raise ValueError(f"stream.classes: the posterior has {posterior.num_classes} classes, got {classes}")
     temper = settings.temper
@@ -131,8 +147,9 @@ def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed
     total = source.num_frames if source.num_frames is not None else settings.max_input_frames  # a camera: the limit
     video = None
     if "video" in settings.annotate:
-        video = AnnotatedVideo(run_dir / "annotated.mp4", source.fps or 30.0, models.classes, settings.threshold,
-                               settings.max_frames)
+        video = AnnotatedVideo(
+            run_dir / "annotated.mp4", source.fps or 30.0, models.classes, settings.threshold, settings.max_frames
+        )
     items = classify_frames(source, models.classifier, models.classes, settings.batch)
     segments, beliefs, thumbs = [], [], []
     bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
@@ -172,21 +189,34 @@ def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_di
     jsonl = atomic_write_text(run_dir / "macro_observations.jsonl", "".join(json.dumps(r) + "\n" for r in records))
     written = {"records": str(jsonl)}
     if "strip" in settings.annotate:
-        fig = strip_figure(streamed.segments, streamed.beliefs, streamed.thumbs, models.classes, settings.threshold,
-                           f"{settings.source}: HBNI macro-observations ({_model_label(models)})")
+        fig = strip_figure(
+            streamed.segments,
+            streamed.beliefs,
+            streamed.thumbs,
+            models.classes,
+            settings.threshold,
+            f"{settings.source}: HBNI macro-observations ({_model_label(models)})",
+        )
         written["strip"] = str(save_figure(fig, run_dir / "strip.png"))
     if streamed.video is not None:
         written["video"] = str(streamed.video)
     labels = [s.name for s in streamed.segments]
     metrics = {
-        "source": str(settings.source), "frames": streamed.frames, "macro_observations": len(records),
+        "source": str(settings.source),
+        "frames": streamed.frames,
+        "macro_observations": len(records),
         "labels": {name: labels.count(name) for name in models.classes},
         "mean_frames_used": streamed.frames / len(records),
         "timed_out": sum(s.timed_out for s in streamed.segments),
-        "seconds": streamed.seconds, "cpu_seconds": streamed.cpu_seconds,
+        "seconds": streamed.seconds,
+        "cpu_seconds": streamed.cpu_seconds,
         "fps": streamed.frames / max(streamed.seconds, 1e-9),
-        "process": repr(models.process), "classes": models.classes, "outputs": written,
+        "process": repr(models.process),
+        "classes": models.classes,
+        "outputs": written,
     }
-    print(f"[stream] {streamed.frames} frames -> {len(records)} macro-observations at {metrics['fps']:.1f} fps; "
-          f"wrote {', '.join(written.values())}")
+    print(
+        f"[stream] {streamed.frames} frames -> {len(records)} macro-observations at {metrics['fps']:.1f} fps; "
+        f"wrote {', '.join(written.values())}"
+    )
     return metrics

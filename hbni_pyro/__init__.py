@@ -18,7 +18,15 @@ from hbni_pyro.calibration import reliability, stream_reliability, threshold_che
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
-from hbni_pyro.filters import FILTERS, StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide, make_filter
+from hbni_pyro.filters import (
+    FILTERS,
+    StaticStateBayesFilter,
+    HBNIFilter,
+    MaxOfMeanFilter,
+    VotingFilter,
+    decide,
+    make_filter,
+)
 from hbni_pyro.fit import fit, fit_many
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import (

@@ -48,7 +48,9 @@ def reliability(confidence: Tensor, correct: Tensor, num_bins: int = 10, low: fl
     """
     confidence, correct = confidence.reshape(-1).to(DTYPE), correct.reshape(-1).to(DTYPE)
     if confidence.shape != correct.shape or confidence.numel() == 0:
-        raise ValueError(f"confidence, correct: expected equal non-empty shapes, got {tuple(confidence.shape)} and {tuple(correct.shape)}")
+        raise ValueError(
+            f"confidence, correct: expected equal non-empty shapes, got {tuple(confidence.shape)} and {tuple(correct.shape)}"
+        )
     edges = torch.linspace(low, 1.0, num_bins + 1, dtype=DTYPE)
     index = torch.bucketize(confidence, edges[1:-1], right=True)
     count = torch.zeros(num_bins, dtype=DTYPE).index_add_(0, index, torch.ones_like(confidence))
@@ -72,7 +74,10 @@ def binomial_stderr(p: float, n: int) -> float:
 
 
 def threshold_checks(
-    filter: StreamingFilter, streams: Tensor, truth: Tensor, thresholds: Sequence[float] = (0.9, 0.95, 0.99),
+    filter: StreamingFilter,
+    streams: Tensor,
+    truth: Tensor,
+    thresholds: Sequence[float] = (0.9, 0.95, 0.99),
     max_frames: int | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run the macro-observation process at each threshold on labelled streams ``(B, N, M)``.
@@ -94,8 +99,11 @@ def threshold_checks(
         acc = float(right[emitted].to(DTYPE).mean()) if n else float("nan")
         timeouts, frames = float(batch.timed_out.to(DTYPE).mean()), batch.frames_used.to(DTYPE)
         out[f"{t:g}"] = {
-            "emitted_accuracy": acc, "emitted_stderr": binomial_stderr(acc, n), "emitted": n,
-            "timeout_rate": timeouts, "timeout_stderr": binomial_stderr(timeouts, len(frames)),
+            "emitted_accuracy": acc,
+            "emitted_stderr": binomial_stderr(acc, n),
+            "emitted": n,
+            "timeout_rate": timeouts,
+            "timeout_stderr": binomial_stderr(timeouts, len(frames)),
             "mean_frames": float(frames.mean()),
             "frames_stderr": float(frames.std() / math.sqrt(len(frames))) if len(frames) > 1 else float("nan"),
             "overall_accuracy": float(right.to(DTYPE).mean()),

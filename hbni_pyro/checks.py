@@ -113,8 +113,10 @@ class CheckResult:
 
     def report(self) -> str:
         """The table as text, one line per class."""
-        lines = [f"posterior predictive check at threshold {self.threshold:g}"
-                 + ("" if self.labelled else " (no labels: label-free checks only)")]
+        lines = [
+            f"posterior predictive check at threshold {self.threshold:g}"
+            + ("" if self.labelled else " (no labels: label-free checks only)")
+        ]
         checks = LABELLED_CHECKS if self.labelled else UNLABELLED_CHECKS
         for row in self.table:
             parts = [f"{row['class']}: {row['streams']} streams"]
@@ -138,9 +140,16 @@ class CheckResult:
             ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":")  # perfect calibration
             for name, r in (("observed", self.observed), ("predicted", self.predicted)):
                 used = r.count > 0
-                ax.plot(r.confidence[used].numpy(), r.accuracy[used].numpy(), marker="o", label=f"{name} (ECE {r.ece:.3f})")
-            ax.set(xlabel="confidence at the stop", ylabel="share right", title="reliability",
-                   xlim=(float(self.observed.edges[0]), 1), ylim=(0, 1.02))
+                ax.plot(
+                    r.confidence[used].numpy(), r.accuracy[used].numpy(), marker="o", label=f"{name} (ECE {r.ece:.3f})"
+                )
+            ax.set(
+                xlabel="confidence at the stop",
+                ylabel="share right",
+                title="reliability",
+                xlim=(float(self.observed.edges[0]), 1),
+                ylim=(0, 1.02),
+            )
             ax.legend()
         ax = axes[-1]
         top = int(max(int(v.max()) for v in self.frames.values()))
@@ -158,8 +167,14 @@ class CheckResult:
         return atomic_write_bytes(path, buffer.getvalue())
 
 
-_VALUE_KEYS = {"emitted": "emitted_accuracy", "overall": "overall_accuracy", "timeouts": "timeout_rate",
-               "frames": "mean_frames", "calibration": "calibration_gap", "confidence": "mean_confidence"}
+_VALUE_KEYS = {
+    "emitted": "emitted_accuracy",
+    "overall": "overall_accuracy",
+    "timeouts": "timeout_rate",
+    "frames": "mean_frames",
+    "calibration": "calibration_gap",
+    "confidence": "mean_confidence",
+}
 
 
 def check(
@@ -212,10 +227,21 @@ def check(
         truth = torch.full((len(streams),), -1, dtype=torch.long)
     else:
         truth_sim = truth.repeat_interleave(simulations)
-    observed, predicted = _run(posterior, filter, outputs, streams, truth, truth_sim, simulations, threshold, max_frames, g)
+    observed, predicted = _run(
+        posterior, filter, outputs, streams, truth, truth_sim, simulations, threshold, max_frames, g
+    )
     labelled = labels is not None
-    groups = [(c, observed.truth == c, predicted.truth == c) for c in range(num_classes)] if labelled else [
-        (None, torch.ones_like(observed.truth, dtype=torch.bool), torch.ones_like(predicted.truth, dtype=torch.bool))]
+    groups = (
+        [(c, observed.truth == c, predicted.truth == c) for c in range(num_classes)]
+        if labelled
+        else [
+            (
+                None,
+                torch.ones_like(observed.truth, dtype=torch.bool),
+                torch.ones_like(predicted.truth, dtype=torch.bool),
+            )
+        ]
+    )
     names = posterior.class_names
     table, p_values = [], {}
     for c, obs_rows, sim_rows in groups:
@@ -229,7 +255,11 @@ def check(
         p_values.update({f"{name}: {k}": row[f"p_{k}"] for k in checks if not math.isnan(row[f"p_{k}"])})
     low = 1.0 / num_classes
     return CheckResult(
-        table, p_values, labelled, threshold, max_frames,
+        table,
+        p_values,
+        labelled,
+        threshold,
+        max_frames,
         observed=reliability(observed.confidence, observed.right, low=low) if labelled else None,
         predicted=reliability(predicted.confidence, predicted.right, low=low) if labelled else None,
         frames={"observed": observed.frames, "predicted": predicted.frames},
@@ -241,18 +271,30 @@ def _stream_labels(labels: Tensor, streams: list[Tensor]) -> Tensor:
     first = torch.stack([rows[0] for rows in streams])
     out = labels[first]
     if (out < 0).any():
-        raise ValueError(f"labels: entry {int(first[out < 0][0])} is -1 (unknown); check needs every label, or labels=None")
+        raise ValueError(
+            f"labels: entry {int(first[out < 0][0])} is -1 (unknown); check needs every label, or labels=None"
+        )
     lengths = torch.tensor([len(rows) for rows in streams])
     mixed = labels[torch.cat(streams)] != out.repeat_interleave(lengths)
     if mixed.any():
         k = int(torch.arange(len(streams)).repeat_interleave(lengths)[mixed][0])
-        raise ValueError(f"labels: the outputs of sequence {k} carry different classes {labels[streams[k]].unique().tolist()}")
+        raise ValueError(
+            f"labels: the outputs of sequence {k} carry different classes {labels[streams[k]].unique().tolist()}"
+        )
     return out
 
 
 def _run(
-    posterior: "HBNIPosterior", filter: StreamingFilter, outputs: Tensor, streams: list[Tensor], truth: Tensor,
-    truth_sim: Tensor, simulations: int, threshold: float, max_frames: int | None, g: torch.Generator,
+    posterior: "HBNIPosterior",
+    filter: StreamingFilter,
+    outputs: Tensor,
+    streams: list[Tensor],
+    truth: Tensor,
+    truth_sim: Tensor,
+    simulations: int,
+    threshold: float,
+    max_frames: int | None,
+    g: torch.Generator,
 ) -> tuple[_Outcomes, _Outcomes]:
     """Run the process on the held-out streams and on their simulated twins, grouped by stream length."""
     lengths = torch.tensor([len(s) for s in streams])
@@ -279,7 +321,10 @@ def _row(obs: dict[str, Tensor], sim: dict[str, Tensor], labelled: bool) -> dict
     emitted, sim_emitted = ~obs["timed_out"], ~sim["timed_out"]
     row: dict[str, Any] = {"streams": len(obs["frames"]), "emitted": int(emitted.sum())}
     _binomial(row, "timeouts", obs["timed_out"], sim["timed_out"])
-    row["mean_frames"], row["predicted_mean_frames"] = float(obs["frames"].to(DTYPE).mean()), float(sim["frames"].to(DTYPE).mean())
+    row["mean_frames"], row["predicted_mean_frames"] = (
+        float(obs["frames"].to(DTYPE).mean()),
+        float(sim["frames"].to(DTYPE).mean()),
+    )
     row["p_frames"] = ks_test(obs["frames"], sim["frames"])
     if labelled:
         _binomial(row, "emitted", obs["right"][emitted], sim["right"][sim_emitted])
@@ -288,7 +333,10 @@ def _row(obs: dict[str, Tensor], sim: dict[str, Tensor], labelled: bool) -> dict
         row["calibration_gap"], row["predicted_calibration_gap"] = float(gap.mean()), float(sim_gap.mean())
         row["p_calibration"] = _z_test(gap, sim_gap)
     else:
-        row["mean_confidence"], row["predicted_mean_confidence"] = float(obs["confidence"].mean()), float(sim["confidence"].mean())
+        row["mean_confidence"], row["predicted_mean_confidence"] = (
+            float(obs["confidence"].mean()),
+            float(sim["confidence"].mean()),
+        )
         row["p_confidence"] = ks_test(obs["confidence"], sim["confidence"])
     return row
 
@@ -320,7 +368,11 @@ def ks_test(x: Tensor, y: Tensor) -> float:
         return float("nan")
     x, y = x.to(DTYPE).sort().values, y.to(DTYPE).sort().values
     points = torch.cat([x, y])
-    gap = float((torch.searchsorted(x, points, right=True) / len(x) - torch.searchsorted(y, points, right=True) / len(y)).abs().max())
+    gap = float(
+        (torch.searchsorted(x, points, right=True) / len(x) - torch.searchsorted(y, points, right=True) / len(y))
+        .abs()
+        .max()
+    )
     root = math.sqrt(len(x) * len(y) / (len(x) + len(y)))
     lam = (root + 0.12 + 0.11 / root) * gap
     if lam < 0.2:

@@ -74,7 +74,12 @@ def confusion_model(
 
 
 def confusion_prior_log_prob(
-    theta: Tensor, beta: Tensor, kappa: Tensor, gamma: Tensor, beta_loc: Tensor, beta_scale: Tensor,
+    theta: Tensor,
+    beta: Tensor,
+    kappa: Tensor,
+    gamma: Tensor,
+    beta_loc: Tensor,
+    beta_scale: Tensor,
     hyperprior: HyperPrior,
 ) -> Tensor:
     """``log p(theta, beta, kappa, gamma, beta_loc, beta_scale)`` with the density over ``beta`` itself
@@ -90,7 +95,10 @@ def confusion_prior_log_prob(
 
 
 def confusion_log_joint(
-    obs: Tensor, params: dict[str, Tensor], labels: Tensor | None = None, class_prior: Tensor | None = None,
+    obs: Tensor,
+    params: dict[str, Tensor],
+    labels: Tensor | None = None,
+    class_prior: Tensor | None = None,
     hyperprior: HyperPrior = HyperPrior(),
 ) -> Tensor:
     """``log p(obs, known labels, params)`` with unknown classes summed out, in closed form.
@@ -101,7 +109,13 @@ def confusion_log_joint(
     num_obs, num_classes = obs.shape
     p = class_prior if class_prior is not None else obs.new_full((num_classes,), 1.0 / num_classes)
     lp = confusion_prior_log_prob(
-        params["theta"], params["beta"], params["kappa"], params["gamma"], params["beta_loc"], params["beta_scale"], hyperprior
+        params["theta"],
+        params["beta"],
+        params["kappa"],
+        params["gamma"],
+        params["beta_loc"],
+        params["beta_scale"],
+        hyperprior,
     )
     per_class = class_log_lik(1.0, obs.log(), params["theta"], params["beta"]) + p.log()  # (..., N, M)
     labels = torch.full((num_obs,), -1, dtype=torch.long) if labels is None else labels

@@ -213,8 +213,9 @@ def ilr_log_jacobian(obs: Tensor) -> Tensor:
     return -obs.log().sum(-1) - 0.5 * math.log(obs.shape[-1])
 
 
-def gaussian_block_log_prob(count: Tensor, sum_y: Tensor, sum_yy: Tensor, loc: Tensor, prec: Tensor,
-                            logdet_prec: Tensor) -> Tensor:
+def gaussian_block_log_prob(
+    count: Tensor, sum_y: Tensor, sum_yy: Tensor, loc: Tensor, prec: Tensor, logdet_prec: Tensor
+) -> Tensor:
     """``sum_i log N(y_i; loc, prec^-1)`` of a block from its statistics (``count``, ``sum y``, ``sum y y^T``).
 
     Shapes broadcast: ``count (...)``, ``sum_y (..., d)``, ``sum_yy (..., d, d)``, ``loc (..., d)``,
@@ -305,8 +306,10 @@ class IlrNormalOutputs(TorchDistribution):
 
     def expand(self, batch_shape, _instance=None):
         batch_shape = torch.Size(batch_shape)
-        return IlrNormalOutputs(self.loc.expand(batch_shape + self.loc.shape[-1:]),
-                                self.scale_tril.expand(batch_shape + self.scale_tril.shape[-2:]))
+        return IlrNormalOutputs(
+            self.loc.expand(batch_shape + self.loc.shape[-1:]),
+            self.scale_tril.expand(batch_shape + self.scale_tril.shape[-2:]),
+        )
 
     def _gaussian(self) -> dist.MultivariateNormal:
         return dist.MultivariateNormal(self.loc, scale_tril=self.scale_tril)

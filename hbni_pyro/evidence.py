@@ -79,7 +79,9 @@ class ConfusionEvidence:
     def __init__(self, draws: dict[str, Tensor]) -> None:
         self.num_classes = draws["theta"].shape[1]
         self.feature_size = self.num_classes
-        self._normaliser, self._exponent = dirichlet_terms(concentrations(draws["theta"], draws["beta"]))  # (S, M), (S, M, M)
+        self._normaliser, self._exponent = dirichlet_terms(
+            concentrations(draws["theta"], draws["beta"])
+        )  # (S, M), (S, M, M)
 
     def features(self, obs: Tensor) -> Tensor:
         return obs.log()
@@ -88,7 +90,10 @@ class ConfusionEvidence:
         S, M = self._normaliser.shape
         out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
         step = max(1, _CHUNK_ELEMENTS // (S * M))
-        normaliser, exponent = self._normaliser.reshape(S * M), self._exponent.reshape(S * M, M)  # draws x classes as rows
+        normaliser, exponent = (
+            self._normaliser.reshape(S * M),
+            self._exponent.reshape(S * M, M),
+        )  # draws x classes as rows
         for start in _chunks(stats.shape[0], S * M):
             rows = slice(start, start + step)
             k = stats[rows].shape[0]
@@ -108,7 +113,9 @@ class SequenceEvidence:
         loc, between, within = draws["loc"], draws["between"], draws["within"]
         S, self.num_classes, self.dim = loc.shape
         self.feature_size = self.dim + self.dim**2
-        self._basis, self._lam, self._logdet = look_basis(between, within.unsqueeze(1))  # (S, M, d, d), (S, M, d), (S, 1)
+        self._basis, self._lam, self._logdet = look_basis(
+            between, within.unsqueeze(1)
+        )  # (S, M, d, d), (S, M, d), (S, 1)
         self._basis_loc = (self._basis @ loc.unsqueeze(-1)).squeeze(-1)  # (S, M, d)
         self._within_prec = torch.linalg.inv(within).reshape(S, -1)  # (S, d d)
 
@@ -126,10 +133,11 @@ class SequenceEvidence:
         for start in _chunks(stats.shape[0], S * M * d):
             rows = slice(start, start + step)
             k = mean_y[rows].shape[0]
-            resid = (flat_basis @ mean_y[rows].T).reshape(S, M, d, k).permute(3, 0, 1, 2) - self._basis_loc  # (k, S, M, d)
+            resid = (flat_basis @ mean_y[rows].T).reshape(S, M, d, k).permute(
+                3, 0, 1, 2
+            ) - self._basis_loc  # (k, S, M, d)
             n = counts[rows][:, None, None]
             trace = (scatter[rows] @ self._within_prec.T).unsqueeze(-1)  # (k, S, 1): tr(W^-1 scatter) by one matmul
             terms = look_log_marginal(n, resid, self._lam, self._logdet) + within_log_prob(n, trace, self._logdet, d)
             out[rows] = logsumexp_in_order(terms.transpose(1, 2))
         return out - math.log(S)
-

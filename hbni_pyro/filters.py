@@ -272,8 +272,10 @@ class HBNIFilter(StreamingFilter):
         return torch.softmax(self._log_prior + log_ev, -1).reshape(*batch, self.num_classes)
 
     def __repr__(self) -> str:
-        return (f"HBNIFilter(model={self.model!r}, num_classes={self.num_classes}, mode={self.mode!r}, "
-                f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g})")
+        return (
+            f"HBNIFilter(model={self.model!r}, num_classes={self.num_classes}, mode={self.mode!r}, "
+            f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g})"
+        )
 
 
 def _checked_draws(posterior: Any) -> dict[str, Tensor]:
@@ -283,11 +285,15 @@ def _checked_draws(posterior: Any) -> dict[str, Tensor]:
     if not callable(getattr(posterior, "draws", None)):
         fn = getattr(posterior, "theta_draws", None)
         if not callable(fn):
-            raise TypeError(f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}")
+            raise TypeError(
+                f"posterior: expected an HBNIPosterior (with theta_draws()), got {type(posterior).__name__}"
+            )
         draws = {"theta": fn()}
     else:
         draws = posterior.draws()
-    draws = {k: torch.as_tensor(v, dtype=DTYPE).contiguous() for k, v in draws.items()}  # torch's median misreads stride-0 views
+    draws = {
+        k: torch.as_tensor(v, dtype=DTYPE).contiguous() for k, v in draws.items()
+    }  # torch's median misreads stride-0 views
     for name, x in draws.items():
         if not torch.isfinite(x).all():
             raise ValueError(f"posterior: {name} draws must be finite")
@@ -327,4 +333,6 @@ def make_filter(name: str, posterior: Any = None, *, num_classes: int | None = N
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
-    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](num_classes, **options)
+    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
+        num_classes, **options
+    )

@@ -87,9 +87,12 @@ def fit(
     spec = noise_model(model)
     ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
-        method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1])
+        method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1]
+    )
     names = as_names("class_names", class_names, x.shape[1])
-    settings = dict(chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p)
+    settings = dict(
+        chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p
+    )
     if method == "mh":
         posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
     else:
@@ -124,13 +127,19 @@ def fit_many(
         raise ValueError(f"obs_sets: expected shape (D, N, M), got {tuple(x.shape)}")
     y = None
     if labels is not None:
-        y = torch.stack([as_labels(row, x.shape[1], x.shape[2], name=f"labels[{d}]") for d, row in enumerate(torch.as_tensor(labels))])
+        y = torch.stack(
+            [
+                as_labels(row, x.shape[1], x.shape[2], name=f"labels[{d}]")
+                for d, row in enumerate(torch.as_tensor(labels))
+            ]
+        )
         if y.shape[0] != x.shape[0]:
             raise ValueError(f"labels: expected {x.shape[0]} rows to match obs_sets, got {y.shape[0]}")
     spec = noise_model(model)
     ids = _sequence_ids(spec, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
-        "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2])
+        "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2]
+    )
     names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
     for posterior in posteriors:
@@ -146,13 +155,17 @@ def _sequence_ids(spec: NoiseModel, sequence_ids: Any, num_obs: int, labels: Ten
         raise ValueError(f"sequence_ids: the {spec.name!r} model needs the sequence id of every output, got None")
     ids = as_sequence_ids(sequence_ids, num_obs)
     for d, row in enumerate([] if labels is None else labels):
-        high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long).scatter_reduce(0, ids, row, "amax", include_self=False)
+        high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long).scatter_reduce(
+            0, ids, row, "amax", include_self=False
+        )
         low = torch.full_like(high, -1).scatter_reduce(0, ids, row, "amin", include_self=False)
         mixed = (high != low).nonzero()
         if mixed.numel():
             k = int(mixed[0])
-            raise ValueError(f"labels: sequence {k} of dataset {d} mixes labels {sorted(set(row[ids == k].tolist()))}; "
-                             "the outputs of one sequence share one label (or all -1)")
+            raise ValueError(
+                f"labels: sequence {k} of dataset {d} mixes labels {sorted(set(row[ids == k].tolist()))}; "
+                "the outputs of one sequence share one label (or all -1)"
+            )
     return ids
 
 
@@ -188,15 +201,25 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
     label_probs = kernel.label_probs if ids is None else kernel.label_probs[:, ids]
     diag = kernel.diagnostics()
     info = {
-        "method": "mh", "num_chains": chains, "num_samples": num_samples, "warmup_steps": warmup_steps,
-        "seed": seed, "seconds": seconds, "datasets_in_run": D, "acceptance_rate": diag["acceptance rate"],
+        "method": "mh",
+        "num_chains": chains,
+        "num_samples": num_samples,
+        "warmup_steps": warmup_steps,
+        "seed": seed,
+        "seconds": seconds,
+        "datasets_in_run": D,
+        "acceptance_rate": diag["acceptance rate"],
     }
     if "step size theta" in diag:
         info["step_size_theta"] = diag["step size theta"]
     return [
         posterior_from_samples(
-            {k: v.reshape((D, chains) + v.shape[1:])[d] for k, v in draws.items()}, p, hp, spec.name,
-            label_probs=label_probs[d], info=info,
+            {k: v.reshape((D, chains) + v.shape[1:])[d] for k, v in draws.items()},
+            p,
+            hp,
+            spec.name,
+            label_probs=label_probs[d],
+            info=info,
         )
         for d in range(D)
     ]
@@ -209,14 +232,22 @@ def _fit_nuts(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress
     start = time.perf_counter()
     with warnings.catch_warnings(), single_thread():
         warnings.filterwarnings("ignore", message="num_chains=.*more than available_cpu")
-        mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, num_chains=chains, disable_progbar=not progress)
+        mcmc = MCMC(
+            kernel, num_samples=num_samples, warmup_steps=warmup_steps, num_chains=chains, disable_progbar=not progress
+        )
         mcmc.run(*args, p, hp)
     seconds = time.perf_counter() - start
     raw = mcmc.get_samples(group_by_chain=True)
     divergences = mcmc.diagnostics().get("divergences", {})
     info = {
-        "method": "nuts", "num_chains": chains, "num_samples": num_samples, "warmup_steps": warmup_steps,
-        "seed": seed, "seconds": seconds, "jit": jit, "divergences": int(sum(len(v) for v in divergences.values())),
+        "method": "nuts",
+        "num_chains": chains,
+        "num_samples": num_samples,
+        "warmup_steps": warmup_steps,
+        "seed": seed,
+        "seconds": seconds,
+        "jit": jit,
+        "divergences": int(sum(len(v) for v in divergences.values())),
     }
     label_probs = recover_label_probs(spec.pyro_model, args, raw, p, hp, seed=seed)
     if ids is not None:
@@ -241,8 +272,13 @@ def _nuts_args(spec: NoiseModel, x: Tensor, y: Tensor | None, ids: Tensor | None
 
 
 def recover_label_probs(
-    model_fn: Callable, args: tuple, draws: dict[str, Tensor], class_prior: Tensor, hyperprior: HyperPrior,
-    max_draws: int = 100, seed: int = 0,
+    model_fn: Callable,
+    args: tuple,
+    draws: dict[str, Tensor],
+    class_prior: Tensor,
+    hyperprior: HyperPrior,
+    max_draws: int = 100,
+    seed: int = 0,
 ) -> Tensor:
     """Posterior class probabilities of the training units (outputs, or sequences) by ``infer_discrete``.
 

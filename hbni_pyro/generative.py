@@ -80,12 +80,15 @@ def sample_dirichlet(alpha: Tensor, generator: torch.Generator) -> Tensor:
 def sample_gaussian(loc: Tensor, cov: Tensor, generator: torch.Generator) -> Tensor:
     """``N(loc, cov)`` draws for batches ``loc (..., d)``, ``cov (..., d, d)``."""
     loc, cov = torch.as_tensor(loc, dtype=DTYPE), torch.as_tensor(cov, dtype=DTYPE)
-    z = torch.randn(torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE, device=loc.device)
+    z = torch.randn(
+        torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE, device=loc.device
+    )
     return loc + (torch.linalg.cholesky(cov) @ z.unsqueeze(-1)).squeeze(-1)
 
 
-def sample_sequences(loc: Tensor, between: Tensor, within: Tensor, classes: Tensor, num_frames: int,
-                     generator: torch.Generator) -> Tensor:
+def sample_sequences(
+    loc: Tensor, between: Tensor, within: Tensor, classes: Tensor, num_frames: int, generator: torch.Generator
+) -> Tensor:
     """Output sequences from the sequence-aware model: ``(K, num_frames, M)`` for ``classes (K,)``.
 
     Each sequence draws its look ``mu_k ~ N(loc[c_k], between[c_k])``, then its frames'

@@ -152,8 +152,7 @@ class MacroObservationModel:
         info: JSON-serialisable description (threshold, filter, number of simulated streams, ...).
     """
 
-    def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None,
-                 class_names: Any = None) -> None:
+    def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None, class_names: Any = None) -> None:
         joint = torch.as_tensor(joint, dtype=DTYPE)
         if joint.dim() != 3 or joint.shape[0] != joint.shape[1] or joint.shape[0] < 2 or joint.shape[2] < 1:
             raise ValueError(f"joint: expected shape (M, M, max_frames) with M >= 2, got {tuple(joint.shape)}")
@@ -240,8 +239,12 @@ class MacroObservationModel:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically."""
-        return save_tensors(path, _KIND, {"joint": self.joint, "timed_out": self.timed_out},
-                            {"info": self.info, "class_names": None if self.class_names is None else list(self.class_names)})
+        return save_tensors(
+            path,
+            _KIND,
+            {"joint": self.joint, "timed_out": self.timed_out},
+            {"info": self.info, "class_names": None if self.class_names is None else list(self.class_names)},
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MacroObservationModel":
@@ -307,7 +310,9 @@ def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) ->
         raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
     truth = torch.as_tensor(true_class)
     if truth.is_floating_point() or truth.dim() != 1:
-        raise TypeError(f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape {tuple(truth.shape)}")
+        raise TypeError(
+            f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape {tuple(truth.shape)}"
+        )
     batch = process.run_batch(streams)
     if truth.shape[0] != batch.label.shape[0]:
         raise ValueError(f"true_class: expected {batch.label.shape[0]} entries to match streams, got {truth.shape[0]}")
@@ -316,15 +321,21 @@ def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) ->
         raise ValueError(f"true_class: {outside[0]} is out of range: expected classes in [0, {process.num_classes})")
     missing = sorted(set(range(process.num_classes)) - set(truth.tolist()))
     if missing:
-        raise ValueError(f"true_class: expected every class in [0, {process.num_classes}) at least once; missing {missing}")
+        raise ValueError(
+            f"true_class: expected every class in [0, {process.num_classes}) at least once; missing {missing}"
+        )
     return _table(process, batch, truth.long(), {"num_streams": int(truth.numel()), "generative": "recorded streams"})
 
 
-def _table(process: MacroObservationProcess, batch: MacroObservationBatch, truth: Tensor, info: dict) -> MacroObservationModel:
+def _table(
+    process: MacroObservationProcess, batch: MacroObservationBatch, truth: Tensor, info: dict
+) -> MacroObservationModel:
     """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class."""
     M, T = process.num_classes, process.max_frames
     counts = torch.zeros(M, M * T, dtype=DTYPE)
-    counts.index_put_((truth, batch.label * T + batch.frames_used - 1), torch.ones(truth.shape[0], dtype=DTYPE), accumulate=True)
+    counts.index_put_(
+        (truth, batch.label * T + batch.frames_used - 1), torch.ones(truth.shape[0], dtype=DTYPE), accumulate=True
+    )
     per_class = counts.sum(-1, keepdim=True)
     timed_out = torch.zeros(M, dtype=DTYPE).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
     info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
@@ -339,7 +350,9 @@ def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, s
     """How :func:`characterize` draws streams from ``generative``, and how its table names the source."""
     if callable(getattr(generative, "sample_streams", None)) and hasattr(generative, "model"):
         if generative.num_classes != num_classes:
-            raise ValueError(f"generative: expected a posterior over {num_classes} classes, got {generative.num_classes}")
+            raise ValueError(
+                f"generative: expected a posterior over {num_classes} classes, got {generative.num_classes}"
+            )
 
         def posterior_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
             return generative.sample_streams(c, n, T, generator=g)
@@ -365,7 +378,9 @@ def _generative_theta(generative: Any, num_classes: int) -> tuple[Tensor, str]:
         theta = theta.unsqueeze(0)
         source = f"true theta {theta[0].tolist()}"
     else:
-        raise TypeError(f"generative: expected an HBNIPosterior or a theta tensor (M,), got {type(generative).__name__}")
+        raise TypeError(
+            f"generative: expected an HBNIPosterior or a theta tensor (M,), got {type(generative).__name__}"
+        )
     if theta.shape[-1] != num_classes:
         raise ValueError(f"generative: expected theta for {num_classes} classes, got {theta.shape[-1]}")
     if not torch.isfinite(theta).all() or (theta <= 0).any():

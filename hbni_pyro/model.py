@@ -181,4 +181,3 @@ def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int =
     gamma = gamma_variates(torch.full((num_mc,), h.nu), h.omega, g)
     lp = gamma_log_prob(theta.to(DTYPE).unsqueeze(-1), kappa, gamma)
     return torch.logsumexp(lp, -1) - torch.log(torch.tensor(float(num_mc), dtype=DTYPE))
-

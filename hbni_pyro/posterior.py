@@ -56,10 +56,14 @@ class HBNIPosterior:
         first = next(iter(shapes))
         lead = self.samples[first].shape[:2]
         if self.samples[first].dim() != 2 + len(shapes[first]):
-            raise ValueError(f"samples[{first!r}]: expected shape (chains, draws, *{shapes[first]}), got {tuple(self.samples[first].shape)}")
+            raise ValueError(
+                f"samples[{first!r}]: expected shape (chains, draws, *{shapes[first]}), got {tuple(self.samples[first].shape)}"
+            )
         for k, shape in shapes.items():
             if tuple(self.samples[k].shape) != tuple(lead) + shape:
-                raise ValueError(f"samples[{k!r}]: expected shape {tuple(lead) + shape}, got {tuple(self.samples[k].shape)}")
+                raise ValueError(
+                    f"samples[{k!r}]: expected shape {tuple(lead) + shape}, got {tuple(self.samples[k].shape)}"
+                )
 
     @property
     def noise_model(self) -> NoiseModel:
@@ -75,9 +79,13 @@ class HBNIPosterior:
         """A copy with every tensor on ``device`` (filters, tables and predictive draws then run there)."""
         device = torch.device(device)
         moved = {k: v.to(device) for k, v in self.samples.items()}
-        return dataclasses.replace(self, samples=moved, class_prior=self.class_prior.to(device),
-                                   label_probs=None if self.label_probs is None else self.label_probs.to(device),
-                                   info=dict(self.info))
+        return dataclasses.replace(
+            self,
+            samples=moved,
+            class_prior=self.class_prior.to(device),
+            label_probs=None if self.label_probs is None else self.label_probs.to(device),
+            info=dict(self.info),
+        )
 
     @property
     def num_classes(self) -> int:
@@ -119,7 +127,9 @@ class HBNIPosterior:
         for name, x in self.scalar_sites().items():
             flat = x.reshape(-1)
             q = torch.quantile(flat, torch.tensor([lo, hi], dtype=flat.dtype))
-            rhat = split_gelman_rubin(x, chain_dim=0, sample_dim=1) if self.num_draws >= 4 else torch.tensor(float("nan"))
+            rhat = (
+                split_gelman_rubin(x, chain_dim=0, sample_dim=1) if self.num_draws >= 4 else torch.tensor(float("nan"))
+            )
             out[name] = {
                 "mean": float(flat.mean()),
                 "sd": float(flat.std()),
@@ -135,7 +145,11 @@ class HBNIPosterior:
         sites: dict[str, Tensor] = {}
         for name, x in self.samples.items():
             shape = x.shape[2:]
-            for index in torch.cartesian_prod(*(torch.arange(n) for n in shape)).reshape(-1, len(shape)).tolist() if shape else [[]]:
+            for index in (
+                torch.cartesian_prod(*(torch.arange(n) for n in shape)).reshape(-1, len(shape)).tolist()
+                if shape
+                else [[]]
+            ):
                 if not self.noise_model.free_entry(name, index):
                     continue
                 label = f"{name}[{', '.join(map(str, index))}]" if index else name
@@ -149,7 +163,13 @@ class HBNIPosterior:
         return self.sample_streams(true_class, as_int("n", n, minimum=1), 1, seed)[:, 0]
 
     def sample_streams(
-        self, true_class: int, num_streams: int, num_frames: int, seed: int = 0, *, generator: torch.Generator | None = None
+        self,
+        true_class: int,
+        num_streams: int,
+        num_frames: int,
+        seed: int = 0,
+        *,
+        generator: torch.Generator | None = None,
     ) -> Tensor:
         """Posterior-predictive output streams ``(num_streams, num_frames, M)`` of new class-``true_class`` objects.
 
@@ -158,7 +178,10 @@ class HBNIPosterior:
         advanced) instead of a new one seeded with ``seed``; it must be on the posterior's device.
         """
         true_class = self._check_class(true_class)
-        num_streams, num_frames = as_int("num_streams", num_streams, minimum=1), as_int("num_frames", num_frames, minimum=1)
+        num_streams, num_frames = (
+            as_int("num_streams", num_streams, minimum=1),
+            as_int("num_frames", num_frames, minimum=1),
+        )
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
         g = generator if generator is not None else torch.Generator(self.device).manual_seed(seed)
@@ -168,15 +191,32 @@ class HBNIPosterior:
         return self.noise_model.sample_streams({k: v[idx] for k, v in draws.items()}, true_class, num_frames, g)
 
     def check(
-        self, outputs: Any, labels: Any = None, sequence_ids: Any = None, *, threshold: float = 0.95,
-        max_frames: int | None = None, seed: int = 0, simulations: int = 20, filter: Any = None,
+        self,
+        outputs: Any,
+        labels: Any = None,
+        sequence_ids: Any = None,
+        *,
+        threshold: float = 0.95,
+        max_frames: int | None = None,
+        seed: int = 0,
+        simulations: int = 20,
+        filter: Any = None,
     ) -> Any:
         """Posterior predictive checks on held-out outputs ``(N, M)``: a :class:`hbni_pyro.checks.CheckResult`
         (see :func:`hbni_pyro.checks.check`)."""
         from hbni_pyro.checks import check
 
-        return check(self, outputs, labels, sequence_ids, threshold=threshold, max_frames=max_frames, seed=seed,
-                     simulations=simulations, filter=filter)
+        return check(
+            self,
+            outputs,
+            labels,
+            sequence_ids,
+            threshold=threshold,
+            max_frames=max_frames,
+            seed=seed,
+            simulations=simulations,
+            filter=filter,
+        )
 
     def _check_class(self, true_class: int) -> int:
         if not 0 <= as_int("true_class", true_class) < self.num_classes:
@@ -185,12 +225,18 @@ class HBNIPosterior:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write draws and metadata to one safetensors file, atomically (from any device; the file holds CPU tensors)."""
-        tensors = {k: v.cpu().clone() for k, v in self.samples.items()}  # one buffer each, even if two sites share memory
+        tensors = {
+            k: v.cpu().clone() for k, v in self.samples.items()
+        }  # one buffer each, even if two sites share memory
         tensors["class_prior"] = self.class_prior.cpu()
         if self.label_probs is not None:
             tensors["label_probs"] = self.label_probs.cpu()
-        meta = {"model": self.model, "hyperprior": self.hyperprior.as_dict(), "info": self.info,
-                "class_names": None if self.class_names is None else list(self.class_names)}
+        meta = {
+            "model": self.model,
+            "hyperprior": self.hyperprior.as_dict(),
+            "info": self.info,
+            "class_names": None if self.class_names is None else list(self.class_names),
+        }
         return save_tensors(path, _KIND, tensors, meta, version=_VERSION)
 
     @classmethod
@@ -227,8 +273,11 @@ class HBNIPosterior:
         return arviz.from_dict(
             posterior={k: v.numpy() for k, v in self.samples.items()},
             dims=self.noise_model.arviz_dims,
-            coords={"class": list(range(self.num_classes)), "class_to": list(range(self.num_classes)),
-                    "coord": list(range(self.num_classes - 1))},
+            coords={
+                "class": list(range(self.num_classes)),
+                "class_to": list(range(self.num_classes)),
+                "coord": list(range(self.num_classes - 1)),
+            },
         )
 
     def __repr__(self) -> str:

@@ -45,11 +45,14 @@ class StreamReplay:
         streams = torch.as_tensor(streams)
         truth = torch.as_tensor(true_class)
         if truth.is_floating_point() or truth.dtype == torch.bool or truth.dim() != 1:
-            raise TypeError(f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape "
-                            f"{tuple(truth.shape)}")
+            raise TypeError(
+                f"true_class: expected a 1-D integer tensor, got dtype {truth.dtype} and shape {tuple(truth.shape)}"
+            )
         if streams.dim() != 3 or streams.shape[0] != truth.shape[0]:
-            raise ValueError(f"streams: expected shape ({truth.shape[0]}, N, {process.num_classes}) to match "
-                             f"true_class, got {tuple(streams.shape)}")
+            raise ValueError(
+                f"streams: expected shape ({truth.shape[0]}, N, {process.num_classes}) to match "
+                f"true_class, got {tuple(streams.shape)}"
+            )
         truth = truth.long()
         M = process.num_classes
         if ((truth < 0) | (truth >= M)).any():
@@ -75,7 +78,9 @@ class StreamReplay:
         """
         index = torch.as_tensor(index)
         if index.is_floating_point() or index.dim() != 1:
-            raise TypeError(f"index: expected a 1-D integer tensor, got dtype {index.dtype} and shape {tuple(index.shape)}")
+            raise TypeError(
+                f"index: expected a 1-D integer tensor, got dtype {index.dtype} and shape {tuple(index.shape)}"
+            )
         B = self.true_class.shape[0]
         if index.numel() and (int(index.min()) < 0 or int(index.max()) >= B):
             raise ValueError(f"index: expected stream indices in [0, {B})")
@@ -139,4 +144,6 @@ class StreamReplay:
 def _check_every_class(truth: Tensor, num_classes: int) -> None:
     counts = torch.bincount(truth, minlength=num_classes)
     if (counts == 0).any():
-        raise ValueError(f"true_class: every class needs a stream; none for {(counts == 0).nonzero().flatten().tolist()}")
+        raise ValueError(
+            f"true_class: every class needs a stream; none for {(counts == 0).nonzero().flatten().tolist()}"
+        )

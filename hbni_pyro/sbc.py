@@ -32,9 +32,21 @@ class SBCResult(NamedTuple):
 
 
 def run_sbc(
-    model: str | NoiseModel, num_datasets: int, num_classes: int = 3, size: int = 30, num_frames: int = 5, *, labelled: bool = True,
-    num_chains: int = 4, num_samples: int = 400, warmup_steps: int = 300, thin: int = 16, num_bins: int = 10,
-    hyperprior: HyperPrior | None = None, fit_hyperprior: HyperPrior | None = None, seed: int = 0,
+    model: str | NoiseModel,
+    num_datasets: int,
+    num_classes: int = 3,
+    size: int = 30,
+    num_frames: int = 5,
+    *,
+    labelled: bool = True,
+    num_chains: int = 4,
+    num_samples: int = 400,
+    warmup_steps: int = 300,
+    thin: int = 16,
+    num_bins: int = 10,
+    hyperprior: HyperPrior | None = None,
+    fit_hyperprior: HyperPrior | None = None,
+    seed: int = 0,
 ) -> SBCResult:
     """SBC of ``model``'s MH kernel on ``num_datasets`` datasets drawn from its own prior.
 
@@ -46,18 +58,30 @@ def run_sbc(
     """
     spec = noise_model(model)
     if spec.draw_prior is None or spec.simulate is None or spec.rank_statistics is None:
-        raise ValueError(f"model: the {spec.name!r} noise model has no draw_prior, simulate and rank_statistics for SBC")
+        raise ValueError(
+            f"model: the {spec.name!r} noise model has no draw_prior, simulate and rank_statistics for SBC"
+        )
     hp = hyperprior or HyperPrior()
     g = torch.Generator().manual_seed(seed)
     truth = spec.draw_prior(hp, num_classes, num_datasets, g)
     classes = torch.arange(num_classes).repeat_interleave(math.ceil(size / num_classes))[:size]
-    data = torch.stack([spec.simulate({k: v[i] for k, v in truth.items()}, classes, num_frames, g) for i in range(num_datasets)])
+    data = torch.stack(
+        [spec.simulate({k: v[i] for k, v in truth.items()}, classes, num_frames, g) for i in range(num_datasets)]
+    )
     sequence = spec.sequences
     labels = classes.repeat_interleave(num_frames) if sequence else classes
     ids = torch.arange(size).repeat_interleave(num_frames) if sequence else None
     posts = fit_many(
-        data, labels.expand(num_datasets, -1) if labelled else None, model=spec, sequence_ids=ids, num_chains=num_chains,
-        num_samples=num_samples, warmup_steps=warmup_steps, seed=stream_seed(seed, "fit"), progress=False, hyperprior=fit_hyperprior or hp,
+        data,
+        labels.expand(num_datasets, -1) if labelled else None,
+        model=spec,
+        sequence_ids=ids,
+        num_chains=num_chains,
+        num_samples=num_samples,
+        warmup_steps=warmup_steps,
+        seed=stream_seed(seed, "fit"),
+        progress=False,
+        hyperprior=fit_hyperprior or hp,
     )
     true_stats = spec.rank_statistics(truth)
     ranks: dict[str, list[int]] = {k: [] for k in true_stats}
@@ -72,5 +96,9 @@ def run_sbc(
         counts = torch.bincount((r * num_bins) // (num_draws + 1), minlength=num_bins).to(DTYPE)
         expected = num_datasets / num_bins
         chi2[k] = float(((counts - expected) ** 2 / expected).sum())
-        p[k] = float(torch.special.gammaincc(torch.tensor((num_bins - 1) / 2, dtype=DTYPE), torch.tensor(chi2[k] / 2, dtype=DTYPE)))
+        p[k] = float(
+            torch.special.gammaincc(
+                torch.tensor((num_bins - 1) / 2, dtype=DTYPE), torch.tensor(chi2[k] / 2, dtype=DTYPE)
+            )
+        )
     return SBCResult(out, num_draws, chi2, p)

@@ -42,9 +42,17 @@ class Segment(NamedTuple):
 
     def record(self) -> dict[str, Any]:
         """The JSON-lines record of this macro-observation."""
-        return {"index": self.index, "start_frame": self.start, "end_frame": self.end, "label": self.name,
-                "label_index": self.label, "confidence": self.confidence, "frames_used": self.frames_used,
-                "timed_out": self.timed_out, "stream_ended": self.stream_ended}
+        return {
+            "index": self.index,
+            "start_frame": self.start,
+            "end_frame": self.end,
+            "label": self.name,
+            "label_index": self.label,
+            "confidence": self.confidence,
+            "frames_used": self.frames_used,
+            "timed_out": self.timed_out,
+            "stream_ended": self.stream_ended,
+        }
 
 
 def macro_observations(
@@ -76,9 +84,19 @@ def macro_observations(
         result = process.run(_outputs(first, it, used))
         frames = [frame for frame, _ in used] if keep_frames else []
         ended = result.timed_out and result.frames_used < process.max_frames
-        yield Segment(index, start, start + result.frames_used - 1, result.label, classes[result.label],
-                      result.confidence, result.frames_used, result.timed_out, ended,
-                      torch.stack([o for _, o in used]), frames)
+        yield Segment(
+            index,
+            start,
+            start + result.frames_used - 1,
+            result.label,
+            classes[result.label],
+            result.confidence,
+            result.frames_used,
+            result.timed_out,
+            ended,
+            torch.stack([o for _, o in used]),
+            frames,
+        )
         start += result.frames_used
 
 

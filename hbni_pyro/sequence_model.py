@@ -96,7 +96,9 @@ def sequence_stats(obs: Tensor, sequence_ids: Tensor, labels: Tensor, num_sequen
     sum_yy = torch.zeros(num_sequences, d * d, dtype=obs.dtype)
     for start in range(0, y.shape[0], 1 << 16):  # y y^T in chunks: never an (N, d, d) tensor
         block = y[start : start + (1 << 16)]
-        sum_yy.index_add_(0, sequence_ids[start : start + (1 << 16)], (block.unsqueeze(-1) * block.unsqueeze(-2)).flatten(1))
+        sum_yy.index_add_(
+            0, sequence_ids[start : start + (1 << 16)], (block.unsqueeze(-1) * block.unsqueeze(-2)).flatten(1)
+        )
     seq_labels = torch.full((num_sequences,), -1, dtype=torch.long).scatter_(0, sequence_ids, labels)
     return SequenceStats(count, sum_y, sum_yy.reshape(num_sequences, d, d), seq_labels)
 
@@ -113,8 +115,10 @@ def hyper_scales(hp: HyperPrior, d: int, dtype: torch.dtype = torch.float64) -> 
     eye = torch.eye(d, dtype=dtype)
     between_df = d + hp.between_df
     return {
-        "between_df": float(between_df), "between_scale": hp.between_scale / between_df * eye,
-        "within_df": float(d + 1 + hp.within_df), "within_psi": hp.within_df * hp.within_scale * eye,
+        "between_df": float(between_df),
+        "between_scale": hp.between_scale / between_df * eye,
+        "within_df": float(d + 1 + hp.within_df),
+        "within_psi": hp.within_df * hp.within_scale * eye,
     }
 
 
@@ -129,13 +133,17 @@ class TwoLevelSequence(TorchDistribution):
     arg_constraints = {"loc": constraints.real_vector}
     support = constraints.independent(constraints.simplex, 1)
 
-    def __init__(self, loc: Tensor, between: Tensor, within: Tensor, mask: Tensor, validate_args: bool | None = None) -> None:
+    def __init__(
+        self, loc: Tensor, between: Tensor, within: Tensor, mask: Tensor, validate_args: bool | None = None
+    ) -> None:
         batch = torch.broadcast_shapes(loc.shape[:-1], between.shape[:-2], within.shape[:-2], mask.shape[:-1])
         self.loc, self.between, self.within, self.mask = loc, between, within, mask
         super().__init__(batch, torch.Size([mask.shape[-1], loc.shape[-1] + 1]), validate_args=validate_args)
 
     def expand(self, batch_shape, _instance=None):
-        return TwoLevelSequence(self.loc, self.between, self.within, self.mask.expand(torch.Size(batch_shape) + self.mask.shape[-1:]))
+        return TwoLevelSequence(
+            self.loc, self.between, self.within, self.mask.expand(torch.Size(batch_shape) + self.mask.shape[-1:])
+        )
 
     def log_prob(self, value: Tensor) -> Tensor:
         m = self.mask.to(value.dtype)
@@ -151,7 +159,10 @@ class TwoLevelSequence(TorchDistribution):
 
 
 def sequence_model(
-    obs: Tensor, mask: Tensor, labels: Tensor | None = None, class_prior: Tensor | None = None,
+    obs: Tensor,
+    mask: Tensor,
+    labels: Tensor | None = None,
+    class_prior: Tensor | None = None,
     hyperprior: HyperPrior = HyperPrior(),
 ) -> None:
     """Pyro model of ``K`` padded sequences ``obs (K, T, M)`` with ``mask (K, T)`` (True = a real frame)
@@ -163,13 +174,24 @@ def sequence_model(
     d = num_classes - 1
     h, sc = hyperprior, hyper_scales(hyperprior, d, obs.dtype)
     p = class_prior if class_prior is not None else obs.new_full((num_classes,), 1.0 / num_classes)
-    pool = pyro.sample("between_pooling", dist.LogNormal(obs.new_tensor(math.log(h.between_pooling_median)),
-                                                         obs.new_tensor(h.between_pooling_sd)))
-    mean_tril = pyro.sample("between_mean_tril", WishartCholesky(torch.tensor(sc["between_df"], dtype=obs.dtype), sc["between_scale"]))
-    within_tril = pyro.sample("within_tril", InvWishartCholesky(torch.tensor(sc["within_df"], dtype=obs.dtype), sc["within_psi"]))
+    pool = pyro.sample(
+        "between_pooling",
+        dist.LogNormal(obs.new_tensor(math.log(h.between_pooling_median)), obs.new_tensor(h.between_pooling_sd)),
+    )
+    mean_tril = pyro.sample(
+        "between_mean_tril", WishartCholesky(torch.tensor(sc["between_df"], dtype=obs.dtype), sc["between_scale"])
+    )
+    within_tril = pyro.sample(
+        "within_tril", InvWishartCholesky(torch.tensor(sc["within_df"], dtype=obs.dtype), sc["within_psi"])
+    )
     with pyro.plate("classes", num_classes, dim=-1):
-        loc = pyro.sample("loc", dist.MultivariateNormal(look_prior_mean(num_classes, h.look_vertex, obs.dtype),
-                                                          scale_tril=h.look_sd * torch.eye(d, dtype=obs.dtype)))
+        loc = pyro.sample(
+            "loc",
+            dist.MultivariateNormal(
+                look_prior_mean(num_classes, h.look_vertex, obs.dtype),
+                scale_tril=h.look_sd * torch.eye(d, dtype=obs.dtype),
+            ),
+        )
         between_tril = pyro.sample("between_tril", InvWishartCholesky(pool + d + 1, pool * mean_tril @ mean_tril.T))
     between = between_tril @ between_tril.transpose(-1, -2)
     within = within_tril @ within_tril.T
@@ -193,7 +215,9 @@ def sequence_prior_log_prob(params: dict[str, Tensor], hyperprior: HyperPrior) -
     h, sc = hyperprior, hyper_scales(hyperprior, d, loc.dtype)
     lp = normal_log_prob(loc, look_prior_mean(num_classes, h.look_vertex, loc.dtype), h.look_sd).sum((-1, -2))
     lp = lp + normal_log_prob(pool.log(), math.log(h.between_pooling_median), h.between_pooling_sd) - pool.log()
-    lp = lp + wishart_log_prob(mean, sc["between_df"], torch.linalg.inv(sc["between_scale"]), logdet_spd(sc["between_scale"]))
+    lp = lp + wishart_log_prob(
+        mean, sc["between_df"], torch.linalg.inv(sc["between_scale"]), logdet_spd(sc["between_scale"])
+    )
     lp = lp + inv_wishart_log_prob(torch.linalg.inv(within), sc["within_df"], sc["within_psi"])
     psi = pool[..., None, None, None] * mean.unsqueeze(-3)
     return lp + inv_wishart_log_prob(torch.linalg.inv(between), (pool + d + 1).unsqueeze(-1), psi).sum(-1)
@@ -211,15 +235,20 @@ def sequence_log_lik(stats: SequenceStats, params: dict[str, Tensor], class_prio
     the look integrated out. ``params`` holds ``loc (..., M, d)``, ``between (..., M, d, d)`` and ``within (..., d, d)``."""
     within = params["within"].unsqueeze(-3)
     basis, lam, logdet = look_basis(params["between"], within)
-    look = look_log_marginal(stats.count[..., None], look_residuals(basis, stats.mean_y, params["loc"]), lam.unsqueeze(-3),
-                             logdet.unsqueeze(-2))
+    look = look_log_marginal(
+        stats.count[..., None],
+        look_residuals(basis, stats.mean_y, params["loc"]),
+        lam.unsqueeze(-3),
+        logdet.unsqueeze(-2),
+    )
     trace = scatter_trace(torch.linalg.inv(within).unsqueeze(-4), stats.scatter.unsqueeze(-3))
     rest = within_log_prob(stats.count[..., None], trace, logdet.unsqueeze(-2), within.shape[-1])
     return look + rest + class_prior.log()
 
 
-def sequence_log_joint(stats: SequenceStats, params: dict[str, Tensor], class_prior: Tensor,
-                       hyperprior: HyperPrior = HyperPrior()) -> Tensor:
+def sequence_log_joint(
+    stats: SequenceStats, params: dict[str, Tensor], class_prior: Tensor, hyperprior: HyperPrior = HyperPrior()
+) -> Tensor:
     """``log p(frames, known labels, params)`` in log-ratio coordinates, looks integrated and unknown classes summed out."""
     per_class = sequence_log_lik(stats, params, class_prior)
     known = stats.labels >= 0

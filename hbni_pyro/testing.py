@@ -19,8 +19,13 @@ if TYPE_CHECKING:
 
 
 def assert_calibrated(
-    process: MacroObservationProcess, streams: Any, classes: Any, threshold: float | None = None, *,
-    slack: float = 0.0, z: float = 3.0,
+    process: MacroObservationProcess,
+    streams: Any,
+    classes: Any,
+    threshold: float | None = None,
+    *,
+    slack: float = 0.0,
+    z: float = 3.0,
 ) -> dict[str, Any]:
     """Assert that ``process``'s emitted labels on ``streams (B, N, M)`` of true ``classes (B,)`` are right at least
     ``threshold - slack`` of the time, less ``z`` binomial standard errors of that rate over the emitted labels.
@@ -40,10 +45,13 @@ def assert_calibrated(
     z = as_float("z", z, 0.0)
     streams = torch.as_tensor(streams)
     row = threshold_checks(process.filter, streams, torch.as_tensor(classes), (process.threshold,), process.max_frames)[
-        f"{process.threshold:g}"]
+        f"{process.threshold:g}"
+    ]
     n, acc = row["emitted"], row["emitted_accuracy"]
     if n == 0:
-        raise AssertionError(f"no label emitted: all {len(streams)} streams timed out at threshold {process.threshold:g}")
+        raise AssertionError(
+            f"no label emitted: all {len(streams)} streams timed out at threshold {process.threshold:g}"
+        )
     target = threshold - slack
     margin = z * binomial_stderr(min(max(target, 0.0), 1.0), n)
     if acc < target - margin:
@@ -55,8 +63,13 @@ def assert_calibrated(
 
 
 def assert_check_passes(
-    posterior: "HBNIPosterior", outputs: Any, labels: Any = None, sequence_ids: Any = None, *,
-    alpha: float = 0.01, **options: Any,
+    posterior: "HBNIPosterior",
+    outputs: Any,
+    labels: Any = None,
+    sequence_ids: Any = None,
+    *,
+    alpha: float = 0.01,
+    **options: Any,
 ) -> CheckResult:
     """Assert that :func:`hbni_pyro.check` finds no misfit at family-wise level ``alpha``; ``options`` go to it
     (``threshold``, ``max_frames``, ``seed``, ``simulations``, ``filter``). Returns the result."""
@@ -65,14 +78,21 @@ def assert_check_passes(
     if failures:
         raise AssertionError(
             f"posterior predictive check failed at alpha {alpha:g} (Bonferroni over {len(result.p_values)} tests): "
-            + ", ".join(f"{k} p={p:.3g}" for k, p in failures.items()) + "\n" + result.report()
+            + ", ".join(f"{k} p={p:.3g}" for k, p in failures.items())
+            + "\n"
+            + result.report()
         )
     return result
 
 
 def assert_check_fails(
-    posterior: "HBNIPosterior", outputs: Any, labels: Any = None, sequence_ids: Any = None, *,
-    alpha: float = 0.01, **options: Any,
+    posterior: "HBNIPosterior",
+    outputs: Any,
+    labels: Any = None,
+    sequence_ids: Any = None,
+    *,
+    alpha: float = 0.01,
+    **options: Any,
 ) -> CheckResult:
     """Assert that :func:`hbni_pyro.check` rejects the posterior at family-wise level ``alpha`` (the outputs come
     from a different noise). Returns the result."""

@@ -102,7 +102,9 @@ def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "label
     try:
         x = torch.as_tensor(labels)
     except (TypeError, ValueError, RuntimeError):
-        raise TypeError(f"{name}: expected integer class indices of shape ({num_obs},), got {type(labels).__name__}") from None
+        raise TypeError(
+            f"{name}: expected integer class indices of shape ({num_obs},), got {type(labels).__name__}"
+        ) from None
     if x.is_floating_point():
         if not torch.equal(x, x.round()):
             raise TypeError(f"{name}: expected integer class indices, got non-integer values")
@@ -114,9 +116,7 @@ def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "label
     bad = (x < -1) | (x >= num_classes)
     if bad.any():
         i = int(bad.nonzero()[0])
-        raise ValueError(
-            f"{name}: entry {i} is {int(x[i])}, expected a class in [0, {num_classes}) or -1 for unknown"
-        )
+        raise ValueError(f"{name}: entry {i} is {int(x[i])}, expected a class in [0, {num_classes}) or -1 for unknown")
     return x
 
 
@@ -153,5 +153,7 @@ def check_same_classes(expected: tuple[str, ...] | None, got: Any, what: str, na
         return
     got = tuple(got)
     if got != expected:
-        raise ValueError(f"{name}: expected the classes of {what} in its order {list(expected)}, got {list(got)} "
-                         f"(first difference at column {first_difference(expected, got)})")
+        raise ValueError(
+            f"{name}: expected the classes of {what} in its order {list(expected)}, got {list(got)} "
+            f"(first difference at column {first_difference(expected, got)})"
+        )

@@ -36,8 +36,11 @@ def wishart_log_prob(x: Tensor, df: Tensor | float, scale_inv: Tensor, logdet_sc
     d = x.shape[-1]
     df = torch.as_tensor(df, dtype=x.dtype)
     return (
-        0.5 * (df - d - 1) * logdet_spd(x) - 0.5 * (scale_inv * x).sum((-1, -2))
-        - 0.5 * df * d * math.log(2) - 0.5 * df * logdet_scale - torch.mvlgamma(0.5 * df, d)
+        0.5 * (df - d - 1) * logdet_spd(x)
+        - 0.5 * (scale_inv * x).sum((-1, -2))
+        - 0.5 * df * d * math.log(2)
+        - 0.5 * df * logdet_scale
+        - torch.mvlgamma(0.5 * df, d)
     )
 
 
@@ -46,8 +49,11 @@ def inv_wishart_log_prob(prec: Tensor, df: Tensor | float, psi: Tensor) -> Tenso
     d = prec.shape[-1]
     df = torch.as_tensor(df, dtype=prec.dtype)
     return (
-        0.5 * df * logdet_spd(psi) - 0.5 * df * d * math.log(2) - torch.mvlgamma(0.5 * df, d)
-        + 0.5 * (df + d + 1) * logdet_spd(prec) - 0.5 * (psi * prec).sum((-1, -2))
+        0.5 * df * logdet_spd(psi)
+        - 0.5 * df * d * math.log(2)
+        - torch.mvlgamma(0.5 * df, d)
+        + 0.5 * (df + d + 1) * logdet_spd(prec)
+        - 0.5 * (psi * prec).sum((-1, -2))
     )
 
 
@@ -154,7 +160,9 @@ class WishartCholesky(TorchDistribution):
 
     def sample(self, sample_shape=torch.Size()) -> Tensor:
         shape = torch.Size(sample_shape) + self.batch_shape
-        x = torch.distributions.Wishart(self.df.expand(shape), covariance_matrix=self.scale.expand(shape + self.event_shape)).sample()
+        x = torch.distributions.Wishart(
+            self.df.expand(shape), covariance_matrix=self.scale.expand(shape + self.event_shape)
+        ).sample()
         return torch.linalg.cholesky(x)
 
     def log_prob(self, value: Tensor) -> Tensor:

@@ -121,8 +121,9 @@ def wait_for_entry(path: Path, key: dict[str, Any], lock: FileLock, what: str) -
     return None
 
 
-def cached(cache_dir: str | os.PathLike | None, name: str, key: dict[str, Any],
-           compute: Callable[[], dict[str, Tensor]]) -> tuple[dict[str, Tensor], Path | None, bool]:
+def cached(
+    cache_dir: str | os.PathLike | None, name: str, key: dict[str, Any], compute: Callable[[], dict[str, Tensor]]
+) -> tuple[dict[str, Tensor], Path | None, bool]:
     """Tensors for ``key``: from ``cache_dir`` when a run with the same key stored them, else from ``compute()``
     (then stored; one process of a sweep computes, the others wait for it). ``cache_dir=None`` always computes.
 

@@ -33,8 +33,12 @@ def as_int(name: str, value: Any, minimum: int | None = None) -> int:
 
 
 def as_float(
-    name: str, value: Any, low: float = -math.inf, high: float = math.inf,
-    low_open: bool = False, high_open: bool = False,
+    name: str,
+    value: Any,
+    low: float = -math.inf,
+    high: float = math.inf,
+    low_open: bool = False,
+    high_open: bool = False,
 ) -> float:
     """``value`` as a finite ``float`` in the interval from ``low`` to ``high`` (closed unless ``*_open``).
 
@@ -67,8 +71,11 @@ def as_names(name: str, names: Any, count: int, at_least: bool = False) -> tuple
     if isinstance(names, str) or not hasattr(names, "__iter__"):
         raise TypeError(f"{name}: expected a sequence of names, got {type(names).__name__}")
     names = tuple(names)
-    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names) or (
-            len(names) < count if at_least else len(names) != count):
+    if (
+        not all(isinstance(n, str) for n in names)
+        or len(set(names)) != len(names)
+        or (len(names) < count if at_least else len(names) != count)
+    ):
         raise ValueError(f"{name}: expected {'at least ' if at_least else ''}{count} distinct names, got {list(names)}")
     return names
 

@@ -29,8 +29,9 @@ _KIND_KEY = "kind"
 _META_KEY = "metadata"
 
 
-def save_tensors(path: str | os.PathLike, kind: str, tensors: dict[str, Tensor], metadata: dict[str, Any],
-                 version: int = 1) -> Path:
+def save_tensors(
+    path: str | os.PathLike, kind: str, tensors: dict[str, Tensor], metadata: dict[str, Any], version: int = 1
+) -> Path:
     """Atomically save named ``tensors`` and JSON-serialisable ``metadata``, tagged with ``kind`` and its format
     ``version``."""
     header = {_KIND_KEY: kind, _META_KEY: json.dumps({**metadata, "version": version})}
@@ -73,9 +74,11 @@ def load_tensors(path: str | os.PathLike, kind: str, version: int = 1) -> tuple[
     found_version = metadata.get("version", 1)
     if found_version != version:
         newer = isinstance(found_version, int) and not isinstance(found_version, bool) and found_version > version
-        raise ValueError(f"path: {str(path)!r} holds format version {found_version!r} of a saved {kind}; this "
-                         f"version of the package reads version {version}"
-                         + (" (the file comes from a newer release: upgrade the package)" if newer else ""))
+        raise ValueError(
+            f"path: {str(path)!r} holds format version {found_version!r} of a saved {kind}; this "
+            f"version of the package reads version {version}"
+            + (" (the file comes from a newer release: upgrade the package)" if newer else "")
+        )
     return {k: v.clone() for k, v in tensors.items()}, metadata
 
 

@@ -37,8 +37,9 @@ def tiger():
 
 @pytest.fixture(scope="module")
 def controllers():
-    return random_controllers(6, num_agents=2, num_nodes=3, num_actions=3, num_obs=2,
-                              generator=torch.Generator().manual_seed(3))
+    return random_controllers(
+        6, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(3)
+    )
 
 
 # ---- backbone -----------------------------------------------------------------------------------------------
@@ -130,12 +131,21 @@ def test_torch_simulator_on_cpu_generator_device(tiger, controllers):
 
 
 def _domain_controllers(env, count: int = 3):
-    return random_controllers(count, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
-                              num_obs=env.num_obs, generator=torch.Generator().manual_seed(5))
+    return random_controllers(
+        count,
+        num_agents=env.num_agents,
+        num_nodes=3,
+        num_actions=env.num_actions,
+        num_obs=env.num_obs,
+        generator=torch.Generator().manual_seed(5),
+    )
 
 
-@pytest.mark.parametrize("env", [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
-                         ids=["disaster_relief", "package_delivery", "package_delivery_successors"])
+@pytest.mark.parametrize(
+    "env",
+    [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
+    ids=["disaster_relief", "package_delivery", "package_delivery_successors"],
+)
 def test_domain_oracles_on_cpu_generator_device(env):
     ctrl = _domain_controllers(env)
     returns = simulate(env, ctrl, 20, torch.Generator(device="cpu").manual_seed(1), backend="torch")
@@ -182,8 +192,12 @@ def test_exact_cuda_matches_cpu(tiger, controllers, horizon, max_dense):
     cpu = exact_value(tiger, controllers, horizon=horizon, max_dense=max_dense)
     gpu = exact_value(tiger, controllers, horizon=horizon, max_dense=max_dense, device="cuda")
     assert gpu.device.type == "cuda"
-    on_input = exact_value(tiger, type(controllers)(controllers.action.cuda(), controllers.next_node.cuda()),
-                           horizon=horizon, max_dense=max_dense)
+    on_input = exact_value(
+        tiger,
+        type(controllers)(controllers.action.cuda(), controllers.next_node.cuda()),
+        horizon=horizon,
+        max_dense=max_dense,
+    )
     assert on_input.device.type == "cuda"
     assert torch.allclose(gpu.cpu(), cpu, atol=1e-9, rtol=0)
     assert torch.allclose(on_input.cpu(), cpu, atol=1e-9, rtol=0)
@@ -203,8 +217,11 @@ def test_torch_simulator_cuda_within_monte_carlo_error(tiger, controllers):
 
 @cuda
 @needs_cuda
-@pytest.mark.parametrize("env", [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
-                         ids=["disaster_relief", "package_delivery", "package_delivery_successors"])
+@pytest.mark.parametrize(
+    "env",
+    [DisasterRelief(), PackageDelivery(), PackageDelivery(successor_rule=True)],
+    ids=["disaster_relief", "package_delivery", "package_delivery_successors"],
+)
 def test_domain_oracles_cuda_within_monte_carlo_error(env):
     rollouts, ctrl = 2000, _domain_controllers(env)
     cpu = simulate(env, ctrl, rollouts, torch.Generator().manual_seed(1), backend="torch")

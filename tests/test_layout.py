@@ -46,7 +46,9 @@ def _modules(package: str) -> list[Path]:
 @pytest.mark.parametrize("package", PACKAGES)
 def test_packages_import_only_downwards(package):
     bad = {
-        str(path.relative_to(ROOT)): sorted(n for n in _imports(path) if n.split(".")[0] not in ALLOWED[package] | {package})
+        str(path.relative_to(ROOT)): sorted(
+            n for n in _imports(path) if n.split(".")[0] not in ALLOWED[package] | {package}
+        )
         for path in _modules(package)
     }
     assert not {k: v for k, v in bad.items() if v}

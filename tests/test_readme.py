@@ -37,9 +37,21 @@ def test_readme_has_python_blocks():
 def test_readme_python_blocks_run_as_written(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(tmp_path)}  # outputs/ of the scratch folder
     run_dir = tmp_path / "outputs" / "mission" / "2026-01-01_00-00-00"
-    subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
-                    f"mission.bank.cache_dir={tmp_path / 'banks'}", *TINY_MISSION], cwd=ROOT, check=True,
-                   capture_output=True, env=env)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments.run",
+            "experiment=mission",
+            f"hydra.run.dir={run_dir}",
+            f"mission.bank.cache_dir={tmp_path / 'banks'}",
+            *TINY_MISSION,
+        ],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+        env=env,
+    )
     printed = ""
     for script in groups(BLOCKS):
         proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
@@ -50,7 +62,9 @@ def test_readme_python_blocks_run_as_written(tmp_path):
 
 def test_docs_python_blocks_run_as_written(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(tmp_path)}
-    blocks = {name: re.findall(r"```python\n(.*?)```", (ROOT / "docs" / f"{name}.md").read_text(), re.S) for name in DOCS}
+    blocks = {
+        name: re.findall(r"```python\n(.*?)```", (ROOT / "docs" / f"{name}.md").read_text(), re.S) for name in DOCS
+    }
     assert sum(map(len, blocks.values())) >= 4
     for name, found in blocks.items():
         for script in groups(found):

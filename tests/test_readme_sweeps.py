@@ -28,7 +28,9 @@ def readme_sweeps() -> list[tuple[int, list[str]]]:
 
 def jobs(overrides: list[str]) -> list[list[str]]:
     """Every job of a sweep: the cartesian product of comma-separated values."""
-    options = [[f"{key}={value}" for value in values.split(",")] for key, values in (o.split("=", 1) for o in overrides)]
+    options = [
+        [f"{key}={value}" for value in values.split(",")] for key, values in (o.split("=", 1) for o in overrides)
+    ]
     return [list(job) for job in itertools.product(*options)]
 
 
@@ -50,11 +52,20 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
             check_overrides(cfg, job)
 
 
-@pytest.mark.parametrize("override, message", [
-    ("warm_planner.ce_alpha=0.3", r"warm_planner.ce_alpha: the planner warm_planner \(phases \['ls'\], "
-                                  r"ce_result 'duel'\) ignores ce_alpha"),
-    ("planner.ce_injection_until=0.9", "planner.ce_injection_until: the planner planner .* ignores ce_injection_until"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (
+            "warm_planner.ce_alpha=0.3",
+            r"warm_planner.ce_alpha: the planner warm_planner \(phases \['ls'\], "
+            r"ce_result 'duel'\) ignores ce_alpha",
+        ),
+        (
+            "planner.ce_injection_until=0.9",
+            "planner.ce_injection_until: the planner planner .* ignores ce_injection_until",
+        ),
+    ],
+)
 def test_a_setting_the_planner_ignores_is_refused(override, message):
     cfg = _compose(["experiment=mission", override])
     check_config(cfg)

@@ -16,8 +16,12 @@ def _tracked(*patterns: str) -> list[Path]:
 def test_no_path_outside_the_repository():
     files = _tracked("*.py", "*.yaml", "*.toml", "*.sh", "*.md", ".ci/*")
     assert len(files) > 50
-    hits = [f"{f.relative_to(ROOT)}:{i}: {line.strip()}" for f in files
-            for i, line in enumerate(f.read_text(errors="replace").splitlines(), 1) if OUTSIDE.search(line)]
+    hits = [
+        f"{f.relative_to(ROOT)}:{i}: {line.strip()}"
+        for f in files
+        for i, line in enumerate(f.read_text(errors="replace").splitlines(), 1)
+        if OUTSIDE.search(line)
+    ]
     assert not hits, "\n".join(hits)
 
 

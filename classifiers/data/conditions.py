@@ -107,6 +107,8 @@ def get_conditions(name: str | Conditions, **overrides) -> Conditions:
         raise ValueError(f"conditions: expected one of {sorted(_PRESETS)} or a Conditions, got {name!r}")
     unknown = sorted(set(overrides) - set(Conditions.__dataclass_fields__))
     if unknown:
-        raise ValueError(f"conditions: unknown field(s) {unknown}; expected some of {list(Conditions.__dataclass_fields__)}")
+        raise ValueError(
+            f"conditions: unknown field(s) {unknown}; expected some of {list(Conditions.__dataclass_fields__)}"
+        )
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
     return replace(base, **overrides) if overrides else base

@@ -49,14 +49,20 @@ class ImageFolder:
                 folders[d.name] = files
         loose = _images(self.root)
         if folders and loose:
-            raise ValueError(f"root: {str(self.root)!r} holds both <class>/ folders and loose images; "
-                             "expected one layout (class folders, or a flat folder of frames)")
+            raise ValueError(
+                f"root: {str(self.root)!r} holds both <class>/ folders and loose images; "
+                "expected one layout (class folders, or a flat folder of frames)"
+            )
         if not folders and not loose:
-            raise ValueError(f"root: {str(self.root)!r} has no images ({'/'.join(_EXTENSIONS)}), "
-                             "neither in <class>/ folders nor directly in it")
+            raise ValueError(
+                f"root: {str(self.root)!r} has no images ({'/'.join(_EXTENSIONS)}), "
+                "neither in <class>/ folders nor directly in it"
+            )
         self.labelled = bool(folders)
         self.classes = list(folders)
-        self.samples = [(f, k) for k, name in enumerate(self.classes) for f in folders[name]] or [(f, -1) for f in loose]
+        self.samples = [(f, k) for k, name in enumerate(self.classes) for f in folders[name]] or [
+            (f, -1) for f in loose
+        ]
 
     def __len__(self) -> int:
         return len(self.samples)

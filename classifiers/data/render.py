@@ -137,16 +137,25 @@ def _background(cond: Conditions, rng: np.random.Generator, shape: tuple[int, in
 
 def _sample_pose(cond: Conditions, rng: np.random.Generator) -> Pose:
     return Pose(
-        _u(rng, cond.scale), _u(rng, cond.yaw), _u(rng, cond.pitch), _u(rng, cond.roll),
-        _u(rng, cond.offset), _u(rng, cond.offset),
+        _u(rng, cond.scale),
+        _u(rng, cond.yaw),
+        _u(rng, cond.pitch),
+        _u(rng, cond.roll),
+        _u(rng, cond.offset),
+        _u(rng, cond.offset),
     )
 
 
 def _sample_look(cond: Conditions, rng: np.random.Generator) -> Look:
     cast = tuple(float(c) for c in 1 + rng.uniform(-cond.cast, cond.cast, size=3))
     return Look(
-        _u(rng, cond.gain), cast, float(rng.uniform(0, 2 * np.pi)), float(rng.uniform(0, cond.shading)),
-        _u(rng, cond.blur), float(rng.uniform(0, 180)), _u(rng, cond.noise),
+        _u(rng, cond.gain),
+        cast,
+        float(rng.uniform(0, 2 * np.pi)),
+        float(rng.uniform(0, cond.shading)),
+        _u(rng, cond.blur),
+        float(rng.uniform(0, 180)),
+        _u(rng, cond.noise),
     )
 
 
@@ -159,9 +168,7 @@ def _motion_kernel(length: float, angle: float) -> np.ndarray:
     return k / k.sum()
 
 
-def render_frame(
-    name: str, pose: Pose, look: Look, background: np.ndarray, rng: np.random.Generator
-) -> np.ndarray:
+def render_frame(name: str, pose: Pose, look: Look, background: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One uint8 BGR frame of class ``name`` over ``background`` (float32 ``(H, W, 3)``).
 
     ``rng`` draws the sensor noise only.
@@ -186,7 +193,11 @@ def render_frame(
 
 
 def render_images(
-    name: str, n: int, conditions: str | Conditions = "training", seed: int = 0, start: int = 0,
+    name: str,
+    n: int,
+    conditions: str | Conditions = "training",
+    seed: int = 0,
+    start: int = 0,
     shape: tuple[int, int] = FRAME_SHAPE,
 ) -> np.ndarray:
     """``n`` independent snapshots ``(n, H, W, 3)`` uint8 BGR of class ``name``.
@@ -213,7 +224,11 @@ def _smooth_path(rng: np.random.Generator, lo: float, hi: float, t: np.ndarray) 
 
 
 def render_sequence(
-    name: str, n_frames: int, conditions: str | Conditions = "mission", seed: int = 0, index: int = 0,
+    name: str,
+    n_frames: int,
+    conditions: str | Conditions = "mission",
+    seed: int = 0,
+    index: int = 0,
     shape: tuple[int, int] = FRAME_SHAPE,
 ) -> np.ndarray:
     """Frames ``(n_frames, H, W, 3)`` uint8 BGR of one object seen from a camera moving along a path.
@@ -254,8 +269,12 @@ def render_sequence(
 
 
 def write_image_folder(
-    root: str | os.PathLike, classes: Sequence[str], n_per_class: int = 10,
-    conditions: str | Conditions = "training", seed: int = 0, shape: tuple[int, int] = FRAME_SHAPE,
+    root: str | os.PathLike,
+    classes: Sequence[str],
+    n_per_class: int = 10,
+    conditions: str | Conditions = "training",
+    seed: int = 0,
+    shape: tuple[int, int] = FRAME_SHAPE,
 ) -> Path:
     """Render ``n_per_class`` snapshots per class into ``root/<class>/<class>_<i>.png``; returns ``root``."""
     root = Path(root)

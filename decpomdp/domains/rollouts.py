@@ -45,8 +45,12 @@ class _Recorder(DecPOSMDP):
 
 
 def rollout_counters(
-    env: DecPOSMDP, controller: JointController, rollouts: int, generator: torch.Generator,
-    keys: tuple[str, ...] | None = None, backend: str | None = None,
+    env: DecPOSMDP,
+    controller: JointController,
+    rollouts: int,
+    generator: torch.Generator,
+    keys: tuple[str, ...] | None = None,
+    backend: str | None = None,
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """Discounted returns (K, R) and each counter's final value per rollout, {key: (K, R)}.
 

@@ -53,8 +53,14 @@ class TransitionOperator:
             crow = torch.as_tensor(t.indptr[a * n_s : (a + 1) * n_s + 1] - lo)
             with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
                 warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-                csr = torch.sparse_csr_tensor(crow, torch.as_tensor(t.indices[lo:hi]), torch.as_tensor(t.data[lo:hi]),
-                                              size=(n_s, n_s), dtype=torch.float64, check_invariants=True)
+                csr = torch.sparse_csr_tensor(
+                    crow,
+                    torch.as_tensor(t.indices[lo:hi]),
+                    torch.as_tensor(t.data[lo:hi]),
+                    size=(n_s, n_s),
+                    dtype=torch.float64,
+                    check_invariants=True,
+                )
             self.matrices.append((csr.to_dense() if hi - lo >= DENSE_FRACTION * n_s * n_s else csr).to(self.device))
         self.obs_rows = env.observation.permute(0, 2, 1).reshape(-1, n_s).contiguous().to(self.device)
         self.reward = env.expected_reward.to(self.device)
@@ -116,8 +122,9 @@ class JointNodes:
     Every index table lives on ``device`` (default: the controller's); ids passed to :meth:`columns` must too.
     """
 
-    def __init__(self, env: TabularDecPOSMDP, controller: JointController, device: torch.device | str | None = None
-                 ) -> None:
+    def __init__(
+        self, env: TabularDecPOSMDP, controller: JointController, device: torch.device | str | None = None
+    ) -> None:
         _, a, nn = controller.action.shape
         self.device = controller.action.device if device is None else torch.device(device)
         self.num_nodes, self.num_joint = nn, nn**a

@@ -29,9 +29,14 @@ def tree_size(env: TabularDecPOSMDP, horizon: int, others_nodes: int) -> int:
     return sum(branch**t for t in range(int(horizon))) * others_nodes * env.num_states
 
 
-def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int, horizon: int | None = None,
-                  max_entries: int = DEFAULT_MAX_ENTRIES, tabs: Tables | None = None
-                  ) -> tuple[JointController, float] | None:
+def best_response(
+    env: TabularDecPOSMDP,
+    controller: JointController,
+    agent: int,
+    horizon: int | None = None,
+    max_entries: int = DEFAULT_MAX_ENTRIES,
+    tabs: Tables | None = None,
+) -> tuple[JointController, float] | None:
     """Agent ``agent``'s best response to the others' controllers in ``controller`` (K = 1).
 
     Returns ``(joint controller, its exact value)``, or ``None`` when the belief tree exceeds ``max_entries``.
@@ -54,8 +59,8 @@ def best_response(env: TabularDecPOSMDP, controller: JointController, agent: int
     for k, q in enumerate(q_tuples):
         base = sum(a_stride[j] * act[j, node] for j, node in zip(others, q))
         ja[:, k] = base + a_stride[agent] * np.arange(n_act)
-    jo_own = np.zeros(n_obs ** n_agents, dtype=np.int64)
-    q_next = np.zeros((n_q, n_obs ** n_agents), dtype=np.int64)
+    jo_own = np.zeros(n_obs**n_agents, dtype=np.int64)
+    q_next = np.zeros((n_q, n_obs**n_agents), dtype=np.int64)
     for jo, parts in enumerate(itertools.product(range(n_obs), repeat=n_agents)):
         jo_own[jo] = parts[agent]
         for k, q in enumerate(q_tuples):
@@ -129,8 +134,14 @@ def _joint(controller: JointController, agent: int, tree: tuple[np.ndarray, np.n
     return JointController(old_a, old_n, controller.action_names, controller.obs_names)
 
 
-def jesp(env: TabularDecPOSMDP, controller: JointController, value: float, horizon: int | None = None,
-         max_entries: int = DEFAULT_MAX_ENTRIES, max_rounds: int = 20) -> tuple[JointController, float, int]:
+def jesp(
+    env: TabularDecPOSMDP,
+    controller: JointController,
+    value: float,
+    horizon: int | None = None,
+    max_entries: int = DEFAULT_MAX_ENTRIES,
+    max_rounds: int = 20,
+) -> tuple[JointController, float, int]:
     """Alternate exact best responses, agent after agent, from ``controller`` (of exact ``value``) until a
     round improves nothing. Returns (controller, value, best responses accepted)."""
     accepted, tabs = 0, tables(env)

@@ -63,8 +63,9 @@ def tables(env: TabularDecPOSMDP) -> Tables:
     t = env.model.transition
     n_ja, n_s = t.shape[:2]
     full = sp.csr_matrix((t.data, t.indices, t.indptr), shape=(n_ja * n_s, n_s))
-    return Tables([full[ja * n_s:(ja + 1) * n_s] for ja in range(n_ja)], env.expected_reward.numpy(),
-                  env.observation.numpy())
+    return Tables(
+        [full[ja * n_s : (ja + 1) * n_s] for ja in range(n_ja)], env.expected_reward.numpy(), env.observation.numpy()
+    )
 
 
 def _iterate(env: TabularDecPOSMDP, horizon: float, backup, tol: float) -> np.ndarray:
@@ -86,22 +87,26 @@ def _iterate(env: TabularDecPOSMDP, horizon: float, backup, tol: float) -> np.nd
     return q
 
 
-def q_mdp(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10,
-          tabs: Tables | None = None) -> np.ndarray:
+def q_mdp(
+    env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10, tabs: Tables | None = None
+) -> np.ndarray:
     """(JA, S) ``Q`` of the underlying MDP at step 0 (``horizon`` defaults to ``env.horizon``; ``tabs``
     to ``tables(env)``)."""
     trans = (tabs or tables(env)).trans
-    return _iterate(env, env.horizon if horizon is None else horizon,
-                    lambda q: np.stack([tr @ q.max(0) for tr in trans]), tol)
+    return _iterate(
+        env, env.horizon if horizon is None else horizon, lambda q: np.stack([tr @ q.max(0) for tr in trans]), tol
+    )
 
 
-def q_fib(env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10,
-          tabs: Tables | None = None) -> np.ndarray:
+def q_fib(
+    env: TabularDecPOSMDP, horizon: float | None = None, tol: float = 1e-10, tabs: Tables | None = None
+) -> np.ndarray:
     """(JA, S) fast informed bound ``Q`` at step 0: every policy's value from a belief ``b`` is at most
     ``max_ja b . Q[ja]`` (``horizon`` defaults to ``env.horizon``; ``tabs`` to ``tables(env)``)."""
     tabs = tabs or tables(env)
-    return _iterate(env, env.horizon if horizon is None else horizon, lambda q: _fib_backup(tabs.trans, tabs.obs, q),
-                    tol)
+    return _iterate(
+        env, env.horizon if horizon is None else horizon, lambda q: _fib_backup(tabs.trans, tabs.obs, q), tol
+    )
 
 
 def _fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -113,8 +118,12 @@ def _fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> n
     return out
 
 
-def lookahead_bound(env: TabularDecPOSMDP, horizon: float | None = None,
-                    max_entries: int = DEFAULT_MAX_ENTRIES, tabs: Tables | None = None) -> tuple[float, int]:
+def lookahead_bound(
+    env: TabularDecPOSMDP,
+    horizon: float | None = None,
+    max_entries: int = DEFAULT_MAX_ENTRIES,
+    tabs: Tables | None = None,
+) -> tuple[float, int]:
     """(bound, depth): the centralised POMDP's exact value over its belief tree ``depth`` steps deep, with
     the FIB of the remaining steps at the leaves.
 

@@ -111,7 +111,9 @@ class _Transitions:
     def _record_entries(self, base: np.ndarray) -> list[np.ndarray]:
         """[row, col, value, seq] of every entry that the row writes still in force put in their rows."""
         n_s = self.n_s
-        parts: list[tuple[np.ndarray, ...]] = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))]
+        parts: list[tuple[np.ndarray, ...]] = [
+            (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))
+        ]
         for r, (seq, _, _, payload) in enumerate(self.records):
             rows = np.flatnonzero(base == r)
             if rows.size == 0:
@@ -204,8 +206,16 @@ def _t_entry(lines: Lines, lineno: int, fields: list[str], ja: np.ndarray, state
         raise DPOMDPSyntaxError(lineno, "T: expected 'T: ja : s : s2 : p', 'T: ja : s :' + row, or 'T: ja :' + matrix")
 
 
-def _o_entry(lines: Lines, lineno: int, fields: list[str], ja: np.ndarray, state: Index, jo_of: Joint,
-             obs: np.ndarray, o_line: np.ndarray) -> None:
+def _o_entry(
+    lines: Lines,
+    lineno: int,
+    fields: list[str],
+    ja: np.ndarray,
+    state: Index,
+    jo_of: Joint,
+    obs: np.ndarray,
+    o_line: np.ndarray,
+) -> None:
     n_s, n_jo = obs.shape[1:]
     if len(fields) == 4:
         s2, jo = state(fields[1], lineno), jo_of(fields[2], lineno)
@@ -224,11 +234,14 @@ def _o_entry(lines: Lines, lineno: int, fields: list[str], ja: np.ndarray, state
             obs[ja] = probs(mat, ln)
         o_line[ja] = ln
     else:
-        raise DPOMDPSyntaxError(lineno, "O: expected 'O: ja : s2 : jo : p', 'O: ja : s2 :' + row, or 'O: ja :' + matrix")
+        raise DPOMDPSyntaxError(
+            lineno, "O: expected 'O: ja : s2 : jo : p', 'O: ja : s2 :' + row, or 'O: ja :' + matrix"
+        )
 
 
-def _r_entry(lines: Lines, lineno: int, fields: list[str], ja: np.ndarray, state: Index, jo_of: Joint,
-             rewards: _Rewards) -> None:
+def _r_entry(
+    lines: Lines, lineno: int, fields: list[str], ja: np.ndarray, state: Index, jo_of: Joint, rewards: _Rewards
+) -> None:
     n_s, n_jo = rewards.sizes[2:]
     s = state(fields[1], lineno) if len(fields) >= 2 else None
     if len(fields) == 5:
@@ -312,7 +325,13 @@ def parse_entries(lines: Lines, head: dict, check_probabilities: bool, budget: i
         obs /= np.where(np.abs(o_sums - 1.0) > ROUNDING, o_sums, 1.0)
     reward = rewards.build()
     return DPOMDPModel(
-        agent_names=head["agents"], state_names=states, action_names=acts, obs_names=obs_names,
-        discount=head["discount"], start=head["start"], transition=transition, observation=obs,
+        agent_names=head["agents"],
+        state_names=states,
+        action_names=acts,
+        obs_names=obs_names,
+        discount=head["discount"],
+        start=head["start"],
+        transition=transition,
+        observation=obs,
         reward=-reward if head["values"] == "cost" else reward,
     )

@@ -112,8 +112,11 @@ def _dense_solve(op: TransitionOperator, cols: Columns, owner: Tensor, k: int, g
             tgt = local[cols.next[lo:hi, jo]]
             r_idx = (local[lo:hi, None, None] * n_s + arange_s[None, :, None]).expand(-1, n_s, n_s)
             c_idx = (tgt[:, None, None] * n_s + arange_s[None, None, :]).expand(-1, n_s, n_s)
-            m.index_put_((owner[lo:hi, None, None].expand(-1, n_s, n_s), r_idx, c_idx),
-                         block.expand(hi - lo, -1, -1), accumulate=True)
+            m.index_put_(
+                (owner[lo:hi, None, None].expand(-1, n_s, n_s), r_idx, c_idx),
+                block.expand(hi - lo, -1, -1),
+                accumulate=True,
+            )
     lhs = torch.eye(n, dtype=torch.float64, device=dev) - gamma * m
     rhs = torch.zeros(k, n, dtype=torch.float64, device=dev)
     rhs[owner.repeat_interleave(n_s), rows] = op.reward.index_select(0, cols.action).reshape(-1)
@@ -121,8 +124,9 @@ def _dense_solve(op: TransitionOperator, cols: Columns, owner: Tensor, k: int, g
     return sol[owner.repeat_interleave(n_s), rows].view(-1, n_s)
 
 
-def _infinite(op: TransitionOperator, nodes: JointNodes, k: int, gamma: float, start: Tensor, max_dense: int,
-              tol: float) -> Tensor:
+def _infinite(
+    op: TransitionOperator, nodes: JointNodes, k: int, gamma: float, start: Tensor, max_dense: int, tol: float
+) -> Tensor:
     """Discounted infinite-horizon values (K,) over the reachable joint nodes."""
     cols = _reachable(nodes, k)
     owner = cols.ids // nodes.num_joint

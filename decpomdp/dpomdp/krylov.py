@@ -27,8 +27,15 @@ def _max_abs(x: Tensor, owner: Tensor, k: int) -> Tensor:
     return torch.zeros(k, dtype=x.dtype, device=x.device).scatter_reduce_(0, owner, x.abs().amax(1), "amax")
 
 
-def gmres(apply: Callable[[Tensor], Tensor], b: Tensor, owner: Tensor, k: int, tol: float, restart: int = 30,
-          max_restarts: int = 200) -> Tensor:
+def gmres(
+    apply: Callable[[Tensor], Tensor],
+    b: Tensor,
+    owner: Tensor,
+    k: int,
+    tol: float,
+    restart: int = 30,
+    max_restarts: int = 200,
+) -> Tensor:
     """Solve ``A x = b`` for K stacked systems until every residual's max-norm is at most ``tol``.
 
     Args:

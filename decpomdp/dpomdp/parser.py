@@ -63,7 +63,9 @@ def _names(rest: str, lineno: int, what: str, budget: int) -> list[str]:
         return [str(i) for i in range(n)]
     for tok in toks:
         if not IDENT.match(tok):
-            raise DPOMDPSyntaxError(lineno, f"{tok!r} is not a valid {what} name (a letter then alphanumerics, '-', '_')")
+            raise DPOMDPSyntaxError(
+                lineno, f"{tok!r} is not a valid {what} name (a letter then alphanumerics, '-', '_')"
+            )
     if len(set(toks)) != len(toks):
         raise DPOMDPSyntaxError(lineno, f"duplicate {what} names in {toks[:20]}")
     return toks
@@ -103,13 +105,20 @@ def _header(lines: Lines, budget: int) -> dict:
             for a in range(n_agents):
                 ln, text_a = lines.next(f"{what}s of agent {a}")
                 if re.match(r"^\w+\s*:", text_a):  # the next section: fewer lists than agents
-                    raise DPOMDPSyntaxError(ln, f"{key}: expected one list per agent ({n_agents} agents declared by "
-                                                f"'agents:'), found {a} before {text_a.split(':')[0]!r}:")
+                    raise DPOMDPSyntaxError(
+                        ln,
+                        f"{key}: expected one list per agent ({n_agents} agents declared by "
+                        f"'agents:'), found {a} before {text_a.split(':')[0]!r}:",
+                    )
                 out[key].append(_names(text_a, ln, what, budget))
                 n_ja = math.prod(len(x) for x in out["actions"])
                 n_jo = math.prod(len(x) for x in out.get("observations", [[0]]))
-                check_budget(model_bytes(len(out["states"]), n_ja, n_jo), budget, ln,
-                              f"{len(out['states'])} states, {n_ja} joint actions and {n_jo} joint observations")
+                check_budget(
+                    model_bytes(len(out["states"]), n_ja, n_jo),
+                    budget,
+                    ln,
+                    f"{len(out['states'])} states, {n_ja} joint actions and {n_jo} joint observations",
+                )
     return out
 
 
@@ -145,7 +154,9 @@ def _start(lines: Lines, lineno: int, mode: str | None, rest: str, states: list[
     return vec
 
 
-def parse_dpomdp(text: str, check_probabilities: bool = True, memory_budget: int = DEFAULT_MEMORY_BUDGET) -> DPOMDPModel:
+def parse_dpomdp(
+    text: str, check_probabilities: bool = True, memory_budget: int = DEFAULT_MEMORY_BUDGET
+) -> DPOMDPModel:
     """Parse ``.dpomdp`` text.
 
     Args:
@@ -187,8 +198,9 @@ def _read_bytes(path: Path, budget: int) -> bytes:
     return data
 
 
-def load_dpomdp(path: str | os.PathLike, check_probabilities: bool = True,
-                memory_budget: int = DEFAULT_MEMORY_BUDGET) -> DPOMDPModel:
+def load_dpomdp(
+    path: str | os.PathLike, check_probabilities: bool = True, memory_budget: int = DEFAULT_MEMORY_BUDGET
+) -> DPOMDPModel:
     """Read and parse a ``.dpomdp`` or gzipped ``.dpomdp.gz`` file; see :func:`parse_dpomdp`.
 
     Raises:
@@ -205,8 +217,10 @@ def load_dpomdp(path: str | os.PathLike, check_probabilities: bool = True,
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
-        raise DPOMDPSyntaxError(line, f"{path.name}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset "
-                                      f"{exc.start}); is this a binary file?") from None
+        raise DPOMDPSyntaxError(
+            line,
+            f"{path.name}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); is this a binary file?",
+        ) from None
     try:
         return parse_dpomdp(text, check_probabilities, memory_budget)
     except DPOMDPSyntaxError as exc:

@@ -79,13 +79,30 @@ def chunk(args, out, scratch, index, lo, hi):
 ENGINE = EngineDomain(chunk, StateLayout(team=("s",)))
 
 
-def tables(start_dist: np.ndarray, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, o_cum: np.ndarray,
-           reward: np.ndarray, reward_strides: list[int], action_strides: np.ndarray,
-           obs_strides: np.ndarray) -> tuple:
+def tables(
+    start_dist: np.ndarray,
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    data: np.ndarray,
+    o_cum: np.ndarray,
+    reward: np.ndarray,
+    reward_strides: list[int],
+    action_strides: np.ndarray,
+    obs_strides: np.ndarray,
+) -> tuple:
     """The rules' tables, each its own int64 / float64 buffer: start CDF (S,), CSR ``indptr`` (JA * S + 1,) and
     ``indices`` (nnz,), the running sum of the CSR data with a leading 0 (nnz + 1,), observation CDFs
     (JA, S', JO), the flat reward table and its strides over (ja, s, s', jo) (4,), and the action and
     observation strides of the agents (A,)."""
     f64, i64 = (lambda x: np.array(x, dtype=np.float64)), (lambda x: np.array(x, dtype=np.int64))
-    return (np.cumsum(f64(start_dist)), i64(indptr), i64(indices), np.concatenate([[0.0], np.cumsum(f64(data))]),
-            np.ascontiguousarray(f64(o_cum)), f64(reward), i64(reward_strides), i64(action_strides), i64(obs_strides))
+    return (
+        np.cumsum(f64(start_dist)),
+        i64(indptr),
+        i64(indices),
+        np.concatenate([[0.0], np.cumsum(f64(data))]),
+        np.ascontiguousarray(f64(o_cum)),
+        f64(reward),
+        i64(reward_strides),
+        i64(action_strides),
+        i64(obs_strides),
+    )

@@ -66,9 +66,11 @@ class Solution:
 
     def __repr__(self) -> str:
         h = "inf" if math.isinf(self.horizon) else f"{self.horizon:g}"
-        return (f"Solution(value={self.value:.6g}, bound={self.bound:.6g}, gap={self.gap:.3%}, horizon={h}, "
-                f"gamma={self.gamma:g}, nodes={self.controller.num_nodes}, restarts={self.restarts}, "
-                f"seconds={self.seconds:.1f})")
+        return (
+            f"Solution(value={self.value:.6g}, bound={self.bound:.6g}, gap={self.gap:.3%}, horizon={h}, "
+            f"gamma={self.gamma:g}, nodes={self.controller.num_nodes}, restarts={self.restarts}, "
+            f"seconds={self.seconds:.1f})"
+        )
 
 
 def _problem(problem: Any) -> DPOMDPModel:
@@ -80,8 +82,10 @@ def _problem(problem: Any) -> DPOMDPModel:
         return load_problem(problem)
     if isinstance(problem, (str, os.PathLike)):
         return load_dpomdp(Path(problem))
-    raise TypeError(f"problem: expected a shipped problem's name, a .dpomdp path, a DPOMDPModel or a TabularDecPOSMDP, "
-                    f"got {type(problem).__name__}")
+    raise TypeError(
+        f"problem: expected a shipped problem's name, a .dpomdp path, a DPOMDPModel or a TabularDecPOSMDP, "
+        f"got {type(problem).__name__}"
+    )
 
 
 def solve(
@@ -161,7 +165,9 @@ def solve(
     layered = None
     if finite and layer_width and 1 < env.horizon <= max_layered_horizon:
         size = 1 + layer_width * (int(env.horizon) - 1)
-        layered = config.replace(num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False)
+        layered = config.replace(
+            num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False
+        )
     runs = 0
     while runs < restarts or (budget is not None and time.perf_counter() - start < budget):
         keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
@@ -169,13 +175,33 @@ def solve(
             keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
         runs += 1
     for k in range(jesp_restarts if respond else 0):
-        keep(random_controllers(1, num_agents=env.num_agents, num_nodes=3, num_actions=env.num_actions,
-                                num_obs=env.num_obs, generator=torch_stream(seed, "solve", "jesp", k)))
+        keep(
+            random_controllers(
+                1,
+                num_agents=env.num_agents,
+                num_nodes=3,
+                num_actions=env.num_actions,
+                num_obs=env.num_obs,
+                generator=torch_stream(seed, "solve", "jesp", k),
+            )
+        )
     bounds = upper_bounds(env)
     controller, value = best
     bound = bounds.best
     if value > bound + 1e-9 * max(1.0, abs(bound)):
-        raise RuntimeError(f"the bound {bound!r} lies below the value {value!r} of a controller: a bug in decpomdp.dpomdp.bounds")
+        raise RuntimeError(
+            f"the bound {bound!r} lies below the value {value!r} of a controller: a bug in decpomdp.dpomdp.bounds"
+        )
     gap = max(0.0, bound - value) / abs(bound) if bound else (0.0 if value >= bound else math.inf)
-    return Solution(controller.named(env.action_names, env.obs_names), value, bound, gap, time.perf_counter() - start,
-                    env.horizon, env.gamma, bounds, runs, values)
+    return Solution(
+        controller.named(env.action_names, env.obs_names),
+        value,
+        bound,
+        gap,
+        time.perf_counter() - start,
+        env.horizon,
+        env.gamma,
+        bounds,
+        runs,
+        values,
+    )

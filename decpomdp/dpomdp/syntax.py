@@ -127,11 +127,17 @@ class Joint:
             elif is_index(toks[0]) and int(toks[0]) < self.total:
                 out = np.array([int(toks[0])])
             elif is_index(toks[0]):
-                raise DPOMDPSyntaxError(lineno, f"joint {self.what} index {toks[0]} out of range (there are {self.total})")
+                raise DPOMDPSyntaxError(
+                    lineno, f"joint {self.what} index {toks[0]} out of range (there are {self.total})"
+                )
             else:
-                raise DPOMDPSyntaxError(lineno, f"unknown joint {self.what} {toks[0]!r} (a joint index, '*', or one per agent)")
+                raise DPOMDPSyntaxError(
+                    lineno, f"unknown joint {self.what} {toks[0]!r} (a joint index, '*', or one per agent)"
+                )
         elif len(toks) != len(self.parts):
-            raise DPOMDPSyntaxError(lineno, f"joint {self.what} {spec.strip()!r}: expected 1 or {len(self.parts)} components")
+            raise DPOMDPSyntaxError(
+                lineno, f"joint {self.what} {spec.strip()!r}: expected 1 or {len(self.parts)} components"
+            )
         else:
             out = np.zeros(1, dtype=np.int64)
             for part, tok, stride in zip(self.parts, toks, self.strides):  # first agent most significant
@@ -172,7 +178,9 @@ def matrix_block(lines: Lines, shape: tuple[int, int], lineno: int, what: str) -
     if nxt is not None and nxt[1] in ("uniform", "identity"):
         ln, word = lines.next(what)
         if word == "identity" and shape[0] != shape[1]:
-            raise DPOMDPSyntaxError(ln, f"{what}: 'identity' needs a square matrix, this one is {shape[0]} x {shape[1]}")
+            raise DPOMDPSyntaxError(
+                ln, f"{what}: 'identity' needs a square matrix, this one is {shape[0]} x {shape[1]}"
+            )
         return word, ln
     values, ln = read_numbers(lines, shape[0] * shape[1], lineno, what)
     return values.reshape(shape), ln

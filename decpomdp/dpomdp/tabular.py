@@ -85,6 +85,7 @@ class TabularDecPOSMDP(DecPOSMDP):
         self.gamma, self.horizon = gamma, float(horizon)
         self.action_names = list(model.action_names[0])
         self.obs_names = list(model.obs_names[0])
+
         def f64(x):
             return torch.as_tensor(np.asarray(x, dtype=np.float64))
 
@@ -110,8 +111,17 @@ class TabularDecPOSMDP(DecPOSMDP):
 
     def _on(self, device: torch.device) -> dict[str, Tensor]:
         """The sampling tables on ``device`` (the tables themselves on the CPU, copies made once elsewhere)."""
-        names = ("_start_cum", "_o_cum", "_t_indptr", "_t_indices", "_t_cum", "_t_cum0", "_reward",
-                 "action_strides", "obs_strides")
+        names = (
+            "_start_cum",
+            "_o_cum",
+            "_t_indptr",
+            "_t_indices",
+            "_t_cum",
+            "_t_cum0",
+            "_reward",
+            "action_strides",
+            "obs_strides",
+        )
         if device.type == "cpu":
             return {n: getattr(self, n) for n in names}
         if device not in self._placed:
@@ -119,7 +129,9 @@ class TabularDecPOSMDP(DecPOSMDP):
         return self._placed[device]
 
     @classmethod
-    def from_file(cls, path: str | os.PathLike, gamma: float | None = None, horizon: float = math.inf) -> TabularDecPOSMDP:
+    def from_file(
+        cls, path: str | os.PathLike, gamma: float | None = None, horizon: float = math.inf
+    ) -> TabularDecPOSMDP:
         """Load a ``.dpomdp`` or ``.dpomdp.gz`` file."""
         return cls(load_dpomdp(path), gamma, horizon)
 
@@ -133,9 +145,17 @@ class TabularDecPOSMDP(DecPOSMDP):
         if not math.isfinite(self.horizon):
             return None
         t = self.model.transition
-        tab = rules.tables(self.start_dist.numpy(), t.indptr, t.indices, t.data, self._o_cum.numpy(),
-                           self._reward.numpy(), self._reward_strides, self.action_strides.numpy(),
-                           self.obs_strides.numpy())
+        tab = rules.tables(
+            self.start_dist.numpy(),
+            t.indptr,
+            t.indices,
+            t.data,
+            self._o_cum.numpy(),
+            self._reward.numpy(),
+            self._reward_strides,
+            self.action_strides.numpy(),
+            self.obs_strides.numpy(),
+        )
         return EngineModel(rules.ENGINE, np.array([self.gamma]), tab, no_perception())
 
     def joint_action(self, actions: Tensor) -> Tensor:

@@ -74,8 +74,10 @@ def controller_text(controller: JointController, index: int = 0) -> str:
     action, nxt = controller.action[index], controller.next_node[index]
     act = controller.action_names or [str(a) for a in range(int(action.max()) + 1)]
     obs = controller.obs_names or [str(o) for o in range(nxt.shape[-1])]
-    out = [f"# joint controller: {controller.num_agents} agents, {controller.num_nodes} nodes each; node 0 starts",
-           "# node : action : next node after " + " ".join(obs)]
+    out = [
+        f"# joint controller: {controller.num_agents} agents, {controller.num_nodes} nodes each; node 0 starts",
+        "# node : action : next node after " + " ".join(obs),
+    ]
     for agent in range(controller.num_agents):
         out.append(f"agent {agent}")
         for node in range(controller.num_nodes):

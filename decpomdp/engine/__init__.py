@@ -20,6 +20,18 @@ from infra.counter_random import below, draw_seed, normal, uniform  # noqa: E402
 from decpomdp.engine.simulate import EngineRun, engine_model, run  # noqa: E402
 
 __all__ = [
-    "EngineDomain", "EngineModel", "EngineRun", "OutcomeTable", "StateLayout", "below", "draw_seed", "engine_model",
-    "no_perception", "normal", "outcome_table", "run", "sample_outcome", "uniform",
+    "EngineDomain",
+    "EngineModel",
+    "EngineRun",
+    "OutcomeTable",
+    "StateLayout",
+    "below",
+    "draw_seed",
+    "engine_model",
+    "no_perception",
+    "normal",
+    "outcome_table",
+    "run",
+    "sample_outcome",
+    "uniform",
 ]

@@ -25,7 +25,10 @@ def cache_dir() -> Path:
     name = f"numba-{h.hexdigest()[:16]}"
     user = os.environ.get("NUMBA_CACHE_DIR")
     xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    for base in ([user] if user else []) + [os.path.join(xdg, "hbni-pyro"), os.path.join(tempfile.gettempdir(), "hbni-pyro")]:
+    for base in ([user] if user else []) + [
+        os.path.join(xdg, "hbni-pyro"),
+        os.path.join(tempfile.gettempdir(), "hbni-pyro"),
+    ]:
         path = Path(base) / name
         try:
             path.mkdir(parents=True, exist_ok=True)

@@ -101,8 +101,23 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
             ``next_node`` int64 (K, A, Nn, O); ``init_int``/``init_float`` a state every rollout starts from
             instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
     """
-    (params, tables, perception, action, next_node, first_controller, rollouts, seed, horizon, log_gamma,
-     counter_slots, track_visits, init_int, init_float, keep_state) = args
+    (
+        params,
+        tables,
+        perception,
+        action,
+        next_node,
+        first_controller,
+        rollouts,
+        seed,
+        horizon,
+        log_gamma,
+        counter_slots,
+        track_visits,
+        init_int,
+        init_float,
+        keep_state,
+    ) = args
     a_count, n_obs = action.shape[1], next_node.shape[3]
     si, sf, node, act, end, obs, agents, rng = scratch
     use_init = init_int.shape[0] > 0

@@ -38,8 +38,10 @@ def outcome_table(perception: Any) -> OutcomeTable | None:
     probs, label, frames = (np.ascontiguousarray(np.asarray(x)) for x in outcomes())
     c = int(perception.num_classes)
     if probs.ndim != 2 or probs.shape[0] != c or label.shape != probs.shape or frames.shape != probs.shape:
-        raise ValueError(f"perception.outcomes(): expected three ({c}, K) arrays, got shapes "
-                         f"{probs.shape}, {label.shape}, {frames.shape}")
+        raise ValueError(
+            f"perception.outcomes(): expected three ({c}, K) arrays, got shapes "
+            f"{probs.shape}, {label.shape}, {frames.shape}"
+        )
     probs = probs.astype(np.float64)
     if not np.isfinite(probs).all() or (probs < 0).any() or np.abs(probs.sum(1) - 1.0).max() > 1e-9:
         raise ValueError("perception.outcomes(): each class's probabilities must be finite, >= 0 and sum to 1")

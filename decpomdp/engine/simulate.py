@@ -57,8 +57,9 @@ def _executor(threads: int) -> ThreadPoolExecutor:
     return _pool[1]
 
 
-def _initial(initial_state: dict[str, float] | None, int_names: tuple[str, ...],
-             float_names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+def _initial(
+    initial_state: dict[str, float] | None, int_names: tuple[str, ...], float_names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
     """The state vectors every rollout starts from (empty: the domain's reset)."""
     if initial_state is None:
         return _EMPTY_INT, _EMPTY_FLOAT
@@ -67,15 +68,24 @@ def _initial(initial_state: dict[str, float] | None, int_names: tuple[str, ...],
         raise ValueError(f"initial_state: {unknown} are not entries of the state {int_names + float_names}")
     if not int_names:
         raise ValueError("initial_state: the domain's int state is empty; nothing to start from")
-    return (np.array([int(initial_state.get(n, 0)) for n in int_names], dtype=np.int64),
-            np.array([float(initial_state.get(n, 0.0)) for n in float_names], dtype=np.float64))
+    return (
+        np.array([int(initial_state.get(n, 0)) for n in int_names], dtype=np.int64),
+        np.array([float(initial_state.get(n, 0.0)) for n in float_names], dtype=np.float64),
+    )
 
 
 def _scratch(num_int: int, num_float: int, num_agents: int) -> loop.Scratch:
     """Fresh working arrays for one chunk."""
-    return loop.Scratch(np.zeros(num_int, dtype=np.int64), np.zeros(num_float), np.zeros(num_agents, dtype=np.int64),
-                        np.zeros(num_agents, dtype=np.int64), np.zeros(num_agents), np.zeros(num_agents, dtype=np.int64),
-                        np.ones(num_agents, dtype=bool), np.zeros(1, dtype=np.uint64))
+    return loop.Scratch(
+        np.zeros(num_int, dtype=np.int64),
+        np.zeros(num_float),
+        np.zeros(num_agents, dtype=np.int64),
+        np.zeros(num_agents, dtype=np.int64),
+        np.zeros(num_agents),
+        np.zeros(num_agents, dtype=np.int64),
+        np.ones(num_agents, dtype=bool),
+        np.zeros(1, dtype=np.uint64),
+    )
 
 
 def _arrays(value: Any) -> list[np.ndarray]:
@@ -90,13 +100,22 @@ def _check_distinct(*values: Any) -> None:
     """Chunk functions declare their array arguments free of aliases: refuse two that share memory."""
     arrays = [a for a in _arrays(values) if a.size]
     for i, a in enumerate(arrays):
-        for b in arrays[i + 1:]:
+        for b in arrays[i + 1 :]:
             if np.may_share_memory(a, b):
                 raise ValueError("env.engine_model(): two of its arrays share memory; give each table its own copy")
 
 
-def run(env: Any, controller: JointController, rollouts: int, seed: int, *, first_controller: int = 0,
-        visits: bool = False, initial_state: dict[str, float] | None = None, keep_state: bool = False) -> EngineRun:
+def run(
+    env: Any,
+    controller: JointController,
+    rollouts: int,
+    seed: int,
+    *,
+    first_controller: int = 0,
+    visits: bool = False,
+    initial_state: dict[str, float] | None = None,
+    keep_state: bool = False,
+) -> EngineRun:
     """Simulate ``rollouts`` rollouts of each of the K controllers on the engine, on
     :func:`infra.threads.worker_threads` threads.
 
@@ -118,20 +137,48 @@ def run(env: Any, controller: JointController, rollouts: int, seed: int, *, firs
     slots = np.array([int_names.index(c) for c in domain.counters], dtype=np.int64)
     action = np.ascontiguousarray(controller.action.numpy(), dtype=np.int64)
     next_node = np.ascontiguousarray(controller.next_node.numpy(), dtype=np.int64)
-    args = (model.params, model.tables, tuple(model.perception), action, next_node, np.int64(first_controller),
-            np.int64(rollouts), np.uint64(seed % 2**64), float(env.horizon), math.log(float(env.gamma)), slots, visits,
-            init_int, init_float, keep_state)
+    args = (
+        model.params,
+        model.tables,
+        tuple(model.perception),
+        action,
+        next_node,
+        np.int64(first_controller),
+        np.int64(rollouts),
+        np.uint64(seed % 2**64),
+        float(env.horizon),
+        math.log(float(env.gamma)),
+        slots,
+        visits,
+        init_int,
+        init_float,
+        keep_state,
+    )
     batch = controller.num_controllers * rollouts
     threads = worker_threads()
     chunks = max(1, min(16 * threads, batch // _MIN_CHUNK))  # many small chunks balance uneven rollouts
     kept = batch if keep_state else 0
     seen_shape = (chunks, a_count, controller.num_nodes, controller.num_obs) if visits else (chunks, 1, 1, 1)
-    out = loop.Outputs(np.zeros(batch), np.zeros((batch, len(slots)), dtype=np.int64), np.zeros(seen_shape),
-                       np.zeros((kept, len(int_names)), dtype=np.int64), np.zeros((kept, len(float_names))),
-                       np.zeros(chunks, dtype=np.int64))
+    out = loop.Outputs(
+        np.zeros(batch),
+        np.zeros((batch, len(slots)), dtype=np.int64),
+        np.zeros(seen_shape),
+        np.zeros((kept, len(int_names)), dtype=np.int64),
+        np.zeros((kept, len(float_names))),
+        np.zeros(chunks, dtype=np.int64),
+    )
     _check_distinct(args, out)
-    jobs = [(args, out, _scratch(len(int_names), len(float_names), a_count), c, c * batch // chunks,
-             (c + 1) * batch // chunks) for c in range(chunks)]
+    jobs = [
+        (
+            args,
+            out,
+            _scratch(len(int_names), len(float_names), a_count),
+            c,
+            c * batch // chunks,
+            (c + 1) * batch // chunks,
+        )
+        for c in range(chunks)
+    ]
     if chunks == 1 or threads == 1:
         for job in jobs:
             domain.chunk(*job)

@@ -10,5 +10,13 @@ from decpomdp.search.config import PlannerConfig, gdice_config
 from decpomdp.search.planner import PlannerResult, plan
 from decpomdp.search.scoring import ExactScorer, RolloutScorer, Scorer, mean_stderr
 
-__all__ = ["ExactScorer", "PlannerConfig", "PlannerResult", "RolloutScorer", "Scorer", "gdice_config", "mean_stderr",
-           "plan"]
+__all__ = [
+    "ExactScorer",
+    "PlannerConfig",
+    "PlannerResult",
+    "RolloutScorer",
+    "Scorer",
+    "gdice_config",
+    "mean_stderr",
+    "plan",
+]

@@ -108,10 +108,25 @@ class PlannerConfig:
         if not phases or any(p not in PHASES for p in phases):
             raise ValueError(f"phases: expected a non-empty sequence of {PHASES}, got {self.phases!r}")
         object.__setattr__(self, "phases", phases)
-        for name, low in (("budget", 1), ("patience", 1), ("cycles", 0), ("num_nodes", 1), ("start_nodes", 1), ("grow_nodes", 0),
-                          ("ce_iterations", 1), ("ce_samples", 1), ("ce_screen_rollouts", 0), ("ce_rollouts", 2),
-                          ("ce_elites", 1), ("ce_memory", 0), ("ls_chain", 0), ("ls_candidates", 1),
-                          ("ls_patience", 1), ("duel_rollouts", 2), ("visit_rollouts", 1)):
+        for name, low in (
+            ("budget", 1),
+            ("patience", 1),
+            ("cycles", 0),
+            ("num_nodes", 1),
+            ("start_nodes", 1),
+            ("grow_nodes", 0),
+            ("ce_iterations", 1),
+            ("ce_samples", 1),
+            ("ce_screen_rollouts", 0),
+            ("ce_rollouts", 2),
+            ("ce_elites", 1),
+            ("ce_memory", 0),
+            ("ls_chain", 0),
+            ("ls_candidates", 1),
+            ("ls_patience", 1),
+            ("duel_rollouts", 2),
+            ("visit_rollouts", 1),
+        ):
             object.__setattr__(self, name, as_int(name, getattr(self, name), low))
         if self.ce_screen_rollouts == 1:
             raise ValueError("ce_screen_rollouts: expected 0 (no screening) or >= 2 (a standard error needs two)")
@@ -132,11 +147,15 @@ class PlannerConfig:
         if self.layer_width is not None:
             w = as_int("layer_width", self.layer_width, 1)
             if self.num_nodes < 1 + w or (self.num_nodes - 1) % w:
-                raise ValueError(f"layer_width: expected W with num_nodes = 1 + W * k (k >= 1), got W = {w} "
-                                 f"for num_nodes = {self.num_nodes}")
+                raise ValueError(
+                    f"layer_width: expected W with num_nodes = 1 + W * k (k >= 1), got W = {w} "
+                    f"for num_nodes = {self.num_nodes}"
+                )
             if "ls" in self.phases or self.ce_reactive or self.start_nodes != self.num_nodes:
-                raise ValueError("layer_width: a layered graph is searched by cross-entropy phases alone, over all "
-                                 "num_nodes nodes (phases=['ce'], ce_reactive=false, start_nodes=num_nodes)")
+                raise ValueError(
+                    "layer_width: a layered graph is searched by cross-entropy phases alone, over all "
+                    "num_nodes nodes (phases=['ce'], ce_reactive=false, start_nodes=num_nodes)"
+                )
             object.__setattr__(self, "layer_width", w)
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
@@ -179,9 +198,24 @@ def gdice_config(**overrides) -> PlannerConfig:
     controllers each scored on ``ce_rollouts`` (80) rollouts with no racing, the best ``ce_elites`` (N_b = 10)
     above the previous worst elite updating with learning rate ``ce_alpha`` (0.1), no memory, no local search,
     and the best controller ever sampled as the result. ``overrides`` change any setting."""
-    paper = dict(phases=("ce",), cycles=1, budget=2**62, num_nodes=13, start_nodes=13, grow_nodes=0, ce_iterations=100,
-                 ce_samples=100, ce_screen_rollouts=0, ce_rollouts=80, ce_elites=10, ce_memory=0, ce_alpha=0.1,
-                 ce_init_weight=0.0, ce_threshold="paper", ce_result="best_sampled")
+    paper = dict(
+        phases=("ce",),
+        cycles=1,
+        budget=2**62,
+        num_nodes=13,
+        start_nodes=13,
+        grow_nodes=0,
+        ce_iterations=100,
+        ce_samples=100,
+        ce_screen_rollouts=0,
+        ce_rollouts=80,
+        ce_elites=10,
+        ce_memory=0,
+        ce_alpha=0.1,
+        ce_init_weight=0.0,
+        ce_threshold="paper",
+        ce_result="best_sampled",
+    )
     paper.update(overrides)
     if "start_nodes" not in overrides:  # the paper's graph has num_nodes nodes from the start
         paper["start_nodes"] = paper["num_nodes"]
@@ -201,8 +235,12 @@ def _stages(value: object) -> tuple[tuple[int, float], ...]:
         pair = _sequence(f"ls_stages[{i}]", stage)
         if len(pair) != 2:
             raise ValueError(f"ls_stages[{i}]: expected a pair (rollouts, keep), got {stage!r}")
-        stages.append((as_int(f"ls_stages[{i}].rollouts", pair[0], 2),
-                       as_float(f"ls_stages[{i}].keep", pair[1], 0, low_open=True)))
+        stages.append(
+            (
+                as_int(f"ls_stages[{i}].rollouts", pair[0], 2),
+                as_float(f"ls_stages[{i}].keep", pair[1], 0, low_open=True),
+            )
+        )
     if not stages:
         raise ValueError("ls_stages: expected at least one (rollouts, keep) stage")
     return tuple(stages)

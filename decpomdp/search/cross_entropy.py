@@ -37,13 +37,18 @@ from decpomdp.controller import JointController
 from decpomdp.search.racing import race
 from decpomdp.search.scoring import Scorer
 
-def sample_controllers(action_probs: Tensor, next_probs: Tensor, count: int, generator: torch.Generator) -> JointController:
+
+def sample_controllers(
+    action_probs: Tensor, next_probs: Tensor, count: int, generator: torch.Generator
+) -> JointController:
     """Draw ``count`` joint controllers from the node distributions (A, Nn, |MA|) and (A, Nn, O, Nn)."""
     a, nn, m = action_probs.shape
     o = next_probs.shape[2]
     act = torch.multinomial(action_probs.reshape(-1, m), count, replacement=True, generator=generator)
     nxt = torch.multinomial(next_probs.reshape(-1, nn), count, replacement=True, generator=generator)
-    return JointController.trusted(act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous())
+    return JointController.trusted(
+        act.T.reshape(count, a, nn).contiguous(), nxt.T.reshape(count, a, nn, o).contiguous()
+    )
 
 
 def elite_frequencies(values: Tensor, categories: int) -> Tensor:
@@ -126,17 +131,33 @@ class CrossEntropyState:
         """Mix the uniform into collapsed rows (see :class:`Injection`)."""
         for name, uniform in (("action_probs", self.action_uniform), ("next_probs", self.next_uniform)):
             p = getattr(self, name)
-            collapsed = ((normalised_entropy(p, uniform) < injection.threshold) & ((uniform > 0).sum(-1) > 1))[..., None]
+            collapsed = ((normalised_entropy(p, uniform) < injection.threshold) & ((uniform > 0).sum(-1) > 1))[
+                ..., None
+            ]
             setattr(self, name, torch.where(collapsed, (1 - injection.weight) * p + injection.weight * uniform, p))
 
     def entropy(self) -> float:
         """Mean normalised entropy of every row of both distributions."""
-        return float(torch.cat([normalised_entropy(self.action_probs, self.action_uniform).ravel(),
-                                normalised_entropy(self.next_probs, self.next_uniform).ravel()]).mean())
+        return float(
+            torch.cat(
+                [
+                    normalised_entropy(self.action_probs, self.action_uniform).ravel(),
+                    normalised_entropy(self.next_probs, self.next_uniform).ravel(),
+                ]
+            ).mean()
+        )
 
 
-def start_state(incumbent: JointController | None, num_agents: int, num_nodes: int, num_actions: int, num_obs: int,
-                weight: float, reactive: bool = False, mask: Tensor | None = None) -> CrossEntropyState:
+def start_state(
+    incumbent: JointController | None,
+    num_agents: int,
+    num_nodes: int,
+    num_actions: int,
+    num_obs: int,
+    weight: float,
+    reactive: bool = False,
+    mask: Tensor | None = None,
+) -> CrossEntropyState:
     """Uniform distributions (next nodes restricted to ``mask``, bool (Nn, Nn)), mixed with ``weight`` of the
     incumbent's one-hot tables (K = 1, <= Nn nodes); ``reactive``: tied edges (no incumbent, or a reactive one,
     :func:`is_reactive`)."""
@@ -149,21 +170,25 @@ def start_state(incumbent: JointController | None, num_agents: int, num_nodes: i
         uniform_next = torch.full((num_agents, num_obs, num_nodes), 1.0 / num_nodes, dtype=torch.float64)
         nxt = uniform_next
         if incumbent is not None and weight > 0:
-            nxt = (1 - weight) * nxt + weight * torch.nn.functional.one_hot(incumbent.next_node[0, :, 0],
-                                                                           num_nodes).to(torch.float64)
+            nxt = (1 - weight) * nxt + weight * torch.nn.functional.one_hot(incumbent.next_node[0, :, 0], num_nodes).to(
+                torch.float64
+            )
     else:
         allowed = torch.ones(num_nodes, num_nodes, dtype=torch.float64) if mask is None else mask.to(torch.float64)
         uniform_next = (allowed / allowed.sum(-1, keepdim=True))[None, :, None, :].expand(
-            num_agents, num_nodes, num_obs, num_nodes)
+            num_agents, num_nodes, num_obs, num_nodes
+        )
         nxt = uniform_next.clone()
         if incumbent is not None and weight > 0:
-            nxt[:, :incumbent.num_nodes] = (1 - weight) * nxt[:, :incumbent.num_nodes] + weight * (
-                torch.nn.functional.one_hot(incumbent.next_node[0], num_nodes).to(torch.float64))
+            nxt[:, : incumbent.num_nodes] = (1 - weight) * nxt[:, : incumbent.num_nodes] + weight * (
+                torch.nn.functional.one_hot(incumbent.next_node[0], num_nodes).to(torch.float64)
+            )
     uniform_action = action.clone()
     if incumbent is not None and weight > 0:
         n = incumbent.num_nodes
         action[:, :n] = (1 - weight) * action[:, :n] + weight * torch.nn.functional.one_hot(
-            incumbent.action[0], num_actions).to(torch.float64)
+            incumbent.action[0], num_actions
+        ).to(torch.float64)
     return CrossEntropyState(action, nxt, uniform_action, uniform_next.clone())
 
 
@@ -172,9 +197,21 @@ def is_reactive(controller: JointController) -> bool:
     return bool((controller.next_node == controller.next_node[:, :, :1]).all())
 
 
-def iterate(state: CrossEntropyState, scorer: Scorer, generator: torch.Generator, *, samples: int, screen_rollouts: int,
-            screen_keep: float, rollouts: int, elites: int, memory: int, alpha: float, threshold_rule: str = "none",
-            injection: Injection | None = None) -> dict[str, float]:
+def iterate(
+    state: CrossEntropyState,
+    scorer: Scorer,
+    generator: torch.Generator,
+    *,
+    samples: int,
+    screen_rollouts: int,
+    screen_keep: float,
+    rollouts: int,
+    elites: int,
+    memory: int,
+    alpha: float,
+    threshold_rule: str = "none",
+    injection: Injection | None = None,
+) -> dict[str, float]:
     """One iteration (see the module doc), updating ``state`` in place.
 
     Returns:
@@ -202,6 +239,11 @@ def iterate(state: CrossEntropyState, scorer: Scorer, generator: torch.Generator
         state.elites = pool[kept]
     if injection is not None:
         state.inject(injection)
-    return {"best": float(pool_scores[order[0]]), "mean": sample_mean, "kept": float(kept.numel()),
-            "kept_from_memory": float((kept >= alive.numel()).sum()), "threshold": state.threshold,
-            "entropy": state.entropy()}
+    return {
+        "best": float(pool_scores[order[0]]),
+        "mean": sample_mean,
+        "kept": float(kept.numel()),
+        "kept_from_memory": float((kept >= alive.numel()).sum()),
+        "threshold": state.threshold,
+        "entropy": state.entropy(),
+    }

@@ -47,10 +47,24 @@ class StepOutcome:
     neighbourhood: int
 
 
-def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator, *, max_chain: int, max_nodes: int,
-         grow_nodes: int, candidates: int, stages: Sequence[tuple[int, float]], duel_rollouts: int, z: float,
-         edge_rate: float, visit_rollouts: int, team: bool = True, compose: bool = True,
-         copy: bool = False) -> StepOutcome:
+def step(
+    incumbent: JointController,
+    scorer: Scorer,
+    generator: torch.Generator,
+    *,
+    max_chain: int,
+    max_nodes: int,
+    grow_nodes: int,
+    candidates: int,
+    stages: Sequence[tuple[int, float]],
+    duel_rollouts: int,
+    z: float,
+    edge_rate: float,
+    visit_rollouts: int,
+    team: bool = True,
+    compose: bool = True,
+    copy: bool = False,
+) -> StepOutcome:
     """One step (see the module doc)."""
     visits = scorer.visits(incumbent, visit_rollouts, generator)
     free = int((visits.sum(-1) == 0)[:, 1:].sum(1).min())
@@ -64,7 +78,9 @@ def step(incumbent: JointController, scorer: Scorer, generator: torch.Generator,
     if hood.size <= candidates:
         index = torch.arange(hood.size)
     else:
-        index = torch.cat([torch.arange(hood.num_singles), hood.sample_chains(candidates - hood.num_singles, generator)])
+        index = torch.cat(
+            [torch.arange(hood.num_singles), hood.sample_chains(candidates - hood.num_singles, generator)]
+        )
     alive, _, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
     challengers = hood.build(index[alive])
     merged = composite(incumbent, challengers) if compose else None

@@ -55,8 +55,16 @@ class Neighbourhood:
         size: number of moves.
     """
 
-    def __init__(self, controller: JointController, visits: Tensor, num_actions: int, max_chain: int,
-                 edge_rate: float, team: bool = True, copy: bool = False) -> None:
+    def __init__(
+        self,
+        controller: JointController,
+        visits: Tensor,
+        num_actions: int,
+        max_chain: int,
+        edge_rate: float,
+        team: bool = True,
+        copy: bool = False,
+    ) -> None:
         self.controller, self.m, self.max_chain = controller[0], num_actions, max_chain
         agents = controller.num_agents
         visited = visits.sum(-1) > 0
@@ -68,8 +76,9 @@ class Neighbourhood:
         self.edited = {o: edges[o] if o != _TEAM else edges.any(0) for o in owners}
         self.free = [(~visited[a]).nonzero().squeeze(1) for a in range(agents)]
         self.singles = torch.cat([self._singles(o) for o in owners] + ([self._copies()] if copy else []))
-        self.sites = torch.cat([torch.cat([torch.full((int(self.edited[o].sum()), 1), o), self.edited[o].nonzero()], 1)
-                                for o in owners])
+        self.sites = torch.cat(
+            [torch.cat([torch.full((int(self.edited[o].sum()), 1), o), self.edited[o].nonzero()], 1) for o in owners]
+        )
         rate = torch.cat([(visits[o] if o != _TEAM else visits.sum(0))[self.edited[o]] for o in owners])
         self.site_rate = rate.to(torch.float64)
         lengths = torch.arange(1, max_chain + 1)
@@ -77,7 +86,7 @@ class Neighbourhood:
         for o in owners:
             free = min(len(self.free[a]) for a in self._agents(o))
             exits = int(self.visited[o].sum())
-            per_length[self.sites[:, 0] == o] = num_actions ** lengths * exits * (lengths <= free)
+            per_length[self.sites[:, 0] == o] = num_actions**lengths * exits * (lengths <= free)
         self.per_length = per_length
         self.site_end = per_length.sum(1).cumsum(0)
         self.num_singles = len(self.singles)
@@ -89,8 +98,9 @@ class Neighbourhood:
         that length uniformly (MAs and exit)."""
         if self.size == self.num_singles or count <= 0:
             return torch.zeros(0, dtype=torch.long)
-        site = torch.multinomial(self.site_rate * (self.per_length.sum(1) > 0), count, replacement=True,
-                                 generator=generator)
+        site = torch.multinomial(
+            self.site_rate * (self.per_length.sum(1) > 0), count, replacement=True, generator=generator
+        )
         lengths = self.per_length[site]  # (C, L)
         length = torch.multinomial((lengths > 0).to(torch.float64), 1, generator=generator).squeeze(1)
         size = lengths.gather(1, length[:, None]).squeeze(1)
@@ -114,7 +124,9 @@ class Neighbourhood:
         act, nxt = self.controller.action[0, agents], self.controller.next_node[0, agents]  # (a, Nn), (a, Nn, O)
         node, ma = torch.cartesian_prod(self.visited[owner].nonzero().squeeze(1), torch.arange(self.m)).T
         keep = (act[:, node] != ma).all(0)
-        acts = torch.stack([torch.zeros_like(node), torch.full_like(node, owner), node, torch.full_like(node, -1), ma], 1)
+        acts = torch.stack(
+            [torch.zeros_like(node), torch.full_like(node, owner), node, torch.full_like(node, -1), ma], 1
+        )
         edge = self.edited[owner].nonzero()  # (E, 2)
         targets = self.visited[owner].nonzero().squeeze(1)
         e, y = torch.cartesian_prod(torch.arange(len(edge)), targets).T
@@ -126,8 +138,16 @@ class Neighbourhood:
     def _copies(self) -> Tensor:
         """Copy moves ``(2, b, -1, -1, a)`` for every ordered pair of agents whose graphs differ."""
         ctrl = self.controller
-        pairs = [(b, a) for b in range(ctrl.num_agents) for a in range(ctrl.num_agents) if a != b and not (
-            torch.equal(ctrl.action[0, a], ctrl.action[0, b]) and torch.equal(ctrl.next_node[0, a], ctrl.next_node[0, b]))]
+        pairs = [
+            (b, a)
+            for b in range(ctrl.num_agents)
+            for a in range(ctrl.num_agents)
+            if a != b
+            and not (
+                torch.equal(ctrl.action[0, a], ctrl.action[0, b])
+                and torch.equal(ctrl.next_node[0, a], ctrl.next_node[0, b])
+            )
+        ]
         return torch.tensor([(2, b, -1, -1, a) for b, a in pairs], dtype=torch.long).view(-1, 5)
 
     def build(self, index: Tensor) -> JointController:

@@ -40,8 +40,19 @@ from decpomdp.search.scoring import Scorer
 
 _KIND = "decpomdp.PlannerCheckpoint"
 _VERSION = 1
-HISTORY = ("phase", "rollouts", "nodes", "value", "challenger_value", "accepted", "best_sampled", "mean", "kept",
-           "threshold", "entropy")
+HISTORY = (
+    "phase",
+    "rollouts",
+    "nodes",
+    "value",
+    "challenger_value",
+    "accepted",
+    "best_sampled",
+    "mean",
+    "kept",
+    "threshold",
+    "entropy",
+)
 _COUNTERS = ("cycle_position", "phase_step", "used", "idle_cycles", "gained", "cycles_done")
 
 
@@ -87,9 +98,14 @@ class _Run:
         self.history: dict[str, list[float]] = {k: [] for k in HISTORY}
 
     def record(self, phase: str, value: float, challenger_value: float, accepted: bool, info: dict[str, float]) -> None:
-        for key, value in (("phase", PHASES.index(phase)), ("rollouts", self.used),
-                           ("nodes", 0 if self.incumbent is None else self.incumbent.num_nodes),
-                           ("value", value), ("challenger_value", challenger_value), ("accepted", accepted)):
+        for key, value in (
+            ("phase", PHASES.index(phase)),
+            ("rollouts", self.used),
+            ("nodes", 0 if self.incumbent is None else self.incumbent.num_nodes),
+            ("value", value),
+            ("challenger_value", challenger_value),
+            ("accepted", accepted),
+        ):
             self.history[key].append(float(value))
         for key in HISTORY[6:]:
             self.history[key].append(float(info.get(key, math.nan)))
@@ -99,8 +115,12 @@ class _Run:
         if self.incumbent is not None:
             out.update(incumbent_action=self.incumbent.action, incumbent_next_node=self.incumbent.next_node)
         if self.ce is not None:
-            out.update(ce_action_probs=self.ce.action_probs, ce_next_probs=self.ce.next_probs,
-                       ce_action_uniform=self.ce.action_uniform, ce_next_uniform=self.ce.next_uniform)
+            out.update(
+                ce_action_probs=self.ce.action_probs,
+                ce_next_probs=self.ce.next_probs,
+                ce_action_uniform=self.ce.action_uniform,
+                ce_next_uniform=self.ce.next_uniform,
+            )
             if self.ce.elites is not None:
                 out.update(ce_elites_action=self.ce.elites.action, ce_elites_next_node=self.ce.elites.next_node)
             if self.ce.best is not None:
@@ -112,8 +132,11 @@ class _Run:
     def save(self, path: Path, fingerprint: dict, generator: torch.Generator) -> None:
         finite = lambda x: None if not math.isfinite(x) else x  # noqa: E731
         state = {name: getattr(self, name) for name in _COUNTERS}
-        state.update(value=finite(self.value), stderr=finite(self.stderr),
-                     history={k: [finite(v) for v in values] for k, values in self.history.items()})
+        state.update(
+            value=finite(self.value),
+            stderr=finite(self.stderr),
+            history={k: [finite(v) for v in values] for k, values in self.history.items()},
+        )
         if self.ce is not None:
             state.update(ce_threshold=finite(self.ce.threshold), ce_best_value=finite(self.ce.best_value))
         save_checkpoint(path, _KIND, _VERSION, fingerprint, self.tensors(generator), state)
@@ -122,8 +145,14 @@ class _Run:
     def load(cls, path: Path, fingerprint: dict, config: PlannerConfig, generator: torch.Generator) -> _Run:
         tensors, meta = load_checkpoint(path, _KIND, _VERSION, fingerprint)
         run = cls()
-        limits = {"cycle_position": len(config.phases) - 1, "phase_step": max(config.ce_iterations, config.ls_patience),
-                  "used": 2**63, "idle_cycles": config.patience, "gained": 1, "cycles_done": 2**62}
+        limits = {
+            "cycle_position": len(config.phases) - 1,
+            "phase_step": max(config.ce_iterations, config.ls_patience),
+            "used": 2**63,
+            "idle_cycles": config.patience,
+            "gained": 1,
+            "cycles_done": 2**62,
+        }
         for name in _COUNTERS:
             setattr(run, name, read_count(meta, name, path, limits[name]))
         run.value, run.stderr = (_nan_if_none(read_number(meta, name, path)) for name in ("value", "stderr"))
@@ -135,8 +164,12 @@ class _Run:
             if "incumbent_action" in tensors:
                 run.incumbent = pair("incumbent")
             if "ce_action_probs" in tensors:
-                run.ce = cross_entropy.CrossEntropyState(tensors["ce_action_probs"], tensors["ce_next_probs"],
-                                                         tensors["ce_action_uniform"], tensors["ce_next_uniform"])
+                run.ce = cross_entropy.CrossEntropyState(
+                    tensors["ce_action_probs"],
+                    tensors["ce_next_probs"],
+                    tensors["ce_action_uniform"],
+                    tensors["ce_next_uniform"],
+                )
                 run.ce.elites = pair("ce_elites") if "ce_elites_action" in tensors else None
                 run.ce.best = pair("ce_best") if "ce_best_action" in tensors else None
                 run.ce.threshold = read_number(meta, "ce_threshold", path)
@@ -170,9 +203,11 @@ def _check_init(init: JointController | None, scorer: Scorer, cfg: PlannerConfig
         raise TypeError(f"init: expected a JointController, got {type(init).__name__}")
     k, a, nodes = init.action.shape
     if k != 1 or a != scorer.num_agents or init.num_obs != scorer.num_obs or nodes > max_nodes:
-        raise ValueError(f"init: expected one controller of {scorer.num_agents} agents, at most {max_nodes} nodes "
-                         f"(config.num_nodes) and {scorer.num_obs} observations, got action {tuple(init.action.shape)}, "
-                         f"next_node {tuple(init.next_node.shape)}")
+        raise ValueError(
+            f"init: expected one controller of {scorer.num_agents} agents, at most {max_nodes} nodes "
+            f"(config.num_nodes) and {scorer.num_obs} observations, got action {tuple(init.action.shape)}, "
+            f"next_node {tuple(init.next_node.shape)}"
+        )
     if bool((init.action >= scorer.num_actions).any()):
         raise ValueError(f"init: actions must lie in [0, {scorer.num_actions})")
     mask = cross_entropy.layered_mask(cfg.num_nodes, cfg.layer_width)
@@ -186,8 +221,9 @@ def _nan_if_none(value: float) -> float:
     return math.nan if value == -math.inf else value
 
 
-def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
-             generator: torch.Generator) -> tuple[bool, float, float, bool, dict[str, float]]:
+def _ce_step(
+    run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator
+) -> tuple[bool, float, float, bool, dict[str, float]]:
     """One cross-entropy iteration; at the phase's end its elites duel the incumbent (``ce_result="duel"``), or its
     best sample becomes the incumbent (``"best_sampled"``).
 
@@ -198,16 +234,31 @@ def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
         nodes = cfg.start_nodes if run.incumbent is None else max(cfg.start_nodes, run.incumbent.num_nodes)
         weight = 0.0 if run.incumbent is None else cfg.ce_init_weight
         reactive = cfg.ce_reactive and (run.incumbent is None or cross_entropy.is_reactive(run.incumbent))
-        run.ce = cross_entropy.start_state(run.incumbent, scorer.num_agents, nodes, scorer.num_actions, scorer.num_obs,
-                                           weight, reactive=reactive,
-                                           mask=cross_entropy.layered_mask(nodes, cfg.layer_width))
+        run.ce = cross_entropy.start_state(
+            run.incumbent,
+            scorer.num_agents,
+            nodes,
+            scorer.num_actions,
+            scorer.num_obs,
+            weight,
+            reactive=reactive,
+            mask=cross_entropy.layered_mask(nodes, cfg.layer_width),
+        )
     injecting = cfg.ce_injection_weight > 0 and run.phase_step < cfg.ce_injection_until * cfg.ce_iterations
-    info = cross_entropy.iterate(run.ce, scorer, generator, samples=cfg.ce_samples,
-                                 screen_rollouts=cfg.ce_screen_rollouts, screen_keep=cfg.ce_screen_keep,
-                                 rollouts=cfg.ce_rollouts, elites=cfg.ce_elites, memory=cfg.ce_memory,
-                                 alpha=cfg.ce_alpha, threshold_rule=cfg.ce_threshold,
-                                 injection=cross_entropy.Injection(cfg.ce_injection_weight, cfg.ce_injection_threshold)
-                                 if injecting else None)
+    info = cross_entropy.iterate(
+        run.ce,
+        scorer,
+        generator,
+        samples=cfg.ce_samples,
+        screen_rollouts=cfg.ce_screen_rollouts,
+        screen_keep=cfg.ce_screen_keep,
+        rollouts=cfg.ce_rollouts,
+        elites=cfg.ce_elites,
+        memory=cfg.ce_memory,
+        alpha=cfg.ce_alpha,
+        threshold_rule=cfg.ce_threshold,
+        injection=cross_entropy.Injection(cfg.ce_injection_weight, cfg.ce_injection_threshold) if injecting else None,
+    )
     info["best_sampled"] = run.ce.best_value
     run.phase_step += 1
     if run.phase_step < cfg.ce_iterations:
@@ -235,21 +286,36 @@ def _ce_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
     return True, run.value, info["best"], accepted, info
 
 
-def _ls_step(run: _Run, scorer: Scorer, cfg: PlannerConfig,
-             generator: torch.Generator) -> tuple[bool, float, float, bool, dict[str, float]]:
+def _ls_step(
+    run: _Run, scorer: Scorer, cfg: PlannerConfig, generator: torch.Generator
+) -> tuple[bool, float, float, bool, dict[str, float]]:
     """One local-search step.
 
     Returns: (phase over: ``ls_patience`` failures in a row, the incumbent's duel mean after the step, the best
     challenger's, accepted).
     """
     if run.incumbent is None:  # no cross-entropy phase: node 0 runs MA 0 forever
-        run.incumbent = JointController(torch.zeros(1, scorer.num_agents, cfg.start_nodes, dtype=torch.long),
-                                        torch.zeros(1, scorer.num_agents, cfg.start_nodes, scorer.num_obs, dtype=torch.long))
-    out = local_search.step(run.incumbent, scorer, generator, max_chain=cfg.ls_chain, max_nodes=cfg.num_nodes,
-                            grow_nodes=cfg.grow_nodes, candidates=cfg.ls_candidates, stages=cfg.ls_stages,
-                            duel_rollouts=cfg.duel_rollouts, z=cfg.duel_z, edge_rate=cfg.edge_rate,
-                            visit_rollouts=cfg.visit_rollouts, team=cfg.ls_team, compose=cfg.ls_compose,
-                            copy=cfg.ls_copy)
+        run.incumbent = JointController(
+            torch.zeros(1, scorer.num_agents, cfg.start_nodes, dtype=torch.long),
+            torch.zeros(1, scorer.num_agents, cfg.start_nodes, scorer.num_obs, dtype=torch.long),
+        )
+    out = local_search.step(
+        run.incumbent,
+        scorer,
+        generator,
+        max_chain=cfg.ls_chain,
+        max_nodes=cfg.num_nodes,
+        grow_nodes=cfg.grow_nodes,
+        candidates=cfg.ls_candidates,
+        stages=cfg.ls_stages,
+        duel_rollouts=cfg.duel_rollouts,
+        z=cfg.duel_z,
+        edge_rate=cfg.edge_rate,
+        visit_rollouts=cfg.visit_rollouts,
+        team=cfg.ls_team,
+        compose=cfg.ls_compose,
+        copy=cfg.ls_copy,
+    )
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1
@@ -283,9 +349,13 @@ def plan(
     cfg = _check_arguments(scorer, PlannerConfig() if config is None else config, init)
     seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
     generator = torch.Generator().manual_seed(seed)
-    fingerprint = {"sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
-                   "problem": describe(scorer), "config": asdict(cfg), "seed": seed,
-                   "init": None if init is None else describe(init)}
+    fingerprint = {
+        "sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
+        "problem": describe(scorer),
+        "config": asdict(cfg),
+        "seed": seed,
+        "init": None if init is None else describe(init),
+    }
     path = None if checkpoint is None else Path(checkpoint)
     if path is not None and path.exists():
         run = _Run.load(path, fingerprint, cfg, generator)
@@ -293,8 +363,12 @@ def plan(
         run = _Run()
         run.incumbent = None if init is None else JointController(init.action.clone(), init.next_node.clone())
     steps = {"ce": _ce_step, "ls": _ls_step}
-    bar = tqdm(total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout")
-    while run.used < cfg.budget and run.idle_cycles < cfg.patience and not (cfg.cycles and run.cycles_done >= cfg.cycles):
+    bar = tqdm(
+        total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout"
+    )
+    while (
+        run.used < cfg.budget and run.idle_cycles < cfg.patience and not (cfg.cycles and run.cycles_done >= cfg.cycles)
+    ):
         before = scorer.rollouts_used
         phase = cfg.phases[run.cycle_position]
         over, value, challenger_value, accepted, info = steps[phase](run, scorer, cfg, generator)

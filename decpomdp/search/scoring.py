@@ -114,8 +114,12 @@ class RolloutScorer:
         self.rollouts_used, self.exact = 0, False
 
     def fingerprint(self) -> dict[str, Any]:
-        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env, "shared": self.shared,
-                "backend": self.backend}
+        return {
+            "class": f"{type(self).__module__}.{type(self).__qualname__}",
+            "env": self.env,
+            "shared": self.shared,
+            "backend": self.backend,
+        }
 
     def team(self, controller: JointController) -> JointController:
         """The joint controller the team runs for searched controllers ``controller``."""
@@ -130,8 +134,12 @@ class RolloutScorer:
             returns = run_engine(self.env, self.team(controller), rollouts, draw_seed(generator)).returns
         else:
             per = max(1, _CHUNK // rollouts)
-            returns = torch.cat([simulate(self.env, self.team(controller[i:i + per]), rollouts, generator, "torch")
-                                 for i in range(0, controller.num_controllers, per)])
+            returns = torch.cat(
+                [
+                    simulate(self.env, self.team(controller[i : i + per]), rollouts, generator, "torch")
+                    for i in range(0, controller.num_controllers, per)
+                ]
+            )
         self.rollouts_used += returns.numel()
         return mean_stderr(returns)
 
@@ -159,8 +167,13 @@ class ExactScorer:
         memory_budget, threads: per call, see :func:`~decpomdp.dpomdp.exact_value`.
     """
 
-    def __init__(self, env: TabularDecPOSMDP, horizon: float | None = None,
-                 memory_budget: int = DEFAULT_EVAL_BUDGET, threads: int | None = 1) -> None:
+    def __init__(
+        self,
+        env: TabularDecPOSMDP,
+        horizon: float | None = None,
+        memory_budget: int = DEFAULT_EVAL_BUDGET,
+        threads: int | None = 1,
+    ) -> None:
         if not isinstance(env, TabularDecPOSMDP):
             raise TypeError(f"env: expected a TabularDecPOSMDP, got {type(env).__name__}")
         self.env, self.horizon, self.memory_budget, self.threads = env, horizon, memory_budget, threads
@@ -169,12 +182,12 @@ class ExactScorer:
         self.rollouts_used = 0
 
     def fingerprint(self) -> dict[str, Any]:
-        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env,
-                "horizon": self.horizon}
+        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", "env": self.env, "horizon": self.horizon}
 
     def __call__(self, controller: JointController, rollouts: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        mean = exact_value(self.env, controller, self.horizon, memory_budget=self.memory_budget,
-                           threads=self.threads).to(torch.float64)
+        mean = exact_value(
+            self.env, controller, self.horizon, memory_budget=self.memory_budget, threads=self.threads
+        ).to(torch.float64)
         return mean, torch.zeros_like(mean)
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:

@@ -68,8 +68,10 @@ def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
                 setting = ".".join(parts[cut:])
                 planner = instantiate(block)
                 if setting in planner.ignored():
-                    raise ValueError(f"{key}: the planner {'.'.join(parts[:cut])} (phases {list(planner.phases)}, "
-                                     f"ce_result {planner.ce_result!r}) ignores {setting}; set a key it reads")
+                    raise ValueError(
+                        f"{key}: the planner {'.'.join(parts[:cut])} (phases {list(planner.phases)}, "
+                        f"ce_result {planner.ce_result!r}) ignores {setting}; set a key it reads"
+                    )
                 break
 
 

@@ -8,7 +8,14 @@ from typing import Any, Optional
 from omegaconf import MISSING
 
 from experiments.schemas.blocks import (
-    BaselineStudy, HBNIBlock, HyperPriorBlock, PlanningStudy, check_seeded, one_of, positive_int, probability,
+    BaselineStudy,
+    HBNIBlock,
+    HyperPriorBlock,
+    PlanningStudy,
+    check_seeded,
+    one_of,
+    positive_int,
+    probability,
 )
 from experiments.schemas.targets import target_schema
 
@@ -134,7 +141,9 @@ class ReplayStudy:
 
         unknown = [c for c in self.classes if c not in OBJECTS]
         if len(self.classes) < 2 or unknown or len(set(self.classes)) != len(self.classes):
-            raise ValueError(f"classes: expected at least 2 distinct objects of {list(OBJECTS)}, got {list(self.classes)}")
+            raise ValueError(
+                f"classes: expected at least 2 distinct objects of {list(OBJECTS)}, got {list(self.classes)}"
+            )
         for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
             positive_int(name, getattr(self, name))
         positive_int("augment", self.augment, 0)
@@ -280,8 +289,10 @@ class BenchmarkStudy:
         known |= {f.name for f in dataclasses.fields(PlannerConfig)}
         unknown = sorted(set(self.solve) - known - {"seed", "threads"})
         if unknown:
-            raise ValueError(f"solve: unknown settings {unknown}; expected keywords of decpomdp.dpomdp.solve or "
-                             "PlannerConfig fields (seed and threads come from the study)")
+            raise ValueError(
+                f"solve: unknown settings {unknown}; expected keywords of decpomdp.dpomdp.solve or "
+                "PlannerConfig fields (seed and threads come from the study)"
+            )
         positive_int("threads", self.threads)
         missing = sorted(set(self.only or ()) - set(self.rows))
         if missing:
@@ -369,7 +380,9 @@ MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
 @dataclass
 class Mission(Root):
     classifier: Any = field(default_factory=ClassifierBlock)
-    planner: Any = field(default_factory=PlannerBlock)  # plans perfect perception (and every variant without warm starts)
+    planner: Any = field(
+        default_factory=PlannerBlock
+    )  # plans perfect perception (and every variant without warm starts)
     warm_start: bool = MISSING  # perception variants start from the perfect-perception plan
     warm_planner: Any = field(default_factory=PlannerBlock)  # the planner settings of those warm starts
     domain: Any = field(default_factory=DisasterReliefBlock)
@@ -407,7 +420,11 @@ class StreamBlock:
         from pathlib import Path
 
         source = self.source
-        if isinstance(source, bool) or not isinstance(source, (str, int)) or (isinstance(source, str) and not source.strip()):
+        if (
+            isinstance(source, bool)
+            or not isinstance(source, (str, int))
+            or (isinstance(source, str) and not source.strip())
+        ):
             raise ValueError(f"source: expected a video file, a folder of frames or a camera index, got {source!r}")
         if isinstance(source, str) and not source.isdigit() and not Path(source).exists():
             raise ValueError(f"source: no such video file or folder {source!r}")
@@ -416,8 +433,9 @@ class StreamBlock:
             if value is not None and not (name == "run" and value == "latest") and not Path(value).exists():
                 raise ValueError(f"{name}: no such file or directory {value!r}")
         if self.run is None and (self.classifier is None or self.posterior is None):
-            raise ValueError("run: expected a finished mission run (or latest), or both stream.classifier and "
-                             "stream.posterior")
+            raise ValueError(
+                "run: expected a finished mission run (or latest), or both stream.classifier and stream.posterior"
+            )
         if self.max_input_frames is not None:
             positive_int("max_input_frames", self.max_input_frames)
         if self.temper is not None:
@@ -450,9 +468,13 @@ class NoiseToyBlock:
         for name in ("training_size", "num_training_sets", "num_trials", "max_len", "filter_draws"):
             positive_int(name, getattr(self, name))
         if self.training_size % len(self.theta):
-            raise ValueError(f"training_size: expected a multiple of the {len(self.theta)} classes, got {self.training_size}")
+            raise ValueError(
+                f"training_size: expected a multiple of the {len(self.theta)} classes, got {self.training_size}"
+            )
         if self.num_trials % self.num_training_sets:
-            raise ValueError(f"num_trials: expected a multiple of num_training_sets ({self.num_training_sets}), got {self.num_trials}")
+            raise ValueError(
+                f"num_trials: expected a multiple of num_training_sets ({self.num_training_sets}), got {self.num_trials}"
+            )
         probability("target", self.target)
 
 
@@ -490,7 +512,11 @@ class NoiseStudy:
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names
 
-        if not self.models or any(m not in model_names() for m in self.models) or len(set(self.models)) != len(self.models):
+        if (
+            not self.models
+            or any(m not in model_names() for m in self.models)
+            or len(set(self.models)) != len(self.models)
+        ):
             raise ValueError(f"models: expected distinct models of {list(model_names())}, got {list(self.models)}")
         for name in ("thresholds", "curve_thresholds"):
             values = getattr(self, name)

@@ -43,8 +43,9 @@ class AnnotatedVideo:
     The video is written to a temporary name and renamed into place by :meth:`close`.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float, classes: Sequence[str], threshold: float,
-                 max_frames: int) -> None:
+    def __init__(
+        self, path: str | os.PathLike, fps: float, classes: Sequence[str], threshold: float, max_frames: int
+    ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
@@ -61,11 +62,15 @@ class AnnotatedVideo:
         for k, frame in enumerate(segment.frames):
             if k == len(segment.frames) - 1:
                 flag = " (timed out)" if segment.timed_out else ""
-                self._latest = (f"macro-obs #{segment.index}: {segment.name} {segment.confidence:.2f} "
-                                f"after {segment.frames_used} frames{flag}")
-            lines = (f"frame {segment.start + k}  CNN: {self.classes[int(top.indices[k])]} {float(top.values[k]):.2f}",
-                     f"filter: {self.classes[int(belief.indices[k])]} {float(belief.values[k]):.2f}  "
-                     f"({k + 1}/{self.max_frames} frames)")
+                self._latest = (
+                    f"macro-obs #{segment.index}: {segment.name} {segment.confidence:.2f} "
+                    f"after {segment.frames_used} frames{flag}"
+                )
+            lines = (
+                f"frame {segment.start + k}  CNN: {self.classes[int(top.indices[k])]} {float(top.values[k]):.2f}",
+                f"filter: {self.classes[int(belief.indices[k])]} {float(belief.values[k]):.2f}  "
+                f"({k + 1}/{self.max_frames} frames)",
+            )
             self._emit(self._draw(frame, lines, float(belief.values[k])))
 
     def _draw(self, frame: np.ndarray, lines: tuple[str, str], confidence: float) -> np.ndarray:
@@ -109,8 +114,15 @@ class AnnotatedVideo:
         return self.path
 
 
-def strip_figure(segments: Sequence[Segment], beliefs: Sequence[Tensor], thumbs: Sequence[np.ndarray],
-                 classes: Sequence[str], threshold: float, title: str, max_thumbs: int = 8) -> plt.Figure:
+def strip_figure(
+    segments: Sequence[Segment],
+    beliefs: Sequence[Tensor],
+    thumbs: Sequence[np.ndarray],
+    classes: Sequence[str],
+    threshold: float,
+    title: str,
+    max_thumbs: int = 8,
+) -> plt.Figure:
     """Deciding frames of up to ``max_thumbs`` evenly spread macro-observations above the stream's timeline.
 
     Args:
@@ -127,24 +139,27 @@ def strip_figure(segments: Sequence[Segment], beliefs: Sequence[Tensor], thumbs:
         ax = fig.add_subplot(grid[0, j])
         ax.imshow(cv2.cvtColor(thumbs[i], cv2.COLOR_BGR2RGB))
         s = segments[i]
-        ax.set_title(f"#{s.index} fr {s.start}-{s.end}\n{s.name}\n{s.confidence:.2f}{' t/o' if s.timed_out else ''}",
-                     fontsize=7)
+        ax.set_title(
+            f"#{s.index} fr {s.start}-{s.end}\n{s.name}\n{s.confidence:.2f}{' t/o' if s.timed_out else ''}", fontsize=7
+        )
         ax.axis("off")
     ax = fig.add_subplot(grid[1, :])
     colors = plt.get_cmap("tab10")
     for s, b in zip(segments, beliefs):
         x = np.arange(s.start, s.end + 1)
         ax.plot(x, b.numpy(), color="tab:blue", lw=1)
-        ax.scatter([s.end], [s.confidence], color=colors(s.label % 10), s=18, zorder=3,
-                   marker="x" if s.timed_out else "o")
+        ax.scatter(
+            [s.end], [s.confidence], color=colors(s.label % 10), s=18, zorder=3, marker="x" if s.timed_out else "o"
+        )
     for label, name in enumerate(classes):
         ax.scatter([], [], color=colors(label % 10), s=18, label=name)
     ax.axhline(threshold, ls="--", lw=1, color="k", alpha=0.6)
     ax.set_xlabel("frame")
     ax.set_ylabel("filter confidence")
     ax.set_ylim(0, 1.02)
-    ax.set_title(f"{n} macro-observations (o: threshold reached, x: timed out), dashed: threshold {threshold:g}",
-                 fontsize=9)
+    ax.set_title(
+        f"{n} macro-observations (o: threshold reached, x: timed out), dashed: threshold {threshold:g}", fontsize=9
+    )
     ax.legend(fontsize=7, ncol=min(len(classes), 6), loc="lower right", title="label", title_fontsize=7)
     fig.suptitle(title, fontsize=10)
     return fig

@@ -71,8 +71,9 @@ def classifier_identity(clf: FrameClassifier) -> str:
         raise ValueError("clf: the classifier is not fitted")
     tensors, meta = clf.head.state()
     weights = Path(clf.backbone.weights_path).read_bytes()
-    return digest(meta, clf.backbone.name, clf.padding, clf.mean_, clf.scale_, *(tensors[k] for k in sorted(tensors)),
-                  weights)
+    return digest(
+        meta, clf.backbone.name, clf.padding, clf.mean_, clf.scale_, *(tensors[k] for k in sorted(tensors)), weights
+    )
 
 
 def renderer_identity() -> str:
@@ -83,9 +84,16 @@ def renderer_identity() -> str:
 def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
     """The bank's full key: a JSON-able dict (see the module docstring)."""
     return {
-        "kind": _KIND, "version": _VERSION, "classifier": classifier_identity(clf), "renderer": renderer_identity(),
-        "classes": list(spec.classes), "conditions": asdict(spec.conditions), "seed": spec.seed,
-        "sequences_per_class": spec.sequences, "frames": spec.frames, "frame_shape": list(spec.shape),
+        "kind": _KIND,
+        "version": _VERSION,
+        "classifier": classifier_identity(clf),
+        "renderer": renderer_identity(),
+        "classes": list(spec.classes),
+        "conditions": asdict(spec.conditions),
+        "seed": spec.seed,
+        "sequences_per_class": spec.sequences,
+        "frames": spec.frames,
+        "frame_shape": list(spec.shape),
         "software": {"torch": torch.__version__, "opencv": cv2.__version__},
     }
 
@@ -105,15 +113,18 @@ def _bank_outputs(tensors: dict[str, Tensor], key: dict[str, Any], path: str | o
     outputs = tensors.get("outputs")
     shape = (len(key["classes"]), key["sequences_per_class"], key["frames"], len(key["classes"]))
     if outputs is None or tuple(outputs.shape) != shape:
-        raise ValueError(f"output bank {str(path)!r}: expected outputs of shape {shape}, got "
-                         f"{None if outputs is None else tuple(outputs.shape)}")
+        raise ValueError(
+            f"output bank {str(path)!r}: expected outputs of shape {shape}, got "
+            f"{None if outputs is None else tuple(outputs.shape)}"
+        )
     return outputs
 
 
 def _chunks(spec: BankSpec, size: int) -> list[tuple[int, int, int]]:
     """``(class, first, last + 1)`` sequence ranges of at most ``size`` sequences."""
-    return [(c, i, min(i + size, spec.sequences)) for c in range(len(spec.classes))
-            for i in range(0, spec.sequences, size)]
+    return [
+        (c, i, min(i + size, spec.sequences)) for c in range(len(spec.classes)) for i in range(0, spec.sequences, size)
+    ]
 
 
 _WORKER: dict[str, Any] = {}
@@ -127,11 +138,16 @@ def _load_worker(classifier_path: str) -> None:
 def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: int) -> Tensor:
     """Outputs ``(last - first, F, C)`` of sequences ``first..last-1`` of class ``c``, columns in ``spec.classes`` order."""
     order = class_columns(clf, spec.classes)
-    return torch.stack([
-        clf.predict_proba(render_sequence(spec.classes[c], spec.frames, spec.conditions, seed=spec.seed, index=i,
-                                          shape=spec.shape))[:, order]
-        for i in range(first, last)
-    ])
+    return torch.stack(
+        [
+            clf.predict_proba(
+                render_sequence(
+                    spec.classes[c], spec.frames, spec.conditions, seed=spec.seed, index=i, shape=spec.shape
+                )
+            )[:, order]
+            for i in range(first, last)
+        ]
+    )
 
 
 def _classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
@@ -152,8 +168,15 @@ class BankBuild:
         path: the cache file. cached: whether it was already there. key: the fingerprint.
     """
 
-    def __init__(self, spec: BankSpec, clf: FrameClassifier, classifier_path: str | os.PathLike,
-                 cache_dir: str | os.PathLike, workers: int = 1, chunk: int = 4) -> None:
+    def __init__(
+        self,
+        spec: BankSpec,
+        clf: FrameClassifier,
+        classifier_path: str | os.PathLike,
+        cache_dir: str | os.PathLike,
+        workers: int = 1,
+        chunk: int = 4,
+    ) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
             raise ValueError(f"workers: expected an int >= 0, got {workers!r}")
         self.spec, self.clf, self.workers, self.chunk = spec, clf, workers, chunk
@@ -170,10 +193,12 @@ class BankBuild:
 
     def _start_workers(self) -> None:
         context = multiprocessing.get_context("spawn")
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=_load_worker,
-                                         initargs=(self._classifier_path,))
-        self._futures = {self._pool.submit(_classify_in_worker, self.spec, *task): task
-                         for task in _chunks(self.spec, self.chunk)}
+        self._pool = ProcessPoolExecutor(
+            self.workers, mp_context=context, initializer=_load_worker, initargs=(self._classifier_path,)
+        )
+        self._futures = {
+            self._pool.submit(_classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
+        }
 
     def result(self, progress: bool = False) -> Tensor:
         """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
@@ -220,4 +245,3 @@ class BankBuild:
             for process in workers:  # a running task would otherwise finish first
                 process.terminate()
         self._release()
-

@@ -65,9 +65,15 @@ class LoopSettings(NamedTuple):
 def read_loop_settings(cfg: DictConfig) -> LoopSettings:
     """The closed-loop keys of ``cfg.mission`` (already checked against the mission's schema)."""
     st = cfg.mission
-    return LoopSettings(str(st.planning_model), bool(st.compare_planning_models), int(st.generative_streams),
-                        int(st.bank.sequences), Path(os.path.expanduser(str(st.bank.cache_dir))), int(st.bank.workers),
-                        Bootstrap(int(st.bootstrap.replicates), int(st.bootstrap.rollouts)))
+    return LoopSettings(
+        str(st.planning_model),
+        bool(st.compare_planning_models),
+        int(st.generative_streams),
+        int(st.bank.sequences),
+        Path(os.path.expanduser(str(st.bank.cache_dir))),
+        int(st.bank.workers),
+        Bootstrap(int(st.bootstrap.replicates), int(st.bootstrap.rollouts)),
+    )
 
 
 def other_model(planning_model: str) -> str:
@@ -91,14 +97,22 @@ def sequence_streams(sequences: torch.Tensor, num_classes: int, per_class: int) 
     return (torch.arange(num_classes)[:, None] * per_class + sequences).reshape(-1)
 
 
-def resampled(replay: hbni_pyro.StreamReplay, num_classes: int, per_class: int,
-              sequences: torch.Tensor) -> hbni_pyro.StreamReplay:
+def resampled(
+    replay: hbni_pyro.StreamReplay, num_classes: int, per_class: int, sequences: torch.Tensor
+) -> hbni_pyro.StreamReplay:
     """``replay`` restricted to sequences ``sequences`` of every class (streams in :func:`as_streams` order)."""
     return replay.subset(sequence_streams(sequences, num_classes, per_class))
 
 
-def stream_stderr(controller: JointController, perception_of: Callable[[torch.Tensor], Any], pool: int, size: int,
-                  domain: DictConfig, boot: Bootstrap, seed: int) -> float:
+def stream_stderr(
+    controller: JointController,
+    perception_of: Callable[[torch.Tensor], Any],
+    pool: int,
+    size: int,
+    domain: DictConfig,
+    boot: Bootstrap,
+    seed: int,
+) -> float:
     """Standard error of a policy's value from the finite set of ``size`` recorded sequences behind its perception.
 
     Each replicate draws ``size`` of ``pool`` sequence indices with replacement (all classes' sequence ``i``
@@ -110,14 +124,20 @@ def stream_stderr(controller: JointController, perception_of: Callable[[torch.Te
     values, variances = [], []
     for b in range(boot.replicates):
         idx = torch.randint(pool, (size,), generator=g)
-        entry = score(instantiate(domain, perception=perception_of(idx)), controller, boot.rollouts,
-                      stream_seed(seed, "replicate", b))
+        entry = score(
+            instantiate(domain, perception=perception_of(idx)),
+            controller,
+            boot.rollouts,
+            stream_seed(seed, "replicate", b),
+        )
         values.append(entry["value"])
         variances.append(entry["stderr"] ** 2)
     return float(max(np.var(values, ddof=1) - np.mean(variances), 0.0) ** 0.5)
 
 
-def execute(controller: JointController, perception: Any, domain: DictConfig, rollouts: int, seed: int) -> dict[str, Any]:
+def execute(
+    controller: JointController, perception: Any, domain: DictConfig, rollouts: int, seed: int
+) -> dict[str, Any]:
     """The score of ``controller`` in the domain whose "infer" MA is answered by ``perception``.
 
     ``perception``: a :class:`hbni_pyro.StreamReplay` (closed loop) or ``None`` (perfect perception). The
@@ -132,17 +152,29 @@ def execute(controller: JointController, perception: Any, domain: DictConfig, ro
     return entry
 
 
-def summarise(entry: dict[str, Any], executed: dict[str, Any], replay: hbni_pyro.StreamReplay | None,
-              planned_streams: float = 0.0, executed_streams: float = 0.0) -> dict[str, Any]:
+def summarise(
+    entry: dict[str, Any],
+    executed: dict[str, Any],
+    replay: hbni_pyro.StreamReplay | None,
+    planned_streams: float = 0.0,
+    executed_streams: float = 0.0,
+) -> dict[str, Any]:
     """The closed-loop part of a variant's metrics: executed score, gaps, and the process on the bank.
 
     ``planned_streams``/``executed_streams``: the stream standard errors of the two values (:func:`stream_stderr`).
     """
-    out = {"value": executed["value"], "stderr": executed["stderr"], "gap_in_stderr": gap(entry, executed),
-           "planned_stream_stderr": planned_streams, "stream_stderr": executed_streams,
-           "gap_in_total_stderr": gap(entry, executed, planned_streams, executed_streams),
-           "delivered_per_rollout": executed["delivered_per_rollout"], "wrong_per_rollout": executed["wrong_per_rollout"],
-           "mean_inference_frames": executed["mean_inference_frames"], "oracle": executed["oracle"]}
+    out = {
+        "value": executed["value"],
+        "stderr": executed["stderr"],
+        "gap_in_stderr": gap(entry, executed),
+        "planned_stream_stderr": planned_streams,
+        "stream_stderr": executed_streams,
+        "gap_in_total_stderr": gap(entry, executed, planned_streams, executed_streams),
+        "delivered_per_rollout": executed["delivered_per_rollout"],
+        "wrong_per_rollout": executed["wrong_per_rollout"],
+        "mean_inference_frames": executed["mean_inference_frames"],
+        "oracle": executed["oracle"],
+    }
     if replay is not None:
         right = (replay.results.label == replay.true_class).double()
         out["bank_accuracy"] = [float(right[replay.true_class == c].mean()) for c in range(replay.num_classes)]
@@ -156,43 +188,58 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "hbni" not in results or "executed" not in results["hbni"]:
         return {}
     h = results["hbni"]["executed"]
-    out: dict[str, Any] = {"hbni_executed_over_perfect": ratio(h["value"], results["perfect"]["executed"]["value"]),
-                           "hbni_executed_over_planned": ratio(h["value"], results["hbni"]["value"])}
+    out: dict[str, Any] = {
+        "hbni_executed_over_perfect": ratio(h["value"], results["perfect"]["executed"]["value"]),
+        "hbni_executed_over_planned": ratio(h["value"], results["hbni"]["value"]),
+    }
     if "distribution_check" in h:
         out["hbni_distribution_check_passed"] = h["distribution_check"]["passed"]
     for other in ("ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]
             out[f"hbni_executed_beats_{other}_outside_stderr"] = beats(h, o)
-            out[f"hbni_minus_{other}_executed_in_stderr"] = ratio(h["value"] - o["value"],
-                                                                  (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5)
+            out[f"hbni_minus_{other}_executed_in_stderr"] = ratio(
+                h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+            )
     return out
 
 
-def report_lines(results: dict[str, dict], labels: dict[str, str], planning: dict[str, str], bank: dict[str, Any]) -> list[str]:
+def report_lines(
+    results: dict[str, dict], labels: dict[str, str], planning: dict[str, str], bank: dict[str, Any]
+) -> list[str]:
     """Markdown: planned vs executed per variant, and which planning model the gaps call honest."""
-    rows = ["| policy | planned on | planned value (± rollout s.e.; streams s.e.) | executed value (± rollout s.e.; "
-            "streams s.e.) | gap (rollout s.e.) | gap (all s.e.) | executed wrong / run | executed frames / inference "
-            "| bank accuracy | bank mean frames | executed on the torch oracle (gap) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| policy | planned on | planned value (± rollout s.e.; streams s.e.) | executed value (± rollout s.e.; "
+        "streams s.e.) | gap (rollout s.e.) | gap (all s.e.) | executed wrong / run | executed frames / inference "
+        "| bank accuracy | bank mean frames | executed on the torch oracle (gap) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in results.items():
         e = r["executed"]
         acc = f"{np.mean(e['bank_accuracy']):.3f}" if "bank_accuracy" in e else "1"
         frames = f"{np.mean(e['bank_mean_frames']):.1f}" if "bank_mean_frames" in e else "-"
-        rows.append(f"| {labels.get(name, name)} | {planning.get(name, 'exact')} | {r['value']:.3f} ± {r['stderr']:.3f}; "
-                    f"{e['planned_stream_stderr']:.3f} | {e['value']:.3f} ± {e['stderr']:.3f}; {e['stream_stderr']:.3f} | "
-                    f"{e['gap_in_stderr']:+.1f} | {e['gap_in_total_stderr']:+.1f} | {e['wrong_per_rollout']:.2f} | "
-                    f"{e['mean_inference_frames']:.1f} | {acc} | {frames} | {e['oracle']['value']:.3f} ± "
-                    f"{e['oracle']['stderr']:.3f} ({e['oracle']['gap_in_stderr']:+.1f}) |")
+        rows.append(
+            f"| {labels.get(name, name)} | {planning.get(name, 'exact')} | {r['value']:.3f} ± {r['stderr']:.3f}; "
+            f"{e['planned_stream_stderr']:.3f} | {e['value']:.3f} ± {e['stderr']:.3f}; {e['stream_stderr']:.3f} | "
+            f"{e['gap_in_stderr']:+.1f} | {e['gap_in_total_stderr']:+.1f} | {e['wrong_per_rollout']:.2f} | "
+            f"{e['mean_inference_frames']:.1f} | {acc} | {frames} | {e['oracle']['value']:.3f} ± "
+            f"{e['oracle']['stderr']:.3f} ({e['oracle']['gap_in_stderr']:+.1f}) |"
+        )
     source = "loaded from the cache" if bank["cached"] else "rendered and classified for this run"
-    lines = ["## Closed loop: planned against executed", "",
-             f"Every \"infer\" MA of an executed rollout draws one of {bank['sequences_per_class']} held-out mission "
-             f"sequences per class ({bank['frames']} frames each, seed {bank['seed']}, never used to fit or tabulate; "
-             f"{source}: `{bank['path']}`) and runs that variant's filter and threshold on it. The rollout gap is "
-             "(executed - planned) / sqrt(se_planned^2 + se_executed^2) with rollout standard errors; the full gap "
-             "adds both values' stream standard errors (bootstrap over the sequences of the table and of the bank; "
-             "0 for a simulated table). The last column runs the same controllers on the batched torch simulator, the "
-             "compiled engine's oracle, with the gap in standard errors.", "", *rows, ""]
+    lines = [
+        "## Closed loop: planned against executed",
+        "",
+        f'Every "infer" MA of an executed rollout draws one of {bank["sequences_per_class"]} held-out mission '
+        f"sequences per class ({bank['frames']} frames each, seed {bank['seed']}, never used to fit or tabulate; "
+        f"{source}: `{bank['path']}`) and runs that variant's filter and threshold on it. The rollout gap is "
+        "(executed - planned) / sqrt(se_planned^2 + se_executed^2) with rollout standard errors; the full gap "
+        "adds both values' stream standard errors (bootstrap over the sequences of the table and of the bank; "
+        "0 for a simulated table). The last column runs the same controllers on the batched torch simulator, the "
+        "compiled engine's oracle, with the gap in standard errors.",
+        "",
+        *rows,
+        "",
+    ]
     return lines + honesty_lines(results, planning) + [""]
 
 
@@ -212,14 +259,18 @@ def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[st
         gaps = {name: results[name]["executed"]["gap_in_total_stderr"] for name in names}
         honest = all(abs(g) <= HONEST_WITHIN for g in gaps.values())
         listed = ", ".join(f"{n} {g:+.1f}" for n, g in gaps.items())
-        out.append(f"- The **{model}** planning model is **{'honest' if honest else 'not honest'}** here: full gaps "
-                   f"{listed} s.e. (honest: every |gap| <= {HONEST_WITHIN:g}).")
+        out.append(
+            f"- The **{model}** planning model is **{'honest' if honest else 'not honest'}** here: full gaps "
+            f"{listed} s.e. (honest: every |gap| <= {HONEST_WITHIN:g})."
+        )
         for name in names:
             r, e = results[name], results[name]["executed"]
             if "macro_accuracy" in r and "bank_accuracy" in e:
-                out.append(f"  - {name}: its table says accuracy {np.mean(r['macro_accuracy']):.3f} after "
-                           f"{np.mean(r['macro_mean_frames']):.1f} frames; on the bank the process gets "
-                           f"{np.mean(e['bank_accuracy']):.3f} after {np.mean(e['bank_mean_frames']):.1f}.")
+                out.append(
+                    f"  - {name}: its table says accuracy {np.mean(r['macro_accuracy']):.3f} after "
+                    f"{np.mean(r['macro_mean_frames']):.1f} frames; on the bank the process gets "
+                    f"{np.mean(e['bank_accuracy']):.3f} after {np.mean(e['bank_mean_frames']):.1f}."
+                )
     return out
 
 
@@ -229,15 +280,31 @@ def figure(results: dict[str, dict], labels: dict[str, str]) -> plt.Figure:
     x = np.arange(len(names))
     fig, ax = plt.subplots(figsize=(max(7.5, 1.6 * len(names)), 4.2))
     colors = [figures.color(n) for n in names]  # each policy's colour, as in values.png; planned is the light shade
-    ax.bar(x - 0.2, [results[n]["value"] for n in names], 0.4, yerr=[results[n]["stderr"] for n in names], capsize=3,
-           label="planned, on its planning model (light)", color=colors, alpha=0.4)
-    ax.bar(x + 0.2, [results[n]["executed"]["value"] for n in names], 0.4,
-           yerr=[results[n]["executed"]["stderr"] for n in names], capsize=3, label="executed in closed loop (solid)",
-           color=colors)
+    ax.bar(
+        x - 0.2,
+        [results[n]["value"] for n in names],
+        0.4,
+        yerr=[results[n]["stderr"] for n in names],
+        capsize=3,
+        label="planned, on its planning model (light)",
+        color=colors,
+        alpha=0.4,
+    )
+    ax.bar(
+        x + 0.2,
+        [results[n]["executed"]["value"] for n in names],
+        0.4,
+        yerr=[results[n]["executed"]["stderr"] for n in names],
+        capsize=3,
+        label="executed in closed loop (solid)",
+        color=colors,
+    )
     for i, n in enumerate(names):
         e = results[n]["executed"]
         top = max(results[n]["value"], e["value"])
-        ax.text(i, top * 1.02, f"{e['gap_in_stderr']:+.1f} / {e['gap_in_total_stderr']:+.1f} s.e.", ha="center", fontsize=8)
+        ax.text(
+            i, top * 1.02, f"{e['gap_in_stderr']:+.1f} / {e['gap_in_total_stderr']:+.1f} s.e.", ha="center", fontsize=8
+        )
     ax.set_xticks(x, [labels.get(n, n) for n in names], fontsize=figures.TICK_SIZE)
     ax.set_ylabel("discounted return (mean ± s.e.)", fontsize=figures.LABEL_SIZE)
     ax.set_title("Planned vs executed value (gap in rollout / all standard errors)", fontsize=figures.TITLE_SIZE)

@@ -43,8 +43,14 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 def _proportions(n: int, p: float, replicates: int, g: torch.Generator) -> torch.Tensor:
     """``(replicates,)`` shares of successes in ``n`` Bernoulli(``p``) trials."""
-    return torch.binomial(torch.full((replicates,), float(n), dtype=torch.float64),
-                          torch.full((replicates,), p, dtype=torch.float64), generator=g) / n
+    return (
+        torch.binomial(
+            torch.full((replicates,), float(n), dtype=torch.float64),
+            torch.full((replicates,), p, dtype=torch.float64),
+            generator=g,
+        )
+        / n
+    )
 
 
 def _pmf_means(pmf: torch.Tensor, n: int, replicates: int, g: torch.Generator) -> torch.Tensor:
@@ -58,8 +64,15 @@ def _two_sided(null: torch.Tensor, observed: float) -> float:
     return float(((null >= observed - 1e-12).sum() + 1) / (null.numel() + 1))
 
 
-def class_check(predicted_pmf: torch.Tensor, predicted_accuracy: float, right: torch.Tensor, frames: torch.Tensor,
-                table_streams: int | None, replicates: int, g: torch.Generator) -> dict[str, Any]:
+def class_check(
+    predicted_pmf: torch.Tensor,
+    predicted_accuracy: float,
+    right: torch.Tensor,
+    frames: torch.Tensor,
+    table_streams: int | None,
+    replicates: int,
+    g: torch.Generator,
+) -> dict[str, Any]:
     """One class: the table's frames pmf ``(F,)`` and accuracy against the bank's ``right (n,)`` and
     ``frames (n,)`` (1-based); ``table_streams`` the table's sample size, ``None`` for an exact table."""
     n = right.numel()
@@ -78,17 +91,29 @@ def class_check(predicted_pmf: torch.Tensor, predicted_accuracy: float, right: t
         frames_null = (_pmf_means(pmf0, n, replicates, g) - _pmf_means(pmf0, m, replicates, g)).abs()
     boot = torch.randint(n, (replicates, n), generator=g)
     frame_means = frames.double()[boot].mean(1)
-    return {"predicted_accuracy": predicted_accuracy, "bank_accuracy": k / n, "accuracy_interval": wilson_interval(k, n),
-            "accuracy_p": _two_sided(acc_null, abs(k / n - predicted_accuracy)),
-            "predicted_frames": pred_frames, "bank_frames": mean_frames,
-            "frames_interval": tuple(torch.quantile(frame_means, torch.tensor([0.025, 0.975],
-                                                                              dtype=torch.float64)).tolist()),
-            "frames_p": _two_sided(frames_null, abs(mean_frames - pred_frames)), "bank_streams": n}
+    return {
+        "predicted_accuracy": predicted_accuracy,
+        "bank_accuracy": k / n,
+        "accuracy_interval": wilson_interval(k, n),
+        "accuracy_p": _two_sided(acc_null, abs(k / n - predicted_accuracy)),
+        "predicted_frames": pred_frames,
+        "bank_frames": mean_frames,
+        "frames_interval": tuple(
+            torch.quantile(frame_means, torch.tensor([0.025, 0.975], dtype=torch.float64)).tolist()
+        ),
+        "frames_p": _two_sided(frames_null, abs(mean_frames - pred_frames)),
+        "bank_streams": n,
+    }
 
 
-def distribution_check(model: hbni_pyro.MacroObservationModel, replay: hbni_pyro.StreamReplay,
-                       table_streams: int | None, seed: int, alpha: float = ALPHA,
-                       replicates: int = 4000) -> dict[str, Any]:
+def distribution_check(
+    model: hbni_pyro.MacroObservationModel,
+    replay: hbni_pyro.StreamReplay,
+    table_streams: int | None,
+    seed: int,
+    alpha: float = ALPHA,
+    replicates: int = 4000,
+) -> dict[str, Any]:
     """Per class, the table ``model`` against the process's results on the bank (``replay``).
 
     Returns ``{"classes": [per-class dict], "alpha_per_test", "passed"}``; each class dict holds the
@@ -104,15 +129,28 @@ def distribution_check(model: hbni_pyro.MacroObservationModel, replay: hbni_pyro
     classes = []
     for c in range(model.num_classes):
         mine = replay.true_class == c
-        entry = class_check(model.frames_pmf[c], float(model.accuracy[c]), replay.results.label[mine] == c,
-                            replay.results.frames_used[mine], table_streams, replicates, g)
+        entry = class_check(
+            model.frames_pmf[c],
+            float(model.accuracy[c]),
+            replay.results.label[mine] == c,
+            replay.results.frames_used[mine],
+            table_streams,
+            replicates,
+            g,
+        )
         entry["passed"] = entry["accuracy_p"] >= per_test and entry["frames_p"] >= per_test
         classes.append(entry)
     return {"classes": classes, "alpha_per_test": per_test, "passed": all(e["passed"] for e in classes)}
 
 
-def value_power(planned: dict[str, float], executed: dict[str, float], bank_size: int, shortfall: float = 0.03,
-                within: float = 3.0, target: float = 0.8) -> dict[str, float]:
+def value_power(
+    planned: dict[str, float],
+    executed: dict[str, float],
+    bank_size: int,
+    shortfall: float = 0.03,
+    within: float = 3.0,
+    target: float = 0.8,
+) -> dict[str, float]:
     """Power of the test ``|gap| <= within`` total s.e. against an executed value ``shortfall`` (relative) below
     the planned one, and the bank sequences per class that would give ``target`` power.
 
@@ -125,8 +163,13 @@ def value_power(planned: dict[str, float], executed: dict[str, float], bank_size
     se = math.sqrt(fixed + bank)
     z = NormalDist()
     if se == 0:  # no error at all: any shortfall shows
-        return {"shortfall": shortfall, "power": 1.0 if delta > 0 else 0.0, "total_stderr": 0.0, "target_power": target,
-                "sequences_for_target": float(bank_size)}
+        return {
+            "shortfall": shortfall,
+            "power": 1.0 if delta > 0 else 0.0,
+            "total_stderr": 0.0,
+            "target_power": target,
+            "sequences_for_target": float(bank_size),
+        }
     power = z.cdf(delta / se - within) + z.cdf(-delta / se - within)
     need_se = delta / (within + z.inv_cdf(target))
     room = need_se**2 - fixed
@@ -134,12 +177,22 @@ def value_power(planned: dict[str, float], executed: dict[str, float], bank_size
         size = float(bank_size) if room >= 0 else float("inf")
     else:
         size = float(math.ceil(bank_size * bank / room)) if room > 0 else float("inf")
-    return {"shortfall": shortfall, "power": power, "total_stderr": se, "target_power": target,
-            "sequences_for_target": size}
+    return {
+        "shortfall": shortfall,
+        "power": power,
+        "total_stderr": se,
+        "target_power": target,
+        "sequences_for_target": size,
+    }
 
 
-def reliability_figure(processes: dict[str, hbni_pyro.MacroObservationProcess], streams: torch.Tensor,
-                       truth: torch.Tensor, labels: dict[str, str], threshold: float) -> plt.Figure:
+def reliability_figure(
+    processes: dict[str, hbni_pyro.MacroObservationProcess],
+    streams: torch.Tensor,
+    truth: torch.Tensor,
+    labels: dict[str, str],
+    threshold: float,
+) -> plt.Figure:
     """Reliability of every process's filter on the bank: after every prefix of every stream, the top
     posterior probability against how often the top class is right (point size: share of prefixes)."""
     fig, ax = plt.subplots(figsize=(6.0, 5.6))
@@ -150,10 +203,17 @@ def reliability_figure(processes: dict[str, hbni_pyro.MacroObservationProcess], 
         used = rel.count > 0
         share = (rel.count[used] / rel.count.sum()).numpy()
         colour = figures.color(name)
-        ax.plot(rel.confidence[used].numpy(), rel.accuracy[used].numpy(), "-", color=colour, lw=1.2,
-                label=f"{labels.get(name, name)} (ECE {rel.ece:.3f})")
-        ax.scatter(rel.confidence[used].numpy(), rel.accuracy[used].numpy(), s=20 + 400 * share, color=colour,
-                   alpha=0.7)
+        ax.plot(
+            rel.confidence[used].numpy(),
+            rel.accuracy[used].numpy(),
+            "-",
+            color=colour,
+            lw=1.2,
+            label=f"{labels.get(name, name)} (ECE {rel.ece:.3f})",
+        )
+        ax.scatter(
+            rel.confidence[used].numpy(), rel.accuracy[used].numpy(), s=20 + 400 * share, color=colour, alpha=0.7
+        )
     ax.axvline(threshold, color="0.3", lw=0.8, ls=":", label=f"threshold {threshold:g}")
     ax.set_xlim(low, 1.0)
     ax.set_ylim(0, 1.02)
@@ -168,35 +228,52 @@ def reliability_figure(processes: dict[str, hbni_pyro.MacroObservationProcess], 
 
 def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list[str]) -> list[str]:
     """Markdown: each planned policy's distribution check per class, and its value test's power."""
-    lines = ["## Honesty of the planning models", "",
-             "Per class, what the policy's table predicts (accuracy, mean frames) against what its process does "
-             "on the held-out bank (95 % Wilson and bootstrap intervals), with parametric-bootstrap p-values of "
-             "\"one law behind both\" (Bonferroni over classes and statistics).", ""]
+    lines = [
+        "## Honesty of the planning models",
+        "",
+        "Per class, what the policy's table predicts (accuracy, mean frames) against what its process does "
+        "on the held-out bank (95 % Wilson and bootstrap intervals), with parametric-bootstrap p-values of "
+        '"one law behind both" (Bonferroni over classes and statistics).',
+        "",
+    ]
     for name, r in results.items():
         check = r.get("executed", {}).get("distribution_check")
         if check is None:
             continue
         verdict = "passes" if check["passed"] else "fails"
-        lines += [f"**{labels.get(name, name)}** ({name}) {verdict} in every class." if check["passed"] else
-                  f"**{labels.get(name, name)}** ({name}) {verdict} in "
-                  f"{', '.join(classes[c] for c, e in enumerate(check['classes']) if not e['passed'])}"
-                  f" (per-test level {check['alpha_per_test']:.4f}).", "",
-                  "| class | table accuracy | bank accuracy [95 %] | p | table frames | bank frames [95 %] | p | |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += [
+            f"**{labels.get(name, name)}** ({name}) {verdict} in every class."
+            if check["passed"]
+            else f"**{labels.get(name, name)}** ({name}) {verdict} in "
+            f"{', '.join(classes[c] for c, e in enumerate(check['classes']) if not e['passed'])}"
+            f" (per-test level {check['alpha_per_test']:.4f}).",
+            "",
+            "| class | table accuracy | bank accuracy [95 %] | p | table frames | bank frames [95 %] | p | |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for c, e in enumerate(check["classes"]):
             lo, hi = e["accuracy_interval"]
             flo, fhi = e["frames_interval"]
-            lines.append(f"| {classes[c]} | {e['predicted_accuracy']:.3f} | {e['bank_accuracy']:.3f} [{lo:.3f}, {hi:.3f}]"
-                         f" | {e['accuracy_p']:.3f} | {e['predicted_frames']:.2f} | {e['bank_frames']:.2f} "
-                         f"[{flo:.2f}, {fhi:.2f}] | {e['frames_p']:.3f} | {'ok' if e['passed'] else 'FAIL'} |")
+            lines.append(
+                f"| {classes[c]} | {e['predicted_accuracy']:.3f} | {e['bank_accuracy']:.3f} [{lo:.3f}, {hi:.3f}]"
+                f" | {e['accuracy_p']:.3f} | {e['predicted_frames']:.2f} | {e['bank_frames']:.2f} "
+                f"[{flo:.2f}, {fhi:.2f}] | {e['frames_p']:.3f} | {'ok' if e['passed'] else 'FAIL'} |"
+            )
         power = r["executed"].get("value_power")
         if power:
             need = power["sequences_for_target"]
-            lines += ["", f"Value test (|gap| <= 3 total s.e.): power {power['power']:.2f} against a "
-                      f"{100 * power['shortfall']:.0f} % shortfall (total s.e. {power['total_stderr']:.3f}); "
-                      f"{power['target_power']:.0%} power needs "
-                      + ("more than any bank: the planned and executed values' rollout errors and the table's "
-                         "sequences alone are too large" if math.isinf(need) else
-                         f"{need:.0f} bank sequences per class") + "."]
+            lines += [
+                "",
+                f"Value test (|gap| <= 3 total s.e.): power {power['power']:.2f} against a "
+                f"{100 * power['shortfall']:.0f} % shortfall (total s.e. {power['total_stderr']:.3f}); "
+                f"{power['target_power']:.0%} power needs "
+                + (
+                    "more than any bank: the planned and executed values' rollout errors and the table's "
+                    "sequences alone are too large"
+                    if math.isinf(need)
+                    else f"{need:.0f} bank sequences per class"
+                )
+                + ".",
+            ]
         lines.append("")
     return lines

@@ -10,7 +10,12 @@ import hbni_pyro
 
 
 def fit_labelled(
-    outputs: torch.Tensor, hbni: DictConfig, seed: int, progress: bool, model: str | None = None, *,
+    outputs: torch.Tensor,
+    hbni: DictConfig,
+    seed: int,
+    progress: bool,
+    model: str | None = None,
+    *,
     class_names: list[str] | None = None,
 ) -> hbni_pyro.HBNIPosterior:
     """Fit HBNI on ``outputs (C, S, F, M)``: ``S`` sequences of ``F`` frames of each true class ``c``.
@@ -23,7 +28,13 @@ def fit_labelled(
     labels = torch.arange(num_classes).view(-1, 1, 1).expand(outputs.shape[:3]).reshape(-1)
     sequence_ids = torch.arange(num_classes * num_seq).repeat_interleave(frames)
     return hbni_pyro.fit(
-        outputs.reshape(-1, outputs.shape[-1]).double(), labels, model=model or hbni.model, sequence_ids=sequence_ids,
-        **OmegaConf.to_container(hbni.fit), hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress,
+        outputs.reshape(-1, outputs.shape[-1]).double(),
+        labels,
+        model=model or hbni.model,
+        sequence_ids=sequence_ids,
+        **OmegaConf.to_container(hbni.fit),
+        hyperprior=instantiate(hbni.hyperprior),
+        seed=seed,
+        progress=progress,
         class_names=class_names,
     )

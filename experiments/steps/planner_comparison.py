@@ -32,8 +32,9 @@ class Comparison(NamedTuple):
     metrics: dict[str, Any]
 
 
-def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointController, title: str,
-                     run_dir: Path) -> Comparison:
+def compare_planners(
+    cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointController, title: str, run_dir: Path
+) -> Comparison:
     """Run every planner and baseline of the comparison on ``env`` (seeds offset from ``cfg.seed``).
 
     Writes ``best_controller_planner.safetensors`` (cold-start planner), ``best_controller_cold``
@@ -46,27 +47,37 @@ def compare_planners(cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointContro
     cold_cfg: PlannerConfig = instantiate(cfg.planners.cold)
     reeval, shared_controller = int(study.reeval_rollouts), bool(study.shared_controller)
 
-    planner, planner_best, planner_score = run_planner(env, cold_cfg, shared_controller, stream_seed(seed, "cold"),
-                                                       progress, reeval)
+    planner, planner_best, planner_score = run_planner(
+        env, cold_cfg, shared_controller, stream_seed(seed, "cold"), progress, reeval
+    )
     planner_best.save(run_dir / "best_controller_planner.safetensors")
     save_figure(planner_figure(planner.history, f"Cold-start planner on {title}"), run_dir / "planner_progress.png")
 
-    result, best, gdice_score = run_planner(env, config, shared_controller, stream_seed(seed, "gdice"), progress,
-                                            reeval)
+    result, best, gdice_score = run_planner(
+        env, config, shared_controller, stream_seed(seed, "gdice"), progress, reeval
+    )
     best.save(run_dir / "best_controller_cold.safetensors")
     save_figure(history_figure(result.history, f"G-DICE on {title}"), run_dir / "value_vs_iteration.png")
 
-    seeded, seeded_best, seeded_score = run_seeded(env, config, study, greedy_policy, stream_seed(seed, "seeded"),
-                                                   progress)
+    seeded, seeded_best, seeded_score = run_seeded(
+        env, config, study, greedy_policy, stream_seed(seed, "seeded"), progress
+    )
     seeded_best.save(run_dir / "best_controller.safetensors")
-    save_figure(history_figure(seeded.history, f"G-DICE seeded with the hand-written policy, {title}"),
-                run_dir / "value_vs_iteration_seeded.png")
+    save_figure(
+        history_figure(seeded.history, f"G-DICE seeded with the hand-written policy, {title}"),
+        run_dir / "value_vs_iteration_seeded.png",
+    )
 
     baselines = run_baselines(env, config, study, stream_seed(seed, "baselines"))
     greedy = score(env, greedy_policy, reeval, stream_seed(seed, "reeval", "greedy"))
-    entries = {"cold-start planner": planner_score, "G-DICE": gdice_score, "G-DICE seeded": seeded_score,
-               "greedy (hand-written)": greedy, "Monte Carlo search": baselines["monte_carlo_search"],
-               "random": baselines["random"]}
+    entries = {
+        "cold-start planner": planner_score,
+        "G-DICE": gdice_score,
+        "G-DICE seeded": seeded_score,
+        "greedy (hand-written)": greedy,
+        "Monte Carlo search": baselines["monte_carlo_search"],
+        "random": baselines["random"],
+    }
     metrics = {
         "planner_cold_start": planner_score,
         "planner_cold_start_history": planner.history,

@@ -21,12 +21,14 @@ from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, mean_st
 from infra.streams import stream_seed, torch_stream
 
 
-def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int,
-          backend: str | None = None) -> dict[str, Any]:
+def score(
+    env: DecPOSMDP, controller: JointController, rollouts: int, seed: int, backend: str | None = None
+) -> dict[str, Any]:
     """Mean return +- stderr over ``rollouts`` and the mean (+- stderr) of every per-rollout counter
     (``backend``: as in :func:`decpomdp.simulate`)."""
-    returns, counters = rollout_counters(env, controller, rollouts, torch.Generator().manual_seed(seed),
-                                         backend=backend)
+    returns, counters = rollout_counters(
+        env, controller, rollouts, torch.Generator().manual_seed(seed), backend=backend
+    )
     mean, se = mean_stderr(returns.flatten())
     out: dict[str, Any] = {"value": float(mean), "stderr": float(se)}
     for key, value in counters.items():
@@ -38,13 +40,21 @@ def score(env: DecPOSMDP, controller: JointController, rollouts: int, seed: int,
 def delivery_rates(entry: dict[str, float]) -> dict[str, float]:
     """Wrong deliveries per delivery and frames per inference, from a disaster-relief score entry's counters."""
     wrong, right = entry["wrong_per_rollout"], entry["delivered_per_rollout"]
-    return {"wrong_rate": wrong / max(wrong + right, 1e-12),
-            "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12)}
+    return {
+        "wrong_rate": wrong / max(wrong + right, 1e-12),
+        "mean_inference_frames": entry["inference_frames_per_rollout"] / max(entry["inferences_per_rollout"], 1e-12),
+    }
 
 
-def run_planner(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, seed: int, progress: bool,
-                reeval_rollouts: int, init: JointController | None = None
-                ) -> tuple[PlannerResult, JointController, dict[str, Any]]:
+def run_planner(
+    env: DecPOSMDP,
+    config: PlannerConfig,
+    shared_controller: bool,
+    seed: int,
+    progress: bool,
+    reeval_rollouts: int,
+    init: JointController | None = None,
+) -> tuple[PlannerResult, JointController, dict[str, Any]]:
     """The planner (any preset: the cold-start planner, G-DICE), from scratch or from ``init`` (searched agents):
     (result, best joint controller, score entry).
 
@@ -57,13 +67,20 @@ def run_planner(env: DecPOSMDP, config: PlannerConfig, shared_controller: bool, 
     result = plan(scorer, config, seed=seed, progress=progress, init=init)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     best = scorer.team(result.best).named(env.action_names, env.obs_names)
-    entry = {"rollouts": result.rollouts, "nodes": result.best.num_nodes, "cpu_seconds": cpu, "seconds": wall,
-             "planner_value": result.value, **score(env, best, reeval_rollouts, stream_seed(seed, "reeval"))}
+    entry = {
+        "rollouts": result.rollouts,
+        "nodes": result.best.num_nodes,
+        "cpu_seconds": cpu,
+        "seconds": wall,
+        "planner_value": result.value,
+        **score(env, best, reeval_rollouts, stream_seed(seed, "reeval")),
+    }
     return result, best, entry
 
 
-def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: PlannerConfig, runs: int, seed: int,
-                     reeval_rollouts: int, progress: bool) -> dict[str, Any]:
+def paper_comparison(
+    env: DecPOSMDP, preset: DecPOSMDP, config: PlannerConfig, runs: int, seed: int, reeval_rollouts: int, progress: bool
+) -> dict[str, Any]:
     """The paper's G-DICE (``config``), one controller shared by both robots, on ``env`` and on ``preset``.
 
     Runs ``runs`` seeds on each domain. The paper reports the best *sampled* value (a maximum over
@@ -74,15 +91,23 @@ def paper_comparison(env: DecPOSMDP, preset: DecPOSMDP, config: PlannerConfig, r
     for name, domain in (("this_domain", env), ("preset", preset)):
         sampled, values, stderrs = [], [], []
         for r in range(runs):
-            _, _, entry = run_planner(domain, config, True, stream_seed(seed, "paper", name, r), progress,
-                                      reeval_rollouts)
+            _, _, entry = run_planner(
+                domain, config, True, stream_seed(seed, "paper", name, r), progress, reeval_rollouts
+            )
             sampled.append(entry["planner_value"])
             values.append(entry["value"])
             stderrs.append(entry["stderr"])
         spread = lambda xs: float(mean_stderr(torch.tensor(xs))[1]) if len(xs) > 1 else float("nan")  # noqa: E731
-        out[name] = {"domain": repr(domain), "best_sampled": sampled, "values": values, "stderrs": stderrs,
-                     "best_sampled_mean": sum(sampled) / runs, "best_sampled_stderr": spread(sampled),
-                     "value": sum(values) / runs, "stderr": spread(values)}
+        out[name] = {
+            "domain": repr(domain),
+            "best_sampled": sampled,
+            "values": values,
+            "stderrs": stderrs,
+            "best_sampled_mean": sum(sampled) / runs,
+            "best_sampled_stderr": spread(sampled),
+            "value": sum(values) / runs,
+            "stderr": spread(values),
+        }
     return out
 
 
@@ -109,17 +134,34 @@ def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointContro
     """
     seeded_cfg = config.replace(**dict(study.seeded))
     shared_controller = bool(study.shared_controller)
-    result, best, entry = run_planner(env, seeded_cfg, shared_controller, seed, progress, int(study.reeval_rollouts),
-                                      init=seed_controller(policy, shared_controller))
+    result, best, entry = run_planner(
+        env,
+        seeded_cfg,
+        shared_controller,
+        seed,
+        progress,
+        int(study.reeval_rollouts),
+        init=seed_controller(policy, shared_controller),
+    )
     mode = mode_controller(result.distributions)
-    candidates = {"best_sampled": best, "mode": RolloutScorer(env, shared=shared_controller).team(mode).named(env.action_names, env.obs_names)}
-    selection = {name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"]
-                 for name, ctrl in candidates.items()}
+    candidates = {
+        "best_sampled": best,
+        "mode": RolloutScorer(env, shared=shared_controller).team(mode).named(env.action_names, env.obs_names),
+    }
+    selection = {
+        name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"]
+        for name, ctrl in candidates.items()
+    }
     chosen = max(selection, key=selection.get)
-    entry = {"init_weight": seeded_cfg.ce_init_weight, "planner": dataclasses.asdict(seeded_cfg),
-             "best_sampled": entry["planner_value"], "seconds": entry["seconds"], "selected": chosen,
-             "selection_values": selection,
-             **score(env, candidates[chosen], int(study.reeval_rollouts), stream_seed(seed, "reeval"))}
+    entry = {
+        "init_weight": seeded_cfg.ce_init_weight,
+        "planner": dataclasses.asdict(seeded_cfg),
+        "best_sampled": entry["planner_value"],
+        "seconds": entry["seconds"],
+        "selected": chosen,
+        "selection_values": selection,
+        **score(env, candidates[chosen], int(study.reeval_rollouts), stream_seed(seed, "reeval")),
+    }
     return result, candidates[chosen], entry
 
 
@@ -131,14 +173,27 @@ def run_baselines(env: DecPOSMDP, config: PlannerConfig, study, seed: int) -> di
     tic = time.perf_counter()
     mcs = monte_carlo_search(scorer, num_nodes=config.num_nodes, budget=budget, rollouts=rollouts, seed=seed)
     seconds = time.perf_counter() - tic
-    rand = random_controllers(int(study.random_controllers), num_agents=scorer.num_agents, num_nodes=config.num_nodes,
-                              num_actions=env.num_actions, num_obs=env.num_obs,
-                              generator=torch_stream(seed, "random controllers"))
+    rand = random_controllers(
+        int(study.random_controllers),
+        num_agents=scorer.num_agents,
+        num_nodes=config.num_nodes,
+        num_actions=env.num_actions,
+        num_obs=env.num_obs,
+        generator=torch_stream(seed, "random controllers"),
+    )
     values, _ = scorer(rand, rollouts, torch_stream(seed, "random scores"))
     mean, se = mean_stderr(values)
     return {
-        "monte_carlo_search": {"budget": budget, "best_sampled": mcs.best_value, "seconds": seconds,
-                               **score(env, scorer.team(mcs.best), int(study.reeval_rollouts),
-                                       stream_seed(seed, "reeval", "monte carlo search"))},
+        "monte_carlo_search": {
+            "budget": budget,
+            "best_sampled": mcs.best_value,
+            "seconds": seconds,
+            **score(
+                env,
+                scorer.team(mcs.best),
+                int(study.reeval_rollouts),
+                stream_seed(seed, "reeval", "monte carlo search"),
+            ),
+        },
         "random": {"controllers": len(values), "value": float(mean), "stderr": float(se)},
     }

@@ -5,13 +5,20 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 
 
-def bar_figure(entries: dict[str, dict[str, float]], title: str, reference: dict[str, float] | None = None) -> plt.Figure:
+def bar_figure(
+    entries: dict[str, dict[str, float]], title: str, reference: dict[str, float] | None = None
+) -> plt.Figure:
     """Bar chart of value +- stderr per policy (optionally with dashed reference lines)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     names = list(entries)
     colors = ["tab:red", "tab:blue", "tab:orange", "tab:green", "tab:gray", "tab:purple", "tab:brown"]
-    ax.bar(names, [entries[n]["value"] for n in names], yerr=[entries[n]["stderr"] for n in names], capsize=4,
-           color=[colors[i % len(colors)] for i in range(len(names))])
+    ax.bar(
+        names,
+        [entries[n]["value"] for n in names],
+        yerr=[entries[n]["stderr"] for n in names],
+        capsize=4,
+        color=[colors[i % len(colors)] for i in range(len(names))],
+    )
     for label, value in (reference or {}).items():
         ax.axhline(value, ls="--", lw=1, color="k", alpha=0.5)
         ax.text(-0.45, value, label, va="bottom", ha="left", fontsize=8)
@@ -28,8 +35,11 @@ def history_figure(history: dict[str, list[float]], title: str) -> plt.Figure:
     against iteration."""
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     its = [i + 1 for i, phase in enumerate(history["phase"]) if phase == 0]
-    for key, label, alpha in (("best_sampled", "best sampled so far", 1.0), ("challenger_value", "iteration best", 0.7),
-                              ("mean", "iteration mean", 0.7)):
+    for key, label, alpha in (
+        ("best_sampled", "best sampled so far", 1.0),
+        ("challenger_value", "iteration best", 0.7),
+        ("mean", "iteration mean", 0.7),
+    ):
         ax.plot(its, [history[key][i - 1] for i in its], label=label, alpha=alpha)
     ax.set_xlabel("G-DICE iteration")
     ax.set_ylabel("value (Monte Carlo estimate)")
@@ -45,7 +55,10 @@ def planner_figure(history: dict[str, list[float]], title: str) -> plt.Figure:
     if points:
         x, v, phase = zip(*points)
         ax.step(x, v, where="post", color="k", lw=1, label="incumbent")
-        for which, label, color in ((0, "after a cross-entropy phase", "tab:orange"), (1, "after a local-search step", "tab:blue")):
+        for which, label, color in (
+            (0, "after a cross-entropy phase", "tab:orange"),
+            (1, "after a local-search step", "tab:blue"),
+        ):
             sel = [(a, b) for a, b, p in points if p == which]
             if sel:
                 ax.plot(*zip(*sel), ".", color=color, label=label)

@@ -90,7 +90,11 @@ class BatchedKernel(MCMCKernel):
     """Names of the kernel's moves, in the order of its acceptance rates."""
 
     def __init__(
-        self, num_chains: int = 16, hyperprior: HyperPrior = HyperPrior(), class_prior: Tensor | None = None, seed: int = 0
+        self,
+        num_chains: int = 16,
+        hyperprior: HyperPrior = HyperPrior(),
+        class_prior: Tensor | None = None,
+        seed: int = 0,
     ) -> None:
         num_chains = as_int("num_chains", num_chains, minimum=1)
         if not isinstance(hyperprior, HyperPrior):

@@ -28,9 +28,19 @@ ROWS = 512
 
 @njit(cache=True)
 def class_move_stats(
-    c: np.ndarray, labels: np.ndarray, log_obs: np.ndarray, log_w: np.ndarray, alias_prob: np.ndarray,
-    alias: np.ndarray, offset: np.ndarray, theta: np.ndarray, stay_prob: float, seed: np.uint64,
-    iteration: np.int64, label_counts: np.ndarray, record: bool,
+    c: np.ndarray,
+    labels: np.ndarray,
+    log_obs: np.ndarray,
+    log_w: np.ndarray,
+    alias_prob: np.ndarray,
+    alias: np.ndarray,
+    offset: np.ndarray,
+    theta: np.ndarray,
+    stay_prob: float,
+    seed: np.uint64,
+    iteration: np.int64,
+    label_counts: np.ndarray,
+    record: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One class move of every chain, in place on ``c (D, Cp, N)`` int64.
 
@@ -68,8 +78,14 @@ def class_move_stats(
                         k = min(np.int64(x), M - 1)
                         p = k if x - k < alias_prob[d, i, k] else alias[d, i, k]
                         if p != cur:
-                            log_ratio = (offset[d, ch, p] + theta[d, ch, p] * log_obs[d, i, p] - offset[d, ch, cur]
-                                         - theta[d, ch, cur] * log_obs[d, i, cur] + log_w[d, i, cur] - log_w[d, i, p])
+                            log_ratio = (
+                                offset[d, ch, p]
+                                + theta[d, ch, p] * log_obs[d, i, p]
+                                - offset[d, ch, cur]
+                                - theta[d, ch, cur] * log_obs[d, i, cur]
+                                + log_w[d, i, cur]
+                                - log_w[d, i, p]
+                            )
                             if log_ratio >= 0.0 or uniform(rng) < math.exp(log_ratio):
                                 cur = p
                                 c[d, ch, i] = p

@@ -56,8 +56,12 @@ class ConfusionMetropolis(BatchedKernel):
     moves = ("c", "conc", "hyper", "beta_scale")
 
     def __init__(
-        self, num_chains: int = 16, hyperprior: HyperPrior = HyperPrior(), class_prior: Tensor | None = None,
-        stay_prob: float = 0.5, seed: int = 0,
+        self,
+        num_chains: int = 16,
+        hyperprior: HyperPrior = HyperPrior(),
+        class_prior: Tensor | None = None,
+        stay_prob: float = 0.5,
+        seed: int = 0,
     ) -> None:
         super().__init__(num_chains, hyperprior, class_prior, seed)
         if not 0 <= stay_prob < 1:
@@ -85,7 +89,9 @@ class ConfusionMetropolis(BatchedKernel):
         gamma = gamma_variates(torch.full(b, hp.nu), hp.omega, g).clamp(0.05, 500)
         theta = gamma_variates(kappa.unsqueeze(-1).expand(b + (M,)), gamma.unsqueeze(-1), g).clamp(0.1, 1000)
         self.beta_loc = (hp.offdiag_loc_sd * torch.randn(b, generator=g, dtype=DTYPE)).clamp(-2, 2)
-        self.log_beta_scale = (hp.offdiag_scale_sd * torch.randn(b, generator=g, dtype=DTYPE)).abs().clamp(0.05, 2).log()
+        self.log_beta_scale = (
+            (hp.offdiag_scale_sd * torch.randn(b, generator=g, dtype=DTYPE)).abs().clamp(0.05, 2).log()
+        )
         log_beta = self.beta_loc[..., None, None] + self.log_beta_scale.exp()[..., None, None] * torch.randn(
             b + (M, M), generator=g, dtype=DTYPE
         )
@@ -95,8 +101,14 @@ class ConfusionMetropolis(BatchedKernel):
 
     def _params(self) -> dict[str, Tensor]:
         theta, beta = split_conc(self.log_conc)
-        sites = {"theta": theta, "beta": beta, "kappa": self.log_kappa.exp(), "gamma": self.log_gamma.exp(),
-                 "beta_loc": self.beta_loc, "beta_scale": self.log_beta_scale.exp()}
+        sites = {
+            "theta": theta,
+            "beta": beta,
+            "kappa": self.log_kappa.exp(),
+            "gamma": self.log_gamma.exp(),
+            "beta_loc": self.beta_loc,
+            "beta_scale": self.log_beta_scale.exp(),
+        }
         return {k: flatten_chains(v) for k, v in sites.items()}
 
     def _step(self, warm: bool) -> dict[str, float]:
@@ -108,8 +120,15 @@ class ConfusionMetropolis(BatchedKernel):
         counts, sums = counts + data.known_counts, sums + data.known_sums
         scale = self.log_beta_scale.exp()
         self.log_conc, acc_conc = update_concentrations(
-            self.log_conc, counts, sums, self.log_kappa.exp(), self.log_gamma.exp(), self.beta_loc, scale,
-            self._walk_conc.step, g,
+            self.log_conc,
+            counts,
+            sums,
+            self.log_kappa.exp(),
+            self.log_gamma.exp(),
+            self.beta_loc,
+            scale,
+            self._walk_conc.step,
+            g,
         )
         state = state._replace(log_theta=self.log_conc.diagonal(dim1=-2, dim2=-1))
         self.log_kappa, self.log_gamma, acc_h = update_hyper(state, hp, self._walk_hyper.chol, g)
@@ -120,12 +139,18 @@ class ConfusionMetropolis(BatchedKernel):
         )
         if warm:
             self._walk_conc.adapt(acc_conc, self._t)
-            self._walk_hyper.adapt(torch.stack([self.log_kappa, self.log_gamma], -1), acc_h, self._t, self._warmup_steps)
+            self._walk_hyper.adapt(
+                torch.stack([self.log_kappa, self.log_gamma], -1), acc_h, self._t, self._warmup_steps
+            )
             self._walk_scale.adapt(acc_s, self._t)
         else:
             self.frames.record(self.c)
-        return {"c": fraction(acc_c, self._class_moves), "conc": fraction(acc_conc), "hyper": fraction(acc_h),
-                "beta_scale": fraction(acc_s)}
+        return {
+            "c": fraction(acc_c, self._class_moves),
+            "conc": fraction(acc_conc),
+            "hyper": fraction(acc_h),
+            "beta_scale": fraction(acc_s),
+        }
 
     @property
     def label_probs(self) -> Tensor:

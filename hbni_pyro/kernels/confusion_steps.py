@@ -21,8 +21,9 @@ def split_conc(log_conc: Tensor) -> tuple[Tensor, Tensor]:
     return log_conc.diagonal(dim1=-2, dim2=-1).exp(), log_conc.masked_fill(eye, 0.0).exp()
 
 
-def conc_log_target(log_conc: Tensor, counts: Tensor, sums: Tensor, kappa: Tensor, gamma: Tensor,
-                    beta_loc: Tensor, beta_scale: Tensor) -> Tensor:
+def conc_log_target(
+    log_conc: Tensor, counts: Tensor, sums: Tensor, kappa: Tensor, gamma: Tensor, beta_loc: Tensor, beta_scale: Tensor
+) -> Tensor:
     """Unnormalised log density of every entry's row and prior term, per row ``(..., M)`` plus per entry.
 
     Returns ``(..., M, M)``: entry ``[c, j]`` is row ``c``'s log likelihood plus the prior of entry
@@ -40,8 +41,15 @@ def conc_log_target(log_conc: Tensor, counts: Tensor, sums: Tensor, kappa: Tenso
 
 
 def update_concentrations(
-    log_conc: Tensor, counts: Tensor, sums: Tensor, kappa: Tensor, gamma: Tensor, beta_loc: Tensor,
-    beta_scale: Tensor, step: Tensor, generator: torch.Generator,
+    log_conc: Tensor,
+    counts: Tensor,
+    sums: Tensor,
+    kappa: Tensor,
+    gamma: Tensor,
+    beta_loc: Tensor,
+    beta_scale: Tensor,
+    step: Tensor,
+    generator: torch.Generator,
 ) -> tuple[Tensor, Tensor]:
     """A Gaussian random walk on each entry of ``log_conc``, one column at a time.
 
@@ -98,7 +106,8 @@ def update_beta_scale(
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on ``log beta_scale (...)``; returns the new value and ``accepted``."""
     proposal = log_scale + step * torch.randn(log_scale.shape, generator=generator, dtype=log_scale.dtype)
-    ratio = scale_log_target(proposal, log_beta, beta_loc, scale_sd) - scale_log_target(log_scale, log_beta, beta_loc, scale_sd)
+    ratio = scale_log_target(proposal, log_beta, beta_loc, scale_sd) - scale_log_target(
+        log_scale, log_beta, beta_loc, scale_sd
+    )
     ok = torch.rand(log_scale.shape, generator=generator, dtype=log_scale.dtype).log() < ratio
     return torch.where(ok, proposal, log_scale), ok
-

@@ -64,30 +64,48 @@ class FrameData:
         fixed = ~self.free
         counts, sums = sufficient_stats(labels[:, fixed], obs[:, fixed].log(), full=True)
         self.num_classes = M
-        self.data = frame_data(obs[:, self.free].unsqueeze(1), labels[:, self.free].unsqueeze(1), log_prior,
-                               counts.unsqueeze(1), sums.unsqueeze(1))
+        self.data = frame_data(
+            obs[:, self.free].unsqueeze(1),
+            labels[:, self.free].unsqueeze(1),
+            log_prior,
+            counts.unsqueeze(1),
+            sums.unsqueeze(1),
+        )
         self.label_counts = torch.zeros(D, int(self.free.sum()), M, dtype=DTYPE)
         self.compiled = obs.device.type == "cpu"
         if self.compiled:
             d = self.data
-            self._arrays = tuple(np.ascontiguousarray(t[:, 0].numpy()) for t in (d.labels, d.log_obs, d.log_proposal,
-                                                                                   d.alias_prob, d.alias))
+            self._arrays = tuple(
+                np.ascontiguousarray(t[:, 0].numpy())
+                for t in (d.labels, d.log_obs, d.log_proposal, d.alias_prob, d.alias)
+            )
 
-    def compiled_move(self, c: Tensor, log_theta: Tensor, stay_prob: float, seed: int, iteration: int,
-                      record: bool) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+    def compiled_move(
+        self, c: Tensor, log_theta: Tensor, stay_prob: float, seed: int, iteration: int, record: bool
+    ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
         """The class move of every chain on the CPU (:func:`class_move_stats`), in place on ``c (D, Cp, N)``;
         returns the accepted moves and the statistics ``counts, sums (D, Cp, M)``, recording the labels if asked."""
         theta = log_theta.exp()
         offset = lifted_normaliser(theta, self.num_classes) + self.data.log_prior
-        counts, sums, accepted = class_move_stats(c.numpy(), *self._arrays, np.ascontiguousarray(offset.numpy()),
-                                                  np.ascontiguousarray(theta.numpy()), stay_prob, np.uint64(seed),
-                                                  np.int64(iteration), self.label_counts.numpy(), record)
+        counts, sums, accepted = class_move_stats(
+            c.numpy(),
+            *self._arrays,
+            np.ascontiguousarray(offset.numpy()),
+            np.ascontiguousarray(theta.numpy()),
+            stay_prob,
+            np.uint64(seed),
+            np.int64(iteration),
+            self.label_counts.numpy(),
+            record,
+        )
         return torch.from_numpy(accepted).sum(), (torch.from_numpy(counts), torch.from_numpy(sums))
 
     def initial_classes(self, batch: tuple[int, int], generator: torch.Generator) -> Tensor:
         """``(D, Cp, N_free)`` classes drawn from the proposal weights (given labels kept)."""
         d = self.data
-        c0 = alias_draw(d.alias_prob, d.alias, torch.rand(batch + d.labels.shape[-1:], generator=generator, dtype=DTYPE))
+        c0 = alias_draw(
+            d.alias_prob, d.alias, torch.rand(batch + d.labels.shape[-1:], generator=generator, dtype=DTYPE)
+        )
         return torch.where(d.labels >= 0, d.labels, c0)
 
     def record(self, c: Tensor) -> None:
@@ -151,12 +169,19 @@ class HBNIMetropolis(BatchedKernel):
         gamma = gamma_variates(torch.full((C,), hp.nu), hp.omega, g).clamp(0.05, 500)
         theta = gamma_variates(kappa.unsqueeze(-1).expand(C, num_classes), gamma.unsqueeze(-1), g)
         c = self.frames.initial_classes(self.batch, g)
-        return MHState(c, theta.clamp(0.1, 1000).log().reshape(self.batch + (-1,)),
-                       kappa.log().reshape(self.batch), gamma.log().reshape(self.batch))
+        return MHState(
+            c,
+            theta.clamp(0.1, 1000).log().reshape(self.batch + (-1,)),
+            kappa.log().reshape(self.batch),
+            gamma.log().reshape(self.batch),
+        )
 
     def _params(self) -> dict[str, Tensor]:
         s = self._state
-        return {k: flatten_chains(v.exp()) for k, v in (("theta", s.log_theta), ("kappa", s.log_kappa), ("gamma", s.log_gamma))}
+        return {
+            k: flatten_chains(v.exp())
+            for k, v in (("theta", s.log_theta), ("kappa", s.log_kappa), ("gamma", s.log_gamma))
+        }
 
     def _step(self, warm: bool) -> dict[str, float]:
         s, g, data, frames = self._state, self._gen, self.frames.data, self.frames

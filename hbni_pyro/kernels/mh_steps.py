@@ -101,8 +101,9 @@ def alias_draw(prob: Tensor, alias: Tensor, v: Tensor) -> Tensor:
     return torch.where(x - k < take(prob, k), k, take(alias, k))
 
 
-def frame_data(obs: Tensor, labels: Tensor, log_prior: Tensor, known_counts: Tensor | float = 0.0,
-               known_sums: Tensor | float = 0.0) -> MHData:
+def frame_data(
+    obs: Tensor, labels: Tensor, log_prior: Tensor, known_counts: Tensor | float = 0.0, known_sums: Tensor | float = 0.0
+) -> MHData:
     """:class:`MHData` of outputs ``obs (..., N, M)``: the class move proposes from
     ``w_i = (o_i + 1/M) / 2``, a mixture of the output itself and the uniform distribution."""
     weights = 0.5 * obs + 0.5 / obs.shape[-1]
@@ -125,7 +126,9 @@ def _log_lik_at(cls: Tensor, log_obs: Tensor, offset: Tensor, weight: Tensor) ->
     ``log_obs (..., R, M)`` and :func:`_class_terms` ``(..., 1, M)`` / ``(..., 1, M, M)`` (broadcasting)."""
     if weight.dim() == offset.dim():
         return take(offset, cls) + take(weight, cls) * take(log_obs, cls)
-    rows = weight.expand(cls.shape + weight.shape[-2:]).gather(-2, cls[..., None, None].expand(cls.shape + (1, weight.shape[-1])))
+    rows = weight.expand(cls.shape + weight.shape[-2:]).gather(
+        -2, cls[..., None, None].expand(cls.shape + (1, weight.shape[-1]))
+    )
     return take(offset, cls) + (rows.squeeze(-2) * log_obs).sum(-1)
 
 
@@ -162,10 +165,16 @@ def update_classes(
         v = torch.rand(cur.shape, generator=generator, dtype=dtype)
         log_u = torch.rand(cur.shape, generator=generator, dtype=dtype).log()
         move = v >= stay_prob
-        proposal = alias_draw(data.alias_prob[..., rows, :], data.alias[..., rows, :], (v - stay_prob).clamp_min(0) / (1 - stay_prob))
+        proposal = alias_draw(
+            data.alias_prob[..., rows, :], data.alias[..., rows, :], (v - stay_prob).clamp_min(0) / (1 - stay_prob)
+        )
         log_obs, log_w = data.log_obs[..., rows, :], data.log_proposal[..., rows, :]
-        log_ratio = (_log_lik_at(proposal, log_obs, offset, weight) - _log_lik_at(cur, log_obs, offset, weight)
-                     + take(log_w, cur) - take(log_w, proposal))
+        log_ratio = (
+            _log_lik_at(proposal, log_obs, offset, weight)
+            - _log_lik_at(cur, log_obs, offset, weight)
+            + take(log_w, cur)
+            - take(log_w, proposal)
+        )
         ok = move & (log_u < log_ratio) & (data.labels[..., rows] < 0) & (proposal != cur)
         accepted += ok.sum()
         c[..., rows] = torch.where(ok, proposal, cur)
@@ -205,7 +214,10 @@ def theta_log_target(log_theta: Tensor, counts: Tensor, sum_log: Tensor, kappa: 
 
 
 def update_theta(
-    state: MHState, data: MHData, step: Tensor, generator: torch.Generator,
+    state: MHState,
+    data: MHData,
+    step: Tensor,
+    generator: torch.Generator,
     stats: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on every ``log theta_m`` in parallel (independent given c, kappa, gamma).

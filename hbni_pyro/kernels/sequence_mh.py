@@ -49,7 +49,11 @@ class SequenceMetropolis(BatchedKernel):
     moves = ("pooling",)
 
     def __init__(
-        self, num_chains: int = 16, hyperprior: HyperPrior = HyperPrior(), class_prior: Tensor | None = None, seed: int = 0
+        self,
+        num_chains: int = 16,
+        hyperprior: HyperPrior = HyperPrior(),
+        class_prior: Tensor | None = None,
+        seed: int = 0,
     ) -> None:
         super().__init__(num_chains, hyperprior, class_prior, seed)
         self.save_params = sorted(SITES)
@@ -73,22 +77,43 @@ class SequenceMetropolis(BatchedKernel):
         g, h, sc, b = self._gen, self.hyperprior, self._scales, self.batch
         d = M - 1
         eye = torch.eye(d, dtype=DTYPE)
-        log_pool = (math.log(h.between_pooling_median) + h.between_pooling_sd * torch.randn(b, generator=g, dtype=DTYPE)).clamp(-2, 7)
-        mean = sample_wishart(torch.full(b, sc["between_df"], dtype=DTYPE), torch.linalg.cholesky(sc["between_scale"]).expand(b + (d, d)), g)
-        within_prec = sample_wishart(torch.full(b, sc["within_df"], dtype=DTYPE),
-                                     torch.linalg.cholesky(torch.linalg.inv(sc["within_psi"])).expand(b + (d, d)), g)
+        log_pool = (
+            math.log(h.between_pooling_median) + h.between_pooling_sd * torch.randn(b, generator=g, dtype=DTYPE)
+        ).clamp(-2, 7)
+        mean = sample_wishart(
+            torch.full(b, sc["between_df"], dtype=DTYPE),
+            torch.linalg.cholesky(sc["between_scale"]).expand(b + (d, d)),
+            g,
+        )
+        within_prec = sample_wishart(
+            torch.full(b, sc["within_df"], dtype=DTYPE),
+            torch.linalg.cholesky(torch.linalg.inv(sc["within_psi"])).expand(b + (d, d)),
+            g,
+        )
         loc = self._prior_mean + 0.1 * torch.randn(b + (M, d), generator=g, dtype=DTYPE)
         K = self.stats.count.shape[-1]
         mean = mean + 1e-3 * eye
-        state = SequenceState(torch.zeros(b + (K,), dtype=torch.long), torch.zeros(b + (K, d), dtype=DTYPE), loc,
-                              mean.unsqueeze(-3).expand(b + (M, d, d)).clone(), mean, log_pool, torch.linalg.inv(within_prec))
+        state = SequenceState(
+            torch.zeros(b + (K,), dtype=torch.long),
+            torch.zeros(b + (K, d), dtype=DTYPE),
+            loc,
+            mean.unsqueeze(-3).expand(b + (M, d, d)).clone(),
+            mean,
+            log_pool,
+            torch.linalg.inv(within_prec),
+        )
         c, look = update_classes_and_looks(state, self.stats, self.log_prior, g)
         return state._replace(c=c, look=look)
 
     def _params(self) -> dict[str, Tensor]:
         s = self.state
-        sites = {"loc": s.loc, "between": s.between, "between_mean": s.between_mean,
-                 "between_pooling": s.log_pooling.exp(), "within": s.within}
+        sites = {
+            "loc": s.loc,
+            "between": s.between,
+            "between_mean": s.between_mean,
+            "between_pooling": s.log_pooling.exp(),
+            "within": s.within,
+        }
         return {k: flatten_chains(v) for k, v in sites.items()}
 
     def _step(self, warm: bool) -> dict[str, float]:
@@ -97,11 +122,22 @@ class SequenceMetropolis(BatchedKernel):
         s = s._replace(c=c, look=look)
         s = s._replace(loc=draw_locs(s, self._prior_mean, h.look_sd, g))
         counts, scatter = between_data(s)
-        log_pool, accepted = update_pooling(s.log_pooling, s.between_mean, counts, scatter, h.between_pooling_median,
-                                            h.between_pooling_sd, self._walk.step, g)
+        log_pool, accepted = update_pooling(
+            s.log_pooling,
+            s.between_mean,
+            counts,
+            scatter,
+            h.between_pooling_median,
+            h.between_pooling_sd,
+            self._walk.step,
+            g,
+        )
         between = draw_class_covs(log_pool, s.between_mean, counts, scatter, g)
-        s = s._replace(log_pooling=log_pool, between=between,
-                       between_mean=draw_shared_mean(log_pool, between, sc["between_df"], self._between_scale_inv, g))
+        s = s._replace(
+            log_pooling=log_pool,
+            between=between,
+            between_mean=draw_shared_mean(log_pool, between, sc["between_df"], self._between_scale_inv, g),
+        )
         self.state = s._replace(within=draw_within(s, self.stats, sc["within_df"], sc["within_psi"], g))
         if warm:
             self._walk.adapt(accepted, self._t)

@@ -62,14 +62,15 @@ def class_log_probs(stats: SequenceStats, state: SequenceState, log_prior: Tenso
     """``(..., K, M)`` unnormalised ``log p(c_k = m | frames, params)`` with the look integrated out
     (the frames' scatter term is the same for every class and drops out)."""
     basis, lam, logdet = look_basis(state.between, state.within.unsqueeze(-3))
-    look = look_log_marginal(stats.count[..., None], look_residuals(basis, stats.mean_y, state.loc), lam.unsqueeze(-3),
-                             logdet.unsqueeze(-2))
+    look = look_log_marginal(
+        stats.count[..., None], look_residuals(basis, stats.mean_y, state.loc), lam.unsqueeze(-3), logdet.unsqueeze(-2)
+    )
     return log_prior + look
 
 
 def _per_sequence(table: Tensor, c: Tensor) -> Tensor:
     """Row ``c_k`` of a per-class ``table (..., M, *shape)`` for every sequence: ``(..., K, *shape)``."""
-    index = c.reshape(c.shape + (1,) * (table.dim() - c.dim())).expand(c.shape + table.shape[c.dim():])
+    index = c.reshape(c.shape + (1,) * (table.dim() - c.dim())).expand(c.shape + table.shape[c.dim() :])
     return table.gather(c.dim() - 1, index)
 
 
@@ -81,7 +82,9 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
     free = (stats.labels < 0).reshape(-1, stats.labels.shape[-1]).any(0).nonzero().squeeze(-1)
     if not free.numel():
         return labels.clone()
-    sub = SequenceStats(stats.count[..., free], stats.sum_y[..., free, :], stats.sum_yy[..., free, :, :], stats.labels[..., free])
+    sub = SequenceStats(
+        stats.count[..., free], stats.sum_y[..., free, :], stats.sum_yy[..., free, :, :], stats.labels[..., free]
+    )
     cdf = torch.softmax(class_log_probs(sub, state, log_prior), -1).cumsum(-1)
     drawn = (u[..., free, :] * cdf[..., -1:] > cdf).sum(-1).clamp_max(cdf.shape[-1] - 1)
     c = labels.clone()
@@ -103,8 +106,7 @@ def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator:
     flat_cov, flat_tril = cov.flatten(-4, -3), torch.linalg.cholesky(cov).flatten(-4, -3)  # (..., M * U, d, d)
     pb_loc = (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1)  # (..., M, d)
     wy = stats.sum_y @ prec_within.transpose(-1, -2)  # (..., K, d): W^-1 sum y per sequence
-    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype,
-                    device=state.loc.device)
+    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype, device=state.loc.device)
     group = c * counts.shape[0] + which.expand(c.shape)
     if flat_cov.shape[-3] <= GROUPED_LOOKS:  # few groups: every sequence through every group's factors at once
         d = z.shape[-1]
@@ -119,7 +121,9 @@ def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator:
         rows = slice(start, start + LOOK_CHUNK)
         rhs = _per_sequence(pb_loc, c[..., rows]) + wy[..., rows, :]
         mean = (_per_sequence(flat_cov, group[..., rows]) @ rhs.unsqueeze(-1)).squeeze(-1)
-        look[..., rows, :] = mean + (_per_sequence(flat_tril, group[..., rows]) @ z[..., rows, :].unsqueeze(-1)).squeeze(-1)
+        look[..., rows, :] = mean + (
+            _per_sequence(flat_tril, group[..., rows]) @ z[..., rows, :].unsqueeze(-1)
+        ).squeeze(-1)
     return look
 
 
@@ -136,7 +140,7 @@ def class_totals(c: Tensor, values: Tensor, num_classes: int) -> tuple[Tensor, T
     one_hot = torch.nn.functional.one_hot(c, num_classes).to(values.dtype)  # (..., K, M)
     flat = values.reshape(values.shape[: c.dim()] + (-1,))
     sums = one_hot.transpose(-1, -2) @ flat
-    return one_hot.sum(-2), sums.reshape(sums.shape[:-1] + values.shape[c.dim():])
+    return one_hot.sum(-2), sums.reshape(sums.shape[:-1] + values.shape[c.dim() :])
 
 
 def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generator: torch.Generator) -> Tensor:
@@ -164,18 +168,24 @@ def within_data(state: SequenceState, stats: SequenceStats) -> tuple[Tensor, Ten
     ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]`` by matrix products over the sequences."""
     mu = state.look
     cross = stats.sum_y.transpose(-1, -2) @ mu  # sum_k s_k mu_k^T
-    scatter = stats.sum_yy.sum(-3) - cross - cross.transpose(-1, -2) + (mu * stats.count.unsqueeze(-1)).transpose(-1, -2) @ mu
+    scatter = (
+        stats.sum_yy.sum(-3) - cross - cross.transpose(-1, -2) + (mu * stats.count.unsqueeze(-1)).transpose(-1, -2) @ mu
+    )
     return stats.count.sum(-1), scatter
 
 
-def draw_within(state: SequenceState, stats: SequenceStats, df0: float, psi0: Tensor, generator: torch.Generator) -> Tensor:
+def draw_within(
+    state: SequenceState, stats: SequenceStats, df0: float, psi0: Tensor, generator: torch.Generator
+) -> Tensor:
     """Exact draw of the frames' covariance ``W``: ``InvWishart(df0, psi0)`` prior, frames ``N(mu_k, W)``."""
     frames, scatter = within_data(state, stats)
     df = (df0 + frames).expand(state.log_pooling.shape)
     return torch.linalg.inv(draw_wishart_given(df, psi0 + scatter, generator))
 
 
-def pooling_log_target(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, median: float, sd: float) -> Tensor:
+def pooling_log_target(
+    log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, median: float, sd: float
+) -> Tensor:
     """Unnormalised ``log p(log pool | looks, class means, B)`` with every class spread integrated out.
 
     ``S_c ~ InvWishart(nu, pool * S)`` (``nu = pool + d + 1``) is conjugate to ``n_c`` Gaussian
@@ -194,7 +204,13 @@ def pooling_log_target(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: 
 
 
 def update_pooling(
-    log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, median: float, sd: float, step: Tensor,
+    log_pool: Tensor,
+    mean: Tensor,
+    counts: Tensor,
+    scatter: Tensor,
+    median: float,
+    sd: float,
+    step: Tensor,
     generator: torch.Generator,
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on ``log pool`` (class covariances integrated out); returns it and ``accepted``."""
@@ -205,7 +221,9 @@ def update_pooling(
     return torch.where(ok, proposal, log_pool), ok
 
 
-def draw_class_covs(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, generator: torch.Generator) -> Tensor:
+def draw_class_covs(
+    log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Tensor, generator: torch.Generator
+) -> Tensor:
     """Exact draw of the class covariances: ``InvWishart(pool + d + 1, pool S)`` prior, data ``(counts, scatter)``."""
     d = mean.shape[-1]
     pool = log_pool.exp()
@@ -213,7 +231,9 @@ def draw_class_covs(log_pool: Tensor, mean: Tensor, counts: Tensor, scatter: Ten
     return torch.linalg.inv(draw_wishart_given(pool.unsqueeze(-1) + d + 1 + counts, psi, generator))
 
 
-def draw_shared_mean(log_pool: Tensor, covs: Tensor, df0: float, scale0_inv: Tensor, generator: torch.Generator) -> Tensor:
+def draw_shared_mean(
+    log_pool: Tensor, covs: Tensor, df0: float, scale0_inv: Tensor, generator: torch.Generator
+) -> Tensor:
     """Exact draw of a shared covariance ``S``: its ``Wishart(df0, scale0)`` prior is conjugate to
     ``S_c ~ InvWishart(pool + d + 1, pool S)``."""
     num_classes, d = covs.shape[-3], covs.shape[-1]

@@ -15,7 +15,9 @@ from __future__ import annotations
 from hbni_pyro.variants import confusion, paper, sequence
 from hbni_pyro.variants.spec import NoiseModel
 
-NOISE_MODELS: dict[str, NoiseModel] = {spec.name: spec for spec in (paper.NOISE_MODEL, confusion.NOISE_MODEL, sequence.NOISE_MODEL)}
+NOISE_MODELS: dict[str, NoiseModel] = {
+    spec.name: spec for spec in (paper.NOISE_MODEL, confusion.NOISE_MODEL, sequence.NOISE_MODEL)
+}
 """The registered variants, name -> spec."""
 _BUILT_IN = tuple(NOISE_MODELS)
 
@@ -64,4 +66,13 @@ def site_shapes(model: str, num_classes: int) -> dict[str, tuple[int, ...]]:
     return noise_model(model).site_shapes(num_classes)
 
 
-__all__ = ["NOISE_MODELS", "NoiseModel", "check_model", "model_names", "noise_model", "register", "site_shapes", "unregister"]
+__all__ = [
+    "NOISE_MODELS",
+    "NoiseModel",
+    "check_model",
+    "model_names",
+    "noise_model",
+    "register",
+    "site_shapes",
+    "unregister",
+]

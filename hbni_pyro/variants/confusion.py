@@ -61,9 +61,15 @@ def simulate(params: Draws, classes: Tensor, num_frames: int, generator: torch.G
 def rank_statistics(params: Draws) -> dict[str, Tensor]:
     stats = concentration_statistics(params)
     off = ~torch.eye(params["beta"].shape[-1], dtype=torch.bool)
-    stats.update({"log beta[0, 1]": params["beta"][:, 0, 1].log(), "log beta[2, 0]": params["beta"][:, 2, 0].log(),
-                  "mean log beta": params["beta"][:, off].log().mean(-1), "beta_loc": params["beta_loc"],
-                  "beta_scale": params["beta_scale"]})
+    stats.update(
+        {
+            "log beta[0, 1]": params["beta"][:, 0, 1].log(),
+            "log beta[2, 0]": params["beta"][:, 2, 0].log(),
+            "mean log beta": params["beta"][:, off].log().mean(-1),
+            "beta_loc": params["beta_loc"],
+            "beta_scale": params["beta_scale"],
+        }
+    )
     return stats
 
 

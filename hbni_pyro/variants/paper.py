@@ -29,7 +29,11 @@ def concentration_prior(hyperprior: HyperPrior, num_classes: int, num_draws: int
     h, n, g = hyperprior, num_draws, generator
     kappa = gamma_variates(torch.full((n,), h.beta), h.eta, g)
     gamma = gamma_variates(torch.full((n,), h.nu), h.omega, g)
-    return {"theta": gamma_variates(kappa.unsqueeze(-1).expand(n, num_classes), gamma.unsqueeze(-1), g), "kappa": kappa, "gamma": gamma}
+    return {
+        "theta": gamma_variates(kappa.unsqueeze(-1).expand(n, num_classes), gamma.unsqueeze(-1), g),
+        "kappa": kappa,
+        "gamma": gamma,
+    }
 
 
 def concentration_statistics(params: Draws) -> dict[str, Tensor]:

@@ -32,8 +32,14 @@ def nuts_sites(raw: Draws) -> Draws:
 
 def sample_streams(draws: Draws, true_class: int, num_frames: int, generator: torch.Generator) -> Tensor:
     n = draws["loc"].shape[0]
-    return sample_sequences(draws["loc"][:, true_class], draws["between"][:, true_class],
-                            draws["within"].unsqueeze(1), torch.arange(n), num_frames, generator)
+    return sample_sequences(
+        draws["loc"][:, true_class],
+        draws["between"][:, true_class],
+        draws["within"].unsqueeze(1),
+        torch.arange(n),
+        num_frames,
+        generator,
+    )
 
 
 def draw_prior(hyperprior: HyperPrior, num_classes: int, num_draws: int, generator: torch.Generator) -> Draws:
@@ -41,13 +47,24 @@ def draw_prior(hyperprior: HyperPrior, num_classes: int, num_draws: int, generat
     d = M - 1
     sc = hyper_scales(h, d)
     pool = (math.log(h.between_pooling_median) + h.between_pooling_sd * torch.randn(n, generator=g, dtype=DTYPE)).exp()
-    mean = sample_wishart(torch.full((n,), sc["between_df"], dtype=DTYPE), torch.linalg.cholesky(sc["between_scale"]).expand(n, d, d), g)
+    mean = sample_wishart(
+        torch.full((n,), sc["between_df"], dtype=DTYPE), torch.linalg.cholesky(sc["between_scale"]).expand(n, d, d), g
+    )
     psi_inv = torch.linalg.inv(pool[:, None, None, None] * mean.unsqueeze(1)).expand(n, M, d, d)
     between = torch.linalg.inv(sample_wishart((pool + d + 1)[:, None].expand(n, M), torch.linalg.cholesky(psi_inv), g))
-    within_prec = sample_wishart(torch.full((n,), sc["within_df"], dtype=DTYPE),
-                                 torch.linalg.cholesky(torch.linalg.inv(sc["within_psi"])).expand(n, d, d), g)
+    within_prec = sample_wishart(
+        torch.full((n,), sc["within_df"], dtype=DTYPE),
+        torch.linalg.cholesky(torch.linalg.inv(sc["within_psi"])).expand(n, d, d),
+        g,
+    )
     loc = look_prior_mean(M, h.look_vertex) + h.look_sd * torch.randn(n, M, d, generator=g, dtype=DTYPE)
-    return {"loc": loc, "between": between, "between_mean": mean, "between_pooling": pool, "within": torch.linalg.inv(within_prec)}
+    return {
+        "loc": loc,
+        "between": between,
+        "between_mean": mean,
+        "between_pooling": pool,
+        "within": torch.linalg.inv(within_prec),
+    }
 
 
 def simulate(params: Draws, classes: Tensor, num_frames: int, generator: torch.Generator) -> Tensor:
@@ -57,9 +74,17 @@ def simulate(params: Draws, classes: Tensor, num_frames: int, generator: torch.G
 
 def rank_statistics(params: Draws) -> dict[str, Tensor]:
     stats = {f"loc[{c}, 0]": params["loc"][:, c, 0] for c in range(params["loc"].shape[1])}
-    stats.update({f"log|between[{c}]|": torch.logdet(params["between"][:, c]) for c in range(params["between"].shape[1])})
-    stats.update({"log between_pooling": params["between_pooling"].log(), "log|within|": torch.logdet(params["within"]),
-                  "within[0, 1]": params["within"][:, 0, 1], "log|between_mean|": torch.logdet(params["between_mean"])})
+    stats.update(
+        {f"log|between[{c}]|": torch.logdet(params["between"][:, c]) for c in range(params["between"].shape[1])}
+    )
+    stats.update(
+        {
+            "log between_pooling": params["between_pooling"].log(),
+            "log|within|": torch.logdet(params["within"]),
+            "within[0, 1]": params["within"][:, 0, 1],
+            "log|between_mean|": torch.logdet(params["between_mean"]),
+        }
+    )
     return stats
 
 

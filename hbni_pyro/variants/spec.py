@@ -83,10 +83,14 @@ class NoiseModel:
         """``M`` from ``samples`` whose first ``lead`` dims are the draws' (2 by chain, 1 pooled)."""
         site = self.class_site
         if site not in samples:
-            raise ValueError(f"samples: missing sites [{site!r}], expected {list(self.site_shapes(2))} for model {self.name!r}")
+            raise ValueError(
+                f"samples: missing sites [{site!r}], expected {list(self.site_shapes(2))} for model {self.name!r}"
+            )
         x = samples[site]
         if x.dim() <= lead:
-            raise ValueError(f"samples[{site!r}]: expected {lead} draw dims and a class axis, got shape {tuple(x.shape)}")
+            raise ValueError(
+                f"samples[{site!r}]: expected {lead} draw dims and a class axis, got shape {tuple(x.shape)}"
+            )
         return int(x.shape[lead])
 
     def __repr__(self) -> str:

@@ -51,6 +51,7 @@ def test_classes_distinct_and_conditions_differ():
     bright = render_images("ambulance", 4, TRAINING, seed=0).astype(float)
     dim = render_images("ambulance", 4, MISSION, seed=0).astype(float)
     assert bright.mean() > 1.5 * dim.mean()  # dim light
+
     def high_freq(x):  # relative energy of pixel-to-pixel changes (noise, texture)
         return np.abs(np.diff(x, axis=2)).mean() / x.mean()
 

@@ -38,14 +38,17 @@ def test_the_degraded_preset_is_darker_than_the_training_preset():
     assert degraded.mean() < train.mean()
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"name": "lena"}, "name: expected one of"),
-    ({"frames": 0}, "frames"),
-    ({"seed": -1}, "seed"),
-    ({"size": 4}, "size"),
-    ({"conditions": "foggy"}, "preset: expected one of"),
-    ({"conditions": 3}, "conditions: expected"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"name": "lena"}, "name: expected one of"),
+        ({"frames": 0}, "frames"),
+        ({"seed": -1}, "seed"),
+        ({"size": 4}, "size"),
+        ({"conditions": "foggy"}, "preset: expected one of"),
+        ({"conditions": 3}, "conditions: expected"),
+    ],
+)
 def test_bad_arguments_fail_naming_the_argument(kwargs, match):
     args = {"name": "rocket", "frames": 2, "conditions": "degraded", "seed": 0, **kwargs}
     with pytest.raises(ValueError, match=match):

@@ -44,7 +44,11 @@ def _joint(rng: random.Random, per_agent: list[list[str]]) -> str:
 
 def _numbers(rng: random.Random, n: int, per_line: int, prob: bool = True) -> str:
     """``n`` numbers, ``per_line`` a line: probabilities in [0, 1], or any rewards."""
-    pool = (lambda: rng.choice([0.0, 1, round(rng.random(), 3)])) if prob else (lambda: rng.choice([0.0, round(rng.random(), 3), rng.randint(-5, 5)]))
+    pool = (
+        (lambda: rng.choice([0.0, 1, round(rng.random(), 3)]))
+        if prob
+        else (lambda: rng.choice([0.0, round(rng.random(), 3), rng.randint(-5, 5)]))
+    )
     vals = [f"{pool()}" for _ in range(n)]
     return "\n".join(" ".join(vals[i : i + per_line]) for i in range(0, n, per_line))
 
@@ -64,9 +68,25 @@ def synthetic_text(seed: int) -> str:
         obs.append(names)
         o_head.append(head)
     n_jo = len(list(itertools.product(*obs)))
-    start = rng.choice(["uniform", states[0], " ".join(["%.6f" % (1 / n_s)] * (n_s - 1) + ["%.6f" % (1 - (n_s - 1) * float("%.6f" % (1 / n_s)))])])
-    lines = [f"agents: {n_agents}", f"discount: {rng.choice([1, 0.9])}", f"values: {rng.choice(['reward', 'cost'])}",
-             f"states: {s_head}", f"start: {start}", "actions:", *a_head, "observations:", *o_head]
+    start = rng.choice(
+        [
+            "uniform",
+            states[0],
+            " ".join(["%.6f" % (1 / n_s)] * (n_s - 1) + ["%.6f" % (1 - (n_s - 1) * float("%.6f" % (1 / n_s)))]),
+        ]
+    )
+    lines = [
+        f"agents: {n_agents}",
+        f"discount: {rng.choice([1, 0.9])}",
+        f"values: {rng.choice(['reward', 'cost'])}",
+        f"states: {s_head}",
+        f"start: {start}",
+        "actions:",
+        *a_head,
+        "observations:",
+        *o_head,
+    ]
+
     def state():
         return rng.choice(["*", rng.choice(states), str(rng.randrange(n_s))])
 

@@ -37,8 +37,24 @@ def inject(p, uniform, weight, threshold):
     return torch.where(collapsed, (1 - weight) * p + weight * uniform, p)
 
 
-def gdice(score, a, m, o, *, num_nodes=13, iterations=100, samples=100, elites=10, alpha=0.1, injection_weight=0.0,
-          injection_threshold=0.05, injection_until=0.5, layer_width=None, threshold_rule="paper", seed=0):
+def gdice(
+    score,
+    a,
+    m,
+    o,
+    *,
+    num_nodes=13,
+    iterations=100,
+    samples=100,
+    elites=10,
+    alpha=0.1,
+    injection_weight=0.0,
+    injection_threshold=0.05,
+    injection_until=0.5,
+    layer_width=None,
+    threshold_rule="paper",
+    seed=0,
+):
     """Returns (best controller, its sampled value, the per-iteration best-so-far values); ``score(ctrl, generator)``
     gives the K controllers' values."""
     nn = num_nodes

@@ -7,8 +7,9 @@ from decpomdp import JointController, random_controllers
 
 
 def make(k=3, a=2, nn=4, m=5, o=3, seed=0):
-    return random_controllers(k, num_agents=a, num_nodes=nn,
-                              num_actions=m, num_obs=o, generator=torch.Generator().manual_seed(seed))
+    return random_controllers(
+        k, num_agents=a, num_nodes=nn, num_actions=m, num_obs=o, generator=torch.Generator().manual_seed(seed)
+    )
 
 
 def test_round_trip(tmp_path):

@@ -57,8 +57,14 @@ def no_noise_both(no_noise, backend):
 def start(env, state, actions, t=0.0, agents=None):
     actions = torch.tensor([actions])
     agents = torch.ones_like(actions, dtype=torch.bool) if agents is None else torch.tensor([agents])
-    return env.start(state, agents, actions, torch.full((1,), t, dtype=torch.float64),
-                     torch.zeros(actions.shape, dtype=torch.float64), g())
+    return env.start(
+        state,
+        agents,
+        actions,
+        torch.full((1,), t, dtype=torch.float64),
+        torch.zeros(actions.shape, dtype=torch.float64),
+        g(),
+    )
 
 
 def test_travel_durations_and_health_slowdown(no_noise):
@@ -79,7 +85,9 @@ def test_infer_uses_the_plugged_model(no_noise):
     objects = state["objects"].clone()
     assert start(env, state, [dr.INFER, dr.INFER]).tolist() == [[1.75, 1.75]]
     assert torch.equal(model.asked[0], objects[0])  # robot a infers the object at base a
-    reward, obs = env.complete(state, torch.ones(1, 2, dtype=torch.bool), torch.full((1, 2), dr.INFER), torch.full((1,), 1.75), g())
+    reward, obs = env.complete(
+        state, torch.ones(1, 2, dtype=torch.bool), torch.full((1, 2), dr.INFER), torch.full((1,), 1.75), g()
+    )
     contexts = [dr.OBS_NAMES[o].rsplit("_", 1)[0] for o in obs[0]]
     expected = ["saw_" + dr.LOCATIONS[int(dr.DESTINATION[int(ShiftedPerception.WRONG[c])])].lower() for c in objects[0]]
     assert contexts == expected
@@ -138,7 +146,15 @@ def test_contexts_follow_a_delivery(no_noise):
         t = end.item()
         _, obs = env.complete(state, one, torch.tensor([[ma]]), end[0], g())
         seen.append(dr.OBS_NAMES[obs[0, 0]].rsplit("_", 1)[0])
-    assert seen == ["saw_" + site, "loaded_" + site, "at_site_loaded", "away", "at_base", "loaded_unknown", "loaded_unknown"]
+    assert seen == [
+        "saw_" + site,
+        "loaded_" + site,
+        "at_site_loaded",
+        "away",
+        "at_base",
+        "loaded_unknown",
+        "loaded_unknown",
+    ]
     assert state["delivered"].item() == 1 and state["loc"].item() == dr.BASE2
 
 
@@ -171,10 +187,16 @@ def test_default_perception_is_perfect():
 
 @pytest.mark.parametrize(
     "kwargs, error, match",
-    [({"perception": object()}, TypeError, "perception"), ({"perception": PerfectPerception(5)}, ValueError, "num_classes"),
-     ({"num_agents": 0}, ValueError, "num_agents"), ({"gamma": 0.0}, ValueError, "gamma"),
-     ({"frame_period": 0.0}, ValueError, "frame_period"), ({"degrade_prob": 1.5}, ValueError, "degrade_prob"),
-     ({"sensor_accuracy": -0.1}, ValueError, "sensor_accuracy"), ({"wrong_penalty": math.inf}, ValueError, "wrong_penalty")],
+    [
+        ({"perception": object()}, TypeError, "perception"),
+        ({"perception": PerfectPerception(5)}, ValueError, "num_classes"),
+        ({"num_agents": 0}, ValueError, "num_agents"),
+        ({"gamma": 0.0}, ValueError, "gamma"),
+        ({"frame_period": 0.0}, ValueError, "frame_period"),
+        ({"degrade_prob": 1.5}, ValueError, "degrade_prob"),
+        ({"sensor_accuracy": -0.1}, ValueError, "sensor_accuracy"),
+        ({"wrong_penalty": math.inf}, ValueError, "wrong_penalty"),
+    ],
 )
 def test_bad_arguments(kwargs, error, match):
     with pytest.raises(error, match=match):

@@ -86,8 +86,9 @@ def test_every_entry_form():
     expected[3, 1] = [[10, 11, 12, 13], [20, 21, 22, 23]]
     np.testing.assert_allclose(np.broadcast_to(m.reward, expected.shape), expected)
     r_exp = m.expected_reward()
-    assert r_exp[3, 1] == pytest.approx(0.6 * np.dot([0, 0.5, 0.25, 0.25], [10, 11, 12, 13])
-                                         + 0.4 * np.dot([0, 0.5, 0.25, 0.25], [20, 21, 22, 23]))
+    assert r_exp[3, 1] == pytest.approx(
+        0.6 * np.dot([0, 0.5, 0.25, 0.25], [10, 11, 12, 13]) + 0.4 * np.dot([0, 0.5, 0.25, 0.25], [20, 21, 22, 23])
+    )
 
 
 @pytest.mark.parametrize(
@@ -113,8 +114,14 @@ def test_start_forms(start, expected):
 
 
 def test_shipped_problems_load_plain_and_gzipped():
-    shapes = {"dectiger": (2, 3, 2), "broadcastChannel": (4, 2, 2), "recycling": (4, 3, 2), "GridSmall": (16, 5, 2),
-              "oneDoor_2_7_0.20_0.00_0_2": (65, 4, 2), "fireFighting_2_4_3": (2025, 4, 2)}
+    shapes = {
+        "dectiger": (2, 3, 2),
+        "broadcastChannel": (4, 2, 2),
+        "recycling": (4, 3, 2),
+        "GridSmall": (16, 5, 2),
+        "oneDoor_2_7_0.20_0.00_0_2": (65, 4, 2),
+        "fireFighting_2_4_3": (2025, 4, 2),
+    }
     assert set(shapes) | {"example"} == set(problem_names())
     for name, (s, a, o) in shapes.items():
         m = load_problem(name)
@@ -142,8 +149,9 @@ def test_compact_tables_of_the_large_problems():
     # the expected reward over sparse rows equals the dense einsum
     dense_t = door.transition.toarray()
     full_r = np.broadcast_to(door.reward, dense_t.shape + (door.observation.shape[-1],))
-    np.testing.assert_allclose(door.expected_reward(),
-                               np.einsum("ast,atj,astj->as", dense_t, door.observation, full_r), atol=1e-12)
+    np.testing.assert_allclose(
+        door.expected_reward(), np.einsum("ast,atj,astj->as", dense_t, door.observation, full_r), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("seed", range(60))
@@ -158,7 +166,9 @@ def test_synthetic_files_match_the_dense_parser(seed):
     np.testing.assert_array_equal(np.broadcast_to(m.reward, full.shape), full)
 
 
-@pytest.mark.parametrize("name", ["dectiger", "broadcastChannel", "recycling", "GridSmall", "oneDoor_2_7_0.20_0.00_0_2"])
+@pytest.mark.parametrize(
+    "name", ["dectiger", "broadcastChannel", "recycling", "GridSmall", "oneDoor_2_7_0.20_0.00_0_2"]
+)
 def test_shipped_files_match_the_dense_parser(name):
     m = load_problem(name)
     np.testing.assert_allclose(m.transition.toarray(), REFERENCE[f"transition_{name}"], rtol=0, atol=1e-15)
@@ -198,8 +208,12 @@ GOOD = HEADER + BODY
         ("T: a 1 :", "T: a 1 1 :", "T: a 1 1", "expected 1 or 2 components"),
         ("T: a 1 :", "T: a 5 :", "T: a 5", "index 5 out of range"),
         ("O: b 0 :\n0.5 0.5 0 0\n0 0 0.5 0.5", "O: b 0 :\nidentity", "identity", "square"),
-        ("R: 3 : s1 :\n10 11 12 13\n20 21 22 23", "R: 3 : s1 :\n10 11 12 13\nR: 0 : s0 : * : * : 1", "R: 0 : s0",
-         "expected 8 numbers"),
+        (
+            "R: 3 : s1 :\n10 11 12 13\n20 21 22 23",
+            "R: 3 : s1 :\n10 11 12 13\nR: 0 : s0 : * : * : 1",
+            "R: 0 : s0",
+            "expected 8 numbers",
+        ),
         ("R: a 0 : s1 : * : * : 5", "Q: a 0 : s1 : * : * : 5", "Q: a 0", "expected a 'T:', 'O:' or 'R:'"),
         ("R: a 0 : s1 : * : * : 5", "R: a 0 : s1 : * : * : 5 : 6 : 7", "R: a 0 :", "R: expected"),
     ],
@@ -251,12 +265,24 @@ def test_non_finite_numbers_are_rejected_with_their_line(bad, old, new, needle):
     "header, line, needed",
     [
         ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 100000000\n", 4, r"100000000 states need \d+ bytes"),
-        ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 100000\nstart: uniform\nactions:\n100\n100\n", 8,
-         r"100000 states, 10000 joint actions and 1 joint observations need \d+ bytes"),
-        (("agents: 2\ndiscount: 1\nvalues: reward\nstates: 3000\nstart: uniform\nactions:\n30\n30\n"
-          "observations:\n30\n30\n"), 11, r"3000 states, 900 joint actions and 900 joint observations need"),
-        ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 3\nstart: uniform\nactions:\n1000000000\n", 7,
-         r"1000000000 actions need"),
+        (
+            "agents: 2\ndiscount: 1\nvalues: reward\nstates: 100000\nstart: uniform\nactions:\n100\n100\n",
+            8,
+            r"100000 states, 10000 joint actions and 1 joint observations need \d+ bytes",
+        ),
+        (
+            (
+                "agents: 2\ndiscount: 1\nvalues: reward\nstates: 3000\nstart: uniform\nactions:\n30\n30\n"
+                "observations:\n30\n30\n"
+            ),
+            11,
+            r"3000 states, 900 joint actions and 900 joint observations need",
+        ),
+        (
+            "agents: 2\ndiscount: 1\nvalues: reward\nstates: 3\nstart: uniform\nactions:\n1000000000\n",
+            7,
+            r"1000000000 actions need",
+        ),
     ],
 )
 def test_declared_sizes_above_the_memory_budget_are_rejected_before_allocation(header, line, needed):
@@ -354,6 +380,9 @@ def test_a_folder_is_not_a_problem_file(tmp_path):
 
 def test_more_agents_than_action_lists_says_so():
     text = (PROBLEM_DIR / "dectiger.dpomdp").read_text().replace("agents: 2", "agents: 100000", 1)
-    with pytest.raises(DPOMDPSyntaxError, match=r"actions: expected one list per agent \(100000 agents declared by "
-                                               r"'agents:'\), found 2 before 'observations'"):
+    with pytest.raises(
+        DPOMDPSyntaxError,
+        match=r"actions: expected one list per agent \(100000 agents declared by "
+        r"'agents:'\), found 2 before 'observations'",
+    ):
         parse_dpomdp(text)

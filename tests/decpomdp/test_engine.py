@@ -42,7 +42,13 @@ def g(seed: int = 0) -> torch.Generator:
 
 def table() -> hbni_pyro.MacroObservationModel:
     """A six-class macro-observation table with errors and spread-out frame counts."""
-    joint = torch.distributions.Dirichlet(torch.ones(6 * 12, dtype=torch.float64)).sample((6,), ).view(6, 6, 12)
+    joint = (
+        torch.distributions.Dirichlet(torch.ones(6 * 12, dtype=torch.float64))
+        .sample(
+            (6,),
+        )
+        .view(6, 6, 12)
+    )
     joint[torch.arange(6), torch.arange(6)] += 0.5  # mostly right
     return hbni_pyro.MacroObservationModel(joint / joint.sum((1, 2), keepdim=True), torch.zeros(6))
 
@@ -58,8 +64,17 @@ def replay() -> hbni_pyro.StreamReplay:
 
 def planned(env: DecPOSMDP) -> JointController:
     """A controller found by a short cold-start run on ``env``."""
-    cfg = PlannerConfig(budget=150_000, num_nodes=6, ce_iterations=3, ce_samples=60, ls_candidates=300,
-                        ls_stages=((8, 0.1), (64, 4)), duel_rollouts=300, visit_rollouts=100, patience=1)
+    cfg = PlannerConfig(
+        budget=150_000,
+        num_nodes=6,
+        ce_iterations=3,
+        ce_samples=60,
+        ls_candidates=300,
+        ls_stages=((8, 0.1), (64, 4)),
+        duel_rollouts=300,
+        visit_rollouts=100,
+        patience=1,
+    )
     return plan(RolloutScorer(env), cfg, seed=0).best
 
 
@@ -70,8 +85,9 @@ DOMAINS = {
     "disaster relief, replay": lambda: DisasterRelief(perception=replay(), num_agents=3),
     "package delivery": lambda: PackageDelivery(),
     "package delivery, solo joint": lambda: PackageDelivery(solo_joint=True, large_reward_per_robot=False),
-    "package delivery, reference": lambda: PackageDelivery(solo_joint=True, successor_rule=True,
-                                                           reference_pickup=True, truck_reward=0.0),
+    "package delivery, reference": lambda: PackageDelivery(
+        solo_joint=True, successor_rule=True, reference_pickup=True, truck_reward=0.0
+    ),
     "dectiger h4": lambda: TabularDecPOSMDP.from_problem("dectiger", horizon=4),
     "recycling h6": lambda: TabularDecPOSMDP.from_problem("recycling", horizon=6),
 }
@@ -105,15 +121,20 @@ def assert_same_law(x: torch.Tensor, y: torch.Tensor, what: str) -> None:
         return ((c**4).mean() - c.var() ** 2) / v.numel()
 
     vse = math.sqrt(max(float(var_se(x) + var_se(y)), 0.0))
-    assert abs(float(x.var() - y.var())) <= 4 * vse + 1e-12, f"{what}: variances {float(x.var()):.4f} vs {float(y.var()):.4f}"
+    assert abs(float(x.var() - y.var())) <= 4 * vse + 1e-12, (
+        f"{what}: variances {float(x.var()):.4f} vs {float(y.var()):.4f}"
+    )
 
 
 @pytest.mark.parametrize("name", DOMAINS)
 def test_engine_matches_the_torch_oracle(name):
     env = DOMAINS[name]()
-    controllers = {"random": random_controllers(2, num_agents=env.num_agents, num_nodes=4,
-                                                num_actions=env.num_actions, num_obs=env.num_obs, generator=g(1)),
-                   "planned": planned(env)}
+    controllers = {
+        "random": random_controllers(
+            2, num_agents=env.num_agents, num_nodes=4, num_actions=env.num_actions, num_obs=env.num_obs, generator=g(1)
+        ),
+        "planned": planned(env),
+    }
     if greedy(env) is not None:
         controllers["greedy"] = greedy(env)
     for kind, ctrl in controllers.items():
@@ -127,6 +148,7 @@ def test_engine_matches_the_torch_oracle(name):
 
 
 # ---- where nothing is random, both give the same numbers -------------------------------------------
+
 
 class FromState(DecPOSMDP):
     """The torch oracle of ``env`` started from one given state, remembering the state after every rule."""
@@ -231,13 +253,16 @@ def test_deterministic_package_delivery_gives_equal_returns(monkeypatch):
 
 # ---- the engine's own guarantees ------------------------------------------------------------------
 
+
 def test_a_seed_gives_the_same_returns_on_any_thread_count_and_chunking():
     env, ctrl = DisasterRelief(perception=table()), mutants(dr.greedy_controller(), 6)
     with threads(1):
         one = run(env, ctrl, 700, 11).returns
     with threads(2):
         two = run(env, ctrl, 700, 11).returns
-        halves = torch.cat([run(env, ctrl[:3], 700, 11).returns, run(env, ctrl[3:], 700, 11, first_controller=3).returns])
+        halves = torch.cat(
+            [run(env, ctrl[:3], 700, 11).returns, run(env, ctrl[3:], 700, 11, first_controller=3).returns]
+        )
         fewer = run(env, ctrl, 300, 11).returns
     assert torch.equal(one, two) and torch.equal(one, halves) and torch.equal(one[:, :300], fewer)
     assert not torch.equal(one, run(env, ctrl, 700, 12).returns)
@@ -329,7 +354,9 @@ def load_docs_domain(tmp_path: Path, name: str, edit=lambda text: text) -> dict:
 
 def test_zero_durations_are_refused(tmp_path):
     rule = "end[a] = t + (1.0 + uniform(rng) if actions[a] == FORAGE else 1.0)"
-    module = load_docs_domain(tmp_path, "zero_domain", lambda text: text.replace(rule, "end[a] = t").split("always_forage =")[0])
+    module = load_docs_domain(
+        tmp_path, "zero_domain", lambda text: text.replace(rule, "end[a] = t").split("always_forage =")[0]
+    )
     ctrl = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
     with pytest.raises(RuntimeError, match="zero duration"):
         simulate(module["Foraging"](), ctrl, 3, g())

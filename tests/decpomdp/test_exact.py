@@ -73,16 +73,25 @@ def test_hand_values():
 
 @pytest.mark.parametrize(
     "name, gamma, horizon",
-    [("dectiger", 1.0, 4), ("broadcastChannel", 1.0, 10), ("recycling", 0.9, 5), ("GridSmall", 1.0, 3),
-     ("oneDoor_2_7_0.20_0.00_0_2", 1.0, 3), ("recycling", 0.9, math.inf), ("GridSmall", 0.9, math.inf),
-     ("dectiger", 0.9, math.inf), ("broadcastChannel", 0.9, math.inf)],
+    [
+        ("dectiger", 1.0, 4),
+        ("broadcastChannel", 1.0, 10),
+        ("recycling", 0.9, 5),
+        ("GridSmall", 1.0, 3),
+        ("oneDoor_2_7_0.20_0.00_0_2", 1.0, 3),
+        ("recycling", 0.9, math.inf),
+        ("GridSmall", 0.9, math.inf),
+        ("dectiger", 0.9, math.inf),
+        ("broadcastChannel", 0.9, math.inf),
+    ],
 )
 def test_matches_brute_force(name, gamma, horizon):
     env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
     g = torch.Generator().manual_seed(4)
-    ctrls = [random_controllers(4, num_agents=2, num_nodes=3,
-                                num_actions=env.num_actions, num_obs=env.num_obs, generator=g),
-             layered(4, 2, 2, 3, env.num_actions, env.num_obs, seed=5)]
+    ctrls = [
+        random_controllers(4, num_agents=2, num_nodes=3, num_actions=env.num_actions, num_obs=env.num_obs, generator=g),
+        layered(4, 2, 2, 3, env.num_actions, env.num_obs, seed=5),
+    ]
     for ctrl in ctrls:
         ref = brute_force(env, ctrl, horizon)
         torch.testing.assert_close(exact_value(env, ctrl), ref, atol=1e-9, rtol=0)
@@ -92,16 +101,23 @@ def test_matches_brute_force(name, gamma, horizon):
 
 @pytest.mark.parametrize(
     "name, gamma, horizon, nodes",
-    [("dectiger", 1.0, 4, 3), ("broadcastChannel", 1.0, 10, 3), ("recycling", 0.9, math.inf, 3),
-     ("GridSmall", 0.9, math.inf, 2), ("oneDoor_2_7_0.20_0.00_0_2", 1.0, 6, 3), ("fireFighting_2_4_3", 1.0, 4, 3)],
+    [
+        ("dectiger", 1.0, 4, 3),
+        ("broadcastChannel", 1.0, 10, 3),
+        ("recycling", 0.9, math.inf, 3),
+        ("GridSmall", 0.9, math.inf, 2),
+        ("oneDoor_2_7_0.20_0.00_0_2", 1.0, 6, 3),
+        ("fireFighting_2_4_3", 1.0, 4, 3),
+    ],
 )
 def test_exact_matches_monte_carlo(name, gamma, horizon, nodes):
     """Each of 4 controllers within 3 Monte Carlo standard errors (a false alarm has probability 0.27 % per
     controller); the simulator samples next states from the sparse rows, including fireFighting's 2025 states."""
     g = torch.Generator().manual_seed(11)
     env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
-    ctrl = random_controllers(4, num_agents=2, num_nodes=nodes,
-                              num_actions=env.num_actions, num_obs=env.num_obs, generator=g)
+    ctrl = random_controllers(
+        4, num_agents=2, num_nodes=nodes, num_actions=env.num_actions, num_obs=env.num_obs, generator=g
+    )
     exact = exact_value(env, ctrl)
     if horizon == math.inf:
         env.horizon = 250.0  # gamma ** 250 * max|R| / (1 - gamma) < 1e-9: far below Monte Carlo error
@@ -127,8 +143,14 @@ def test_next_state_sampling_follows_the_sparse_rows():
 
 def test_infinite_horizon_solvers_agree_with_a_long_finite_horizon():
     env = TabularDecPOSMDP.from_problem("GridSmall", gamma=0.9)
-    ctrl = random_controllers(3, num_agents=2, num_nodes=4,
-                              num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(2))
+    ctrl = random_controllers(
+        3,
+        num_agents=2,
+        num_nodes=4,
+        num_actions=env.num_actions,
+        num_obs=env.num_obs,
+        generator=torch.Generator().manual_seed(2),
+    )
     dense, krylov = exact_value(env, ctrl), exact_value(env, ctrl, max_dense=0, tol=1e-12)
     long = exact_value(env, ctrl, horizon=400)  # 0.9 ** 400 * max|R| / 0.1 < 1e-17
     torch.testing.assert_close(dense, krylov, atol=1e-10, rtol=0)
@@ -159,18 +181,27 @@ def test_unreachable_nodes_and_memory_budget_do_not_change_values():
 
 def test_errors():
     env = tiger(3)
-    ctrl = random_controllers(1, num_agents=2, num_nodes=2,
-                              num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0))
+    ctrl = random_controllers(
+        1, num_agents=2, num_nodes=2, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
+    )
     with pytest.raises(ValueError, match="infinite horizon needs gamma < 1"):
         exact_value(env, ctrl, horizon=math.inf)
     with pytest.raises(ValueError, match="horizon"):
         exact_value(env, ctrl, horizon=2.5)
     with pytest.raises(ValueError, match="action entries"):
-        exact_value(env, random_controllers(1, num_agents=2, num_nodes=2,
-                                            num_actions=4, num_obs=2, generator=torch.Generator().manual_seed(0)))
+        exact_value(
+            env,
+            random_controllers(
+                1, num_agents=2, num_nodes=2, num_actions=4, num_obs=2, generator=torch.Generator().manual_seed(0)
+            ),
+        )
     with pytest.raises(ValueError, match="agents"):
-        exact_value(env, random_controllers(1, num_agents=3, num_nodes=2,
-                                            num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)))
+        exact_value(
+            env,
+            random_controllers(
+                1, num_agents=3, num_nodes=2, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
+            ),
+        )
     with pytest.raises(TypeError, match="env"):
         exact_value(object(), ctrl)
     with pytest.raises(ValueError, match="memory_budget"):
@@ -186,8 +217,10 @@ def test_errors():
 def test_tabular_env_rejects_rows_that_are_not_distributions():
     from decpomdp.dpomdp import parse_dpomdp
 
-    text = ("agents: 2\ndiscount: 1\nvalues: reward\nstates: 2\nstart: uniform\nactions:\n1\n1\nobservations:\n1\n1\n"
-            "T: * : 0 : 0 : 0.5\nO: * :\nuniform\nR: * : * : * : * : 1\n")
+    text = (
+        "agents: 2\ndiscount: 1\nvalues: reward\nstates: 2\nstart: uniform\nactions:\n1\n1\nobservations:\n1\n1\n"
+        "T: * : 0 : 0 : 0.5\nO: * :\nuniform\nR: * : * : * : * : 1\n"
+    )
     with pytest.raises(ValueError, match=r"transition row \(joint action 0, state 1\) sums to 0, not 1"):
         TabularDecPOSMDP(parse_dpomdp(text, check_probabilities=False), horizon=3)
     text = text.replace("T: * : 0 : 0 : 0.5", "T: * :\nidentity").replace("O: * :\nuniform", "O: * : 1 : 0 0 : 0.3")
@@ -207,13 +240,24 @@ def _bench_exact():
     return module
 
 
-@pytest.mark.parametrize("name, horizon", [("dectiger", 4), ("broadcastChannel", 6), ("recycling", 4), ("GridSmall", 3)])
+@pytest.mark.parametrize(
+    "name, horizon", [("dectiger", 4), ("broadcastChannel", 6), ("recycling", 4), ("GridSmall", 3)]
+)
 def test_equals_the_former_dense_product(name, horizon):
     """The factored evaluator reproduces the former (K, Q, S, S', JO) dense product to 1e-9 on the small problems."""
     bench = _bench_exact()
     env = TabularDecPOSMDP.from_problem(name, gamma=1.0, horizon=horizon)
-    for ctrl in (random_controllers(8, num_agents=2, num_nodes=3,
-                                    num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(3)),
-                 bench.layered_controllers(env, 8, 1 + 3 * (horizon - 1), seed=4)):
-        torch.testing.assert_close(exact_value(env, ctrl), bench.dense_reference_value(env, ctrl, horizon),
-                                   atol=1e-9, rtol=0)
+    for ctrl in (
+        random_controllers(
+            8,
+            num_agents=2,
+            num_nodes=3,
+            num_actions=env.num_actions,
+            num_obs=env.num_obs,
+            generator=torch.Generator().manual_seed(3),
+        ),
+        bench.layered_controllers(env, 8, 1 + 3 * (horizon - 1), seed=4),
+    ):
+        torch.testing.assert_close(
+            exact_value(env, ctrl), bench.dense_reference_value(env, ctrl, horizon), atol=1e-9, rtol=0
+        )

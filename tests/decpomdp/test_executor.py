@@ -47,8 +47,14 @@ def test_executor_chooses_the_simulators_macro_actions(domain, source):
     if source == "greedy" and domain == "disaster_relief":
         ctrl = greedy_controller(2)
     else:  # random 6-node controllers: every node and transition exercised
-        ctrl = random_controllers(1, num_agents=env.num_agents, num_nodes=6,
-                                  num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(3))
+        ctrl = random_controllers(
+            1,
+            num_agents=env.num_agents,
+            num_nodes=6,
+            num_actions=env.num_actions,
+            num_obs=env.num_obs,
+            generator=torch.Generator().manual_seed(3),
+        )
     trace = Trace(env)
     simulate(trace, ctrl, 40, torch.Generator().manual_seed(0))
     checked = 0
@@ -99,8 +105,14 @@ def test_state_of_another_controller_or_agent_is_refused():
     other_agent = ControllerExecutor.for_domain(greedy_controller(2), 1, env)
     with pytest.raises(ValueError, match="agent was 0 there, is 1 here"):
         other_agent.load_state_dict(ex.state_dict())
-    rand = random_controllers(1, num_agents=2, num_nodes=8,
-                              num_actions=env.num_actions, num_obs=env.num_obs, generator=torch.Generator().manual_seed(0))
+    rand = random_controllers(
+        1,
+        num_agents=2,
+        num_nodes=8,
+        num_actions=env.num_actions,
+        num_obs=env.num_obs,
+        generator=torch.Generator().manual_seed(0),
+    )
     with pytest.raises(ValueError, match="controller was"):
         ControllerExecutor.for_domain(rand, 0, env).load_state_dict(ex.state_dict())
     bad = ex.state_dict() | {"node": 8}
@@ -158,8 +170,11 @@ def test_names_travel_with_the_controller_and_are_checked(tmp_path):
     ControllerExecutor.for_domain(loaded, agent=0, env=env)
     swapped = list(env.obs_names)
     swapped[0], swapped[1] = swapped[1], swapped[0]
-    with pytest.raises(ValueError, match=r"controller: planned for other obs_names than env's \(first difference at "
-                                         r"index 0"):
+    with pytest.raises(
+        ValueError,
+        match=r"controller: planned for other obs_names than env's \(first difference at "
+        r"index 0",
+    ):
         ControllerExecutor.for_domain(loaded.named(env.action_names, swapped), agent=0, env=env)
     with pytest.raises(ValueError, match="obs_names: expected .* distinct names"):
         loaded.named(env.action_names, env.obs_names[:-1])

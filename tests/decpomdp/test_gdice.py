@@ -26,25 +26,44 @@ def recycling():
 
 
 def small(**overrides):
-    return gdice_config(**({"num_nodes": 2, "start_nodes": 2, "ce_iterations": 3, "ce_samples": 10, "ce_elites": 2}
-                           | overrides))
+    return gdice_config(
+        **({"num_nodes": 2, "start_nodes": 2, "ce_iterations": 3, "ce_samples": 10, "ce_elites": 2} | overrides)
+    )
 
 
-@pytest.mark.parametrize("variant", [
-    {},
-    {"ce_threshold": "capped"},
-    {"layer_width": 2, "num_nodes": 5, "start_nodes": 5},
-    {"ce_injection_weight": 0.2},
-])
+@pytest.mark.parametrize(
+    "variant",
+    [
+        {},
+        {"ce_threshold": "capped"},
+        {"layer_width": 2, "num_nodes": 5, "start_nodes": 5},
+        {"ce_injection_weight": 0.2},
+    ],
+)
 def test_preset_reproduces_the_reference_exactly(variant):
     env = dec_tiger(3)
-    cfg = gdice_config(**({"ce_iterations": 12, "ce_samples": 30, "ce_elites": 5, "ce_alpha": 0.2, "num_nodes": 4,
-                           "start_nodes": 4} | variant))
+    cfg = gdice_config(
+        **(
+            {"ce_iterations": 12, "ce_samples": 30, "ce_elites": 5, "ce_alpha": 0.2, "num_nodes": 4, "start_nodes": 4}
+            | variant
+        )
+    )
     res = plan(ExactScorer(env), cfg, seed=3)
     best, value, history = reference(
-        lambda c, g: exact_value(env, c), env.num_agents, env.num_actions, env.num_obs, num_nodes=cfg.num_nodes,
-        iterations=cfg.ce_iterations, samples=cfg.ce_samples, elites=cfg.ce_elites, alpha=cfg.ce_alpha,
-        threshold_rule=cfg.ce_threshold, layer_width=cfg.layer_width, injection_weight=cfg.ce_injection_weight, seed=3)
+        lambda c, g: exact_value(env, c),
+        env.num_agents,
+        env.num_actions,
+        env.num_obs,
+        num_nodes=cfg.num_nodes,
+        iterations=cfg.ce_iterations,
+        samples=cfg.ce_samples,
+        elites=cfg.ce_elites,
+        alpha=cfg.ce_alpha,
+        threshold_rule=cfg.ce_threshold,
+        layer_width=cfg.layer_width,
+        injection_weight=cfg.ce_injection_weight,
+        seed=3,
+    )
     assert res.value == value and math.isnan(res.stderr)  # a maximum over scores: no honest s.e.
     assert torch.equal(res.best.action, best.action) and torch.equal(res.best.next_node, best.next_node)
     assert res.history["best_sampled"] == history
@@ -54,8 +73,16 @@ def test_preset_reproduces_the_reference_on_rollouts():
     env = PackageDelivery()
     scorer = RolloutScorer(env, shared=True)
     res = plan(scorer, gdice_config(ce_iterations=4, ce_samples=16, ce_elites=4), seed=1)
-    best, value, history = reference(lambda c, g: RolloutScorer(env, shared=True)(c, 80, g)[0], 1, env.num_actions,
-                                     env.num_obs, iterations=4, samples=16, elites=4, seed=1)
+    best, value, history = reference(
+        lambda c, g: RolloutScorer(env, shared=True)(c, 80, g)[0],
+        1,
+        env.num_actions,
+        env.num_obs,
+        iterations=4,
+        samples=16,
+        elites=4,
+        seed=1,
+    )
     assert res.value == value and res.history["best_sampled"] == history
     assert torch.equal(res.best.action, best.action) and torch.equal(res.best.next_node, best.next_node)
     assert res.rollouts == scorer.rollouts_used == 4 * 16 * 80
@@ -83,9 +110,19 @@ def test_seeded_determinism(recycling):
 @pytest.mark.parametrize("warm", [False, True])
 def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0)
-    cfg = small(num_nodes=3, start_nodes=3, ce_iterations=6, ce_samples=12, ce_elites=3, ce_alpha=0.2,
-                ce_rollouts=8, ce_injection_weight=0.1, ce_injection_threshold=0.9,
-                ce_threshold="capped" if warm else "paper", ce_init_weight=0.7 if warm else 0.0)
+    cfg = small(
+        num_nodes=3,
+        start_nodes=3,
+        ce_iterations=6,
+        ce_samples=12,
+        ce_elites=3,
+        ce_alpha=0.2,
+        ce_rollouts=8,
+        ce_injection_weight=0.1,
+        ce_injection_threshold=0.9,
+        ce_threshold="capped" if warm else "paper",
+        ce_init_weight=0.7 if warm else 0.0,
+    )
     init = recycling_controller(2) if warm else None
     full = plan(RolloutScorer(env), cfg, seed=3, init=init)
     ckpt = tmp_path / "gdice.safetensors"
@@ -98,23 +135,34 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, warm):
     for got, want in zip(resumed.distributions, full.distributions):
         torch.testing.assert_close(got, want, rtol=0, atol=0)
     with pytest.raises(ValueError, match="another run: config.ce_iterations was 6 there, is 4 here"):
-        plan(Interrupt(RolloutScorer(env), 0), dataclasses.replace(cfg, ce_iterations=4), seed=3, init=init,
-             checkpoint=ckpt)
+        plan(
+            Interrupt(RolloutScorer(env), 0),
+            dataclasses.replace(cfg, ce_iterations=4),
+            seed=3,
+            init=init,
+            checkpoint=ckpt,
+        )
 
 
 def recycling_controller(num_nodes=2):
     """A fixed 2-agent recycling controller with ``num_nodes`` nodes (next node depends on node and obs)."""
     g = torch.Generator().manual_seed(11)
-    return JointController(torch.randint(0, 3, (1, 2, num_nodes), generator=g),
-                           torch.randint(0, num_nodes, (1, 2, num_nodes, 2), generator=g))
+    return JointController(
+        torch.randint(0, 3, (1, 2, num_nodes), generator=g),
+        torch.randint(0, num_nodes, (1, 2, num_nodes, 2), generator=g),
+    )
 
 
 @pytest.mark.parametrize("init_nodes", [2, 3])
 def test_warm_start_at_weight_one_samples_the_init_controller(recycling, init_nodes):
     init = recycling_controller(init_nodes)
     target = exact_value(recycling, init).item()
-    res = plan(ExactScorer(recycling), small(num_nodes=3, start_nodes=3, ce_iterations=1, ce_samples=8,
-                                             ce_init_weight=1.0), seed=0, init=init)
+    res = plan(
+        ExactScorer(recycling),
+        small(num_nodes=3, start_nodes=3, ce_iterations=1, ce_samples=8, ce_init_weight=1.0),
+        seed=0,
+        init=init,
+    )
     # every sample is ``init`` (the padding node is unreachable), so all of them score its exact value
     assert res.history["best_sampled"][0] == pytest.approx(target, abs=1e-9)
     assert res.history["mean"][0] == pytest.approx(target, abs=1e-9)
@@ -125,8 +173,12 @@ def test_warm_start_at_weight_one_samples_the_init_controller(recycling, init_no
 
 def test_warm_start_distributions(recycling):
     init, w = recycling_controller(2), 0.6
-    res = plan(ExactScorer(recycling), small(num_nodes=3, start_nodes=3, ce_iterations=1, ce_samples=4, ce_elites=4,
-                                             ce_alpha=1e-12, ce_init_weight=w), seed=0, init=init)
+    res = plan(
+        ExactScorer(recycling),
+        small(num_nodes=3, start_nodes=3, ce_iterations=1, ce_samples=4, ce_elites=4, ce_alpha=1e-12, ce_init_weight=w),
+        seed=0,
+        init=init,
+    )
     # alpha ~ 0: the final distributions are the initial ones up to 1e-12
     act = torch.full((2, 3, 3), (1 - w) / 3, dtype=torch.float64)
     act[:, :2] += w * torch.nn.functional.one_hot(init.action[0], 3).double()
@@ -145,8 +197,11 @@ def test_warm_start_errors(recycling):
         plan(scorer, small(ce_init_weight=0.5), init=JointController.cat([init, init]))
     layered = small(num_nodes=3, start_nodes=3, layer_width=2, ce_init_weight=0.5)
     with pytest.raises(ValueError, match="layered"):
-        plan(scorer, layered, init=JointController(torch.zeros(1, 2, 3, dtype=torch.long),
-                                                   torch.zeros(1, 2, 3, 2, dtype=torch.long)))
+        plan(
+            scorer,
+            layered,
+            init=JointController(torch.zeros(1, 2, 3, dtype=torch.long), torch.zeros(1, 2, 3, 2, dtype=torch.long)),
+        )
 
 
 class Scripted:
@@ -187,22 +242,36 @@ def test_layered_graph_and_injection():
     assert mask[0].tolist() == [False, True, True, True, False, False, False]
     assert mask[1:4, 4:].all() and not mask[1:4, :4].any() and mask[4:, 4:].all() and not mask[4:, :4].any()
     env = dec_tiger(3)
-    res = plan(ExactScorer(env), small(num_nodes=7, start_nodes=7, layer_width=3, ce_samples=50, ce_elites=5,
-                                       ce_injection_weight=0.5, ce_injection_threshold=1.0,
-                                       ce_injection_until=1.0), seed=0)
+    res = plan(
+        ExactScorer(env),
+        small(
+            num_nodes=7,
+            start_nodes=7,
+            layer_width=3,
+            ce_samples=50,
+            ce_elites=5,
+            ce_injection_weight=0.5,
+            ce_injection_threshold=1.0,
+            ce_injection_until=1.0,
+        ),
+        seed=0,
+    )
     assert mask[torch.arange(7)[None, :, None].expand(2, 7, 2), res.best.next_node[0]].all()
     assert ((res.distributions[1] > 0) == mask[None, :, None, :]).all()  # injection stays inside the layers
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"num_nodes": 6, "start_nodes": 6, "layer_width": 2}, "layer_width"),
-    ({"ce_threshold": "median"}, "ce_threshold"),
-    ({"ce_result": "last"}, "ce_result"),
-    ({"ce_init_weight": -0.1}, "ce_init_weight"),
-    ({"ce_init_weight": 1.5}, "ce_init_weight"),
-    ({"ce_injection_weight": 1.5}, "ce_injection_weight"),
-    ({"ce_elites": 11, "ce_samples": 10}, "ce_elites"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"num_nodes": 6, "start_nodes": 6, "layer_width": 2}, "layer_width"),
+        ({"ce_threshold": "median"}, "ce_threshold"),
+        ({"ce_result": "last"}, "ce_result"),
+        ({"ce_init_weight": -0.1}, "ce_init_weight"),
+        ({"ce_init_weight": 1.5}, "ce_init_weight"),
+        ({"ce_injection_weight": 1.5}, "ce_injection_weight"),
+        ({"ce_elites": 11, "ce_samples": 10}, "ce_elites"),
+    ],
+)
 def test_config_errors(kwargs, match):
     with pytest.raises(ValueError, match=match):
         gdice_config(**kwargs)

@@ -119,10 +119,18 @@ def test_joint_rendezvous_partner_arrives_later(exact):
     state = env.reset(1, g())
     both = torch.tensor([[True, True]])
     # robot 0 starts the joint pick-up at t = 0 and waits; robot 1 is busy until t = 1
-    end = env.start(state, torch.tensor([[True, False]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.zeros(1),
-                    torch.tensor([[0.0, 1.0]], dtype=torch.float64), g())
+    end = env.start(
+        state,
+        torch.tensor([[True, False]]),
+        torch.tensor([[pd.JPICK, pd.WAIT]]),
+        torch.zeros(1),
+        torch.tensor([[0.0, 1.0]], dtype=torch.float64),
+        g(),
+    )
     assert end.tolist() == [[4.0, 1.0]] and state["waiting"].tolist() == [[True, False]]
-    reward, obs = env.complete(state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.ones(1), g())
+    reward, obs = env.complete(
+        state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.ones(1), g()
+    )
     assert pd.OBS_NAMES[obs[0, 1]] == "large_dest2_partner"  # the waiting robot counts as present
     # robot 1 chooses to go to Base2 but is drafted into the joint pick-up
     end = env.start(state, torch.tensor([[False, True]]), torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.ones(1), end, g())
@@ -145,7 +153,9 @@ def test_joint_wait_runs_out(exact):
     env.complete(state, r1, torch.tensor([[pd.JPICK, pd.GO_B2]]), torch.full((1,), 2.0), g())
     end = env.start(state, r1, torch.tensor([[pd.JPICK, pd.WAIT]]), torch.full((1,), 2.0), end, g())
     assert end.tolist() == [[3.0, 3.0]] and state["ma"][0, 1] == pd.WAIT  # at Base2: not drafted
-    _, obs = env.complete(state, torch.tensor([[True, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.full((1,), 3.0), g())
+    _, obs = env.complete(
+        state, torch.tensor([[True, True]]), torch.tensor([[pd.JPICK, pd.WAIT]]), torch.full((1,), 3.0), g()
+    )
     assert state["load"].tolist() == [[0, 0]] and not state["waiting"].any()
     assert pd.OBS_NAMES[obs[0, 0]] == "large_dest2_alone"
 
@@ -154,8 +164,14 @@ def test_simultaneous_pick_up_clash(exact):
     exact(1)
     env = PackageDelivery()
     state = env.reset(1, g())
-    end = env.start(state, torch.tensor([[True, True]]), torch.full((1, 2), pd.PICK), torch.zeros(1),
-                    torch.zeros(1, 2, dtype=torch.float64), g())
+    end = env.start(
+        state,
+        torch.tensor([[True, True]]),
+        torch.full((1, 2), pd.PICK),
+        torch.zeros(1),
+        torch.zeros(1, 2, dtype=torch.float64),
+        g(),
+    )
     assert state["load"].tolist() == [[2, 0]] and state["ok"].tolist() == [[True, False]]
     assert end.tolist() == [[1.0, pd.FAIL_DURATION]]
 
@@ -165,11 +181,19 @@ def test_observations(exact):
     env = PackageDelivery()
     ctrl_obs = {}
     state = env.reset(1, g())
-    env.start(state, torch.tensor([[True, True]]), torch.tensor([[pd.PICK, pd.GO_R]]), torch.zeros(1),
-              torch.zeros(1, 2, dtype=torch.float64), g())
+    env.start(
+        state,
+        torch.tensor([[True, True]]),
+        torch.tensor([[pd.PICK, pd.GO_R]]),
+        torch.zeros(1),
+        torch.zeros(1, 2, dtype=torch.float64),
+        g(),
+    )
     _, obs = env.complete(state, torch.tensor([[True, False]]), torch.tensor([[pd.PICK, pd.GO_R]]), torch.ones(1), g())
     ctrl_obs["after pick, partner travelling"] = pd.OBS_NAMES[obs[0, 0]]
-    _, obs = env.complete(state, torch.tensor([[False, True]]), torch.tensor([[pd.PICK, pd.GO_R]]), torch.full((1,), 3.0), g())
+    _, obs = env.complete(
+        state, torch.tensor([[False, True]]), torch.tensor([[pd.PICK, pd.GO_R]]), torch.full((1,), 3.0), g()
+    )
     ctrl_obs["at the rendezvous"] = pd.OBS_NAMES[obs[0, 1]]
     assert ctrl_obs == {"after pick, partner travelling": "small_dest2_alone", "at the rendezvous": "none"}
     assert state["loc"].tolist() == [[pd.BASE1, pd.RENDEZVOUS]]
@@ -192,8 +216,14 @@ def test_duration_noise_statistics():
     # tau = 3 (go to Dest1 from Base1): mean 3, sd 0.9 (the clamp at 0.1 tau is 3 sd away: negligible)
     env, n = PackageDelivery(), 20000
     state = env.reset(n, g(1))
-    end = env.start(state, torch.ones(n, 2, dtype=torch.bool), torch.full((n, 2), pd.GO_D1), torch.zeros(n),
-                    torch.zeros(n, 2, dtype=torch.float64), g(2))
+    end = env.start(
+        state,
+        torch.ones(n, 2, dtype=torch.bool),
+        torch.full((n, 2), pd.GO_D1),
+        torch.zeros(n),
+        torch.zeros(n, 2, dtype=torch.float64),
+        g(2),
+    )
     d = end.flatten()
     se = 0.9 / math.sqrt(d.numel())
     assert abs(d.mean().item() - 3.0) < 4 * se
@@ -210,8 +240,14 @@ def test_greedy_controller_and_seeded_determinism():
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [({"gamma": 0.0}, "gamma"), ({"gamma": 1.5}, "gamma"), ({"horizon": 0.0}, "horizon"),
-     ({"horizon": math.inf}, "horizon"), ({"joint_wait": -1.0}, "joint_wait"), ({"small_reward": math.nan}, "small_reward")],
+    [
+        ({"gamma": 0.0}, "gamma"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"horizon": 0.0}, "horizon"),
+        ({"horizon": math.inf}, "horizon"),
+        ({"joint_wait": -1.0}, "joint_wait"),
+        ({"small_reward": math.nan}, "small_reward"),
+    ],
 )
 def test_bad_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -27,8 +27,13 @@ def test_satisfies_the_protocol():
 
 @pytest.mark.parametrize(
     "args, error, match",
-    [((0,), ValueError, "num_classes"), ((2.0,), TypeError, "num_classes"), ((2, 0), ValueError, "frames"),
-     ((True,), TypeError, "num_classes"), ((2, 1.5), TypeError, "frames")],
+    [
+        ((0,), ValueError, "num_classes"),
+        ((2.0,), TypeError, "num_classes"),
+        ((2, 0), ValueError, "frames"),
+        ((True,), TypeError, "num_classes"),
+        ((2, 1.5), TypeError, "frames"),
+    ],
 )
 def test_bad_constructor_arguments(args, error, match):
     with pytest.raises(error, match=match):

@@ -82,8 +82,10 @@ def test_neighbourhood_is_every_move_once():
     built_solo = solo.build(torch.arange(solo.size))
     solo_keys = {key(built_solo.action[i], built_solo.next_node[i]) for i in range(solo.size)}
     assert solo_keys < set(got) and all(
-        int(((torch.tensor(k[0]).view(2, 5) != a0) | (torch.tensor(k[1]).view(2, 5, 3) != n0).any(-1)).any(1).sum()) == 1
-        for k in solo_keys)  # every move without teams changes exactly one agent's graph
+        int(((torch.tensor(k[0]).view(2, 5) != a0) | (torch.tensor(k[1]).view(2, 5, 3) != n0).any(-1)).any(1).sum())
+        == 1
+        for k in solo_keys
+    )  # every move without teams changes exactly one agent's graph
     # a chain index taken on its own builds the same controller as in the full enumeration
     some = torch.tensor([hood.size - 1, hood.num_singles, 3])
     part = hood.build(some)
@@ -144,12 +146,26 @@ def test_local_search_never_worsens_under_exact_values():
     scorer = ExactScorer(env)
     g = torch.Generator().manual_seed(0)
     for start in range(4):
-        ctrl = JointController(torch.randint(0, 3, (1, 2, 2), generator=g), torch.randint(0, 2, (1, 2, 2, 2), generator=g))
+        ctrl = JointController(
+            torch.randint(0, 3, (1, 2, 2), generator=g), torch.randint(0, 2, (1, 2, 2, 2), generator=g)
+        )
         value = exact_value(env, ctrl).item()
         for _ in range(4):
-            out = local_search.step(ctrl, scorer, g, max_chain=2, max_nodes=6, grow_nodes=2, candidates=500,
-                                    stages=[(2, 0.1), (2, 3)], duel_rollouts=2, z=2.0, edge_rate=0.0, visit_rollouts=1,
-                                    copy=True)
+            out = local_search.step(
+                ctrl,
+                scorer,
+                g,
+                max_chain=2,
+                max_nodes=6,
+                grow_nodes=2,
+                candidates=500,
+                stages=[(2, 0.1), (2, 3)],
+                duel_rollouts=2,
+                z=2.0,
+                edge_rate=0.0,
+                visit_rollouts=1,
+                copy=True,
+            )
             new = exact_value(env, out.controller).item()
             assert new > value if out.accepted else new == pytest.approx(value, abs=1e-12)
             assert out.incumbent_value == pytest.approx(value)
@@ -163,9 +179,24 @@ def test_planner_reaches_the_dec_tiger_optimum(seed):
     # With these settings every one of seeds 0-39 reaches it (with 50 samples per iteration and patience 1,
     # only about half do: the claim is about the settings, not a lucky seed)
     env = dec_tiger(3)
-    cfg = PlannerConfig(phases=("ce", "ls"), budget=10**9, patience=3, num_nodes=7, start_nodes=3, ce_iterations=20,
-                        ce_samples=200, ce_screen_rollouts=0, ce_rollouts=2, ce_elites=10, ce_memory=2, ls_chain=2,
-                        ls_candidates=5000, ls_stages=((2, 8),), duel_rollouts=2, edge_rate=0.0)
+    cfg = PlannerConfig(
+        phases=("ce", "ls"),
+        budget=10**9,
+        patience=3,
+        num_nodes=7,
+        start_nodes=3,
+        ce_iterations=20,
+        ce_samples=200,
+        ce_screen_rollouts=0,
+        ce_rollouts=2,
+        ce_elites=10,
+        ce_memory=2,
+        ls_chain=2,
+        ls_candidates=5000,
+        ls_stages=((2, 8),),
+        duel_rollouts=2,
+        edge_rate=0.0,
+    )
     res = plan(ExactScorer(env), cfg, seed=seed)
     assert res.value == pytest.approx(exact_value(env, res.best).item())
     assert res.value == pytest.approx(DEC_TIGER_OPTIMUM[3], abs=1e-4)
@@ -184,8 +215,9 @@ def test_visits_by_hand(toy_env):
     expected[0, 0, 1] = expected[0, 1, 1] = 2.0
     expected[1, 0, 1] = 4.0
     torch.testing.assert_close(visits, expected)
-    pooled = RolloutScorer(env, shared=True).visits(ctrl[0].__class__(ctrl.action[:, :1], ctrl.next_node[:, :1]), 5,
-                                                    torch.Generator())
+    pooled = RolloutScorer(env, shared=True).visits(
+        ctrl[0].__class__(ctrl.action[:, :1], ctrl.next_node[:, :1]), 5, torch.Generator()
+    )
     torch.testing.assert_close(pooled, expected[:1] * 2)  # both robots run agent 0's FSC
     assert scorer.rollouts_used == 5
     mean, se = scorer(ctrl, 7, torch.Generator())
@@ -195,16 +227,33 @@ def test_visits_by_hand(toy_env):
 
 
 def small_config(**changes):
-    base = PlannerConfig(budget=6_000, patience=1, num_nodes=4, start_nodes=2, grow_nodes=1, ce_iterations=2,
-                         ce_samples=12, ce_screen_rollouts=4, ce_screen_keep=0.5, ce_rollouts=8, ce_elites=3,
-                         ce_memory=2, ls_chain=1, ls_candidates=40, ls_stages=((4, 0.5), (8, 2)), ls_patience=1,
-                         duel_rollouts=50, visit_rollouts=20)
+    base = PlannerConfig(
+        budget=6_000,
+        patience=1,
+        num_nodes=4,
+        start_nodes=2,
+        grow_nodes=1,
+        ce_iterations=2,
+        ce_samples=12,
+        ce_screen_rollouts=4,
+        ce_screen_keep=0.5,
+        ce_rollouts=8,
+        ce_elites=3,
+        ce_memory=2,
+        ls_chain=1,
+        ls_candidates=40,
+        ls_stages=((4, 0.5), (8, 2)),
+        ls_patience=1,
+        duel_rollouts=50,
+        visit_rollouts=20,
+    )
     return dataclasses.replace(base, **changes)
 
 
 def toy_scorer(toy_env, shared=False):
-    return RolloutScorer(toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0),
-                         shared=shared)
+    return RolloutScorer(
+        toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0), shared=shared
+    )
 
 
 def test_seeded_determinism_and_budget(toy_env):
@@ -265,7 +314,9 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive)
     assert ckpt.exists() == (at > 2)  # the first step (a cross-entropy iteration) scores twice
     resumed = plan(Interrupt(toy_scorer(toy_env), 10**9), cfg, seed=3, checkpoint=ckpt)
     assert resumed.history == full.history and resumed.rollouts == full.rollouts
-    assert torch.equal(resumed.best.action, full.best.action) and torch.equal(resumed.best.next_node, full.best.next_node)
+    assert torch.equal(resumed.best.action, full.best.action) and torch.equal(
+        resumed.best.next_node, full.best.next_node
+    )
 
 
 def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
@@ -273,11 +324,27 @@ def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
     # the incumbent) keep the incumbent unless a challenger beats it: under exact scores, never worse than init
     env = dec_tiger(3)
     g = torch.Generator().manual_seed(1)
-    cfg = PlannerConfig(phases=("ls", "ce"), budget=10**9, patience=1, num_nodes=5, ce_iterations=3, ce_samples=40,
-                        ce_screen_rollouts=0, ce_rollouts=2, ce_elites=5, ce_memory=1, ls_chain=1, ls_candidates=300,
-                        ls_stages=((2, 4),), duel_rollouts=2, edge_rate=0.0)
+    cfg = PlannerConfig(
+        phases=("ls", "ce"),
+        budget=10**9,
+        patience=1,
+        num_nodes=5,
+        ce_iterations=3,
+        ce_samples=40,
+        ce_screen_rollouts=0,
+        ce_rollouts=2,
+        ce_elites=5,
+        ce_memory=1,
+        ls_chain=1,
+        ls_candidates=300,
+        ls_stages=((2, 4),),
+        duel_rollouts=2,
+        edge_rate=0.0,
+    )
     for _ in range(3):
-        init = JointController(torch.randint(0, 3, (1, 2, 3), generator=g), torch.randint(0, 3, (1, 2, 3, 2), generator=g))
+        init = JointController(
+            torch.randint(0, 3, (1, 2, 3), generator=g), torch.randint(0, 3, (1, 2, 3, 2), generator=g)
+        )
         res = plan(ExactScorer(env), cfg, seed=0, init=init)
         start = exact_value(env, init).item()
         assert res.value == pytest.approx(exact_value(env, res.best).item())
@@ -295,12 +362,19 @@ def test_warm_start_errors_and_fingerprint(tmp_path, toy_env):
     with pytest.raises(TypeError, match="init: expected a JointController"):
         plan(scorer, small_config(), init="greedy")
     with pytest.raises(ValueError, match=r"init: expected one controller of 2 agents, at most 4 nodes"):
-        plan(scorer, small_config(), init=JointController(torch.zeros(1, 2, 5, dtype=torch.long),
-                                                          torch.zeros(1, 2, 5, 2, dtype=torch.long)))
+        plan(
+            scorer,
+            small_config(),
+            init=JointController(torch.zeros(1, 2, 5, dtype=torch.long), torch.zeros(1, 2, 5, 2, dtype=torch.long)),
+        )
     with pytest.raises(ValueError, match="init: expected one controller of 2 agents"):
         plan(scorer, small_config(), init=good[0:1].__class__(good.action[:, :1], good.next_node[:, :1]))
     with pytest.raises(ValueError, match=r"init: actions must lie in \[0, 3\)"):
-        plan(scorer, small_config(), init=JointController(torch.full((1, 2, 2), 3), torch.zeros(1, 2, 2, 2, dtype=torch.long)))
+        plan(
+            scorer,
+            small_config(),
+            init=JointController(torch.full((1, 2, 2), 3), torch.zeros(1, 2, 2, 2, dtype=torch.long)),
+        )
     ckpt = tmp_path / "warm.safetensors"
     cfg = small_config(budget=2000)
     a = plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt, init=good)
@@ -313,12 +387,15 @@ def test_warm_start_errors_and_fingerprint(tmp_path, toy_env):
         plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt)
 
 
-@pytest.mark.parametrize("change, field", [
-    ({"seed": 4}, "seed"),
-    ({"config": {"ce_alpha": 0.5}}, "config.ce_alpha"),
-    ({"horizon": 12.0}, "problem.scorer.env.horizon"),
-    ({"shared": True}, "problem.scorer.shared"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        ({"seed": 4}, "seed"),
+        ({"config": {"ce_alpha": 0.5}}, "config.ce_alpha"),
+        ({"horizon": 12.0}, "problem.scorer.env.horizon"),
+        ({"shared": True}, "problem.scorer.shared"),
+    ],
+)
 def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
     ckpt = tmp_path / "plan.safetensors"
 
@@ -332,32 +409,39 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
         run(**change)
 
 
-@pytest.mark.parametrize("kwargs, error, match", [
-    ({"phases": ()}, ValueError, "phases: expected a non-empty"),
-    ({"phases": ("ce", "anneal")}, ValueError, r"phases: expected a non-empty sequence of \(.ce., .ls.\), got \(.ce., .anneal.\)"),
-    ({"phases": "ce"}, TypeError, "phases: expected a sequence"),
-    ({"budget": 0}, ValueError, "budget: expected an int >= 1"),
-    ({"budget": "lots"}, TypeError, "budget: expected an int"),
-    ({"start_nodes": 30}, ValueError, "start_nodes: expected <= num_nodes"),
-    ({"ce_elites": 500}, ValueError, "ce_elites: expected <= ce_samples"),
-    ({"ce_memory": 11}, ValueError, "ce_memory: expected <= ce_elites"),
-    ({"ce_screen_rollouts": 1}, ValueError, "ce_screen_rollouts"),
-    ({"ce_screen_keep": 0.0}, ValueError, "ce_screen_keep"),
-    ({"ce_alpha": 1.5}, ValueError, "ce_alpha"),
-    ({"ce_init_weight": 1.5}, ValueError, "ce_init_weight"),
-    ({"ce_alpha": "0.1"}, TypeError, "ce_alpha: expected a number"),
-    ({"ls_stages": ()}, ValueError, "ls_stages: expected at least one"),
-    ({"ls_stages": ((16, 0.1, 3),)}, ValueError, r"ls_stages\[0\]: expected a pair"),
-    ({"ls_stages": ((1, 0.1),)}, ValueError, r"ls_stages\[0\].rollouts"),
-    ({"ls_stages": ((16, 0),)}, ValueError, r"ls_stages\[0\].keep"),
-    ({"duel_z": -1}, ValueError, "duel_z"),
-    ({"edge_rate": math.nan}, ValueError, "edge_rate"),
-    ({"ls_chain": -1}, ValueError, "ls_chain"),
-    ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
-    ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
-    ({"ls_copy": 0}, TypeError, "ls_copy: expected a bool"),
-    ({"ce_reactive": "true"}, TypeError, "ce_reactive: expected a bool"),
-])
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        ({"phases": ()}, ValueError, "phases: expected a non-empty"),
+        (
+            {"phases": ("ce", "anneal")},
+            ValueError,
+            r"phases: expected a non-empty sequence of \(.ce., .ls.\), got \(.ce., .anneal.\)",
+        ),
+        ({"phases": "ce"}, TypeError, "phases: expected a sequence"),
+        ({"budget": 0}, ValueError, "budget: expected an int >= 1"),
+        ({"budget": "lots"}, TypeError, "budget: expected an int"),
+        ({"start_nodes": 30}, ValueError, "start_nodes: expected <= num_nodes"),
+        ({"ce_elites": 500}, ValueError, "ce_elites: expected <= ce_samples"),
+        ({"ce_memory": 11}, ValueError, "ce_memory: expected <= ce_elites"),
+        ({"ce_screen_rollouts": 1}, ValueError, "ce_screen_rollouts"),
+        ({"ce_screen_keep": 0.0}, ValueError, "ce_screen_keep"),
+        ({"ce_alpha": 1.5}, ValueError, "ce_alpha"),
+        ({"ce_init_weight": 1.5}, ValueError, "ce_init_weight"),
+        ({"ce_alpha": "0.1"}, TypeError, "ce_alpha: expected a number"),
+        ({"ls_stages": ()}, ValueError, "ls_stages: expected at least one"),
+        ({"ls_stages": ((16, 0.1, 3),)}, ValueError, r"ls_stages\[0\]: expected a pair"),
+        ({"ls_stages": ((1, 0.1),)}, ValueError, r"ls_stages\[0\].rollouts"),
+        ({"ls_stages": ((16, 0),)}, ValueError, r"ls_stages\[0\].keep"),
+        ({"duel_z": -1}, ValueError, "duel_z"),
+        ({"edge_rate": math.nan}, ValueError, "edge_rate"),
+        ({"ls_chain": -1}, ValueError, "ls_chain"),
+        ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
+        ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
+        ({"ls_copy": 0}, TypeError, "ls_copy: expected a bool"),
+        ({"ce_reactive": "true"}, TypeError, "ce_reactive: expected a bool"),
+    ],
+)
 def test_config_errors(kwargs, error, match):
     with pytest.raises(error, match=match):
         PlannerConfig(**kwargs)
@@ -387,8 +471,9 @@ def test_cross_entropy_memory_and_warm_start(toy_env):
     assert state.action_probs[0, 0].tolist() == pytest.approx([0.1, 0.1, 0.8])
     assert state.action_probs[0, 2].tolist() == pytest.approx([1 / 3] * 3)  # node beyond the incumbent: uniform
     g = torch.Generator().manual_seed(0)
-    info = iterate(state, scorer, g, samples=10, screen_rollouts=0, screen_keep=1.0, rollouts=4, elites=3, memory=2,
-                   alpha=0.5)
+    info = iterate(
+        state, scorer, g, samples=10, screen_rollouts=0, screen_keep=1.0, rollouts=4, elites=3, memory=2, alpha=0.5
+    )
     assert state.elites.num_controllers == 3 and info["kept_from_memory"] == 0
     before = scorer.rollouts_used
     iterate(state, scorer, g, samples=10, screen_rollouts=2, screen_keep=0.5, rollouts=4, elites=3, memory=2, alpha=0.5)
@@ -413,8 +498,9 @@ def test_reactive_cross_entropy_ties_the_edges(toy_env):
     with pytest.raises(ValueError, match="reactive"):
         start_state(untied, 2, 3, 3, 2, 0.5, reactive=True)
     warm = start_state(ctrl[:1], 2, 3, 3, 2, 0.7, reactive=True)  # around a reactive incumbent
-    torch.testing.assert_close(warm.next_probs, 0.3 / 3 + 0.7 * torch.nn.functional.one_hot(
-        ctrl.next_node[0, :, 0], 3).to(torch.float64))
+    torch.testing.assert_close(
+        warm.next_probs, 0.3 / 3 + 0.7 * torch.nn.functional.one_hot(ctrl.next_node[0, :, 0], 3).to(torch.float64)
+    )
     for reactive in (True, False):  # a planner of cross-entropy phases only samples reactive controllers iff asked
         scorer = Recorder(toy_scorer(toy_env))
         plan(scorer, small_config(phases=("ce",), ce_reactive=reactive, start_nodes=3, ce_iterations=3), seed=1)
@@ -432,18 +518,30 @@ def test_copy_moves_copy_one_agent_onto_another():
     hood = Neighbourhood(JointController(act, nxt), visits, 4, 1, 0.01, copy=True)
     assert hood.size == plain.size + 4  # 0 <- 1, 0 <- 2, 1 <- 0, 2 <- 0
     built = hood.build(torch.arange(hood.size))
-    copies = {(b, a) for i in range(hood.size) for b in range(3) for a in range(3) if a != b
-              and torch.equal(built.action[i, b], act[0, a]) and torch.equal(built.next_node[i, b], nxt[0, a])
-              and not torch.equal(built.action[i], act[0])}
+    copies = {
+        (b, a)
+        for i in range(hood.size)
+        for b in range(3)
+        for a in range(3)
+        if a != b
+        and torch.equal(built.action[i, b], act[0, a])
+        and torch.equal(built.next_node[i, b], nxt[0, a])
+        and not torch.equal(built.action[i], act[0])
+    }
     assert {(0, 1), (0, 2), (1, 0), (2, 0)} <= copies
     rows = hood.singles[hood.singles[:, 0] == 2]
     for kind, b, _, _, a in rows.tolist():  # a copy changes agent b only, into agent a
         one = hood.build(torch.tensor([int((hood.singles == torch.tensor([kind, b, -1, -1, a])).all(1).nonzero())]))
         others = [c for c in range(3) if c != b]
         assert torch.equal(one.action[0, b], act[0, a]) and torch.equal(one.next_node[0, b], nxt[0, a])
-        assert torch.equal(one.action[0, others], act[0, others]) and torch.equal(one.next_node[0, others], nxt[0, others])
+        assert torch.equal(one.action[0, others], act[0, others]) and torch.equal(
+            one.next_node[0, others], nxt[0, others]
+        )
     single = JointController(act[:, :1], nxt[:, :1])
-    assert Neighbourhood(single, visits[:1], 4, 1, 0.01, copy=True).size == Neighbourhood(single, visits[:1], 4, 1, 0.01).size
+    assert (
+        Neighbourhood(single, visits[:1], 4, 1, 0.01, copy=True).size
+        == Neighbourhood(single, visits[:1], 4, 1, 0.01).size
+    )
 
 
 def test_chain_sampling_follows_traffic():
@@ -471,7 +569,9 @@ class Matches:
         self.target, self.rollouts_used = target, 0
 
     def __call__(self, ctrl, rollouts, generator):
-        hits = (ctrl.action == self.target.action).flatten(1).sum(1) + (ctrl.next_node == self.target.next_node).flatten(1).sum(1)
+        hits = (ctrl.action == self.target.action).flatten(1).sum(1) + (
+            ctrl.next_node == self.target.next_node
+        ).flatten(1).sum(1)
         return hits.to(torch.float64), torch.zeros(ctrl.num_controllers, dtype=torch.float64)
 
     def visits(self, ctrl, rollouts, generator):
@@ -483,8 +583,21 @@ def test_composite_move_lands_independent_improvements_at_once(compose, gain):
     target = JointController(torch.tensor([[[2, 1, 0]]]), torch.tensor([[[[1, 2], [0, 0], [2, 1]]]]))
     start = JointController(torch.zeros(1, 1, 3, dtype=torch.long), torch.zeros(1, 1, 3, 2, dtype=torch.long))
     scorer = Matches(target)
-    out = local_search.step(start, scorer, torch.Generator(), max_chain=0, max_nodes=3, grow_nodes=0, candidates=1000,
-                            stages=[(2, 8)], duel_rollouts=2, z=2.0, edge_rate=0.0, visit_rollouts=1, compose=compose)
+    out = local_search.step(
+        start,
+        scorer,
+        torch.Generator(),
+        max_chain=0,
+        max_nodes=3,
+        grow_nodes=0,
+        candidates=1000,
+        stages=[(2, 8)],
+        duel_rollouts=2,
+        z=2.0,
+        edge_rate=0.0,
+        visit_rollouts=1,
+        compose=compose,
+    )
     # 6 single edits move an entry to the target (2 MAs, 4 edges), each gaining 1 on its own entry: merged, they
     # land in one step; the 2 other survivors gain nothing
     assert out.accepted and scorer(out.controller, 2, None)[0].item() == scorer(start, 2, None)[0].item() + gain

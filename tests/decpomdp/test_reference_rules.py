@@ -50,8 +50,14 @@ def test_the_first_ma_follows_go_to_base1(exact):
     for rule, dest1_end in ((True, pd.FAIL_DURATION), (False, 3.0)):
         env = PackageDelivery(successor_rule=rule)
         state = env.reset(1, g)
-        end = env.start(state, torch.ones(1, 2, dtype=torch.bool), torch.tensor([[pd.GO_D1, pd.GO_B2]]),
-                        torch.zeros(1, dtype=torch.float64), torch.zeros(1, 2, dtype=torch.float64), g)
+        end = env.start(
+            state,
+            torch.ones(1, 2, dtype=torch.bool),
+            torch.tensor([[pd.GO_D1, pd.GO_B2]]),
+            torch.zeros(1, dtype=torch.float64),
+            torch.zeros(1, 2, dtype=torch.float64),
+            g,
+        )
         assert end.tolist() == [[dest1_end, 2.0]]
     state = PackageDelivery(successor_rule=True).reset(3, g)
     assert state["ma"].tolist() == [[pd.GO_B1, pd.GO_B1]] * 3 and not state["pays"].any()

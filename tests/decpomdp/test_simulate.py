@@ -76,7 +76,9 @@ def test_discounting_at_random_event_time(toy_env):
 
 def test_seeded_determinism(toy_env):
     env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=20.0, exponential=(0, 1), rate=1.5)
-    ctrl = JointController(torch.randint(0, 3, (4, 2, 3), generator=g(3)), torch.randint(0, 3, (4, 2, 3, 2), generator=g(4)))
+    ctrl = JointController(
+        torch.randint(0, 3, (4, 2, 3), generator=g(3)), torch.randint(0, 3, (4, 2, 3, 2), generator=g(4))
+    )
     a, b = simulate(env, ctrl, 50, g(7)), simulate(env, ctrl, 50, g(7))
     assert torch.equal(a, b)
     assert not torch.equal(a, simulate(env, ctrl, 50, g(8)))
@@ -87,7 +89,12 @@ def test_bad_arguments(toy_env):
     with pytest.raises(ValueError, match="rollouts_per_controller"):
         simulate(env, fixed([[0], [0]]), 0, g())
     with pytest.raises(ValueError, match="agents"):
-        simulate(env, JointController(torch.zeros(1, 3, 1, dtype=torch.long), torch.zeros(1, 3, 1, 2, dtype=torch.long)), 1, g())
+        simulate(
+            env,
+            JointController(torch.zeros(1, 3, 1, dtype=torch.long), torch.zeros(1, 3, 1, 2, dtype=torch.long)),
+            1,
+            g(),
+        )
     with pytest.raises(ValueError, match="action entries"):
         simulate(env, fixed([[5], [0]]), 1, g())
     with pytest.raises(TypeError, match="env"):

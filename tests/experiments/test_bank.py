@@ -52,7 +52,9 @@ def test_bank_is_the_classified_rendered_sequences_and_is_reused(tmp_path, class
     outputs = first.result()
     assert outputs.shape == (3, 2, 3, 3) and first.path.is_file()
     order = [clf.classes_.index(n) for n in CLASSES]
-    expect = clf.predict_proba(render_sequence("police_car", 3, get_conditions("mission"), seed=7, index=1, shape=SHAPE))
+    expect = clf.predict_proba(
+        render_sequence("police_car", 3, get_conditions("mission"), seed=7, index=1, shape=SHAPE)
+    )
     torch.testing.assert_close(outputs[1, 1], expect[:, order])  # row = class, columns in CLASSES order
     again = BankBuild(_spec(), clf, path, tmp_path, workers=0)
     assert again.cached and again.path == first.path
@@ -66,14 +68,17 @@ def test_background_workers_build_the_same_bank(tmp_path, classifiers):
     assert torch.equal(background.result(), inline)
 
 
-@pytest.mark.parametrize("field, change", [
-    ("classes", {"classes": ("police_car", "ambulance", "food_crate")}),
-    ("conditions", {"conditions": get_conditions("mission", noise=(1.0, 2.0))}),
-    ("seed", {"seed": 8}),
-    ("sequences_per_class", {"sequences": 3}),
-    ("frames", {"frames": 4}),
-    ("frame_shape", {"shape": (64, 96)}),
-])
+@pytest.mark.parametrize(
+    "field, change",
+    [
+        ("classes", {"classes": ("police_car", "ambulance", "food_crate")}),
+        ("conditions", {"conditions": get_conditions("mission", noise=(1.0, 2.0))}),
+        ("seed", {"seed": 8}),
+        ("sequences_per_class", {"sequences": 3}),
+        ("frames", {"frames": 4}),
+        ("frame_shape", {"shape": (64, 96)}),
+    ],
+)
 def test_any_changed_input_is_a_new_bank(tmp_path, classifiers, field, change):
     clf, path = classifiers[0]
     old = BankBuild(_spec(), clf, path, tmp_path, workers=0)

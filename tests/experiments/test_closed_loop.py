@@ -44,8 +44,9 @@ def _process() -> hbni_pyro.MacroObservationProcess:
         def theta_draws(self):
             return draws
 
-    return hbni_pyro.MacroObservationProcess(hbni_pyro.HBNIFilter(Posterior(), temper=0.6), threshold=0.95,
-                                             max_frames=FRAMES)
+    return hbni_pyro.MacroObservationProcess(
+        hbni_pyro.HBNIFilter(Posterior(), temper=0.6), threshold=0.95, max_frames=FRAMES
+    )
 
 
 def test_closed_loop_matches_the_table_when_the_bank_is_the_tabulations_streams(repo_root):
@@ -93,8 +94,9 @@ def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
     mixed[:, :4] = mixed[:, :4].roll(1, dims=-1)  # class c's outputs point at class c + 1 in sequences 0-3
     boot = closed_loop.Bootstrap(replicates=12, rollouts=300)
     ctrl, domain = greedy_controller(2), _domain(repo_root)
-    rollout_se = score(instantiate(domain, perception=hbni_pyro.tabulate(process, *closed_loop.as_streams(alike))),
-                       ctrl, 300, seed=0)["stderr"]
+    rollout_se = score(
+        instantiate(domain, perception=hbni_pyro.tabulate(process, *closed_loop.as_streams(alike))), ctrl, 300, seed=0
+    )["stderr"]
 
     def replay(bank):
         return lambda idx: hbni_pyro.StreamReplay(process, *closed_loop.as_streams(bank[:, idx]))
@@ -108,48 +110,102 @@ def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
 
 def test_report_pieces_and_acceptance():
     entry = {"value": 5.0, "stderr": 0.1}
-    common = {"stderr": 0.1, "planned_stream_stderr": 0.0, "stream_stderr": 0.0,
-              "oracle": {"value": 5.0, "stderr": 0.1, "gap_in_stderr": 0.3}}
+    common = {
+        "stderr": 0.1,
+        "planned_stream_stderr": 0.0,
+        "stream_stderr": 0.0,
+        "oracle": {"value": 5.0, "stderr": 0.1, "gap_in_stderr": 0.3},
+    }
     results = {
-        "perfect": {**entry, "executed": {**common, "value": 5.0, "gap_in_stderr": 0.0, "gap_in_total_stderr": 0.0,
-                                          "wrong_per_rollout": 0.0, "mean_inference_frames": 10.0}},
-        "hbni": {**entry, "executed": {**common, "value": 4.7, "gap_in_stderr": -2.1, "gap_in_total_stderr": -1.5,
-                                       "planned_stream_stderr": 0.1, "wrong_per_rollout": 0.1,
-                                       "mean_inference_frames": 8.0, "bank_accuracy": [0.9] * 6,
-                                       "bank_mean_frames": [8.0] * 6}},
-        "ssbf": {**entry, "executed": {**common, "value": 4.0, "gap_in_stderr": -7.0, "gap_in_total_stderr": -1.9,
-                                       "wrong_per_rollout": 0.5, "mean_inference_frames": 4.0,
-                                       "bank_accuracy": [0.7] * 6, "bank_mean_frames": [4.0] * 6}},
-        "hbni_generative": {**entry, "macro_accuracy": [1.0] * 6, "macro_mean_frames": [6.0] * 6,
-                            "executed": {**common, "value": 4.6, "gap_in_stderr": -3.8, "gap_in_total_stderr": -3.2,
-                                         "wrong_per_rollout": 0.1, "mean_inference_frames": 8.0,
-                                         "bank_accuracy": [0.9] * 6, "bank_mean_frames": [9.0] * 6}},
+        "perfect": {
+            **entry,
+            "executed": {
+                **common,
+                "value": 5.0,
+                "gap_in_stderr": 0.0,
+                "gap_in_total_stderr": 0.0,
+                "wrong_per_rollout": 0.0,
+                "mean_inference_frames": 10.0,
+            },
+        },
+        "hbni": {
+            **entry,
+            "executed": {
+                **common,
+                "value": 4.7,
+                "gap_in_stderr": -2.1,
+                "gap_in_total_stderr": -1.5,
+                "planned_stream_stderr": 0.1,
+                "wrong_per_rollout": 0.1,
+                "mean_inference_frames": 8.0,
+                "bank_accuracy": [0.9] * 6,
+                "bank_mean_frames": [8.0] * 6,
+            },
+        },
+        "ssbf": {
+            **entry,
+            "executed": {
+                **common,
+                "value": 4.0,
+                "gap_in_stderr": -7.0,
+                "gap_in_total_stderr": -1.9,
+                "wrong_per_rollout": 0.5,
+                "mean_inference_frames": 4.0,
+                "bank_accuracy": [0.7] * 6,
+                "bank_mean_frames": [4.0] * 6,
+            },
+        },
+        "hbni_generative": {
+            **entry,
+            "macro_accuracy": [1.0] * 6,
+            "macro_mean_frames": [6.0] * 6,
+            "executed": {
+                **common,
+                "value": 4.6,
+                "gap_in_stderr": -3.8,
+                "gap_in_total_stderr": -3.2,
+                "wrong_per_rollout": 0.1,
+                "mean_inference_frames": 8.0,
+                "bank_accuracy": [0.9] * 6,
+                "bank_mean_frames": [9.0] * 6,
+            },
+        },
     }
     acc = closed_loop.acceptance(results)
     assert acc["hbni_executed_over_perfect"] == pytest.approx(0.94)
     assert acc["hbni_executed_beats_ssbf_outside_stderr"] is True
-    assert acc["hbni_minus_ssbf_executed_in_stderr"] == pytest.approx(0.7 / (0.02 ** 0.5))
+    assert acc["hbni_minus_ssbf_executed_in_stderr"] == pytest.approx(0.7 / (0.02**0.5))
     planning = {"perfect": "exact", "hbni": "empirical", "ssbf": "empirical", "hbni_generative": "generative"}
-    lines = closed_loop.report_lines(results, {"hbni": "HBNI"}, planning,
-                                     {"cached": True, "sequences_per_class": 40, "frames": 30, "seed": 3, "path": "x"})
+    lines = closed_loop.report_lines(
+        results,
+        {"hbni": "HBNI"},
+        planning,
+        {"cached": True, "sequences_per_class": 40, "frames": 30, "seed": 3, "path": "x"},
+    )
     text = "\n".join(lines)
     assert "| HBNI | empirical | 5.000 ± 0.100; 0.100 | 4.700 ± 0.100; 0.000 | -2.1 | -1.5 |" in text
     assert "The **empirical** planning model is **honest** here: full gaps hbni -1.5, ssbf -1.9 s.e." in text
     assert "The **generative** planning model is **not honest** here: full gaps hbni_generative -3.2 s.e." in text
-    assert "hbni_generative: its table says accuracy 1.000 after 6.0 frames; on the bank the process gets 0.900 after 9.0" in text
+    assert (
+        "hbni_generative: its table says accuracy 1.000 after 6.0 frames; on the bank the process gets 0.900 after 9.0"
+        in text
+    )
     assert closed_loop.gap({"value": 1.0, "stderr": 0.3}, {"value": 0.5, "stderr": 0.4}) == pytest.approx(-1.0)
     assert closed_loop.gap({"value": 1.0, "stderr": 0.0}, {"value": 0.5, "stderr": 0.3}, 0.4) == pytest.approx(-1.0)
     assert closed_loop.other_model("empirical") == "generative"
 
 
-@pytest.mark.parametrize("override, message", [
-    ("mission.planning_model=learned", "mission.planning_model: expected one of ['empirical', 'generative']"),
-    ("mission.generative_streams=0", "mission.generative_streams: expected an int >= 1"),
-    ("mission.bank.sequences=1", "mission.bank.sequences: expected an int >= 2"),
-    ("mission.bank.workers=-1", "mission.bank.workers: expected an int >= 0"),
-    ("mission.bank.cache_dir=' '", "mission.bank.cache_dir: expected a directory"),
-    ("mission.bootstrap.replicates=1", "mission.bootstrap.replicates: expected an int >= 2"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("mission.planning_model=learned", "mission.planning_model: expected one of ['empirical', 'generative']"),
+        ("mission.generative_streams=0", "mission.generative_streams: expected an int >= 1"),
+        ("mission.bank.sequences=1", "mission.bank.sequences: expected an int >= 2"),
+        ("mission.bank.workers=-1", "mission.bank.workers: expected an int >= 0"),
+        ("mission.bank.cache_dir=' '", "mission.bank.cache_dir: expected a directory"),
+        ("mission.bootstrap.replicates=1", "mission.bootstrap.replicates: expected an int >= 2"),
+    ],
+)
 def test_bad_loop_settings_fail_before_any_work(override, message):
     from hydra import compose, initialize_config_dir
 
@@ -174,4 +230,6 @@ def test_loop_settings_are_read_from_the_mission_config():
         full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
     assert loop.planning_model == "generative" and loop.bank_sequences == 60 and loop.workers == 1
-    assert loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == project_root() / ".cache" / "banks"  # the project's, from anywhere
+    assert (
+        loop.bootstrap == closed_loop.Bootstrap(32, 1000) and loop.cache_dir == project_root() / ".cache" / "banks"
+    )  # the project's, from anywhere

@@ -65,7 +65,9 @@ def test_a_wrong_type_fails_while_composing(name, override, key):
     assert f"full_key: {key}" in str(info.value.__cause__)
 
 
-@pytest.mark.parametrize("name, override", [("mission", "mission.nope=1"), ("hbni_toy", "toy.nope=1"), ("hbni_toy", "nope=1")])
+@pytest.mark.parametrize(
+    "name, override", [("mission", "mission.nope=1"), ("hbni_toy", "toy.nope=1"), ("hbni_toy", "nope=1")]
+)
 def test_an_unknown_key_fails_while_composing(name, override):
     with pytest.raises(ConfigCompositionException, match="Could not override"):
         _compose(f"experiment={name}", override)
@@ -92,7 +94,11 @@ RANGE_ERRORS = [
     ("package_delivery", "planners.gdice.ce_elites=500", "planners.gdice.ce_elites: expected <= ce_samples"),
     ("package_delivery", "domain.gamma=1.5", "domain.gamma: expected a finite number in (0, 1]"),
     ("package_delivery", "study.alpha_sweep=[0.1,3]", "study.alpha_sweep: expected a probability in (0, 1]"),
-    ("package_delivery", "study.seeded.ce_init_weight=2", "study.seeded: ce_init_weight: expected a finite number in [0, 1]"),
+    (
+        "package_delivery",
+        "study.seeded.ce_init_weight=2",
+        "study.seeded: ce_init_weight: expected a finite number in [0, 1]",
+    ),
     ("package_delivery", "+study.seeded.speed=2", "study.seeded: unknown planner setting(s) ['speed']"),
     ("disaster_relief", "study.reeval_rollouts=1", "study.reeval_rollouts: expected an int >= 2"),
     ("disaster_relief", "domain.degrade_prob=2", "domain.degrade_prob: expected a finite number in [0, 1]"),
@@ -150,8 +156,12 @@ def test_the_yaml_is_the_only_place_for_defaults():
     from omegaconf import MISSING, OmegaConf
 
     seen: set = set()
-    defaults = [(cls.__name__, f.name) for schema in SCHEMAS.values() for cls, f in _schema_fields(schema, seen)
-                if f.default is not MISSING]
+    defaults = [
+        (cls.__name__, f.name)
+        for schema in SCHEMAS.values()
+        for cls, f in _schema_fields(schema, seen)
+        if f.default is not MISSING
+    ]
     assert defaults == []
     for name in EXPERIMENTS:
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):

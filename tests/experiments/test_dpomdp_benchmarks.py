@@ -26,10 +26,22 @@ SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4
 
 def test_dpomdp_benchmarks_smoke(tmp_path):
     subprocess.run(
-        [sys.executable, "-m", "experiments.run", "experiment=dpomdp_benchmarks", f"hydra.run.dir={tmp_path}",
-         "progress=false", "study.caps.iterations=2", "study.caps.samples=20", "study.caps.restarts=1",
-         "study.random_controllers=10", f"study.only=[{','.join(SMOKE_ROWS)}]"],
-        cwd=REPO, check=True, capture_output=True,
+        [
+            sys.executable,
+            "-m",
+            "experiments.run",
+            "experiment=dpomdp_benchmarks",
+            f"hydra.run.dir={tmp_path}",
+            "progress=false",
+            "study.caps.iterations=2",
+            "study.caps.samples=20",
+            "study.caps.restarts=1",
+            "study.random_controllers=10",
+            f"study.only=[{','.join(SMOKE_ROWS)}]",
+        ],
+        cwd=REPO,
+        check=True,
+        capture_output=True,
     )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     rows = metrics["rows"]

@@ -10,9 +10,14 @@ from experiments.steps import closed_loop
 
 def _results():
     names = ("perfect", "hbni", "ssbf", "max_of_mean", "hbni_generative")
-    entry = {"value": 5.0, "stderr": 0.1, "greedy": {"value": 4.8}, "delivered_per_rollout": 7.0,
-             "wrong_per_rollout": 0.2, "executed": {"value": 4.9, "stderr": 0.1, "gap_in_stderr": -1.0,
-                                                    "gap_in_total_stderr": -0.5}}
+    entry = {
+        "value": 5.0,
+        "stderr": 0.1,
+        "greedy": {"value": 4.8},
+        "delivered_per_rollout": 7.0,
+        "wrong_per_rollout": 0.2,
+        "executed": {"value": 4.9, "stderr": 0.1, "gap_in_stderr": -1.0, "gap_in_total_stderr": -0.5},
+    }
     return {n: entry for n in names}
 
 

@@ -21,8 +21,12 @@ from hbni_pyro.macro import MacroObservationModel
 CONF = Path(__file__).resolve().parents[2] / "conf"
 TINY_FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40", "progress=false"]
 TINY_FILTERING = [
-    "study.num_trials=40", "study.num_training_sets=2", "study.training_sizes=[15,30]", "study.max_len=8",
-    "study.filter_draws=30", *TINY_FIT,
+    "study.num_trials=40",
+    "study.num_training_sets=2",
+    "study.training_sizes=[15,30]",
+    "study.max_len=8",
+    "study.filter_draws=30",
+    *TINY_FIT,
 ]
 
 
@@ -49,8 +53,9 @@ def test_wilson_interval_and_crossings():
 
 
 def _run(args, repo_root):
-    return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=repo_root, check=True,
-                          capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.run", *args], cwd=repo_root, check=True, capture_output=True, text=True
+    )
 
 
 def test_filtering_error_smoke(tmp_path, repo_root):
@@ -76,8 +81,17 @@ def test_filtering_error_smoke(tmp_path, repo_root):
 
 
 def test_macro_observation_smoke(tmp_path, repo_root):
-    _run(["experiment=macro_observation", f"hydra.run.dir={tmp_path}", "study.num_streams=40", "study.max_frames=10",
-          "study.filter_draws=30", *TINY_FIT], repo_root)
+    _run(
+        [
+            "experiment=macro_observation",
+            f"hydra.run.dir={tmp_path}",
+            "study.num_streams=40",
+            "study.max_frames=10",
+            "study.filter_draws=30",
+            *TINY_FIT,
+        ],
+        repo_root,
+    )
     m = json.loads((tmp_path / "metrics.json").read_text())
     for name in ("hbni", "ssbf"):
         for source in ("true_theta", "posterior_predictive"):
@@ -90,9 +104,20 @@ def test_macro_observation_smoke(tmp_path, repo_root):
 
 
 def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
-    _run(["-m", "experiment=filtering_error", "hbni.filter.mode=marginal,plugin", f"hydra.sweep.dir={tmp_path}",
-          *TINY_FILTERING, "study.training_sizes=[15]"], repo_root)
-    modes = {json.loads((tmp_path / str(k) / "metrics.json").read_text())["settings"]["hbni_filter_mode"] for k in (0, 1)}
+    _run(
+        [
+            "-m",
+            "experiment=filtering_error",
+            "hbni.filter.mode=marginal,plugin",
+            f"hydra.sweep.dir={tmp_path}",
+            *TINY_FILTERING,
+            "study.training_sizes=[15]",
+        ],
+        repo_root,
+    )
+    modes = {
+        json.loads((tmp_path / str(k) / "metrics.json").read_text())["settings"]["hbni_filter_mode"] for k in (0, 1)
+    }
     assert modes == {"marginal", "plugin"}
     launcher = yaml.safe_load((tmp_path / "multirun.yaml").read_text())["hydra"]["launcher"]
     assert launcher["_target_"].endswith("JoblibLauncher") and launcher["n_jobs"] == 2
@@ -101,7 +126,9 @@ def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
 def test_filtering_error_is_a_function_of_the_seed(tmp_path):
     def metrics(seed, sub):
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING])
+            cfg = compose(
+                config_name="config", overrides=["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING]
+            )
         (tmp_path / sub).mkdir()
         return run_filtering(cfg, tmp_path / sub)
 

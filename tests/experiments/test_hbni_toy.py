@@ -9,8 +9,15 @@ from hbni_pyro import HBNIPosterior
 
 def test_hbni_toy_runs_end_to_end(tmp_path, repo_root):
     cmd = [
-        sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
-        "hbni.fit.num_chains=4", "hbni.fit.num_samples=100", "hbni.fit.warmup_steps=100", "progress=false",
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=hbni_toy",
+        f"hydra.run.dir={tmp_path}",
+        "hbni.fit.num_chains=4",
+        "hbni.fit.num_samples=100",
+        "hbni.fit.warmup_steps=100",
+        "progress=false",
     ]
     subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
     metrics = json.loads((tmp_path / "metrics.json").read_text())

@@ -104,7 +104,9 @@ def test_value_power_closed_form_and_the_size_it_asks_for():
 def test_distribution_check_rejects_a_table_of_other_classes():
     process = _process()
     streams, truth = _streams(3.0, 5, seed=0)
-    table = hbni_pyro.MacroObservationModel(torch.full((3, 3, FRAMES), 1 / (3 * FRAMES), dtype=torch.float64), torch.zeros(3))
+    table = hbni_pyro.MacroObservationModel(
+        torch.full((3, 3, FRAMES), 1 / (3 * FRAMES), dtype=torch.float64), torch.zeros(3)
+    )
     with pytest.raises(ValueError, match="replay: expected 3 classes"):
         honesty.distribution_check(table, hbni_pyro.StreamReplay(process, streams, truth), None, seed=0)
 

@@ -16,8 +16,15 @@ from hbni_pyro import HBNIPosterior
 def toy_run(tmp_path_factory, repo_root):
     run_dir = tmp_path_factory.mktemp("toy")
     cmd = [
-        sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={run_dir}",
-        "hbni.fit.num_chains=2", "hbni.fit.num_samples=50", "hbni.fit.warmup_steps=50", "progress=false",
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=hbni_toy",
+        f"hydra.run.dir={run_dir}",
+        "hbni.fit.num_chains=2",
+        "hbni.fit.num_samples=50",
+        "hbni.fit.warmup_steps=50",
+        "progress=false",
     ]
     subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
     return run_dir
@@ -52,8 +59,11 @@ def test_missing_and_corrupt_artefacts(toy_run, tmp_path):
     with pytest.raises(FileNotFoundError, match="artefact 'posterior' .* is missing"):
         run.posterior
     (copy / "posterior.safetensors").write_bytes(b"garbage")
-    with pytest.raises(ValueError, match=r"artefact 'posterior' \(HBNIPosterior\) in .*posterior.safetensors.* cannot "
-                                         "be read: .*is not a readable model file"):
+    with pytest.raises(
+        ValueError,
+        match=r"artefact 'posterior' \(HBNIPosterior\) in .*posterior.safetensors.* cannot "
+        "be read: .*is not a readable model file",
+    ):
         load_run(copy).posterior
     (copy / "artifacts.json").unlink()
     with pytest.raises(AttributeError, match="recorded no artefacts"):
@@ -70,8 +80,15 @@ def test_a_run_says_where_it_wrote_and_fills_its_log(toy_run):
 
 
 def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
-           "entry=experiments.hbni_toy.no_such_study", "progress=false"]  # fails once started
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=hbni_toy",
+        f"hydra.run.dir={tmp_path}",
+        "entry=experiments.hbni_toy.no_such_study",
+        "progress=false",
+    ]  # fails once started
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "no_such_study" in proc.stderr
     status = json.loads((tmp_path / "status.json").read_text())
@@ -103,8 +120,17 @@ def _without_timings(obj):
 
 
 def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", f"hydra.run.dir={tmp_path}",
-           "hbni.fit.num_chains=2", "hbni.fit.num_samples=50", "hbni.fit.warmup_steps=50", "progress=false"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=hbni_toy",
+        f"hydra.run.dir={tmp_path}",
+        "hbni.fit.num_chains=2",
+        "hbni.fit.num_samples=50",
+        "hbni.fit.warmup_steps=50",
+        "progress=false",
+    ]
     subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
     first, second = (json.loads((d / "metrics.json").read_text()) for d in (toy_run, tmp_path))
     assert json.dumps(_without_timings(first)) == json.dumps(_without_timings(second))

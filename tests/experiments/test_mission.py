@@ -37,8 +37,13 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
         assert {"value", "stderr", "gap_in_stderr", "wrong_per_rollout"} <= set(entry["executed"])
     assert len(metrics["variants"]["ssbf"]["executed"]["bank_accuracy"]) == 6
     loop = metrics["closed_loop"]
-    assert loop["planning"] == {"perfect": "exact", "hbni": "empirical", "ssbf": "empirical", "max_of_mean": "empirical",
-                                "hbni_generative": "generative"}
+    assert loop["planning"] == {
+        "perfect": "exact",
+        "hbni": "empirical",
+        "ssbf": "empirical",
+        "max_of_mean": "empirical",
+        "hbni_generative": "generative",
+    }
     assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
     assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
     report = (mission_run / "report.md").read_text()
@@ -60,43 +65,88 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert metrics["planner"]["budget"] == 3000 and metrics["planner"]["ce_result"] == "duel"  # no hand-written seed
     assert metrics["warm_planner"]["budget"] == 1000
     started = {name: entry["started_from"] for name, entry in metrics["variants"].items()}
-    assert started == {"perfect": "scratch", "hbni": "perfect", "ssbf": "perfect", "max_of_mean": "perfect",
-                       "hbni_generative": "perfect"}
-    assert all(entry["rollouts"] > 0 and entry["planner_value"] == entry["planner_value"] for entry in metrics["variants"].values())
-    assert set(metrics["stage_seconds"]) == {"train", "classify", "fit", "characterize", "characterize_generative", "plan",
-                                             "bank_wait", "closed_loop"}
+    assert started == {
+        "perfect": "scratch",
+        "hbni": "perfect",
+        "ssbf": "perfect",
+        "max_of_mean": "perfect",
+        "hbni_generative": "perfect",
+    }
+    assert all(
+        entry["rollouts"] > 0 and entry["planner_value"] == entry["planner_value"]
+        for entry in metrics["variants"].values()
+    )
+    assert set(metrics["stage_seconds"]) == {
+        "train",
+        "classify",
+        "fit",
+        "characterize",
+        "characterize_generative",
+        "plan",
+        "bank_wait",
+        "closed_loop",
+    }
     assert "preset with gain = [0.45, 0.8]" in report
     manifest = json.loads((mission_run / "artifacts.json").read_text())
-    assert set(manifest) == {"classifier", "posterior", "macro_hbni", "macro_ssbf", "macro_max_of_mean",
-                             "macro_hbni_generative", "controller_perfect", "controller_hbni", "controller_ssbf",
-                             "controller_max_of_mean", "controller_hbni_generative"}
+    assert set(manifest) == {
+        "classifier",
+        "posterior",
+        "macro_hbni",
+        "macro_ssbf",
+        "macro_max_of_mean",
+        "macro_hbni_generative",
+        "controller_perfect",
+        "controller_hbni",
+        "controller_ssbf",
+        "controller_max_of_mean",
+        "controller_hbni_generative",
+    }
     generative = MacroObservationModel.load(mission_run / "macro_hbni_generative.safetensors")
-    assert generative.info["generative"] == "posterior predictive (sequence model)" and generative.info["num_streams"] == 50
+    assert (
+        generative.info["generative"] == "posterior predictive (sequence model)"
+        and generative.info["num_streams"] == 50
+    )
 
 
 def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, tmp_path, repo_root):
     _run(repo_root, f"hydra.run.dir={tmp_path}")
     first = json.loads((mission_run / "metrics.json").read_text())
     again = json.loads((tmp_path / "metrics.json").read_text())
-    assert again["closed_loop"]["bank"]["cached"] and again["closed_loop"]["bank"]["path"] == first["closed_loop"]["bank"]["path"]
+    assert (
+        again["closed_loop"]["bank"]["cached"]
+        and again["closed_loop"]["bank"]["path"] == first["closed_loop"]["bank"]["path"]
+    )
     for name, entry in first["variants"].items():
         assert again["variants"][name]["value"] == entry["value"]
         assert again["variants"][name]["executed"]["value"] == entry["executed"]["value"]
 
 
-@pytest.mark.parametrize("model, source", [("paper", "posterior predictive (paper model)"),
-                                           ("sequence", "posterior predictive (sequence model)")])
+@pytest.mark.parametrize(
+    "model, source",
+    [("paper", "posterior predictive (paper model)"), ("sequence", "posterior predictive (sequence model)")],
+)
 def test_generative_planning_model(tmp_path, repo_root, model, source):
     """Every noise model (hbni.model) simulates the streams of its own posterior predictive for the generative table."""
-    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "mission.planning_model=generative",
-         f"hbni.model={model}")
+    _run(
+        repo_root,
+        f"hydra.run.dir={tmp_path}",
+        "perception=[hbni,ssbf]",
+        "mission.planning_model=generative",
+        f"hbni.model={model}",
+    )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["closed_loop"]["planning"] == {"perfect": "exact", "hbni": "generative", "ssbf": "generative",
-                                                  "hbni_empirical": "empirical"}
+    assert metrics["closed_loop"]["planning"] == {
+        "perfect": "exact",
+        "hbni": "generative",
+        "ssbf": "generative",
+        "hbni_empirical": "empirical",
+    }
     ssbf = MacroObservationModel.load(tmp_path / "macro_ssbf_generative.safetensors")
     assert ssbf.info["generative"] == source and "StaticStateBayesFilter" in ssbf.info["filter"]
     assert HBNIPosterior.load(tmp_path / "posterior.safetensors").model == model
-    assert f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
+    assert (
+        f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
+    )
     temper = metrics["hbni_temper"]
     if model == "paper":  # a frame-level model: the temper is fitted on the calibration sequences
         assert temper["fitted"] and temper["value"] in temper["grid"]
@@ -133,17 +183,31 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     assert header.startswith("| job | status | perception | variants.perfect | variants.hbni |")
     assert "| variants.ssbf |" in header and "| variants.hbni.wrong_rate |" in header
     rows = [line for line in report.splitlines() if line.startswith("| [")]
-    assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith("| [1](1/) | completed | ssbf | ")
+    assert rows[0].startswith("| [0](0/) | completed | hbni | ") and rows[1].startswith(
+        "| [1](1/) | completed | ssbf | "
+    )
 
 
 @pytest.mark.parametrize("planning", ["planner=gdice", "warm_start=false"])
 def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, planning):
     if planning == "planner=gdice":  # G-DICE reads no local-search settings: the tiny ones are its own
-        _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
-             tiny=[*TINY_MISSION_GDICE, BANKS])
+        _run(
+            repo_root,
+            f"hydra.run.dir={tmp_path}",
+            "perception=hbni",
+            "mission.temper=0.5",
+            "mission.conditions=null",
+            tiny=[*TINY_MISSION_GDICE, BANKS],
+        )
     else:
-        _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=hbni", "mission.temper=0.5", "mission.conditions=null",
-             planning)
+        _run(
+            repo_root,
+            f"hydra.run.dir={tmp_path}",
+            "perception=hbni",
+            "mission.temper=0.5",
+            "mission.conditions=null",
+            planning,
+        )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
         assert metrics["planner"]["ce_result"] == "best_sampled" and metrics["warm_planner"]["phases"] == ["ls"]
@@ -159,30 +223,60 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
 
 @pytest.mark.parametrize("temper", ["0", "1.5", "auto"])
 def test_bad_temper_is_a_clear_error(tmp_path, repo_root, temper):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
-           "perception=hbni", f"mission.temper={temper}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=mission",
+        *TINY,
+        f"hydra.run.dir={tmp_path}",
+        "perception=hbni",
+        f"mission.temper={temper}",
+    ]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "mission.temper: expected 'fit' or a float in (0, 1]" in proc.stderr
 
 
 def test_unknown_condition_field_is_a_clear_error(tmp_path, repo_root):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
-           "+mission.conditions.fog=[0.1,0.2]"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=mission",
+        *TINY,
+        f"hydra.run.dir={tmp_path}",
+        "+mission.conditions.fog=[0.1,0.2]",
+    ]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "conditions: unknown field(s) ['fog']" in proc.stderr
     assert not (tmp_path / "classifier.safetensors").exists()  # rejected before any work
 
 
 def test_unknown_planning_model_is_a_clear_error(tmp_path, repo_root):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}",
-           "mission.planning_model=oracle"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=mission",
+        *TINY,
+        f"hydra.run.dir={tmp_path}",
+        "mission.planning_model=oracle",
+    ]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "mission.planning_model: expected one of ['empirical', 'generative']" in proc.stderr
     assert not (tmp_path / "classifier.safetensors").exists()  # rejected before any work
 
 
 def test_unknown_perception_variant_is_a_clear_error(tmp_path, repo_root):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}", "perception=oracle"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=mission",
+        *TINY,
+        f"hydra.run.dir={tmp_path}",
+        "perception=oracle",
+    ]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "perception: expected a subset of" in proc.stderr
 
@@ -199,9 +293,24 @@ def test_stream_runs_a_missions_saved_models(mission_run, tmp_path, repo_root):
         writer.write(frame)
     writer.release()
     out = tmp_path / "stream"
-    subprocess.run([sys.executable, "-m", "experiments.run", "experiment=stream", f"stream.source={video}",
-                    f"stream.run={mission_run}", "stream.max_frames=5", "stream.annotate=[strip]", "progress=false",
-                    f"hydra.run.dir={out}"], cwd=repo_root, check=True, capture_output=True, text=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments.run",
+            "experiment=stream",
+            f"stream.source={video}",
+            f"stream.run={mission_run}",
+            "stream.max_frames=5",
+            "stream.annotate=[strip]",
+            "progress=false",
+            f"hydra.run.dir={out}",
+        ],
+        cwd=repo_root,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     metrics = json.loads((out / "metrics.json").read_text())
     mission = json.loads((mission_run / "metrics.json").read_text())
     assert metrics["classes"] == mission["classes"] and metrics["frames"] == 8

@@ -21,12 +21,26 @@ from hbni_pyro import HBNIPosterior
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 TINY = [
-    "progress=false", "study.mission.train_per_class=5", "study.mission.augment=0", "study.mission.calib_sequences=2",
-    "study.mission.test_sequences=2", "study.mission.frames=4", "study.toy.num_trials=40", "study.toy.num_training_sets=2",
-    "study.toy.max_len=6", "study.toy.filter_draws=50", "hbni.fit.num_chains=2", "hbni.fit.num_samples=30",
-    "hbni.fit.warmup_steps=30", "study.curve_thresholds=[0.5,0.95]", "classifier.cv=2",
-    "study.photos.train_per_class=5", "study.photos.augment=0", "study.photos.calib_sequences=2",
-    "study.photos.test_sequences=2", "study.photos.frames=4",
+    "progress=false",
+    "study.mission.train_per_class=5",
+    "study.mission.augment=0",
+    "study.mission.calib_sequences=2",
+    "study.mission.test_sequences=2",
+    "study.mission.frames=4",
+    "study.toy.num_trials=40",
+    "study.toy.num_training_sets=2",
+    "study.toy.max_len=6",
+    "study.toy.filter_draws=50",
+    "hbni.fit.num_chains=2",
+    "hbni.fit.num_samples=30",
+    "hbni.fit.warmup_steps=30",
+    "study.curve_thresholds=[0.5,0.95]",
+    "classifier.cv=2",
+    "study.photos.train_per_class=5",
+    "study.photos.augment=0",
+    "study.photos.calib_sequences=2",
+    "study.photos.test_sequences=2",
+    "study.photos.frames=4",
 ]
 
 
@@ -81,16 +95,30 @@ def test_the_photo_condition_reports_sizes_honesty_and_the_default_models_target
     assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 12, "frames": 4}
     honesty = metrics["honesty"]["photos"]
     assert set(honesty) == set(cond["filters"])
-    assert all(set(v) == {"0.9", "0.95", "0.99"} and all(isinstance(b, bool) for b in v.values()) for v in honesty.values())
+    assert all(
+        set(v) == {"0.9", "0.95", "0.99"} and all(isinstance(b, bool) for b in v.values()) for v in honesty.values()
+    )
     target = metrics["acceptance"]["photos"]["sequence_target"]
     assert set(target) == {"emitted_right", "timeouts_at_most_0.1", "frames_at_most_ssbf", "met"}
     assert list(load_run(study / "first").posterior_photos_sequence.class_names) == [
-        "astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "immunohistochemistry"]
+        "astronaut",
+        "coffee",
+        "chelsea",
+        "rocket",
+        "hubble_deep_field",
+        "immunohistochemistry",
+    ]
 
 
 def test_the_photo_condition_alone_is_a_study(tmp_path, repo_root):
-    _run(repo_root, tmp_path / "run", "~study.conditions.default", "~study.conditions.in_flight", "study.cache_dir=null",
-         "study.models=[sequence]")
+    _run(
+        repo_root,
+        tmp_path / "run",
+        "~study.conditions.default",
+        "~study.conditions.in_flight",
+        "study.cache_dir=null",
+        "study.models=[sequence]",
+    )
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics["conditions"]) == {"photos"}
     assert set(metrics["conditions"]["photos"]["filters"]) == {"sequence", "ssbf", "max_of_mean"}
@@ -111,8 +139,15 @@ def _write_folder(root: Path, classes: list[str]) -> None:
 def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
     classes = ["irobot", "quadrotor", "racecar"]
     _write_folder(tmp_path / "images", classes)
-    _run(repo_root, tmp_path / "run", f"study.images={tmp_path / 'images'}", "study.conditions={}", "study.cache_dir=null",
-         "study.models=[paper,sequence]", "study.photos=null")
+    _run(
+        repo_root,
+        tmp_path / "run",
+        f"study.images={tmp_path / 'images'}",
+        "study.conditions={}",
+        "study.cache_dir=null",
+        "study.models=[paper,sequence]",
+        "study.photos=null",
+    )
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     cond = metrics["conditions"]["images"]
     assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
@@ -125,15 +160,18 @@ def _compose(*overrides):
         return compose(config_name="config", overrides=list(overrides))
 
 
-@pytest.mark.parametrize("override, match", [
-    ("study.models=[paper,gaussian]", "study.models: expected distinct models"),
-    ("study.images_calibration=1.5", "study.images_calibration"),
-    ("study.thresholds=[0.9,1.2]", "study.thresholds"),
-    ("study.toy.training_size=16", "study.toy.training_size"),
-    ("study.photos.frames=0", "study.photos.frames"),
-    ("study.photos.augment=-1", "study.photos.augment"),
-    ("hbni.model=mixture", "hbni.model: expected one of"),
-])
+@pytest.mark.parametrize(
+    "override, match",
+    [
+        ("study.models=[paper,gaussian]", "study.models: expected distinct models"),
+        ("study.images_calibration=1.5", "study.images_calibration"),
+        ("study.thresholds=[0.9,1.2]", "study.thresholds"),
+        ("study.toy.training_size=16", "study.toy.training_size"),
+        ("study.photos.frames=0", "study.photos.frames"),
+        ("study.photos.augment=-1", "study.photos.augment"),
+        ("hbni.model=mixture", "hbni.model: expected one of"),
+    ],
+)
 def test_bad_settings_fail_before_any_work(override, match):
     with pytest.raises(ValueError, match=match):
         check_config(_compose("experiment=noise_models", override))
@@ -142,10 +180,17 @@ def test_bad_settings_fail_before_any_work(override, match):
 @pytest.mark.parametrize("experiment", ["mission", "perception_replay"])
 @pytest.mark.parametrize("model", ["confusion", "sequence"])
 def test_one_key_switches_the_noise_model_of_the_mission_and_the_replay(experiment, model):
-    cfg = _compose(f"experiment={experiment}", f"hbni.model={model}", "hbni.fit.num_chains=2", "hbni.fit.num_samples=20",
-                   "hbni.fit.warmup_steps=20")
+    cfg = _compose(
+        f"experiment={experiment}",
+        f"hbni.model={model}",
+        "hbni.fit.num_chains=2",
+        "hbni.fit.num_samples=20",
+        "hbni.fit.warmup_steps=20",
+    )
     check_config(cfg)
     g = torch.Generator().manual_seed(0)
-    outputs = torch.softmax(torch.randn(3, 2, 4, 3, generator=g, dtype=torch.float64) + 2 * torch.eye(3)[:, None, None], -1)
+    outputs = torch.softmax(
+        torch.randn(3, 2, 4, 3, generator=g, dtype=torch.float64) + 2 * torch.eye(3)[:, None, None], -1
+    )
     post = fit_labelled(outputs, cfg.hbni, seed=0, progress=False)
     assert post.model == model and post.num_classes == 3

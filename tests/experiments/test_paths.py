@@ -48,8 +48,9 @@ def test_help_lists_every_experiment_on_one_line():
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-m", "experiments.run", "--help"], cwd=ROOT, capture_output=True,
-                         text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "experiments.run", "--help"], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout
     names = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
     listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ") and line.split()}
     assert set(names) <= listed and len(out.splitlines()) < 30

@@ -11,27 +11,56 @@ from decpomdp import JointController
 
 ROOT = Path(__file__).resolve().parents[2]
 GDICE = ["ce_iterations=2", "ce_samples=6", "ce_elites=2", "ce_rollouts=3"]
-TINY = [*(f"planners.gdice.{s}" for s in GDICE), "planners.gdice.num_nodes=4",
-        "study.reeval_rollouts=5", "study.random_controllers=4", "study.select_rollouts=4", "progress=false",
-        "planners.cold.budget=3000", "planners.cold.patience=1", "planners.cold.num_nodes=6",
-        "planners.cold.ce_iterations=2", "planners.cold.ce_samples=10", "planners.cold.ce_elites=2",
-        "planners.cold.ce_memory=1", "planners.cold.ce_rollouts=4", "planners.cold.ce_screen_rollouts=2",
-        "planners.cold.ls_candidates=40", "planners.cold.ls_stages=[[2,0.5],[4,2]]", "planners.cold.duel_rollouts=20",
-        "planners.cold.visit_rollouts=10"]
+TINY = [
+    *(f"planners.gdice.{s}" for s in GDICE),
+    "planners.gdice.num_nodes=4",
+    "study.reeval_rollouts=5",
+    "study.random_controllers=4",
+    "study.select_rollouts=4",
+    "progress=false",
+    "planners.cold.budget=3000",
+    "planners.cold.patience=1",
+    "planners.cold.num_nodes=6",
+    "planners.cold.ce_iterations=2",
+    "planners.cold.ce_samples=10",
+    "planners.cold.ce_elites=2",
+    "planners.cold.ce_memory=1",
+    "planners.cold.ce_rollouts=4",
+    "planners.cold.ce_screen_rollouts=2",
+    "planners.cold.ls_candidates=40",
+    "planners.cold.ls_stages=[[2,0.5],[4,2]]",
+    "planners.cold.duel_rollouts=20",
+    "planners.cold.visit_rollouts=10",
+]
 REFERENCE = [*(f"reference.planner.{s}" for s in GDICE), "reference.runs=2"]
 
 
 def run(name: str, tmp_path: Path, *overrides: str) -> dict:
-    subprocess.run([sys.executable, "-m", "experiments.run", f"experiment={name}", f"hydra.run.dir={tmp_path}", *TINY,
-                    *overrides], cwd=ROOT, check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "experiments.run", f"experiment={name}", f"hydra.run.dir={tmp_path}", *TINY, *overrides],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+    )
     return json.loads((tmp_path / "metrics.json").read_text())
 
 
 def test_package_delivery(tmp_path):
-    metrics = run("package_delivery", tmp_path, "study.sweep_iterations=2", "study.alpha_sweep=[0.1,0.3]",
-                  "study.seeded.ce_iterations=2", *REFERENCE)
-    for png in ("value_vs_iteration.png", "value_vs_iteration_seeded.png", "alpha_sweep.png", "baselines.png",
-                "planner_progress.png"):
+    metrics = run(
+        "package_delivery",
+        tmp_path,
+        "study.sweep_iterations=2",
+        "study.alpha_sweep=[0.1,0.3]",
+        "study.seeded.ce_iterations=2",
+        *REFERENCE,
+    )
+    for png in (
+        "value_vs_iteration.png",
+        "value_vs_iteration_seeded.png",
+        "alpha_sweep.png",
+        "baselines.png",
+        "planner_progress.png",
+    ):
         assert (tmp_path / png).stat().st_size > 0
     check_planner(metrics, tmp_path, agents=1)
     paper = metrics["paper_comparison"]
@@ -48,9 +77,14 @@ def test_package_delivery(tmp_path):
     assert metrics["baselines"]["monte_carlo_search"]["budget"] == 12
     assert metrics["baselines"]["greedy"]["value"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 2
-    assert set(metrics["acceptance"]) == {"planner_at_least_greedy", "planner_at_least_14.4",
-                                          "gdice_at_least_14.4", "mcs_at_most_third_of_gdice",
-                                          "seeded_gdice_at_least_14.4", "mcs_at_most_third_of_seeded_gdice"}
+    assert set(metrics["acceptance"]) == {
+        "planner_at_least_greedy",
+        "planner_at_least_14.4",
+        "gdice_at_least_14.4",
+        "mcs_at_most_third_of_gdice",
+        "seeded_gdice_at_least_14.4",
+        "mcs_at_most_third_of_seeded_gdice",
+    }
 
 
 def test_disaster_relief(tmp_path):
@@ -62,15 +96,23 @@ def test_disaster_relief(tmp_path):
     greedy = metrics["baselines"]["greedy"]
     assert greedy["delivered_per_rollout"] > 0 and greedy["inference_frames_per_rollout"] > 0
     assert JointController.load(tmp_path / "best_controller.safetensors").num_agents == 3
-    assert set(metrics["acceptance"]) == {"planner_beats_greedy", "planner_at_least_greedy",
-                                          "gdice_beats_greedy", "gdice_beats_monte_carlo_search",
-                                          "seeded_gdice_beats_greedy", "seeded_gdice_beats_monte_carlo_search"}
+    assert set(metrics["acceptance"]) == {
+        "planner_beats_greedy",
+        "planner_at_least_greedy",
+        "gdice_beats_greedy",
+        "gdice_beats_monte_carlo_search",
+        "seeded_gdice_beats_greedy",
+        "seeded_gdice_beats_monte_carlo_search",
+    }
 
 
 @pytest.mark.parametrize("name", ["package_delivery", "disaster_relief"])
 def test_same_seed_same_numbers(tmp_path, name):
-    extra = ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.ce_iterations=2", *REFERENCE] \
-        if name == "package_delivery" else []
+    extra = (
+        ["study.sweep_iterations=1", "study.alpha_sweep=[0.2]", "study.seeded.ce_iterations=2", *REFERENCE]
+        if name == "package_delivery"
+        else []
+    )
     a = run(name, tmp_path / "a", "seed=3", *extra)
     b = run(name, tmp_path / "b", "seed=3", *extra)
     assert without_timings(a) == without_timings(b)
@@ -79,8 +121,12 @@ def test_same_seed_same_numbers(tmp_path, name):
 def check_seeded(metrics: dict, run_dir: Path, num_nodes: int) -> None:
     """The seeded run: its settings, candidates and saved controller (the cold one is saved too)."""
     seeded = metrics["gdice_seeded"]
-    assert seeded["planner"]["num_nodes"] == num_nodes and seeded["planner"]["ce_init_weight"] == seeded["init_weight"] > 0
-    assert set(seeded["selection_values"]) == {"best_sampled", "mode"} and seeded["selected"] in seeded["selection_values"]
+    assert (
+        seeded["planner"]["num_nodes"] == num_nodes and seeded["planner"]["ce_init_weight"] == seeded["init_weight"] > 0
+    )
+    assert (
+        set(seeded["selection_values"]) == {"best_sampled", "mode"} and seeded["selected"] in seeded["selection_values"]
+    )
     assert len(metrics["gdice_seeded_history"]["best_sampled"]) == 2 and metrics["planner"]["ce_init_weight"] == 0
     assert JointController.load(run_dir / "best_controller.safetensors").num_nodes == num_nodes
     assert JointController.load(run_dir / "best_controller_cold.safetensors").num_nodes == 4

@@ -38,15 +38,28 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
 def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
     # the bank is built by one background process from a fresh cache folder while the mission goes on
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY_MISSION, f"hydra.run.dir={tmp_path / 'run'}",
-           "perception=hbni", "mission.bank.workers=1", "mission.bank.sequences=60", f"mission.bank.cache_dir={tmp_path / 'cache'}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=mission",
+        *TINY_MISSION,
+        f"hydra.run.dir={tmp_path / 'run'}",
+        "perception=hbni",
+        "mission.bank.workers=1",
+        "mission.bank.sequences=60",
+        f"mission.bank.cache_dir={tmp_path / 'cache'}",
+    ]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     status = tmp_path / "run" / "status.json"
     deadline = time.time() + 120
     workers: set[int] = set()
     while time.time() < deadline and not workers:  # wait for the bank's worker to start
-        workers = {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()} \
-            if _alive(proc.pid) else set()
+        workers = (
+            {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()}
+            if _alive(proc.pid)
+            else set()
+        )
         time.sleep(0.2)
     assert workers and json.loads(status.read_text())["status"] == "running"
     proc.send_signal(signum)
@@ -62,15 +75,38 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
 def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
     run_dir = tmp_path / "run"
     env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
-    proc = subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={run_dir}",
-                           "mission.threshold=1.5"], cwd=ROOT, capture_output=True, text=True, env=env)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments.run",
+            "experiment=mission",
+            f"hydra.run.dir={run_dir}",
+            "mission.threshold=1.5",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip() == "config error: mission.threshold: expected a probability in (0, 1], got 1.5"
     assert not run_dir.exists()
 
 
 def test_a_planner_setting_the_planner_ignores_is_refused_at_the_start(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "experiments.run", "experiment=mission", f"hydra.run.dir={tmp_path / 'run'}",
-                           "warm_planner.ce_alpha=0.3"], cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments.run",
+            "experiment=mission",
+            f"hydra.run.dir={tmp_path / 'run'}",
+            "warm_planner.ce_alpha=0.3",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "config error: warm_planner.ce_alpha: the planner warm_planner" in proc.stderr
     assert not (tmp_path / "run").exists()

@@ -37,23 +37,46 @@ def saved(tmp_path_factory):
     clf = FrameClassifier().fit(images, labels)
     order = [clf.classes_.index(n) for n in CLASSES]
     calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=1))[:, order] for n in CLASSES])
-    posterior = hbni_pyro.fit(calib.double(), torch.arange(3).repeat_interleave(10), num_chains=2, num_samples=60,
-                              warmup_steps=60, seed=0, progress=False)
+    posterior = hbni_pyro.fit(
+        calib.double(),
+        torch.arange(3).repeat_interleave(10),
+        num_chains=2,
+        num_samples=60,
+        warmup_steps=60,
+        seed=0,
+        progress=False,
+    )
     frames = np.concatenate([render_sequence(n, PER_CLASS, "mission", seed=2) for n in CLASSES])
     video = root / "clip.mp4"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 15.0, (frames.shape[2], frames.shape[1]))
     for f in frames:
         writer.write(f)
     writer.release()
-    return {"root": root, "video": video, "frames": frames, "classifier": clf.save(root / "classifier.safetensors"),
-            "posterior": posterior.save(root / "posterior.safetensors")}
+    return {
+        "root": root,
+        "video": video,
+        "frames": frames,
+        "classifier": clf.save(root / "classifier.safetensors"),
+        "posterior": posterior.save(root / "posterior.safetensors"),
+    }
 
 
 def _args(saved, out, *extra):
-    return [sys.executable, "-m", "experiments.run", "experiment=stream", f"stream.source={saved['video']}",
-            f"stream.classifier={saved['classifier']}", f"stream.posterior={saved['posterior']}",
-            f"stream.classes=[{','.join(CLASSES)}]", "stream.max_frames=6", "stream.temper=0.6",
-            f"hydra.run.dir={out}", "progress=false", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "experiments.run",
+        "experiment=stream",
+        f"stream.source={saved['video']}",
+        f"stream.classifier={saved['classifier']}",
+        f"stream.posterior={saved['posterior']}",
+        f"stream.classes=[{','.join(CLASSES)}]",
+        "stream.max_frames=6",
+        "stream.temper=0.6",
+        f"hydra.run.dir={out}",
+        "progress=false",
+        *extra,
+    ]
 
 
 def test_stream_experiment_on_a_generated_video(tmp_path, saved, repo_root):
@@ -74,12 +97,13 @@ def test_stream_experiment_on_a_generated_video(tmp_path, saved, repo_root):
     # the same records from the same decoded frames, run in this process through the batched process
     clf = FrameClassifier.load(saved["classifier"])
     process = hbni_pyro.MacroObservationProcess(
-        hbni_pyro.HBNIFilter(hbni_pyro.HBNIPosterior.load(saved["posterior"]), temper=0.6), 0.95, 6)
+        hbni_pyro.HBNIFilter(hbni_pyro.HBNIPosterior.load(saved["posterior"]), temper=0.6), 0.95, 6
+    )
     decoded = list(open_source(saved["video"]))
     order = [clf.classes_.index(n) for n in CLASSES]
     outputs = clf.predict_proba(decoded)[:, order].double()
     for r in records:
-        alone = process.run_batch(outputs[None, r["start_frame"]: r["start_frame"] + 6])
+        alone = process.run_batch(outputs[None, r["start_frame"] : r["start_frame"] + 6])
         if not r["stream_ended"]:
             assert (int(alone.label[0]), int(alone.frames_used[0])) == (r["label_index"], r["frames_used"])
         assert float(alone.confidence[0]) == pytest.approx(r["confidence"], rel=1e-4) or r["stream_ended"]
@@ -104,13 +128,19 @@ def test_a_folder_of_frames_gives_the_in_process_segments(tmp_path, saved, repo_
     for i, f in enumerate(saved["frames"][:20]):
         cv2.imwrite(str(folder / f"f{i}.png"), f)
     out = tmp_path / "run"
-    subprocess.run(_args(saved, out, f"stream.source={folder}", "stream.annotate=[]", "stream.batch=3"),
-                   cwd=repo_root, capture_output=True, text=True, check=True)
+    subprocess.run(
+        _args(saved, out, f"stream.source={folder}", "stream.annotate=[]", "stream.batch=3"),
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     records = [json.loads(line) for line in (out / "macro_observations.jsonl").read_text().splitlines()]
     assert not (out / "annotated.mp4").exists() and not (out / "strip.png").exists()
     clf = FrameClassifier.load(saved["classifier"])
     process = hbni_pyro.MacroObservationProcess(
-        hbni_pyro.HBNIFilter(hbni_pyro.HBNIPosterior.load(saved["posterior"]), temper=0.6), 0.95, 6)
+        hbni_pyro.HBNIFilter(hbni_pyro.HBNIPosterior.load(saved["posterior"]), temper=0.6), 0.95, 6
+    )
     segments = list(macro_observations(classify_frames(open_source(folder), clf, CLASSES, batch=5), process, CLASSES))
     assert len(segments) == len(records)
     for seg, rec in zip(segments, records):  # batches of 5 here, 3 there: outputs agree to float32 rounding
@@ -119,17 +149,20 @@ def test_a_folder_of_frames_gives_the_in_process_segments(tmp_path, saved, repo_
     assert segments[-1].end == 19
 
 
-@pytest.mark.parametrize("override, message", [
-    ("stream.source=/no/such/clip.mp4", "stream.source: no such video file or folder"),
-    ("stream.source=null", "stream.source: expected a video file, a folder of frames or a camera index"),
-    ("stream.run=/no/such/run", "stream.run: no such file or directory"),
-    ("stream.posterior=/no/such.safetensors", "stream.posterior: no such file or directory"),
-    ("stream.annotate=[gif]", "stream.annotate: expected a subset of ['video', 'strip']"),
-    ("stream.temper=2", "stream.temper: expected a probability in (0, 1]"),
-    ("stream.threshold=0", "stream.threshold: expected a probability in (0, 1]"),
-    ("stream.batch=0", "stream.batch: expected an int >= 1"),
-    ("stream.max_input_frames=0", "stream.max_input_frames: expected an int >= 1"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("stream.source=/no/such/clip.mp4", "stream.source: no such video file or folder"),
+        ("stream.source=null", "stream.source: expected a video file, a folder of frames or a camera index"),
+        ("stream.run=/no/such/run", "stream.run: no such file or directory"),
+        ("stream.posterior=/no/such.safetensors", "stream.posterior: no such file or directory"),
+        ("stream.annotate=[gif]", "stream.annotate: expected a subset of ['video', 'strip']"),
+        ("stream.temper=2", "stream.temper: expected a probability in (0, 1]"),
+        ("stream.threshold=0", "stream.threshold: expected a probability in (0, 1]"),
+        ("stream.batch=0", "stream.batch: expected an int >= 1"),
+        ("stream.max_input_frames=0", "stream.max_input_frames: expected an int >= 1"),
+    ],
+)
 def test_bad_settings_are_clear_errors(saved, override, message):
     """Checked against the stream's schema before anything is loaded, naming the key."""
     conf = str(Path(__file__).resolve().parents[2] / "conf")
@@ -156,14 +189,16 @@ def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path,
         cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.classifier=null"])
     check_config(cfg)  # run=latest is found when the stream starts
     monkeypatch.setenv("HBNI_PYRO_ROOT", str(tmp_path))
-    with pytest.raises(FileNotFoundError, match=f"stream.run: no completed 'mission' run under "
-                                                f"'{tmp_path / 'outputs' / 'mission'}'"):
+    with pytest.raises(
+        FileNotFoundError, match=f"stream.run: no completed 'mission' run under '{tmp_path / 'outputs' / 'mission'}'"
+    ):
         read_settings(cfg)
 
 
 def test_classes_that_are_not_the_classifiers_are_a_clear_error(tmp_path, saved, repo_root):
-    proc = subprocess.run(_args(saved, tmp_path, "stream.classes=[a,b,c]"), cwd=repo_root, capture_output=True,
-                          text=True)
+    proc = subprocess.run(
+        _args(saved, tmp_path, "stream.classes=[a,b,c]"), cwd=repo_root, capture_output=True, text=True
+    )
     assert proc.returncode != 0 and "classes: expected a reordering of the classifier's classes" in proc.stderr
 
 
@@ -183,7 +218,13 @@ def test_a_run_that_is_not_a_mission_is_a_clear_error(tmp_path, saved, repo_root
     (other / ".hydra" / "config.yaml").write_text("name: hbni_toy\n")
     (other / "metrics.json").write_text("{}")
     (other / "status.json").write_text('{"status": "completed"}')
-    proc = subprocess.run(_args(saved, tmp_path / "out", "stream.classifier=null", "stream.posterior=null",
-                                f"stream.run={other}"), cwd=repo_root, capture_output=True, text=True)
-    assert proc.returncode != 0 and f"stream.run: {str(other)!r} is not a mission run (it lacks classifier, " \
-        "posterior" in proc.stderr, proc.stderr[-2000:]
+    proc = subprocess.run(
+        _args(saved, tmp_path / "out", "stream.classifier=null", "stream.posterior=null", f"stream.run={other}"),
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+    )
+    assert (
+        proc.returncode != 0
+        and f"stream.run: {str(other)!r} is not a mission run (it lacks classifier, posterior" in proc.stderr
+    ), proc.stderr[-2000:]

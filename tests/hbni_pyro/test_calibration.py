@@ -38,10 +38,14 @@ def test_a_filter_that_knows_the_truth_is_calibrated():
     streams = sample_outputs(THETA, truth[:, None].expand(600, 10), g)
     r = stream_reliability(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), streams, truth)
     assert r.ece < 0.03 and r.count.sum() == 6000
-    bad = stream_reliability(StaticStateBayesFilter(3), streams, truth)  # SSBF treats each output as a likelihood: overconfident
+    bad = stream_reliability(
+        StaticStateBayesFilter(3), streams, truth
+    )  # SSBF treats each output as a likelihood: overconfident
     assert bad.ece > r.ece
     for threshold in (0.9, 0.95, 0.99):  # and its emitted labels keep the promise of each threshold
-        assert_calibrated(MacroObservationProcess(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), threshold, 10), streams, truth)
+        assert_calibrated(
+            MacroObservationProcess(HBNIFilter(DrawsPosterior(THETA.unsqueeze(0))), threshold, 10), streams, truth
+        )
 
 
 def test_threshold_checks_agree_with_the_process():

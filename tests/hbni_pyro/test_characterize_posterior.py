@@ -25,8 +25,10 @@ def test_a_posterior_table_is_the_mixture_of_its_draws_tables():
     a = hbni_pyro.characterize(process, noisy, n, seed=1)
     b = hbni_pyro.characterize(process, clean, n, seed=2)
     expect = 0.5 * (a.confusion + b.confusion)
-    var = (mixed.confusion * (1 - mixed.confusion) + 0.25 * (a.confusion * (1 - a.confusion)
-                                                               + b.confusion * (1 - b.confusion))) / n
+    var = (
+        mixed.confusion * (1 - mixed.confusion)
+        + 0.25 * (a.confusion * (1 - a.confusion) + b.confusion * (1 - b.confusion))
+    ) / n
     assert ((mixed.confusion - expect).abs() <= 5 * var.sqrt() + 1e-12).all()
     frames = 0.5 * (a.mean_frames + b.mean_frames)
     support = torch.arange(1, 9, dtype=DT)
@@ -97,8 +99,9 @@ def test_a_sequence_posterior_simulates_streams_that_share_a_look():
     again = hbni_pyro.tabulate(process, torch.cat([post.sample_streams(c, n, T, generator=g) for c in range(3)]), truth)
     assert torch.equal(table.joint, again.joint)  # the posterior's own predictive, class by class, one generator
     assert table.info["generative"] == "posterior predictive (sequence model)"
-    iid = hbni_pyro.tabulate(process, torch.cat([post.sample_streams(c, n * T, 1, seed=1).reshape(n, T, 3)
-                                                 for c in range(3)]), truth)
+    iid = hbni_pyro.tabulate(
+        process, torch.cat([post.sample_streams(c, n * T, 1, seed=1).reshape(n, T, 3) for c in range(3)]), truth
+    )
     se = ((table.accuracy * (1 - table.accuracy) + iid.accuracy * (1 - iid.accuracy)) / n).sqrt()
     assert (iid.accuracy - table.accuracy > 10 * se).all()
 

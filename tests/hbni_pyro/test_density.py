@@ -100,7 +100,9 @@ def test_confusion_block_likelihood_matches_torch_dirichlet_and_reduces_to_the_p
     torch.testing.assert_close(block, ref.sum(0), rtol=0, atol=1e-8)
     # beta = 1 is the paper's model, through the general and the lifted forms alike.
     ones = torch.ones(M, M, dtype=torch.float64)
-    torch.testing.assert_close(class_log_lik(1.0, obs.log(), theta, ones), lifted_dirichlet_log_prob(obs, theta), rtol=0, atol=1e-9)
+    torch.testing.assert_close(
+        class_log_lik(1.0, obs.log(), theta, ones), lifted_dirichlet_log_prob(obs, theta), rtol=0, atol=1e-9
+    )
     # Per-class sufficient statistics: each class scores its own outputs.
     c = torch.arange(30) % M
     counts = torch.bincount(c, minlength=M).double()
@@ -108,7 +110,9 @@ def test_confusion_block_likelihood_matches_torch_dirichlet_and_reduces_to_the_p
     own = ref.gather(-1, c.unsqueeze(-1)).squeeze(-1)
     expected = torch.zeros(M, dtype=torch.float64).index_add_(0, c, own)
     torch.testing.assert_close(assigned_log_lik(counts, sums, theta, beta), expected, rtol=0, atol=1e-9)
-    torch.testing.assert_close(assigned_log_lik(counts, sums, theta), assigned_log_lik(counts, sums, theta, ones), rtol=0, atol=1e-9)
+    torch.testing.assert_close(
+        assigned_log_lik(counts, sums, theta), assigned_log_lik(counts, sums, theta, ones), rtol=0, atol=1e-9
+    )
 
 
 def test_dirichlet_outputs_is_the_dirichlet():
@@ -137,7 +141,9 @@ def test_ilr_normal_density_integrates_to_one():
     n = 200_000
     e = -torch.rand(n, 3, generator=g, dtype=torch.float64).log()
     o = e / e.sum(-1, keepdim=True)
-    d = IlrNormalOutputs(torch.tensor([0.3, -0.2], dtype=torch.float64), torch.tensor([[0.6, 0.0], [0.2, 0.5]], dtype=torch.float64))
+    d = IlrNormalOutputs(
+        torch.tensor([0.3, -0.2], dtype=torch.float64), torch.tensor([[0.6, 0.0], [0.2, 0.5]], dtype=torch.float64)
+    )
     w = d.log_prob(o).exp() / 2.0
     assert abs(float(w.mean()) - 1) < 5 * float(w.std()) / n**0.5
 
@@ -180,7 +186,9 @@ def test_wishart_densities_match_torch():
     torch.testing.assert_close(wishart_log_prob(X, df, torch.linalg.inv(V), logdet_spd(V)), ref)
     # InvWishart(S; df, Psi): S^-1 ~ Wishart(df, Psi^-1), density over S = density over S^-1 * |S|^-(d+1).
     psi, S = _spd(3, 2), _spd(3, 3)
-    ref = torch.distributions.Wishart(df, covariance_matrix=torch.linalg.inv(psi)).log_prob(torch.linalg.inv(S)) - 4 * logdet_spd(S)
+    ref = torch.distributions.Wishart(df, covariance_matrix=torch.linalg.inv(psi)).log_prob(
+        torch.linalg.inv(S)
+    ) - 4 * logdet_spd(S)
     torch.testing.assert_close(inv_wishart_log_prob(torch.linalg.inv(S), df, psi), ref)
 
 
@@ -188,13 +196,26 @@ def test_seeded_wishart_draws_have_the_right_mean_and_repeat():
     """Bartlett draws: mean df * V; every entry within 5 Monte Carlo standard errors."""
     V = _spd(3, 4)
     n = 40_000
-    draws = sample_wishart(torch.full((n,), 6.0, dtype=torch.float64), torch.linalg.cholesky(V).expand(n, 3, 3),
-                           torch.Generator().manual_seed(5))
+    draws = sample_wishart(
+        torch.full((n,), 6.0, dtype=torch.float64),
+        torch.linalg.cholesky(V).expand(n, 3, 3),
+        torch.Generator().manual_seed(5),
+    )
     err = (draws.mean(0) - 6.0 * V).abs() / (draws.std(0) / n**0.5)
     assert err.max() < 5
-    again = sample_wishart(torch.full((4,), 6.0, dtype=torch.float64), torch.linalg.cholesky(V).expand(4, 3, 3), torch.Generator().manual_seed(5))
-    assert torch.equal(again, sample_wishart(torch.full((4,), 6.0, dtype=torch.float64), torch.linalg.cholesky(V).expand(4, 3, 3),
-                                             torch.Generator().manual_seed(5)))
+    again = sample_wishart(
+        torch.full((4,), 6.0, dtype=torch.float64),
+        torch.linalg.cholesky(V).expand(4, 3, 3),
+        torch.Generator().manual_seed(5),
+    )
+    assert torch.equal(
+        again,
+        sample_wishart(
+            torch.full((4,), 6.0, dtype=torch.float64),
+            torch.linalg.cholesky(V).expand(4, 3, 3),
+            torch.Generator().manual_seed(5),
+        ),
+    )
 
 
 def _vech_jacobian_logdet(fn, tril):
@@ -215,8 +236,12 @@ def test_cholesky_factor_distributions_carry_the_jacobian_of_l_to_l_lt():
     jac = _vech_jacobian_logdet(lambda x: x @ x.T, L)
     df = torch.tensor(6.0, dtype=torch.float64)
     S = L @ L.T
-    torch.testing.assert_close(WishartCholesky(df, V).log_prob(L), wishart_log_prob(S, df, torch.linalg.inv(V), logdet_spd(V)) + jac)
-    torch.testing.assert_close(InvWishartCholesky(df, V).log_prob(L), inv_wishart_log_prob(torch.linalg.inv(S), df, V) + jac)
+    torch.testing.assert_close(
+        WishartCholesky(df, V).log_prob(L), wishart_log_prob(S, df, torch.linalg.inv(V), logdet_spd(V)) + jac
+    )
+    torch.testing.assert_close(
+        InvWishartCholesky(df, V).log_prob(L), inv_wishart_log_prob(torch.linalg.inv(S), df, V) + jac
+    )
     t = CholeskyFactorTransform()
     x = torch.randn(6, dtype=torch.float64)
     y = t(x)

@@ -9,7 +9,16 @@ import pytest
 import scipy.stats
 import torch
 
-from hbni_pyro.filters import FILTERS, StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, StreamingFilter, VotingFilter, decide, make_filter
+from hbni_pyro.filters import (
+    FILTERS,
+    StaticStateBayesFilter,
+    HBNIFilter,
+    MaxOfMeanFilter,
+    StreamingFilter,
+    VotingFilter,
+    decide,
+    make_filter,
+)
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.validation import OUTPUT_FLOOR
@@ -120,7 +129,8 @@ def test_hbni_plugin_uses_the_posterior_median_and_matches_torch_dirichlet():
     torch.testing.assert_close(f.theta, median.unsqueeze(0))
     obs, _ = toy_streams(1, 5, seed=4)
     loglik = torch.stack(
-        [torch.distributions.Dirichlet(1 + median[m] * torch.eye(3, dtype=DT)[m]).log_prob(obs[0]) for m in range(3)], -1
+        [torch.distributions.Dirichlet(1 + median[m] * torch.eye(3, dtype=DT)[m]).log_prob(obs[0]) for m in range(3)],
+        -1,
     )
     expected = torch.softmax(loglik.cumsum(0) + math.log(1 / 3), -1)
     torch.testing.assert_close(f.run(obs)[0], expected, rtol=1e-12, atol=1e-14)
@@ -146,8 +156,10 @@ def test_hbni_thins_draws_evenly():
 
 def test_hbni_accepts_a_real_posterior():
     theta = scattered_draws(60).reshape(3, 20, 3)
-    post = HBNIPosterior({"theta": theta, "kappa": torch.ones(3, 20, dtype=DT), "gamma": torch.ones(3, 20, dtype=DT)},
-                         torch.full((3,), 1 / 3, dtype=DT))
+    post = HBNIPosterior(
+        {"theta": theta, "kappa": torch.ones(3, 20, dtype=DT), "gamma": torch.ones(3, 20, dtype=DT)},
+        torch.full((3,), 1 / 3, dtype=DT),
+    )
     obs, _ = toy_streams(3, 4)
     torch.testing.assert_close(HBNIFilter(post).run(obs), HBNIFilter(DrawsPosterior(theta.reshape(60, 3))).run(obs))
 
@@ -254,8 +266,12 @@ def test_make_filter_builds_every_named_filter():
     post = DrawsPosterior(THETA[None].expand(4, -1).clone())
     obs = sample_outputs(THETA, torch.tensor([0, 1, 2]), torch.Generator().manual_seed(0)).reshape(1, 3, -1)
     built = {name: make_filter(name, post) for name in FILTERS}
-    want = {"hbni": HBNIFilter(post), "ssbf": StaticStateBayesFilter(len(THETA)), "max_of_mean": MaxOfMeanFilter(len(THETA)),
-            "voting": VotingFilter(len(THETA))}
+    want = {
+        "hbni": HBNIFilter(post),
+        "ssbf": StaticStateBayesFilter(len(THETA)),
+        "max_of_mean": MaxOfMeanFilter(len(THETA)),
+        "voting": VotingFilter(len(THETA)),
+    }
     for name in FILTERS:
         assert type(built[name]) is type(want[name])
         torch.testing.assert_close(built[name].run(obs), want[name].run(obs), rtol=0, atol=0)
@@ -263,12 +279,15 @@ def test_make_filter_builds_every_named_filter():
     assert make_filter("ssbf", num_classes=4).num_classes == 4
 
 
-@pytest.mark.parametrize("args, kwargs, error, message", [
-    (("kalman",), {}, ValueError, "name: expected one of"),
-    (("hbni",), {}, ValueError, "posterior: the 'hbni' filter needs a fitted posterior"),
-    (("voting",), {}, ValueError, "num_classes: the 'voting' filter needs num_classes or a posterior"),
-    (("voting",), {"num_classes": 3, "temper": 0.5}, TypeError, "the 'voting' filter takes no options, got"),
-])
+@pytest.mark.parametrize(
+    "args, kwargs, error, message",
+    [
+        (("kalman",), {}, ValueError, "name: expected one of"),
+        (("hbni",), {}, ValueError, "posterior: the 'hbni' filter needs a fitted posterior"),
+        (("voting",), {}, ValueError, "num_classes: the 'voting' filter needs num_classes or a posterior"),
+        (("voting",), {"num_classes": 3, "temper": 0.5}, TypeError, "the 'voting' filter takes no options, got"),
+    ],
+)
 def test_make_filter_errors(args, kwargs, error, message):
     with pytest.raises(error, match=message):
         make_filter(*args, **kwargs)

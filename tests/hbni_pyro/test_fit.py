@@ -71,7 +71,9 @@ def test_fit_many_keeps_datasets_apart():
     classes = torch.arange(2).repeat_interleave(30)
     noisy = sample_outputs(torch.tensor([1.0, 1.0]), classes, g)
     clean = sample_outputs(torch.tensor([80.0, 80.0]), classes, g)
-    a, b = hbni_pyro.fit_many(torch.stack([noisy, clean]), num_chains=4, num_samples=300, warmup_steps=300, progress=False)
+    a, b = hbni_pyro.fit_many(
+        torch.stack([noisy, clean]), num_chains=4, num_samples=300, warmup_steps=300, progress=False
+    )
     assert a.theta_point().max() < 5 < 30 < b.theta_point().min()
     assert a.num_chains == b.num_chains == 4
 

@@ -23,13 +23,16 @@ def _exact() -> torch.Tensor:
 
 def _compiled(c: np.ndarray, seed: int, iteration: int, labels: np.ndarray | None = None) -> tuple:
     data = frame_data(OBS, torch.full((N,), -1), LOG_PRIOR)
-    arrays = [np.ascontiguousarray(t.numpy()[None]) for t in (data.log_obs, data.log_proposal, data.alias_prob, data.alias)]
+    arrays = [
+        np.ascontiguousarray(t.numpy()[None]) for t in (data.log_obs, data.log_proposal, data.alias_prob, data.alias)
+    ]
     labels = np.full((1, N), -1, dtype=np.int64) if labels is None else labels
     offset = (lifted_normaliser(THETA, M) + LOG_PRIOR).expand(1, c.shape[1], M).contiguous().numpy()
     theta = THETA.expand(1, c.shape[1], M).contiguous().numpy()
     counts = np.zeros((1, N, M))
-    out = class_move_stats(c, labels, *arrays[:1], *arrays[1:], offset, theta, 0.5, np.uint64(seed), np.int64(iteration),
-                           counts, True)
+    out = class_move_stats(
+        c, labels, *arrays[:1], *arrays[1:], offset, theta, 0.5, np.uint64(seed), np.int64(iteration), counts, True
+    )
     return out + (counts,)
 
 
@@ -49,8 +52,12 @@ def test_compiled_move_keeps_the_exact_conditional() -> None:
 
 def test_torch_move_agrees_with_the_exact_conditional() -> None:
     data = frame_data(OBS, torch.full((N,), -1), LOG_PRIOR)
-    state = MHState(torch.zeros(CHAINS, N, dtype=torch.long), THETA.log().expand(CHAINS, M), torch.zeros(CHAINS),
-                    torch.zeros(CHAINS))
+    state = MHState(
+        torch.zeros(CHAINS, N, dtype=torch.long),
+        THETA.log().expand(CHAINS, M),
+        torch.zeros(CHAINS),
+        torch.zeros(CHAINS),
+    )
     g = torch.Generator().manual_seed(0)
     for _ in range(STEPS):
         update_classes(state, data, 0.5, g)

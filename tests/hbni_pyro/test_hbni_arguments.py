@@ -17,9 +17,13 @@ def _outputs(n: int = 9, seed: int = 0) -> torch.Tensor:
 
 
 def test_a_numpy_threshold_and_frame_budget_are_accepted():
-    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=np.float32(0.9), max_frames=np.int64(7))
+    process = hbni_pyro.MacroObservationProcess(
+        hbni_pyro.StaticStateBayesFilter(3), threshold=np.float32(0.9), max_frames=np.int64(7)
+    )
     assert math.isclose(process.threshold, 0.9, rel_tol=1e-6) and process.max_frames == 7
-    assert hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=torch.tensor(0.95)).threshold == pytest.approx(0.95)
+    assert hbni_pyro.MacroObservationProcess(
+        hbni_pyro.StaticStateBayesFilter(3), threshold=torch.tensor(0.95)
+    ).threshold == pytest.approx(0.95)
     with pytest.raises(ValueError, match=r"threshold: expected a finite number in \(0, 1\], got 1.5"):
         hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=np.float64(1.5))
     with pytest.raises(TypeError, match="max_frames: expected an int"):
@@ -46,7 +50,13 @@ def test_fit_names_a_bad_seed_and_bad_labels():
 
 def test_fit_accepts_numpy_and_torch_integers():
     x = _outputs()
-    a = hbni_pyro.fit(x, num_chains=np.int64(2), num_samples=np.int32(20), warmup_steps=torch.tensor(10), seed=np.int64(3),
-                      progress=False)
+    a = hbni_pyro.fit(
+        x,
+        num_chains=np.int64(2),
+        num_samples=np.int32(20),
+        warmup_steps=torch.tensor(10),
+        seed=np.int64(3),
+        progress=False,
+    )
     b = hbni_pyro.fit(x, num_chains=2, num_samples=20, warmup_steps=10, seed=3, progress=False)
     assert torch.equal(a.samples["theta"], b.samples["theta"])

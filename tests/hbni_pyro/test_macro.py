@@ -64,8 +64,13 @@ def test_threshold_one_and_voting_stop_at_the_first_frame():
 
 @pytest.mark.parametrize(
     "make_filter",
-    [VotingFilter, MaxOfMeanFilter, StaticStateBayesFilter, lambda M: HBNIFilter(scattered_posterior()),
-     lambda M: HBNIFilter(scattered_posterior(), "plugin")],
+    [
+        VotingFilter,
+        MaxOfMeanFilter,
+        StaticStateBayesFilter,
+        lambda M: HBNIFilter(scattered_posterior()),
+        lambda M: HBNIFilter(scattered_posterior(), "plugin"),
+    ],
     ids=["voting", "max_of_mean", "ssbf", "hbni", "hbni_plugin"],
 )
 @pytest.mark.parametrize("max_frames", [6, 40])
@@ -146,8 +151,14 @@ def test_characterize_from_a_posterior_predictive_and_errors():
     model = characterize(process, post, num_streams=100, seed=0)
     assert model.info["generative"] == "posterior predictive"
     torch.testing.assert_close(model.confusion.sum(1), torch.ones(3, dtype=DT), rtol=0, atol=1e-12)
-    real = HBNIPosterior({"theta": post.theta_draws().reshape(2, 25, 3), "kappa": torch.ones(2, 25, dtype=DT),
-                          "gamma": torch.ones(2, 25, dtype=DT)}, torch.full((3,), 1 / 3, dtype=DT))
+    real = HBNIPosterior(
+        {
+            "theta": post.theta_draws().reshape(2, 25, 3),
+            "kappa": torch.ones(2, 25, dtype=DT),
+            "gamma": torch.ones(2, 25, dtype=DT),
+        },
+        torch.full((3,), 1 / 3, dtype=DT),
+    )
     assert torch.equal(characterize(process, real, num_streams=100, seed=0).joint, model.joint)
     with pytest.raises(TypeError, match="process"):
         characterize(StaticStateBayesFilter(3), THETA, 10, 0)
@@ -223,12 +234,22 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
     assert torch.equal(back.joint, model.joint) and torch.equal(back.timed_out, model.timed_out)
     assert back.info == model.info and back.num_classes == 2
     gen = torch.Generator().manual_seed(1)
-    assert torch.equal(back.sample(torch.tensor([0, 1, 1]), gen)[0],
-                       model.sample(torch.tensor([0, 1, 1]), torch.Generator().manual_seed(1))[0])
-    post = HBNIPosterior({"theta": torch.ones(1, 2, 3, dtype=DT), "kappa": torch.ones(1, 2, dtype=DT),
-                          "gamma": torch.ones(1, 2, dtype=DT)}, torch.full((3,), 1 / 3, dtype=DT))
+    assert torch.equal(
+        back.sample(torch.tensor([0, 1, 1]), gen)[0],
+        model.sample(torch.tensor([0, 1, 1]), torch.Generator().manual_seed(1))[0],
+    )
+    post = HBNIPosterior(
+        {
+            "theta": torch.ones(1, 2, 3, dtype=DT),
+            "kappa": torch.ones(1, 2, dtype=DT),
+            "gamma": torch.ones(1, 2, dtype=DT),
+        },
+        torch.full((3,), 1 / 3, dtype=DT),
+    )
     post.save(tmp_path / "post.safetensors")
-    with pytest.raises(ValueError, match="holds hbni_pyro.HBNIPosterior, expected a saved hbni_pyro.MacroObservationModel"):
+    with pytest.raises(
+        ValueError, match="holds hbni_pyro.HBNIPosterior, expected a saved hbni_pyro.MacroObservationModel"
+    ):
         MacroObservationModel.load(tmp_path / "post.safetensors")
     (tmp_path / "junk").write_bytes(b"\x00" * 5 + b"not a model")
     with pytest.raises(ValueError, match="not a readable"):

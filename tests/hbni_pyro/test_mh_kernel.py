@@ -112,8 +112,12 @@ def test_class_move_transition_probabilities(confusion):
     accept = (log_pi - log_pi[cur] + w[cur].log() - w.log()).exp().clamp_max(1)
     exact = (1 - stay) * w * accept
     exact[cur] = 1 - exact.sum() + exact[cur]
-    state = MHState(torch.full((C, 1), cur), theta.log().expand(C, M), torch.zeros(C, dtype=torch.float64),
-                    torch.zeros(C, dtype=torch.float64))
+    state = MHState(
+        torch.full((C, 1), cur),
+        theta.log().expand(C, M),
+        torch.zeros(C, dtype=torch.float64),
+        torch.zeros(C, dtype=torch.float64),
+    )
     data = frame_data(o, torch.tensor([-1]), prior.log())
     new_c, accepted = update_classes(state, data, stay, g, beta=None if beta is None else beta.expand(C, M, M))
     freq = torch.bincount(new_c.reshape(-1), minlength=M).double() / C
@@ -154,8 +158,19 @@ def test_geweke_joint_distribution():
 
     def stats(c, log_theta, log_kappa, log_gamma):
         one_hot = torch.nn.functional.one_hot(c, M).double().mean(-2)
-        return torch.stack([log_theta[:, 0], log_theta[:, 2], log_theta.var(-1), log_kappa, log_gamma,
-                            one_hot[:, 0], one_hot[:, 2], log_theta.exp().log1p().mean(-1)], -1)
+        return torch.stack(
+            [
+                log_theta[:, 0],
+                log_theta[:, 2],
+                log_theta.var(-1),
+                log_kappa,
+                log_gamma,
+                one_hot[:, 0],
+                one_hot[:, 2],
+                log_theta.exp().log1p().mean(-1),
+            ],
+            -1,
+        )
 
     c, theta, kappa, gamma = prior_draw(C)
     state = MHState(c, theta.log(), kappa.log(), gamma.log())

@@ -44,13 +44,26 @@ def test_a_registered_variant_fits_stores_filters_and_predicts_as_its_own(frozen
     assert loaded.model == "frozen" and torch.equal(loaded.samples["theta"], post.samples["theta"])
     f = hbni_pyro.make_filter("hbni", loaded)
     assert f.model == "frozen"
-    torch.testing.assert_close(f.run(obs[None, :5]), hbni_pyro.make_filter("hbni", ref).run(obs[None, :5]), rtol=0, atol=0)
+    torch.testing.assert_close(
+        f.run(obs[None, :5]), hbni_pyro.make_filter("hbni", ref).run(obs[None, :5]), rtol=0, atol=0
+    )
     streams = loaded.sample_streams(2, 7, 4, seed=1)  # the spec's own predictive: one output repeated
     assert streams.shape == (7, 4, 3) and torch.equal(streams, streams[:, :1].expand(-1, 4, -1))
-    table = hbni_pyro.characterize(hbni_pyro.MacroObservationProcess(f, threshold=0.9, max_frames=4), loaded, 50, seed=0)
+    table = hbni_pyro.characterize(
+        hbni_pyro.MacroObservationProcess(f, threshold=0.9, max_frames=4), loaded, 50, seed=0
+    )
     assert table.info["generative"] == "posterior predictive (frozen model)"
-    nuts = hbni_pyro.fit(obs, labels, model=frozen, method="nuts", num_chains=1, num_samples=20, warmup_steps=20,
-                         progress=False, jit=False)
+    nuts = hbni_pyro.fit(
+        obs,
+        labels,
+        model=frozen,
+        method="nuts",
+        num_chains=1,
+        num_samples=20,
+        warmup_steps=20,
+        progress=False,
+        jit=False,
+    )
     assert nuts.model == "frozen" and set(nuts.samples) == {"theta", "kappa", "gamma"}
 
 
@@ -77,8 +90,9 @@ def test_registry_errors(frozen):
 
 def test_a_saved_posterior_of_an_unregistered_variant_is_refused(frozen, tmp_path):
     obs, labels = data()
-    path = hbni_pyro.fit(obs, labels, model="frozen", num_chains=2, num_samples=10, warmup_steps=10, progress=False).save(
-        tmp_path / "p.safetensors")
+    path = hbni_pyro.fit(
+        obs, labels, model="frozen", num_chains=2, num_samples=10, warmup_steps=10, progress=False
+    ).save(tmp_path / "p.safetensors")
     unregister("frozen")
     try:
         with pytest.raises(ValueError, match="unknown noise model 'frozen'"):

@@ -13,7 +13,9 @@ from hbni_pyro.generative import sample_outputs
 
 @pytest.fixture(scope="module")
 def posterior():
-    obs = sample_outputs(torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch.Generator().manual_seed(0))
+    obs = sample_outputs(
+        torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch.Generator().manual_seed(0)
+    )
     return hbni_pyro.fit(obs, num_chains=4, num_samples=200, warmup_steps=200, seed=0, progress=False)
 
 
@@ -82,7 +84,9 @@ def test_bad_construction_and_point_estimates(posterior):
     with pytest.raises(ValueError, match="missing sites"):
         HBNIPosterior({"theta": torch.ones(1, 2, 3)}, torch.ones(3) / 3)
     with pytest.raises(ValueError, match=r"samples\['kappa'\]"):
-        HBNIPosterior({"theta": torch.ones(1, 2, 3), "kappa": torch.ones(2), "gamma": torch.ones(1, 2)}, torch.ones(3) / 3)
+        HBNIPosterior(
+            {"theta": torch.ones(1, 2, 3), "kappa": torch.ones(2), "gamma": torch.ones(1, 2)}, torch.ones(3) / 3
+        )
     with pytest.raises(ValueError, match="estimate"):
         posterior.theta_point("mode")
     assert posterior.theta_point("median").shape == (3,)

@@ -16,8 +16,16 @@ def posterior(request):
     classes = torch.arange(3).repeat_interleave(20)
     obs = sample_outputs(torch.tensor([2.0, 6.0, 12.0], dtype=torch.float64), classes, g)
     ids = torch.arange(12).repeat_interleave(5) if request.param == "sequence" else None
-    return hbni_pyro.fit(obs, classes, model=request.param, sequence_ids=ids, num_chains=2, num_samples=30,
-                         warmup_steps=30, progress=False)
+    return hbni_pyro.fit(
+        obs,
+        classes,
+        model=request.param,
+        sequence_ids=ids,
+        num_chains=2,
+        num_samples=30,
+        warmup_steps=30,
+        progress=False,
+    )
 
 
 def test_to_cpu_is_the_same_posterior_and_draws(posterior):

@@ -28,8 +28,17 @@ def training(seed=0, per_class=24, frames=4):
 @pytest.fixture(scope="module", params=["paper", "confusion", "sequence"])
 def posterior(request):
     obs, labels, ids = training()
-    return hbni_pyro.fit(obs, labels, model=request.param, sequence_ids=ids, num_chains=4, num_samples=100,
-                         warmup_steps=300, seed=0, progress=False)
+    return hbni_pyro.fit(
+        obs,
+        labels,
+        model=request.param,
+        sequence_ids=ids,
+        num_chains=4,
+        num_samples=100,
+        warmup_steps=300,
+        seed=0,
+        progress=False,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -73,9 +82,11 @@ def test_the_check_fails_on_much_noisier_outputs(paper):
 def test_the_check_fails_on_correlated_frames_fitted_as_independent(paper):
     """Every frame of a sequence repeats one look (one output, a little symmetric jitter): the paper's model expects
     independent frames to settle a wrong first look, so it predicts neither the timeouts nor the wrong stops."""
+
     def correlated(c, n, frames, g):
         look = sample_outputs(THETA, torch.full((n, 1), c), g)
         return (look.log() + sample_dirichlet(torch.full((n, frames, 3), 50.0, dtype=DT), g).log()).softmax(-1)
+
     outputs, labels, ids = held_out(correlated, 0)
     result = assert_check_fails(paper, outputs, labels, ids, alpha=ALPHA, threshold=0.999)
     assert {"1: timeouts", "1: calibration"} <= set(result.failures(ALPHA))
@@ -146,8 +157,14 @@ def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
     blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "checks.md").read_text(), re.S)
     assert len(blocks) == 2
     for block in blocks:
-        proc = subprocess.run([sys.executable, "-c", block], cwd=tmp_path, capture_output=True, text=True,
-                              env=os.environ | {"PYTHONPATH": str(repo_root)}, timeout=300)
+        proc = subprocess.run(
+            [sys.executable, "-c", block],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            env=os.environ | {"PYTHONPATH": str(repo_root)},
+            timeout=300,
+        )
         assert proc.returncode == 0, f"this block of docs/checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
     assert (tmp_path / "check.png").stat().st_size > 1000
 

@@ -17,8 +17,11 @@ def _bank(n_per_class=5, frames=8, seed=0):
 
 
 def _process(kind="hbni"):
-    filt = hbni_pyro.HBNIFilter(DrawsPosterior(THETA[None] * torch.tensor([[0.8], [1.0], [1.3]])), temper=0.7) \
-        if kind == "hbni" else hbni_pyro.StaticStateBayesFilter(3)
+    filt = (
+        hbni_pyro.HBNIFilter(DrawsPosterior(THETA[None] * torch.tensor([[0.8], [1.0], [1.3]])), temper=0.7)
+        if kind == "hbni"
+        else hbni_pyro.StaticStateBayesFilter(3)
+    )
     return hbni_pyro.MacroObservationProcess(filt, threshold=0.9, max_frames=6)
 
 

@@ -34,5 +34,7 @@ def test_sbc_ranks_are_uniform(model):
 
 def test_sbc_detects_a_wrong_prior():
     """The check has power: fitting with a prior other than the one the data came from skews the ranks."""
-    wrong = run_sbc("paper", 100, labelled=False, size=15, seed=7, fit_hyperprior=HyperPrior(beta=8.0, eta=1.0, nu=8.0, omega=5.0))
+    wrong = run_sbc(
+        "paper", 100, labelled=False, size=15, seed=7, fit_hyperprior=HyperPrior(beta=8.0, eta=1.0, nu=8.0, omega=5.0)
+    )
     assert min(wrong.p_value.values()) < 1e-4

@@ -116,8 +116,18 @@ def test_fit_temper_on_a_fitted_posterior():
     assert 0 < result.temper <= 1
 
 
-@pytest.mark.parametrize("temper, error", [(0.0, ValueError), (-0.5, ValueError), (1.5, ValueError), (float("nan"), ValueError),
-                                           (True, TypeError), ("0.5", TypeError), (None, TypeError)])
+@pytest.mark.parametrize(
+    "temper, error",
+    [
+        (0.0, ValueError),
+        (-0.5, ValueError),
+        (1.5, ValueError),
+        (float("nan"), ValueError),
+        (True, TypeError),
+        ("0.5", TypeError),
+        (None, TypeError),
+    ],
+)
 def test_bad_temper_is_rejected(temper, error):
     with pytest.raises(error, match="temper: expected a"):
         HBNIFilter(TRUE, temper=temper)

@@ -28,7 +28,9 @@ def test_assert_calibrated_fails_on_an_overconfident_filter_and_quotes_the_figur
     """SSBF on outputs 5x noisier than its outputs claim: its emitted labels are right 94 % of the time at threshold 0.99 (466 emitted)."""
     streams, truth = toy_streams(theta=THETA / 5)
     process = MacroObservationProcess(StaticStateBayesFilter(3), 0.99, 10)
-    with pytest.raises(AssertionError, match=r"emitted labels right 0\.\d+ \(\d+/\d+ emitted, \d+ timeouts\) < 0\.99 - slack 0"):
+    with pytest.raises(
+        AssertionError, match=r"emitted labels right 0\.\d+ \(\d+/\d+ emitted, \d+ timeouts\) < 0\.99 - slack 0"
+    ):
         assert_calibrated(process, streams, truth)
     assert_calibrated(process, streams, truth, slack=0.5)  # a slack that large forgives it
     assert_calibrated(process, streams, truth, 0.9)  # it does keep a lesser promise
@@ -58,14 +60,25 @@ def test_assert_calibrated_argument_errors():
 def posterior():
     g = torch.Generator().manual_seed(0)
     classes = torch.arange(3).repeat_interleave(40)
-    return hbni_pyro.fit(sample_outputs(THETA, classes, g), classes, num_chains=4, num_samples=100, warmup_steps=300,
-                         seed=0, progress=False)
+    return hbni_pyro.fit(
+        sample_outputs(THETA, classes, g),
+        classes,
+        num_chains=4,
+        num_samples=100,
+        warmup_steps=300,
+        seed=0,
+        progress=False,
+    )
 
 
 def held_out(posterior, source, streams=30, frames=6, seed=0):
     g = torch.Generator().manual_seed(seed)
     outputs = torch.cat([source(c, streams, frames, g) for c in range(3)]).reshape(-1, 3)
-    return outputs, torch.arange(3).repeat_interleave(streams * frames), torch.arange(3 * streams).repeat_interleave(frames)
+    return (
+        outputs,
+        torch.arange(3).repeat_interleave(streams * frames),
+        torch.arange(3 * streams).repeat_interleave(frames),
+    )
 
 
 def test_assert_check_passes_and_fails(posterior):
@@ -75,7 +88,9 @@ def test_assert_check_passes_and_fails(posterior):
     with pytest.raises(AssertionError, match=r"posterior predictive check passed at alpha 0.01, smallest p-value"):
         assert_check_fails(posterior, *own, alpha=0.01)
     assert not assert_check_fails(posterior, *noisier, alpha=0.01).passed(0.01)
-    with pytest.raises(AssertionError, match=r"check failed at alpha 0.01 \(Bonferroni over 15 tests\): .*1: emitted p="):
+    with pytest.raises(
+        AssertionError, match=r"check failed at alpha 0.01 \(Bonferroni over 15 tests\): .*1: emitted p="
+    ):
         assert_check_passes(posterior, *noisier, alpha=0.01)
     with pytest.raises(ValueError, match="threshold"):
         assert_check_passes(posterior, *own, threshold=2.0)

@@ -18,7 +18,9 @@ M = 3
 
 def confusion_posterior(num_draws=40, seed=0):
     g = torch.Generator().manual_seed(seed)
-    theta = torch.tensor([2.0, 6.0, 12.0], dtype=DT) * torch.exp(0.3 * torch.randn(2, num_draws // 2, M, generator=g, dtype=DT))
+    theta = torch.tensor([2.0, 6.0, 12.0], dtype=DT) * torch.exp(
+        0.3 * torch.randn(2, num_draws // 2, M, generator=g, dtype=DT)
+    )
     beta = torch.exp(0.5 * torch.randn(2, num_draws // 2, M, M, generator=g, dtype=DT)) * 0.7
     beta = beta.masked_fill(torch.eye(M, dtype=torch.bool), 1.0)
     ones = torch.ones(2, num_draws // 2, dtype=DT)
@@ -29,13 +31,20 @@ def confusion_posterior(num_draws=40, seed=0):
 def sequence_posterior(num_draws=30, seed=0):
     g = torch.Generator().manual_seed(seed)
     S = num_draws // 2
-    loc = torch.tensor([[1.2, 0.1], [-0.7, 1.0], [-0.6, -1.1]], dtype=DT) + 0.1 * torch.randn(2, S, M, 2, generator=g, dtype=DT)
+    loc = torch.tensor([[1.2, 0.1], [-0.7, 1.0], [-0.6, -1.1]], dtype=DT) + 0.1 * torch.randn(
+        2, S, M, 2, generator=g, dtype=DT
+    )
     a = 0.4 * torch.randn(2, S, M, 2, 2, generator=g, dtype=DT)
     between = a @ a.transpose(-1, -2) + 0.1 * torch.eye(2, dtype=DT)
     b = 0.3 * torch.randn(2, S, 2, 2, generator=g, dtype=DT)
     within = b @ b.transpose(-1, -2) + 0.2 * torch.eye(2, dtype=DT)
-    samples = {"loc": loc, "between": between, "between_mean": within.clone(), "between_pooling": torch.ones(2, S, dtype=DT),
-               "within": within}
+    samples = {
+        "loc": loc,
+        "between": between,
+        "between_mean": within.clone(),
+        "between_pooling": torch.ones(2, S, dtype=DT),
+        "within": within,
+    }
     return HBNIPosterior(samples, torch.tensor([0.5, 0.3, 0.2], dtype=DT), model="sequence")
 
 
@@ -67,7 +76,9 @@ def test_confusion_filter_matches_a_brute_force_loop_over_draws_and_frames():
     for b in range(3):
         loglik = torch.zeros(alpha.shape[0], M, dtype=DT)
         for n in range(6):
-            loglik += torch.stack([torch.distributions.Dirichlet(alpha[:, c]).log_prob(obs[b, n]) for c in range(M)], -1)
+            loglik += torch.stack(
+                [torch.distributions.Dirichlet(alpha[:, c]).log_prob(obs[b, n]) for c in range(M)], -1
+            )
             expected = torch.softmax(post.class_prior.log() + log_mean_exp(loglik), -1)
             torch.testing.assert_close(probs[b, n], expected, rtol=0, atol=1e-10)
 
@@ -82,14 +93,22 @@ def test_sequence_filter_integrates_the_look_out_exactly():
         for n in range(1, 6):
             mask = torch.zeros(5, dtype=torch.bool)
             mask[:n] = True
-            lik = torch.stack([
-                TwoLevelSequence(d["loc"][:, c], d["between"][:, c], d["within"], mask.expand(d["loc"].shape[0], 5)).log_prob(obs[b])
-                for c in range(M)], -1)  # (S, M)
+            lik = torch.stack(
+                [
+                    TwoLevelSequence(
+                        d["loc"][:, c], d["between"][:, c], d["within"], mask.expand(d["loc"].shape[0], 5)
+                    ).log_prob(obs[b])
+                    for c in range(M)
+                ],
+                -1,
+            )  # (S, M)
             expected = torch.softmax(post.class_prior.log() + log_mean_exp(lik), -1)
             torch.testing.assert_close(probs[b, n - 1], expected, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("make, streams", [(confusion_posterior, confusion_streams), (sequence_posterior, sequence_streams)])
+@pytest.mark.parametrize(
+    "make, streams", [(confusion_posterior, confusion_streams), (sequence_posterior, sequence_streams)]
+)
 @pytest.mark.parametrize("mode", ["marginal", "plugin"])
 def test_streaming_equals_batched(make, streams, mode):
     post = make()

@@ -40,15 +40,31 @@ def confusion_params():
     theta = ALPHA.diagonal() - 1
     beta = ALPHA.clone()
     beta.diagonal().fill_(1.0)
-    return {"theta": theta, "beta": beta, "kappa": torch.tensor(1.5, dtype=DT), "gamma": torch.tensor(4.0, dtype=DT),
-            "beta_loc": torch.tensor(-0.3, dtype=DT), "beta_scale": torch.tensor(0.8, dtype=DT)}
+    return {
+        "theta": theta,
+        "beta": beta,
+        "kappa": torch.tensor(1.5, dtype=DT),
+        "gamma": torch.tensor(4.0, dtype=DT),
+        "beta_loc": torch.tensor(-0.3, dtype=DT),
+        "beta_scale": torch.tensor(0.8, dtype=DT),
+    }
 
 
 def sequence_params():
-    between = torch.stack([torch.tensor([[0.3, 0.05], [0.05, 0.2]]), torch.tensor([[0.25, 0.0], [0.0, 0.35]]),
-                           torch.tensor([[0.2, -0.05], [-0.05, 0.3]])]).to(DT)
-    return {"loc": LOC, "between": between, "between_mean": torch.tensor([[0.3, 0.0], [0.0, 0.3]], dtype=DT),
-            "between_pooling": torch.tensor(8.0, dtype=DT), "within": torch.tensor([[0.4, 0.1], [0.1, 0.5]], dtype=DT)}
+    between = torch.stack(
+        [
+            torch.tensor([[0.3, 0.05], [0.05, 0.2]]),
+            torch.tensor([[0.25, 0.0], [0.0, 0.35]]),
+            torch.tensor([[0.2, -0.05], [-0.05, 0.3]]),
+        ]
+    ).to(DT)
+    return {
+        "loc": LOC,
+        "between": between,
+        "between_mean": torch.tensor([[0.3, 0.0], [0.0, 0.3]], dtype=DT),
+        "between_pooling": torch.tensor(8.0, dtype=DT),
+        "within": torch.tensor([[0.4, 0.1], [0.1, 0.5]], dtype=DT),
+    }
 
 
 def sequences(num_seq=9, frames=4, seed=0):
@@ -82,7 +98,12 @@ def test_confusion_log_joint_matches_brute_force_and_pyro_enumeration():
         for assignment in itertools.product(range(3), repeat=4):
             if any(y >= 0 and a != y for a, y in zip(assignment, labels.tolist())):
                 continue
-            terms.append(sum(prior[m].log() + torch.distributions.Dirichlet(alpha[m]).log_prob(o) for o, m in zip(obs, assignment)))
+            terms.append(
+                sum(
+                    prior[m].log() + torch.distributions.Dirichlet(alpha[m]).log_prob(o)
+                    for o, m in zip(obs, assignment)
+                )
+            )
         ref = base + torch.logsumexp(torch.stack(terms), 0)
         torch.testing.assert_close(confusion_log_joint(obs, params, labels, prior, HP), ref, rtol=0, atol=1e-9)
         # Pyro's enumeration over the classes, with the continuous sites fixed (non-centred beta).
@@ -103,7 +124,9 @@ def test_two_level_sequence_density_is_the_joint_gaussian_of_its_frames():
     for k in range(3):
         y = ilr(obs[k][mask[k]])
         n = y.shape[0]
-        cov = torch.kron(torch.eye(n, dtype=DT), p["within"]) + torch.kron(torch.ones(n, n, dtype=DT), p["between"][classes[k]])
+        cov = torch.kron(torch.eye(n, dtype=DT), p["within"]) + torch.kron(
+            torch.ones(n, n, dtype=DT), p["between"][classes[k]]
+        )
         ref = torch.distributions.MultivariateNormal(p["loc"][classes[k]].repeat(n), cov).log_prob(y.reshape(-1))
         torch.testing.assert_close(ours[k], ref + ilr_log_jacobian(obs[k][mask[k]]).sum(), rtol=0, atol=1e-9)
 
@@ -123,20 +146,32 @@ def test_sequence_log_joint_matches_brute_force_and_pyro_enumeration():
         per_seq = []
         for k in range(3):
             options = [labels[k].item()] if labels[k] >= 0 else range(3)
-            per_seq.append(torch.logsumexp(torch.stack([
-                prior[c].log() + TwoLevelSequence(p["loc"][c], p["between"][c], p["within"], mask[k]).log_prob(obs[k])
-                for c in options]), 0))
+            per_seq.append(
+                torch.logsumexp(
+                    torch.stack(
+                        [
+                            prior[c].log()
+                            + TwoLevelSequence(p["loc"][c], p["between"][c], p["within"], mask[k]).log_prob(obs[k])
+                            for c in options
+                        ]
+                    ),
+                    0,
+                )
+            )
         ref = sequence_prior_log_prob(p, HP) + sum(per_seq)
         torch.testing.assert_close(ours, ref, rtol=0, atol=1e-9)
         # Pyro: the same joint over the sampled Cholesky factors, i.e. plus their log Jacobians.
         trils = {k: torch.linalg.cholesky(p[k]) for k in ("between", "within", "between_mean")}
         data = {"loc": p["loc"], "between_pooling": p["between_pooling"]} | {f"{k}_tril": v for k, v in trils.items()}
         pyro.clear_param_store()
-        loss = TraceEnum_ELBO(max_plate_nesting=1).loss(poutine.condition(sequence_model, data=data), lambda *a, **k: None,
-                                                        obs, mask, labels, prior, HP)
+        loss = TraceEnum_ELBO(max_plate_nesting=1).loss(
+            poutine.condition(sequence_model, data=data), lambda *a, **k: None, obs, mask, labels, prior, HP
+        )
         d = 2
         powers = torch.arange(d, 0, -1, dtype=DT)
-        log_jac = sum((d * math.log(2) + (powers * t.diagonal(dim1=-2, dim2=-1).log()).sum(-1)).sum() for t in trils.values())
+        log_jac = sum(
+            (d * math.log(2) + (powers * t.diagonal(dim1=-2, dim2=-1).log()).sum(-1)).sum() for t in trils.values()
+        )
         torch.testing.assert_close(torch.tensor(-loss, dtype=DT), ref + log_jac, rtol=0, atol=1e-8)
 
 
@@ -160,7 +195,9 @@ def test_confusion_kernel_runs_is_seeded_and_keeps_labels():
         return kernel, mcmc.get_samples(group_by_chain=True)
 
     kernel, s = run(3)
-    assert s["beta"].shape == (1, 40, 5, 3, 3) and s["theta"].shape == (1, 40, 5, 3) and s["beta_loc"].shape == (1, 40, 5)
+    assert (
+        s["beta"].shape == (1, 40, 5, 3, 3) and s["theta"].shape == (1, 40, 5, 3) and s["beta_loc"].shape == (1, 40, 5)
+    )
     assert torch.equal(s["beta"].diagonal(dim1=-2, dim2=-1), torch.ones(1, 40, 5, 3, dtype=DT))
     assert set(kernel.diagnostics()["acceptance rate"]) == {"c", "conc", "hyper", "beta_scale"}
     assert set(kernel.logging()) == {"acc. c", "acc. conc", "acc. hyper", "acc. beta_scale"}
@@ -175,7 +212,9 @@ def test_confusion_kernel_runs_is_seeded_and_keeps_labels():
 def test_sequence_kernel_runs_is_seeded_and_keeps_labels():
     obs, _ = sequences(9, 4)
     labels = torch.tensor([0, -1, 0, 1, -1, 1, 2, 2, -1])
-    stats = sequence_stats(hbni_pyro.as_outputs(obs.reshape(-1, 3)), torch.arange(9).repeat_interleave(4), labels.repeat_interleave(4), 9)
+    stats = sequence_stats(
+        hbni_pyro.as_outputs(obs.reshape(-1, 3)), torch.arange(9).repeat_interleave(4), labels.repeat_interleave(4), 9
+    )
 
     def run(seed):
         kernel = SequenceMetropolis(num_chains=4, seed=seed)
@@ -184,8 +223,15 @@ def test_sequence_kernel_runs_is_seeded_and_keeps_labels():
         return kernel, mcmc.get_samples(group_by_chain=True)
 
     kernel, s = run(1)
-    assert s["loc"].shape == (1, 30, 4, 3, 2) and s["between"].shape == (1, 30, 4, 3, 2, 2) and s["within"].shape == (1, 30, 4, 2, 2)
-    assert torch.linalg.cholesky_ex(s["between"]).info.eq(0).all() and torch.linalg.cholesky_ex(s["within"]).info.eq(0).all()
+    assert (
+        s["loc"].shape == (1, 30, 4, 3, 2)
+        and s["between"].shape == (1, 30, 4, 3, 2, 2)
+        and s["within"].shape == (1, 30, 4, 2, 2)
+    )
+    assert (
+        torch.linalg.cholesky_ex(s["between"]).info.eq(0).all()
+        and torch.linalg.cholesky_ex(s["within"]).info.eq(0).all()
+    )
     assert set(kernel.diagnostics()["acceptance rate"]) == {"pooling"}
     probs = kernel.label_probs[0]
     torch.testing.assert_close(probs[labels >= 0], torch.nn.functional.one_hot(labels[labels >= 0], 3).to(DT))
@@ -208,8 +254,11 @@ def test_kernels_reject_bad_settings(kernel):
 
 def agree_within_monte_carlo_error(a, b, z_max):
     sa, sb = a.summary(), b.summary()
-    worst = max(abs(sa[k]["mean"] - sb[k]["mean"]) / math.sqrt(sa[k]["sd"] ** 2 / sa[k]["ess"] + sb[k]["sd"] ** 2 / sb[k]["ess"])
-                for k in sa)
+    worst = max(
+        abs(sa[k]["mean"] - sb[k]["mean"])
+        / math.sqrt(sa[k]["sd"] ** 2 / sa[k]["ess"] + sb[k]["sd"] ** 2 / sb[k]["ess"])
+        for k in sa
+    )
     return worst < z_max, worst
 
 
@@ -218,9 +267,20 @@ def test_confusion_mh_and_nuts_agree():
     a family-wise false-alarm rate under 0.1 %."""
     obs, classes = confusion_data(4, seed=5)
     labels = torch.where(torch.arange(12) % 3 == 0, torch.tensor(-1), classes)
-    mh = hbni_pyro.fit(obs, labels, model="confusion", num_chains=32, num_samples=1500, warmup_steps=1000, seed=1, progress=False)
-    nuts = hbni_pyro.fit(obs, labels, model="confusion", method="nuts", num_chains=1, num_samples=300, warmup_steps=200,
-                         seed=2, progress=False)
+    mh = hbni_pyro.fit(
+        obs, labels, model="confusion", num_chains=32, num_samples=1500, warmup_steps=1000, seed=1, progress=False
+    )
+    nuts = hbni_pyro.fit(
+        obs,
+        labels,
+        model="confusion",
+        method="nuts",
+        num_chains=1,
+        num_samples=300,
+        warmup_steps=200,
+        seed=2,
+        progress=False,
+    )
     ok, worst = agree_within_monte_carlo_error(mh, nuts, 4.0)
     assert ok, worst
     assert nuts.label_probs.shape == (12, 3) and (nuts.label_probs[labels >= 0].max(-1).values == 1).all()
@@ -234,10 +294,29 @@ def test_sequence_mh_and_nuts_agree():
     flat = obs.reshape(-1, 3)
     ids = torch.arange(6).repeat_interleave(3)
     labels = torch.tensor([0, -1, 1, 1, -1, 2]).repeat_interleave(3)
-    mh = hbni_pyro.fit(flat, labels, model="sequence", sequence_ids=ids, num_chains=32, num_samples=1500, warmup_steps=500,
-                       seed=1, progress=False)
-    nuts = hbni_pyro.fit(flat, labels, model="sequence", sequence_ids=ids, method="nuts", num_chains=1, num_samples=150,
-                         warmup_steps=100, seed=2, progress=False)
+    mh = hbni_pyro.fit(
+        flat,
+        labels,
+        model="sequence",
+        sequence_ids=ids,
+        num_chains=32,
+        num_samples=1500,
+        warmup_steps=500,
+        seed=1,
+        progress=False,
+    )
+    nuts = hbni_pyro.fit(
+        flat,
+        labels,
+        model="sequence",
+        sequence_ids=ids,
+        method="nuts",
+        num_chains=1,
+        num_samples=150,
+        warmup_steps=100,
+        seed=2,
+        progress=False,
+    )
     ok, worst = agree_within_monte_carlo_error(mh, nuts, 4.0)
     assert ok, worst
     torch.testing.assert_close(mh.label_probs, nuts.label_probs, rtol=0, atol=0.15)
@@ -251,7 +330,9 @@ def test_confusion_model_recovers_a_known_confusion_matrix():
     within 4 posterior standard deviations, and the implied mean-output (confusion) matrix
     ``E[o | c] = alpha_c / sum(alpha_c)`` is within 0.02 of the truth in every entry."""
     obs, classes = confusion_data(600, seed=8)
-    post = hbni_pyro.fit(obs, classes, model="confusion", num_chains=8, num_samples=400, warmup_steps=400, seed=0, progress=False)
+    post = hbni_pyro.fit(
+        obs, classes, model="confusion", num_chains=8, num_samples=400, warmup_steps=400, seed=0, progress=False
+    )
     draws = post.draws()
     alpha = concentrations(draws["theta"], draws["beta"])
     z = (alpha.mean(0) - ALPHA).abs() / alpha.std(0)
@@ -267,7 +348,9 @@ def test_confusion_model_stays_with_the_paper_when_confusions_are_uniform():
     g = torch.Generator().manual_seed(9)
     classes = torch.arange(3).repeat_interleave(200)
     obs = hbni_pyro.generative.sample_outputs(torch.tensor([1.0, 6.0, 20.0]), classes, g)
-    post = hbni_pyro.fit(obs, classes, model="confusion", num_chains=8, num_samples=300, warmup_steps=300, seed=0, progress=False)
+    post = hbni_pyro.fit(
+        obs, classes, model="confusion", num_chains=8, num_samples=300, warmup_steps=300, seed=0, progress=False
+    )
     s = post.summary()
     assert s["beta_loc"]["q5"] < 0 < s["beta_loc"]["q95"] and abs(s["beta_loc"]["mean"]) < 0.15
     assert s["beta_scale"]["mean"] < 0.2
@@ -278,8 +361,17 @@ def test_confusion_model_stays_with_the_paper_when_confusions_are_uniform():
 def test_sequence_model_recovers_its_class_looks():
     obs, classes = sequences(60, 10, seed=10)
     flat = obs.reshape(-1, 3)
-    post = hbni_pyro.fit(flat, classes.repeat_interleave(10), model="sequence", sequence_ids=torch.arange(60).repeat_interleave(10),
-                         num_chains=4, num_samples=300, warmup_steps=300, seed=0, progress=False)
+    post = hbni_pyro.fit(
+        flat,
+        classes.repeat_interleave(10),
+        model="sequence",
+        sequence_ids=torch.arange(60).repeat_interleave(10),
+        num_chains=4,
+        num_samples=300,
+        warmup_steps=300,
+        seed=0,
+        progress=False,
+    )
     draws = post.draws()
     z = (draws["loc"].mean(0) - LOC).abs() / draws["loc"].std(0)
     assert z.max() < 4, z
@@ -305,4 +397,6 @@ def test_fit_errors_name_the_argument():
     with pytest.raises(ValueError, match="labels: sequence 0 of dataset 0 mixes labels"):
         hbni_pyro.fit(obs, [0, 1, 1, 1, 2, 2], model="sequence", sequence_ids=[0, 0, 1, 1, 2, 2], progress=False)
     with pytest.raises(ValueError, match="num_chains: expected a multiple"):
-        MCMC(ConfusionMetropolis(num_chains=3), num_samples=2, warmup_steps=0, disable_progbar=True).run(torch.stack([obs, obs]))
+        MCMC(ConfusionMetropolis(num_chains=3), num_samples=2, warmup_steps=0, disable_progbar=True).run(
+            torch.stack([obs, obs])
+        )

@@ -11,15 +11,25 @@ def test_digest_is_stable_and_sensitive():
     t = torch.arange(6, dtype=torch.float64).view(2, 3)
     assert digest(t, {"a": 1}) == digest(t.clone(), {"a": 1})
     assert digest({"a": 1, "b": 2}) == digest({"b": 2, "a": 1})
-    different = [digest(t.view(3, 2)), digest(t.float()), digest(t + 1e-12), digest(t, {"a": 2}),
-                 digest(t.numpy()), digest(b"x"), digest("x")]
+    different = [
+        digest(t.view(3, 2)),
+        digest(t.float()),
+        digest(t + 1e-12),
+        digest(t, {"a": 2}),
+        digest(t.numpy()),
+        digest(b"x"),
+        digest("x"),
+    ]
     assert len({digest(t), *different}) == len(different) + 1
     assert digest(np.zeros(0)) == digest(np.zeros(0))
 
 
 def test_equal_fingerprints_pass():
-    check_fingerprint({"seed": 0, "cfg": {"alpha": 0.1, "sizes": (2, 3)}}, {"cfg": {"sizes": [2, 3], "alpha": 0.1}, "seed": 0},
-                      "checkpoint")
+    check_fingerprint(
+        {"seed": 0, "cfg": {"alpha": 0.1, "sizes": (2, 3)}},
+        {"cfg": {"sizes": [2, 3], "alpha": 0.1}, "seed": 0},
+        "checkpoint",
+    )
 
 
 @pytest.mark.parametrize(

@@ -12,8 +12,17 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_streams_are_reproducible_and_distinct_by_name():
-    names = [("plan", "hbni"), ("plan", "ssbf"), ("score", "hbni"), ("greedy", "hbni"), ("bank",), ("replicate", 0),
-             ("replicate", 1), ("replicate", "1"), ()]
+    names = [
+        ("plan", "hbni"),
+        ("plan", "ssbf"),
+        ("score", "hbni"),
+        ("greedy", "hbni"),
+        ("bank",),
+        ("replicate", 0),
+        ("replicate", 1),
+        ("replicate", "1"),
+        (),
+    ]
     seeds = [stream_seed(0, *n) for n in names] + [stream_seed(1, *n) for n in names]
     assert len(set(seeds)) == len(seeds)  # no two stages or variants share a stream
     assert all(0 <= s < 2**62 for s in seeds)
@@ -25,7 +34,9 @@ def test_streams_are_reproducible_and_distinct_by_name():
 
 
 def test_streams_of_one_seed_are_uncorrelated():
-    draws = torch.stack([torch.rand(4000, generator=torch_stream(7, "variant", k), dtype=torch.float64) for k in range(6)])
+    draws = torch.stack(
+        [torch.rand(4000, generator=torch_stream(7, "variant", k), dtype=torch.float64) for k in range(6)]
+    )
     corr = torch.corrcoef(draws)
     off = corr[~torch.eye(6, dtype=torch.bool)]
     assert off.abs().max() < 4 / 4000**0.5  # 4 standard errors of a zero correlation

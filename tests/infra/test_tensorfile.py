@@ -70,8 +70,11 @@ def test_missing_file_and_directory(tmp_path):
 def test_every_file_records_its_format_version_and_another_is_refused(tmp_path):
     path = save_tensors(tmp_path / "v.safetensors", "pkg.Thing", {"x": torch.ones(1)}, {}, version=3)
     assert load_tensors(path, "pkg.Thing", version=3)[1] == {"version": 3}
-    with pytest.raises(ValueError, match="format version 3 of a saved pkg.Thing; this version of the package reads "
-                                         r"version 2 \(the file comes from a newer release: upgrade the package\)"):
+    with pytest.raises(
+        ValueError,
+        match="format version 3 of a saved pkg.Thing; this version of the package reads "
+        r"version 2 \(the file comes from a newer release: upgrade the package\)",
+    ):
         load_tensors(path, "pkg.Thing", version=2)
     with pytest.raises(ValueError, match="reads version 4$"):
         load_tensors(path, "pkg.Thing", version=4)

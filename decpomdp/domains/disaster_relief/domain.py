@@ -21,8 +21,27 @@ from torch import Tensor
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.disaster_relief import rules
 from decpomdp.domains.disaster_relief.rules import (
-    ACTION_NAMES, AT_BASE, AT_SITE_LOADED, AWAY, BASE2, CLASSES, COUNTERS, CRATE_ZONE, FAIL_DURATION, GO_CRATE,
-    HANDLING_TIME, HOSPITAL, INFER, LOADED, LOADED_UNKNOWN, OBS_NAMES, PICK, PUT, REPAIR, REPAIR_MA, REPAIR_TIME,
+    ACTION_NAMES,
+    AT_BASE,
+    AT_SITE_LOADED,
+    AWAY,
+    BASE2,
+    CLASSES,
+    COUNTERS,
+    CRATE_ZONE,
+    FAIL_DURATION,
+    GO_CRATE,
+    HANDLING_TIME,
+    HOSPITAL,
+    INFER,
+    LOADED,
+    LOADED_UNKNOWN,
+    OBS_NAMES,
+    PICK,
+    PUT,
+    REPAIR,
+    REPAIR_MA,
+    REPAIR_TIME,
     SAW,
 )
 from decpomdp.engine import EngineModel, outcome_table
@@ -74,7 +93,9 @@ class DisasterRelief(DecPOSMDP):
     ) -> None:
         perception = PerfectPerception(len(CLASSES), frames=10) if perception is None else perception
         if not isinstance(perception, PerceptionModel):
-            raise TypeError(f"perception: expected a PerceptionModel (num_classes and sample), got {type(perception).__name__}")
+            raise TypeError(
+                f"perception: expected a PerceptionModel (num_classes and sample), got {type(perception).__name__}"
+            )
         if perception.num_classes != len(CLASSES):
             raise ValueError(f"perception: expected num_classes == {len(CLASSES)}, got {perception.num_classes}")
         self.perception, self.num_agents = perception, as_int("num_agents", num_agents, minimum=1)
@@ -87,8 +108,10 @@ class DisasterRelief(DecPOSMDP):
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
 
     def __repr__(self) -> str:
-        return (f"DisasterRelief(perception={self.perception!r}, num_agents={self.num_agents}, gamma={self.gamma}, "
-                f"horizon={self.horizon}, degrade_prob={self.degrade_prob}, sensor_accuracy={self.sensor_accuracy})")
+        return (
+            f"DisasterRelief(perception={self.perception!r}, num_agents={self.num_agents}, gamma={self.gamma}, "
+            f"horizon={self.horizon}, degrade_prob={self.degrade_prob}, sensor_accuracy={self.sensor_accuracy})"
+        )
 
     def engine_model(self) -> EngineModel | None:
         """The domain for the compiled engine (``None`` when the perception model has no outcome table)."""
@@ -127,7 +150,9 @@ class DisasterRelief(DecPOSMDP):
                 torch.where(
                     actions == INFER,
                     at_base,
-                    torch.where(actions == PICK, at_base & (carry < 0), (carry >= 0) & (loc >= HOSPITAL) & (loc <= CRATE_ZONE)),
+                    torch.where(
+                        actions == PICK, at_base & (carry < 0), (carry >= 0) & (loc >= HOSPITAL) & (loc <= CRATE_ZONE)
+                    ),
                 ),
             ),
         )
@@ -140,10 +165,15 @@ class DisasterRelief(DecPOSMDP):
         trip = travel[loc, actions.clamp(max=GO_CRATE)]
         to_repair = travel[loc, REPAIR]
         mean = torch.where(
-            actions <= GO_CRATE, trip * slow, torch.where(actions == REPAIR_MA, to_repair * slow + REPAIR_TIME, HANDLING_TIME * slow)
+            actions <= GO_CRATE,
+            trip * slow,
+            torch.where(actions == REPAIR_MA, to_repair * slow + REPAIR_TIME, HANDLING_TIME * slow),
         )
-        noise = (1.0 + rules.DURATION_NOISE * torch.randn(actions.shape, generator=generator, dtype=torch.float64,
-                                                          device=generator.device)).clamp(min=rules.MIN_NOISE_FACTOR)
+        noise = (
+            1.0
+            + rules.DURATION_NOISE
+            * torch.randn(actions.shape, generator=generator, dtype=torch.float64, device=generator.device)
+        ).clamp(min=rules.MIN_NOISE_FACTOR)
         duration = torch.where(ok, mean * noise, FAIL_DURATION)
         infer = ok & (actions == INFER)
         if bool(infer.any()):
@@ -154,15 +184,18 @@ class DisasterRelief(DecPOSMDP):
             state["frames"][row, col] = frames.long()
             duration[row, col] = frames.to(torch.float64) * self.frame_period
         pick = ok & (actions == PICK)
-        state["belief"] = torch.where(pick, torch.where(state["fresh"], destination[state["label"]] - HOSPITAL, -1), state["belief"])
+        state["belief"] = torch.where(
+            pick, torch.where(state["fresh"], destination[state["label"]] - HOSPITAL, -1), state["belief"]
+        )
         state["fresh"] = state["fresh"] & ~(agents & ((actions <= REPAIR_MA) | pick))  # leaving or picking uses it up
         for a in range(self.num_agents):  # robots in index order: each takes what waits when it starts
             row = pick[:, a].nonzero().squeeze(1)
             if row.numel():
                 base = loc[row, a]
                 state["carry"][row, a] = state["objects"][row, base]
-                state["objects"][row, base] = torch.randint(0, len(CLASSES), (row.numel(),), generator=generator,
-                                                            device=generator.device)
+                state["objects"][row, base] = torch.randint(
+                    0, len(CLASSES), (row.numel(),), generator=generator, device=generator.device
+                )
         state["ma"] = torch.where(agents, actions, state["ma"])
         state["ok"] = torch.where(agents, ok, state["ok"])
         return torch.where(agents, t[:, None] + duration, end_time)

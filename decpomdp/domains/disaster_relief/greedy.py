@@ -6,7 +6,16 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.domains.disaster_relief.rules import (
-    GO_AIRPORT, GO_B1, GO_B2, GO_CRATE, GO_HOSPITAL, INFER, OBS_NAMES, PICK, PUT, REPAIR_MA,
+    GO_AIRPORT,
+    GO_B1,
+    GO_B2,
+    GO_CRATE,
+    GO_HOSPITAL,
+    INFER,
+    OBS_NAMES,
+    PICK,
+    PUT,
+    REPAIR_MA,
 )
 
 

@@ -61,13 +61,28 @@ LOCATIONS = ["Base1", "Base2", "Hospital", "Airport", "Crate_zone", "Repair"]
 BASE1, BASE2, HOSPITAL, AIRPORT, CRATE_ZONE, REPAIR = range(6)
 #: destination location of each class
 DESTINATION = np.array([HOSPITAL, AIRPORT, HOSPITAL, AIRPORT, CRATE_ZONE, CRATE_ZONE], dtype=np.int64)
-ACTION_NAMES = ["go_base1", "go_base2", "go_hospital", "go_airport", "go_crate_zone", "go_repair", "infer", "pick_up",
-                "put_down"]
+ACTION_NAMES = [
+    "go_base1",
+    "go_base2",
+    "go_hospital",
+    "go_airport",
+    "go_crate_zone",
+    "go_repair",
+    "infer",
+    "pick_up",
+    "put_down",
+]
 GO_B1, GO_B2, GO_HOSPITAL, GO_AIRPORT, GO_CRATE, REPAIR_MA, INFER, PICK, PUT = range(9)
 HEALTH = ["high", "medium", "low"]
 _SITES = ["hospital", "airport", "crate_zone"]
-CONTEXTS = ["away", "at_base", *(f"saw_{d}" for d in _SITES), *(f"loaded_{d}" for d in _SITES), "loaded_unknown",
-            "at_site_loaded"]
+CONTEXTS = [
+    "away",
+    "at_base",
+    *(f"saw_{d}" for d in _SITES),
+    *(f"loaded_{d}" for d in _SITES),
+    "loaded_unknown",
+    "at_site_loaded",
+]
 AWAY, AT_BASE, SAW, LOADED, LOADED_UNKNOWN, AT_SITE_LOADED = 0, 1, 2, 5, 8, 9
 OBS_NAMES = [f"{context}_{reading}" for context in CONTEXTS for reading in HEALTH]
 #: mean travel time between locations (rows: from, columns: to)

@@ -20,14 +20,30 @@ from decpomdp.engine import EngineModel, no_perception
 from infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
-    ACTION_NAMES, BASE1, COUNTERS, FAIL_DURATION, GO_B1, JPICK, JPUT, MIN_NOISE_FACTOR, OBS_NAMES, PUT, WAIT, Rewards,
+    ACTION_NAMES,
+    BASE1,
+    COUNTERS,
+    FAIL_DURATION,
+    GO_B1,
+    JPICK,
+    JPUT,
+    MIN_NOISE_FACTOR,
+    OBS_NAMES,
+    PUT,
+    WAIT,
+    Rewards,
 )
 
 _N_LOC, _N_LOAD, _N_PKG, _N_MA = 5, 6, 5, 13
 _COUNT_BITS, _COUNT_MASK = 8, 255  # counters packed in one int32 per event (at most 2 per event each)
 
 
-_NOISY, _OK, _JOINT_OK, _SOLO_PICK_OK = 1, 2, 4, 8  # bits (_NOISY first: ``flags & _NOISY`` is 0 or 1) of the start table's ``flags``
+_NOISY, _OK, _JOINT_OK, _SOLO_PICK_OK = (
+    1,
+    2,
+    4,
+    8,
+)  # bits (_NOISY first: ``flags & _NOISY`` is 0 or 1) of the start table's ``flags``
 
 
 def _start_tables(reference_pickup: bool) -> dict[str, Tensor]:
@@ -39,8 +55,9 @@ def _start_tables(reference_pickup: bool) -> dict[str, Tensor]:
 _START = {rule: _start_tables(rule) for rule in (False, True)}  # by reference_pickup
 _GO, _DROP, _PICKS, _JPUT = rules.GO_KIND, rules.DROP_KIND, rules.PICK_KIND, rules.JPUT_KIND  # bits of ``_MA_KIND``
 #: uint8 (13,) kind bits of each MA; int32 (13,) node each go-to MA ends at; uint8 (13 * 13,) allowed successors
-_MA_KIND, _TARGET, _SUCCESSOR = (torch.as_tensor(x).to(dtype) for x, dtype in zip(
-    rules.ma_tables(), (torch.uint8, torch.int32, torch.uint8)))
+_MA_KIND, _TARGET, _SUCCESSOR = (
+    torch.as_tensor(x).to(dtype) for x, dtype in zip(rules.ma_tables(), (torch.uint8, torch.int32, torch.uint8))
+)
 
 
 def _same_place_and_load(state: dict[str, Tensor]) -> Tensor:
@@ -89,15 +106,18 @@ class PackageDelivery(DecPOSMDP):
         self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
         self.horizon = as_float("horizon", horizon, 0.0, low_open=True)
         self.joint_wait = as_float("joint_wait", joint_wait, 0.0, low_open=True)
-        self.rewards = Rewards(as_float("small_reward", small_reward), as_float("large_reward", large_reward),
-                               as_float("truck_reward", truck_reward), bool(large_reward_per_robot))
+        self.rewards = Rewards(
+            as_float("small_reward", small_reward),
+            as_float("large_reward", large_reward),
+            as_float("truck_reward", truck_reward),
+            bool(large_reward_per_robot),
+        )
         self.solo_joint, self.successor_rule = bool(solo_joint), bool(successor_rule)
         self.reference_pickup = bool(reference_pickup)
         self._start = _START[self.reference_pickup]
         self.action_names, self.obs_names = list(ACTION_NAMES), list(OBS_NAMES)
         self._complete_tables = self._build_complete_tables()
-        self._cpu_tables = {**self._start, "ma_kind": _MA_KIND, "target": _TARGET,
-                            **self._complete_tables}
+        self._cpu_tables = {**self._start, "ma_kind": _MA_KIND, "target": _TARGET, **self._complete_tables}
         self._placed: dict[torch.device, dict[str, Tensor]] = {}
 
     def _tables(self, device: torch.device) -> dict[str, Tensor]:
@@ -110,10 +130,12 @@ class PackageDelivery(DecPOSMDP):
         return self._placed[device]
 
     def __repr__(self) -> str:
-        return (f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
-                f"large_reward_per_robot={self.rewards.large_per_robot}, solo_joint={self.solo_joint}, "
-                f"truck_reward={self.rewards.truck}, successor_rule={self.successor_rule}, "
-                f"reference_pickup={self.reference_pickup})")
+        return (
+            f"PackageDelivery(gamma={self.gamma}, horizon={self.horizon}, joint_wait={self.joint_wait}, "
+            f"large_reward_per_robot={self.rewards.large_per_robot}, solo_joint={self.solo_joint}, "
+            f"truck_reward={self.rewards.truck}, successor_rule={self.successor_rule}, "
+            f"reference_pickup={self.reference_pickup})"
+        )
 
     def _build_complete_tables(self) -> dict[str, Tensor]:
         """:func:`.rules.drop_tables` with the counter increments packed into one int32 per entry (counter ``k``
@@ -164,8 +186,11 @@ class PackageDelivery(DecPOSMDP):
         mean = lookup(tables["mean"], situation + actions)
         if self.successor_rule:
             flags, mean = self._successors(state, agents_u8, actions, flags, mean)
-        noise = torch.randn(actions.shape, generator=generator, device=generator.device).mul_(rules.DURATION_NOISE).clamp_(
-            min=MIN_NOISE_FACTOR - 1.0)
+        noise = (
+            torch.randn(actions.shape, generator=generator, device=generator.device)
+            .mul_(rules.DURATION_NOISE)
+            .clamp_(min=MIN_NOISE_FACTOR - 1.0)
+        )
         noise.mul_(flags & _NOISY).add_(1.0)
         finish = torch.addcmul(pair(t), mean, noise)
         ok, joint, solo_pick = (flags >> 1) & 1, (flags >> 2) & 1, (flags >> 3) & 1
@@ -190,8 +215,9 @@ class PackageDelivery(DecPOSMDP):
         return torch.where(changed.view(torch.bool), finish, end_time)
 
     @staticmethod
-    def _successors(state: dict[str, Tensor], agents: Tensor, actions: Tensor, flags: Tensor,
-                    mean: Tensor) -> tuple[Tensor, Tensor]:
+    def _successors(
+        state: dict[str, Tensor], agents: Tensor, actions: Tensor, flags: Tensor, mean: Tensor
+    ) -> tuple[Tensor, Tensor]:
         """``successor_rule``: starting MAs that may not follow the previous MA fail (flags 0, mean
         ``FAIL_DURATION``); a put-down failing by this rule alone is marked to pay when it ends.
 
@@ -271,7 +297,9 @@ class PackageDelivery(DecPOSMDP):
 
     def complete(self, state, agents, actions, t, generator):
         ma, waiting, agents = state["ma"], as_u8(state["waiting"]), as_u8(agents)
-        active = as_u8(state["ok"]) & (waiting ^ 1)  # running an MA whose preconditions held, not waiting for the partner
+        active = as_u8(state["ok"]) & (
+            waiting ^ 1
+        )  # running an MA whose preconditions held, not waiting for the partner
         table = self._tables(ma.device)
         kind = lookup(table["ma_kind"], ma) * active
         travelling = (kind & _GO) & (agents ^ 1)

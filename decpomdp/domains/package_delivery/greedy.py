@@ -7,7 +7,19 @@ import torch
 from decpomdp.controller import JointController
 from decpomdp.domains.package_delivery.batched import PackageDelivery
 from decpomdp.domains.package_delivery.rules import (
-    GO_B1, GO_D1, GO_D2, GO_R, JGO_D1, JGO_D2, JPICK, JPUT, OBS_NAMES, PICK, PUT, TRUCK, WAIT,
+    GO_B1,
+    GO_D1,
+    GO_D2,
+    GO_R,
+    JGO_D1,
+    JGO_D2,
+    JPICK,
+    JPUT,
+    OBS_NAMES,
+    PICK,
+    PUT,
+    TRUCK,
+    WAIT,
 )
 from decpomdp.domains.rollouts import shared
 
@@ -41,10 +53,18 @@ def greedy_controller() -> JointController:
         return at_base(obs)
 
     rule = {
-        "dispatch": at_base, "home": at_base, "pick": after_pick, "jpick": after_joint_pick,
-        "go_d1": lambda o: "put", "go_d2": lambda o: "put", "go_r": lambda o: "truck",
-        "put": lambda o: "home", "truck": lambda o: "home", "jput": lambda o: "home",
-        "jgo_d1": lambda o: "jput", "jgo_d2": lambda o: "jput",
+        "dispatch": at_base,
+        "home": at_base,
+        "pick": after_pick,
+        "jpick": after_joint_pick,
+        "go_d1": lambda o: "put",
+        "go_d2": lambda o: "put",
+        "go_r": lambda o: "truck",
+        "put": lambda o: "home",
+        "truck": lambda o: "home",
+        "jput": lambda o: "home",
+        "jgo_d1": lambda o: "jput",
+        "jgo_d2": lambda o: "jput",
     }
     next_node = [[node[rule[name](obs)] for obs in OBS_NAMES] for name in names]
     one = JointController(torch.tensor([[action]]), torch.tensor([[next_node]]))

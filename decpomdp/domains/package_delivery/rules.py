@@ -114,9 +114,7 @@ ACTION_NAMES = [
 (GO_B1, GO_B2, GO_R, GO_D1, GO_D2, JGO_D1, JGO_D2, PICK, JPICK, PUT, JPUT, TRUCK, WAIT) = range(13)
 SMALL, LARGE = 1, 2
 _SIZES, _DESTS = ("small", "large"), ("dest1", "dest2", "rendezvous")
-OBS_NAMES = ["none"] + [
-    f"{size}_{dest}_{who}" for who in ("alone", "partner") for size in _SIZES for dest in _DESTS
-]
+OBS_NAMES = ["none"] + [f"{size}_{dest}_{who}" for who in ("alone", "partner") for size in _SIZES for dest in _DESTS]
 
 _nan = math.nan
 #: mean duration of each MA (rows, ACTION_NAMES order) from each start node (columns, NODE_NAMES order)
@@ -156,10 +154,19 @@ COUNTERS = ("delivered", "delivered_large", "wrong")
 #: 7thStringofZhef/G-DICE, file "Original G-DICE/@Domain/Domain.m", lines 60, 68, 76, 84, 92, 104, 112,
 #: 125, 133, 146, 154, 166 and 178); used by ``successor_rule``
 REFERENCE_SUCCESSORS = {
-    GO_B1: (GO_B2, GO_R, PICK, JPICK), GO_B2: (GO_B1, GO_R, PICK, JPICK), GO_R: (GO_B1, GO_B2, TRUCK),
-    GO_D1: (GO_B1, GO_B2, PUT), GO_D2: (GO_B1, GO_B2, PUT), JGO_D1: (JPUT,), JGO_D2: (JPUT,),
-    PICK: (GO_R, GO_D1, GO_D2), JPICK: (JGO_D1, JGO_D2), PUT: (GO_B1, GO_B2), JPUT: (GO_B1, GO_B2),
-    TRUCK: (GO_B1, GO_B2), WAIT: (WAIT,),
+    GO_B1: (GO_B2, GO_R, PICK, JPICK),
+    GO_B2: (GO_B1, GO_R, PICK, JPICK),
+    GO_R: (GO_B1, GO_B2, TRUCK),
+    GO_D1: (GO_B1, GO_B2, PUT),
+    GO_D2: (GO_B1, GO_B2, PUT),
+    JGO_D1: (JPUT,),
+    JGO_D2: (JPUT,),
+    PICK: (GO_R, GO_D1, GO_D2),
+    JPICK: (JGO_D1, JGO_D2),
+    PUT: (GO_B1, GO_B2),
+    JPUT: (GO_B1, GO_B2),
+    TRUCK: (GO_B1, GO_B2),
+    WAIT: (WAIT,),
 }
 
 
@@ -238,7 +245,9 @@ def start_tables(reference_pickup: bool) -> tuple[np.ndarray, np.ndarray]:
             for here in range(_N_PKG):
                 for ma in range(_N_MA):
                     ok = preconditions_hold(loc, load, here, ma, reference_pickup)
-                    flags[i] = ok * (OK_BIT + JOINT_OK * (ma in JOINT_MAS) + SOLO_PICK_OK * (ma == PICK) + NOISY * (ma != WAIT))
+                    flags[i] = ok * (
+                        OK_BIT + JOINT_OK * (ma in JOINT_MAS) + SOLO_PICK_OK * (ma == PICK) + NOISY * (ma != WAIT)
+                    )
                     mean[i] = float(MEAN_DURATION[ma, loc]) if ok else FAIL_DURATION
                     i += 1
     return flags, mean
@@ -264,8 +273,16 @@ def ma_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(kind, target, successor)``: int64 (13,) bits ``GO_KIND``/``DROP_KIND``/``PICK_KIND``/``JPUT_KIND`` of
     each MA, (13,) the node each go-to MA ends at (0 for others), (13 * 13,) whether MA ``n`` may follow ``m``
     at ``m * 13 + n`` (``REFERENCE_SUCCESSORS``)."""
-    kind = np.array([GO_KIND * (node >= 0) + DROP_KIND * (m in DROP_MAS) + PICK_KIND * (m in (PICK, JPICK))
-                     + JPUT_KIND * (m == JPUT) for m, node in enumerate(TARGET_NODE)], dtype=np.int64)
+    kind = np.array(
+        [
+            GO_KIND * (node >= 0)
+            + DROP_KIND * (m in DROP_MAS)
+            + PICK_KIND * (m in (PICK, JPICK))
+            + JPUT_KIND * (m == JPUT)
+            for m, node in enumerate(TARGET_NODE)
+        ],
+        dtype=np.int64,
+    )
     target = np.array([max(node, 0) for node in TARGET_NODE], dtype=np.int64)
     successor = np.zeros(_N_MA * _N_MA, dtype=np.int64)
     for prev, nexts in REFERENCE_SUCCESSORS.items():
@@ -275,8 +292,9 @@ def ma_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def params(joint_wait: float, solo_joint: bool, successor_rule: bool, large_per_robot: bool) -> np.ndarray:
     """The parameter vector of one domain instance (module constants read now, so a test may patch them)."""
-    return np.array([joint_wait, DURATION_NOISE, MIN_NOISE_FACTOR, solo_joint, successor_rule, large_per_robot],
-                    dtype=np.float64)
+    return np.array(
+        [joint_wait, DURATION_NOISE, MIN_NOISE_FACTOR, solo_joint, successor_rule, large_per_robot], dtype=np.float64
+    )
 
 
 def tables(reference_pickup: bool, rewards: Rewards) -> tuple:
@@ -371,8 +389,9 @@ def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
     joined0 = joined1 = False
     joint0, joint1 = (f0 & JOINT_OK) != 0, (f1 & JOINT_OK) != 0
     if joint0 or joint1:
-        same = (si[at(0, LOC)] == si[at(1, LOC)] and si[at(0, LOAD)] == si[at(1, LOAD)]
-                and si[at(0, MA)] == si[at(1, MA)])
+        same = (
+            si[at(0, LOC)] == si[at(1, LOC)] and si[at(0, LOAD)] == si[at(1, LOAD)] and si[at(0, MA)] == si[at(1, MA)]
+        )
         joins0, joins1 = joint0 and waits1 and same, joint1 and waits0 and same  # a partner waits: join it
         together = joint0 and joint1 and same  # both start it now: robot 0's duration
         if together:

@@ -1,10 +1,10 @@
 """Standard Dec-POMDP benchmark problems shipped with the package (MADP toolbox, GPL-3.0; see README.md).
 
-    >>> from decpomdp.dpomdp import load_problem, problem_path
-    >>> problem_path("dectiger").name
-    'dectiger.dpomdp'
-    >>> load_problem("fireFighting_2_4_3").num_states  # read from the gzipped file
-    2025
+>>> from decpomdp.dpomdp import load_problem, problem_path
+>>> problem_path("dectiger").name
+'dectiger.dpomdp'
+>>> load_problem("fireFighting_2_4_3").num_states  # read from the gzipped file
+2025
 """
 
 from __future__ import annotations
