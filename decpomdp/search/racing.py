@@ -22,9 +22,18 @@ from torch import Tensor
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer
 
+ROUNDING = 1e-9
+"""Least relative win of a duel: far above float64 rounding of a value, far below any Monte Carlo error."""
 
-def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
-         stages: Sequence[tuple[int, float]], generator: torch.Generator, minimum: int = 4) -> tuple[Tensor, Tensor]:
+
+def race(
+    scorer: Scorer,
+    count: int,
+    build: Callable[[Tensor], JointController],
+    stages: Sequence[tuple[int, float]],
+    generator: torch.Generator,
+    minimum: int = 4,
+) -> tuple[Tensor, Tensor]:
     """Race candidates ``0 .. count - 1`` (built on demand by ``build(indices)``) through ``stages``.
 
     Returns:
@@ -38,8 +47,9 @@ def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
     for stage, (rollouts, keep) in enumerate(stages):
         if stage == 0 or not exact:  # an exact score needs no second look: later stages only cut
             per = max(1, 200_000 // rollouts)  # candidates per batched call
-            scores = torch.cat([scorer(build(alive[i:i + per]), rollouts, generator)[0]
-                                for i in range(0, alive.numel(), per)])
+            scores = torch.cat(
+                [scorer(build(alive[i : i + per]), rollouts, generator)[0] for i in range(0, alive.numel(), per)]
+            )
         first_mean = float(scores.mean()) if math.isnan(first_mean) else first_mean
         kept = int(keep) if keep >= 1 else max(minimum, math.ceil(keep * alive.numel()))
         order = torch.sort(scores, descending=True, stable=True).indices[:kept]
@@ -47,17 +57,26 @@ def race(scorer: Scorer, count: int, build: Callable[[Tensor], JointController],
     return alive, scores, first_mean
 
 
-def duel(scorer: Scorer, incumbent: JointController, challengers: JointController, rollouts: int, z: float,
-         generator: torch.Generator) -> tuple[int | None, Tensor, Tensor]:
+def duel(
+    scorer: Scorer,
+    incumbent: JointController,
+    challengers: JointController,
+    rollouts: int,
+    z: float,
+    generator: torch.Generator,
+) -> tuple[int | None, Tensor, Tensor]:
     """Score ``incumbent`` (K = 1) and ``challengers`` on ``rollouts`` fresh rollouts each.
 
     Returns:
         the index of the best challenger if it beats the incumbent by more than ``z`` standard errors
-        of the difference (and by more than 0), else None; the means and standard errors (1 + C,),
-        incumbent first.
+        of the difference and by more than the rounding error of a float64 value (``ROUNDING`` relative), else
+        None; the means and standard errors (1 + C,), incumbent first. Without the rounding margin, exact
+        scores (zero standard errors) of equally good controllers that differ in their last bits would win duels
+        forever.
     """
     mean, se = scorer(JointController.cat([incumbent, challengers]), rollouts, generator)
     best = int(mean[1:].argmax()) + 1
     gap = float(mean[best] - mean[0])
     sd = float((se[best] ** 2 + se[0] ** 2) ** 0.5)
-    return (best - 1 if gap > 0 and gap > z * sd else None), mean, se
+    margin = max(z * sd, ROUNDING * max(1.0, abs(float(mean[0]))))
+    return (best - 1 if gap > margin else None), mean, se
