@@ -25,6 +25,8 @@ COLORS = {
     "hbni_generative": "tab:purple",
     "hbni_empirical": "tab:cyan",
 }
+CONFIDENCE_COLOR = "black"  # a filter's confidence over frames: no class's colour
+THRESHOLD_COLOR = "gray"
 TITLE_SIZE, LABEL_SIZE, TICK_SIZE = 11, 10, 9
 PANEL_COLUMNS = 3  # panels per row: a figure of many variants wraps instead of growing wide
 
@@ -37,6 +39,14 @@ def label(name: str) -> str:
 def color(name: str) -> str:
     """A policy's colour, the same in every figure."""
     return COLORS.get(name, "tab:brown")
+
+
+def class_color(label: int) -> tuple[float, float, float, float]:
+    """Colour of class ``label`` in figures of labels (tab10, then tab20's light shades; never black or gray)."""
+    palette = plt.get_cmap("tab10").colors[:7] + plt.get_cmap("tab10").colors[8:]  # tab10 without its gray
+    extra = plt.get_cmap("tab20").colors[1::2]
+    colours = palette + tuple(c for c in extra if c not in palette)
+    return (*colours[label % len(colours)], 1.0)
 
 
 def panels(count: int, width: float = 4.4, height: float = 3.9, **kwargs) -> tuple[plt.Figure, list[plt.Axes]]:

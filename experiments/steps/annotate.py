@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from experiments import figures
 import hbni_pyro
 from hbni_pyro import Segment
 
@@ -125,6 +126,9 @@ def strip_figure(
 ) -> plt.Figure:
     """Deciding frames of up to ``max_thumbs`` evenly spread macro-observations above the stream's timeline.
 
+    When there are more macro-observations than ``max_thumbs``, the title says how many are shown, and the
+    timeline numbers the shown ones.
+
     Args:
         segments: the stream's macro-observations, in order.
         beliefs: each segment's running max confidence ``(n,)``.
@@ -133,34 +137,46 @@ def strip_figure(
     n = len(segments)
     shown = sorted(set(np.linspace(0, n - 1, min(n, max_thumbs)).round().astype(int).tolist())) if n else []
     cols = max(len(shown), 1)
-    fig = plt.figure(figsize=(max(8.0, 1.7 * cols), 4.4))
-    grid = fig.add_gridspec(2, cols, height_ratios=[1.0, 1.3], hspace=0.15)
+    fig = plt.figure(figsize=(max(9.0, 1.7 * cols + 1.6), 4.6))
+    grid = fig.add_gridspec(2, cols, height_ratios=[1.0, 1.3], hspace=0.2, right=0.84)
     for j, i in enumerate(shown):
         ax = fig.add_subplot(grid[0, j])
         ax.imshow(cv2.cvtColor(thumbs[i], cv2.COLOR_BGR2RGB))
         s = segments[i]
-        ax.set_title(
-            f"#{s.index} fr {s.start}-{s.end}\n{s.name}\n{s.confidence:.2f}{' t/o' if s.timed_out else ''}", fontsize=7
-        )
+        end = " end" if s.stream_ended else " t/o" if s.timed_out else ""
+        ax.set_title(f"#{s.index} fr {s.start}-{s.end}\n{s.name}\n{s.confidence:.2f}{end}", fontsize=7)
         ax.axis("off")
     ax = fig.add_subplot(grid[1, :])
-    colors = plt.get_cmap("tab10")
     for s, b in zip(segments, beliefs):
         x = np.arange(s.start, s.end + 1)
-        ax.plot(x, b.numpy(), color="tab:blue", lw=1)
+        ax.plot(x, b.numpy(), color=figures.CONFIDENCE_COLOR, lw=1)
         ax.scatter(
-            [s.end], [s.confidence], color=colors(s.label % 10), s=18, zorder=3, marker="x" if s.timed_out else "o"
+            [s.end],
+            [s.confidence],
+            color=figures.class_color(s.label),
+            s=22,
+            zorder=3,
+            marker="x" if s.timed_out else "o",
+        )
+    for i in shown if len(shown) < n else []:
+        ax.annotate(
+            f"#{segments[i].index}",
+            (segments[i].end, segments[i].confidence),
+            xytext=(0, 5),
+            textcoords="offset points",
+            ha="center",
+            fontsize=6,
         )
     for label, name in enumerate(classes):
-        ax.scatter([], [], color=colors(label % 10), s=18, label=name)
-    ax.axhline(threshold, ls="--", lw=1, color="k", alpha=0.6)
+        ax.scatter([], [], color=figures.class_color(label), s=22, label=name)
+    ax.plot([], [], color=figures.CONFIDENCE_COLOR, lw=1, label="confidence")
+    ax.axhline(threshold, ls="--", lw=1, color=figures.THRESHOLD_COLOR, label=f"threshold {threshold:g}")
     ax.set_xlabel("frame")
     ax.set_ylabel("filter confidence")
     ax.set_ylim(0, 1.02)
-    ax.set_title(
-        f"{n} macro-observations (o: threshold reached, x: timed out), dashed: threshold {threshold:g}", fontsize=9
-    )
-    ax.legend(fontsize=7, ncol=min(len(classes), 6), loc="lower right", title="label", title_fontsize=7)
+    thumbs_said = f"; frames shown for {len(shown)} of them, evenly spread" if len(shown) < n else ""
+    ax.set_title(f"{n} macro-observations (o: threshold reached, x: timed out){thumbs_said}", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="label", title_fontsize=7)
     fig.suptitle(title, fontsize=10)
     return fig
 

@@ -1,6 +1,7 @@
 """One figure style: a policy has the same colour in values.png and closed_loop.png, and panels wrap into rows."""
 
 import matplotlib.colors as mcolors
+import numpy as np
 import torch
 
 import hbni_pyro
@@ -39,3 +40,50 @@ def test_panels_wrap_and_the_confusion_figure_has_a_colour_bar():
     width, height = fig.get_size_inches()
     assert width < 16 and height > 6  # two rows of at most three panels, not one wide strip
     assert any(ax.get_label() == "<colorbar>" for ax in fig.axes)
+
+
+def _segments(n):
+    from hbni_pyro import Segment
+
+    names = ["ambulance", "police_car", "medical_copter", "news_copter", "food_crate", "medical_crate"]
+    segs, beliefs, thumbs, start = [], [], [], 0
+    for i in range(n):
+        frames, label = 2 + i % 5, i % 6
+        segs.append(
+            Segment(
+                i,
+                start,
+                start + frames - 1,
+                label,
+                names[label],
+                0.97,
+                frames,
+                False,
+                False,
+                torch.zeros(frames, 6),
+                [],
+            )
+        )
+        beliefs.append(torch.linspace(0.3, 0.97, frames))
+        thumbs.append(np.full((30, 40, 3), 20 * i % 255, dtype=np.uint8))
+        start += frames
+    return segs, beliefs, thumbs, names
+
+
+def test_the_stream_strip_says_what_it_shows_and_keeps_colours_apart():
+    from experiments.steps.annotate import strip_figure
+
+    segs, beliefs, thumbs, names = _segments(20)
+    fig = strip_figure(segs, beliefs, thumbs, names, 0.95, "strip")
+    timeline = fig.axes[-1]
+    assert "frames shown for 8 of them" in timeline.get_title()  # the subsampling is said, not silent
+    assert len(fig.axes) == 9
+    line_colours = {mcolors.to_rgb(line.get_color()) for line in timeline.lines if line.get_linestyle() == "-"}
+    class_colours = {mcolors.to_rgb(figures.class_color(c)) for c in range(len(names))}
+    assert line_colours == {mcolors.to_rgb(figures.CONFIDENCE_COLOR)} and not line_colours & class_colours
+    assert len(class_colours) == len(names)
+    fig.canvas.draw()
+    legend = timeline.get_legend().get_window_extent()
+    assert legend.x0 >= timeline.get_window_extent().x1  # beside the axes: it covers no tick or point
+    few = strip_figure(*_segments(3), 0.95, "strip")
+    assert "frames shown" not in few.axes[-1].get_title() and len(few.axes) == 4
