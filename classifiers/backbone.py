@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from infra.checks import as_device
 from infra.threads import torch_threads
 
 __all__ = ["HALF_TOLERANCE", "Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
@@ -285,10 +286,7 @@ def _device_and_dtype(
     device: str | torch.device, dtype: torch.dtype | None, half: bool
 ) -> tuple[torch.device, torch.dtype]:
     """Checked ``(device, dtype)`` of a backbone; half precision only on CUDA (or ``meta``, shapes only)."""
-    try:
-        device = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise ValueError(f"device: not a torch device: {device!r}") from exc
+    device = as_device("device", device)
     if half and dtype not in (None, torch.float16):
         raise ValueError(f"half: contradicts dtype={dtype}")
     dtype = torch.float16 if half else (torch.float32 if dtype is None else dtype)

@@ -1,7 +1,8 @@
 """Validation of scalar arguments at a public boundary, with messages that name the argument.
 
 Python, numpy and 0-d torch numbers are all accepted (``np.float32(0.9)``, ``torch.tensor(3)``);
-booleans are not numbers here. Each function returns the plain Python value.
+booleans are not numbers here. Each function returns the plain Python value (a ``torch.device`` for
+:func:`as_device`).
 """
 
 from __future__ import annotations
@@ -78,6 +79,27 @@ def as_names(name: str, names: Any, count: int, at_least: bool = False) -> tuple
     ):
         raise ValueError(f"{name}: expected {'at least ' if at_least else ''}{count} distinct names, got {list(names)}")
     return names
+
+
+def as_device(name: str, value: Any) -> torch.device:
+    """``value`` (a ``str`` such as ``"cuda:0"`` or a ``torch.device``) as a device this machine can allocate on.
+
+    Raises:
+        TypeError: not a ``str`` or ``torch.device``.
+        ValueError: not a device name, or a device this torch build or machine lacks (``"cuda"`` without CUDA).
+    """
+    if not isinstance(value, (str, torch.device)):
+        raise TypeError(f"{name}: expected a str or torch.device, got {value!r} ({type(value).__name__})")
+    try:
+        device = torch.device(value)
+    except RuntimeError as exc:
+        raise ValueError(f"{name}: expected a torch device such as 'cpu' or 'cuda', got {value!r}") from exc
+    try:
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as exc:
+        reason = str(exc).split(". ")[0] or type(exc).__name__
+        raise ValueError(f"{name}: device {str(device)!r} is not available here ({reason})") from exc
+    return device
 
 
 def first_difference(a: Sequence[Any], b: Sequence[Any]) -> int:

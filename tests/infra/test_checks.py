@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from infra.checks import as_float, as_int, as_names, as_probability, first_difference
+from infra.checks import as_device, as_float, as_int, as_names, as_probability, first_difference
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), np.int32(3), torch.tensor(3)])
@@ -56,3 +56,15 @@ def test_names_and_their_first_difference():
     with pytest.raises(TypeError, match="class_names: expected a sequence of names, got str"):
         as_names("class_names", "abc", 3)
     assert first_difference("abc", "abd") == 2 and first_difference("ab", "abc") == 2 and first_difference("", "x") == 0
+
+
+def test_devices_are_parsed_and_probed():
+    assert as_device("device", "cpu") == torch.device("cpu")
+    assert as_device("device", torch.device("meta")).type == "meta"
+    with pytest.raises(TypeError, match="device: expected a str or torch.device, got 0"):
+        as_device("device", 0)
+    with pytest.raises(ValueError, match="device: expected a torch device .* got 'gpu0'"):
+        as_device("device", "gpu0")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device: device 'cuda' is not available here"):
+            as_device("device", "cuda")
