@@ -45,26 +45,31 @@ def reliability(confidence: Tensor, correct: Tensor, num_bins: int = 10, low: fl
         correct: same shape, bool: whether the prediction was right.
         num_bins: number of bins.
         low: left edge of the first bin (``1 / M`` is the least a top class can have).
+
+    The diagram's tensors are on ``confidence``'s device.
     """
-    confidence, correct = confidence.reshape(-1).to(DTYPE), correct.reshape(-1).to(DTYPE)
+    confidence = confidence.reshape(-1).to(DTYPE)
+    correct = correct.reshape(-1).to(confidence.device, DTYPE)
     if confidence.shape != correct.shape or confidence.numel() == 0:
         raise ValueError(
             f"confidence, correct: expected equal non-empty shapes, got {tuple(confidence.shape)} and {tuple(correct.shape)}"
         )
-    edges = torch.linspace(low, 1.0, num_bins + 1, dtype=DTYPE)
+    like = dict(dtype=DTYPE, device=confidence.device)
+    edges = torch.linspace(low, 1.0, num_bins + 1, **like)
     index = torch.bucketize(confidence, edges[1:-1], right=True)
-    count = torch.zeros(num_bins, dtype=DTYPE).index_add_(0, index, torch.ones_like(confidence))
-    conf = torch.zeros(num_bins, dtype=DTYPE).index_add_(0, index, confidence) / count
-    acc = torch.zeros(num_bins, dtype=DTYPE).index_add_(0, index, correct) / count
+    count = torch.zeros(num_bins, **like).index_add_(0, index, torch.ones_like(confidence))
+    conf = torch.zeros(num_bins, **like).index_add_(0, index, confidence) / count
+    acc = torch.zeros(num_bins, **like).index_add_(0, index, correct) / count
     used = count > 0
     ece = float(((conf - acc).abs()[used] * count[used]).sum() / count.sum())
     return Reliability(edges, conf, acc, count, ece)
 
 
 def stream_reliability(filter: StreamingFilter, streams: Tensor, truth: Tensor, num_bins: int = 10) -> Reliability:
-    """:func:`reliability` of ``filter``'s posterior after every prefix of every stream ``(B, N, M)``."""
+    """:func:`reliability` of ``filter``'s posterior after every prefix of every stream ``(B, N, M)``, on the
+    filter's device."""
     probs = filter.run(streams)
-    correct = decide(probs) == torch.as_tensor(truth).view(-1, 1)
+    correct = decide(probs) == torch.as_tensor(truth).to(probs.device).view(-1, 1)
     return reliability(probs.max(-1).values, correct, num_bins, low=1.0 / filter.num_classes)
 
 
@@ -88,7 +93,7 @@ def threshold_checks(
     whole budget) and its standard error ``frames_stderr`` (sample sd over ``sqrt(B)``), and
     ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
-    truth = torch.as_tensor(truth).long()
+    truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
     for t in thresholds:
         process = MacroObservationProcess(filter, threshold=float(t), max_frames=max_frames or streams.shape[1])

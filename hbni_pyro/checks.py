@@ -27,6 +27,9 @@ is conservative. :meth:`CheckResult.passed`
 corrects for the number of tests (Bonferroni), so a model that is right fails with probability at most ``alpha``.
 The comparison is with the average over the posterior's draws: a held-out set far larger than the training set
 can reject an honest but uncertain posterior.
+
+Devices: the streams are simulated on the posterior's device and filtered on the filter's; the result, a report,
+holds CPU tensors.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from torch import Tensor
 
 from hbni_pyro.calibration import Reliability, reliability
 from hbni_pyro.filters import HBNIFilter, StreamingFilter
+from hbni_pyro.generative import seeded_generator
 from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
 from infra.checks import as_int, as_probability
@@ -59,14 +63,14 @@ UNLABELLED_CHECKS = ("timeouts", "frames", "confidence")
 
 class _Outcomes:
     """Per-stream results of the process: ``label``, ``right`` (bool, or ``None`` unlabelled), ``confidence``,
-    ``frames``, ``timed_out``, and ``truth`` (``(B,)``), concatenated over groups of streams."""
+    ``frames``, ``timed_out``, and ``truth`` (``(B,)``), concatenated over groups of streams onto the CPU."""
 
     def __init__(self, batches: list[MacroObservationBatch], truths: list[Tensor]) -> None:
-        self.label = torch.cat([b.label for b in batches])
-        self.confidence = torch.cat([b.confidence for b in batches])
-        self.frames = torch.cat([b.frames_used for b in batches])
-        self.timed_out = torch.cat([b.timed_out for b in batches])
-        self.truth = torch.cat(truths)
+        self.label = torch.cat([b.label for b in batches]).cpu()
+        self.confidence = torch.cat([b.confidence for b in batches]).cpu()
+        self.frames = torch.cat([b.frames_used for b in batches]).cpu()
+        self.timed_out = torch.cat([b.timed_out for b in batches]).cpu()
+        self.truth = torch.cat(truths).cpu()
         self.right = self.label == self.truth
 
     def select(self, rows: Tensor) -> dict[str, Tensor]:
@@ -221,9 +225,10 @@ def check(
     ids = torch.arange(n) if sequence_ids is None else as_sequence_ids(sequence_ids, n)
     streams = list(torch.argsort(ids, stable=True).split(torch.bincount(ids).tolist()))  # frames in the order given
     truth = None if labels is None else _stream_labels(as_labels(labels, n, num_classes), streams)
-    g = torch.Generator().manual_seed(seed)
+    g = seeded_generator(posterior.device, seed)
     if truth is None:
         truth_sim = torch.multinomial(posterior.class_prior.to(DTYPE), len(streams) * simulations, True, generator=g)
+        truth_sim = truth_sim.cpu()
         truth = torch.full((len(streams),), -1, dtype=torch.long)
     else:
         truth_sim = truth.repeat_interleave(simulations)
@@ -307,7 +312,7 @@ def _run(
         obs_truth.append(truth[picks])
         rows = (sim_lengths == length).nonzero().squeeze(-1)
         classes = truth_sim[rows]
-        sim = torch.empty(len(rows), length, posterior.num_classes, dtype=DTYPE)
+        sim = torch.empty(len(rows), length, posterior.num_classes, dtype=DTYPE, device=posterior.device)
         for c in classes.unique().tolist():
             at = (classes == c).nonzero().squeeze(-1)
             sim[at] = posterior.sample_streams(c, len(at), length, generator=g)

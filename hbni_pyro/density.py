@@ -74,7 +74,7 @@ def concentrations(theta: Tensor, beta: Tensor | None = None) -> Tensor:
             for the paper's model (all 1).
     """
     num_classes = theta.shape[-1]
-    eye = torch.eye(num_classes, dtype=theta.dtype)
+    eye = torch.eye(num_classes, dtype=theta.dtype, device=theta.device)
     base = torch.ones_like(eye) if beta is None else beta * (1 - eye) + eye
     return base + theta.unsqueeze(-1) * eye
 
@@ -187,8 +187,11 @@ class DirichletOutputs(TorchDistribution):
         return dirichlet_block_log_prob(1.0, value.log(), self.alpha)
 
 
-def helmert_basis(num_classes: int, dtype: torch.dtype = torch.float64) -> Tensor:
-    """Orthonormal ``(M - 1, M)`` basis of the simplex's tangent space (rows orthogonal to ``1``).
+def helmert_basis(
+    num_classes: int, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+) -> Tensor:
+    """Orthonormal ``(M - 1, M)`` basis of the simplex's tangent space (rows orthogonal to ``1``), on ``device``
+    (``None``: the CPU).
 
     ``ilr(o) = helmert_basis(M) @ log o`` are the isometric log-ratio coordinates of an output.
     """
@@ -197,12 +200,12 @@ def helmert_basis(num_classes: int, dtype: torch.dtype = torch.float64) -> Tenso
         basis[i - 1, :i] = 1.0 / i
         basis[i - 1, i] = -1.0
         basis[i - 1] *= math.sqrt(i / (i + 1))
-    return basis
+    return basis.to(device)
 
 
 def ilr(obs: Tensor) -> Tensor:
-    """Isometric log-ratio coordinates ``(..., M - 1)`` of strictly positive outputs ``(..., M)``."""
-    return obs.log() @ helmert_basis(obs.shape[-1], obs.dtype).T
+    """Isometric log-ratio coordinates ``(..., M - 1)`` of strictly positive outputs ``(..., M)`` (on their device)."""
+    return obs.log() @ helmert_basis(obs.shape[-1], obs.dtype, obs.device).T
 
 
 def ilr_log_jacobian(obs: Tensor) -> Tensor:
@@ -241,7 +244,7 @@ def look_basis(between: Tensor, within: Tensor) -> tuple[Tensor, Tensor, Tensor]
         ``A (..., d, d)``, ``lam (..., d)`` and ``log|within| (...)``.
     """
     tril = torch.linalg.cholesky(within)
-    eye = torch.eye(within.shape[-1], dtype=within.dtype)
+    eye = torch.eye(within.shape[-1], dtype=within.dtype, device=within.device)
     tril_inv = torch.linalg.solve_triangular(tril, eye, upper=False)
     lam, q = torch.linalg.eigh(tril_inv @ between @ tril_inv.transpose(-1, -2))
     return q.transpose(-1, -2) @ tril_inv, lam, 2 * tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)

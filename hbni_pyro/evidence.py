@@ -6,6 +6,7 @@ One class per noise model, all with the same surface for :class:`hbni_pyro.HBNIF
 blocks of outputs given their summed features and frame counts. The likelihood terms are
 those of :mod:`hbni_pyro.density`; the draws are averaged in log space, summing in index
 order (:func:`logsumexp_in_order`) so that one stream and a batch of streams agree exactly.
+Everything is computed on the device of the draws (the statistics must be there too).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ class PaperEvidence:
         M, S = self.num_classes, self._theta.shape[-1]
         stats = stats.T.contiguous().unsqueeze(-1)  # (M, K, 1)
         counts = counts.reshape(1, -1, 1)
-        out = torch.empty(M, stats.shape[1], dtype=stats.dtype)
+        out = torch.empty(M, stats.shape[1], dtype=stats.dtype, device=stats.device)
         for start in _chunks(stats.shape[1], S * M):
             end = start + max(1, _CHUNK_ELEMENTS // (S * M))
             terms = torch.addcmul(counts[:, start:end] * self._offset, self._theta, stats[:, start:end])  # (M, k, S)
@@ -88,7 +89,7 @@ class ConfusionEvidence:
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
         S, M = self._normaliser.shape
-        out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
+        out = torch.empty(stats.shape[0], M, dtype=stats.dtype, device=stats.device)
         step = max(1, _CHUNK_ELEMENTS // (S * M))
         normaliser, exponent = (
             self._normaliser.reshape(S * M),
@@ -128,7 +129,7 @@ class SequenceEvidence:
         mean_y = stats[:, :d] / counts.unsqueeze(-1)
         scatter = stats[:, d:] - counts[:, None] * (mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)).flatten(-2)  # (K, d d)
         flat_basis = self._basis.reshape(S * M * d, d)
-        out = torch.empty(stats.shape[0], M, dtype=stats.dtype)
+        out = torch.empty(stats.shape[0], M, dtype=stats.dtype, device=stats.device)
         step = max(1, _CHUNK_ELEMENTS // (S * M * d))
         for start in _chunks(stats.shape[0], S * M * d):
             rows = slice(start, start + step)

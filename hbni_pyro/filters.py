@@ -24,6 +24,11 @@ decision (including each vote of :class:`VotingFilter`) goes through it.
 
 Inputs pass :func:`hbni_pyro.validation.as_outputs`: bad rows raise a ``ValueError`` naming the
 row, exact zeros are floored at :data:`hbni_pyro.validation.OUTPUT_FLOOR` and renormalised.
+
+Devices: a filter runs on its :attr:`StreamingFilter.device`, the ``device=`` it was built with
+(default: the CPU, or for an :class:`HBNIFilter` the device of its posterior's draws). Inputs are
+moved there and the beliefs returned there. On ``meta`` (shapes only) the value checks are skipped
+and :meth:`~StreamingFilter.update` and :meth:`~StreamingFilter.run` return shapes.
 """
 
 from __future__ import annotations
@@ -33,9 +38,9 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs
+from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, has_values
 from hbni_pyro.variants import noise_model
-from infra.checks import as_float, as_int
+from infra.checks import as_device, as_float, as_int
 from infra.threads import single_thread
 
 
@@ -57,18 +62,21 @@ class StreamingFilter:
     Subclasses define :meth:`features` (per-frame ``(..., M) -> (..., F)``) and
     :meth:`posterior` (running feature sum and frame count ``-> (..., M)`` class probabilities);
     ``F = feature_size`` (``M`` unless a subclass says otherwise). ``class_names`` are the classes' names in
-    column order when the filter knows them (an HBNI filter: its posterior's), else ``None``.
+    column order when the filter knows them (an HBNI filter: its posterior's), else ``None``. ``device`` is
+    where it runs: a ``str`` or ``torch.device``.
     """
 
     num_classes: int
+    device: torch.device
     class_names: tuple[str, ...] | None = None
 
     @property
     def feature_size(self) -> int:
         return self.num_classes
 
-    def __init__(self, num_classes: int) -> None:
+    def __init__(self, num_classes: int, device: str | torch.device = "cpu") -> None:
         self.num_classes = as_int("num_classes", num_classes, minimum=2)
+        self.device = as_device("device", device)
         self.reset()
 
     def features(self, obs: Tensor) -> Tensor:
@@ -81,7 +89,7 @@ class StreamingFilter:
 
     def reset(self) -> None:
         """Forget the stream seen so far."""
-        self._stats = torch.zeros(self.feature_size, dtype=DTYPE)
+        self._stats = torch.zeros(self.feature_size, dtype=DTYPE, device=self.device)
         self._count = 0
 
     @property
@@ -90,25 +98,26 @@ class StreamingFilter:
         return self._count
 
     def update(self, o: Any) -> Tensor:
-        """Consume one output ``o (M,)``; return the class posterior ``(M,)`` after it."""
+        """Consume one output ``o (M,)``; return the class posterior ``(M,)`` after it, on :attr:`device`."""
         o = as_outputs(o, self.num_classes, name=f"o (frame {self.frames_seen + 1} of the stream)")
         if o.dim() != 1:
             raise ValueError(f"o: expected one output of shape ({self.num_classes},), got {tuple(o.shape)}")
-        self._stats = self._stats + self.features(o)
+        self._stats = self._stats + self.features(o.to(self.device))
         self._count += 1
-        count = torch.tensor(self._count, dtype=DTYPE)
-        return self.posterior(self._stats.unsqueeze(0), count.unsqueeze(0))[0]
+        count = torch.full((1,), self._count, dtype=DTYPE, device=self.device)
+        return self.posterior(self._stats.unsqueeze(0), count)[0]
 
     def statistics(self, obs: Any) -> tuple[Tensor, Tensor]:
-        """Validated ``obs (B, N, M)`` -> running feature sums ``(B, N, F)`` and counts ``(N,)`` = 1..N."""
+        """Validated ``obs (B, N, M)`` -> running feature sums ``(B, N, F)`` and counts ``(N,)`` = 1..N, on
+        :attr:`device`."""
         obs = as_outputs(obs, self.num_classes, name="obs", min_dim=3)
         if obs.dim() != 3:
             raise ValueError(f"obs: expected shape (B, N, M), got {tuple(obs.shape)}")
-        counts = torch.arange(1, obs.shape[1] + 1, dtype=DTYPE)
-        return self.features(obs).cumsum(1), counts
+        counts = torch.arange(1, obs.shape[1] + 1, dtype=DTYPE, device=self.device)
+        return self.features(obs.to(self.device)).cumsum(1), counts
 
     def run(self, obs: Any) -> Tensor:
-        """Batched filtering: ``obs (B, N, M)`` -> posterior after each prefix ``(B, N, M)``.
+        """Batched filtering: ``obs (B, N, M)`` -> posterior after each prefix ``(B, N, M)``, on :attr:`device`.
 
         ``run(obs)[b, n]`` equals the ``(n+1)``-th :meth:`update` of a fresh stream fed ``obs[b]``.
         """
@@ -142,9 +151,9 @@ class MaxOfMeanFilter(StreamingFilter):
 class _LogLinearFilter(StreamingFilter):
     """Filters whose feature is ``log o`` and whose posterior is a softmax over classes."""
 
-    def __init__(self, num_classes: int, class_prior: Any = None) -> None:
-        super().__init__(num_classes)
-        self.class_prior = as_class_prior(class_prior, num_classes)
+    def __init__(self, num_classes: int, class_prior: Any = None, device: str | torch.device = "cpu") -> None:
+        super().__init__(num_classes, device)
+        self.class_prior = as_class_prior(class_prior, num_classes).to(self.device)
         self._log_prior = self.class_prior.log()
 
     def features(self, obs: Tensor) -> Tensor:
@@ -208,6 +217,7 @@ class HBNIFilter(StreamingFilter):
             about as much evidence as ``tau * N`` independent outputs. ``1`` is the model's own
             filter; :func:`hbni_pyro.fit_temper` fits ``tau`` on labelled sequences. The sequence
             model integrates each sequence's look out instead and needs no temper.
+        device: where the filter runs (the draws are moved there); ``None``: the device of the posterior's draws.
 
     The frame-level models have the sufficient statistic ``sum_i log o_i`` and ``N``; the sequence
     model ``sum_i ilr(o_i)``, ``sum_i ilr(o_i) ilr(o_i)^T`` and ``N``.
@@ -223,6 +233,7 @@ class HBNIFilter(StreamingFilter):
         *,
         num_draws: int | None = None,
         temper: float = 1.0,
+        device: str | torch.device | None = None,
     ) -> None:
         if mode not in self.MODES:
             raise ValueError(f"mode: expected one of {self.MODES}, got {mode!r}")
@@ -232,10 +243,12 @@ class HBNIFilter(StreamingFilter):
         self.model = spec.name
         self.class_names = getattr(posterior, "class_names", None)
         draws = _checked_draws(posterior)
+        device = next(iter(draws.values())).device if device is None else as_device("device", device)
+        draws = {k: v.to(device) for k, v in draws.items()}
         if class_prior is None:
             class_prior = getattr(posterior, "class_prior", None)
         num_classes = spec.num_classes(draws, lead=1)
-        self.class_prior = as_class_prior(class_prior, num_classes)
+        self.class_prior = as_class_prior(class_prior, num_classes).to(device)
         self._log_prior = self.class_prior.log()
         self.mode = mode
         self.temper = float(temper)
@@ -244,12 +257,12 @@ class HBNIFilter(StreamingFilter):
             draws = spec.point_estimate(draws)
         elif num_draws is not None and num_draws < len(next(iter(draws.values()))):
             total = len(next(iter(draws.values())))
-            picks = torch.linspace(0, total - 1, num_draws, dtype=DTYPE).round().long()
+            picks = torch.linspace(0, total - 1, num_draws, dtype=DTYPE, device=device).round().long()
             draws = {k: v[picks] for k, v in draws.items()}
         self.draws = draws
         """The draws used, site -> ``(S, ...)`` (``S = 1`` in plugin mode)."""
         self._evidence = spec.evidence(draws)
-        super().__init__(num_classes)
+        super().__init__(num_classes, device)
 
     @property
     def theta(self) -> Tensor:
@@ -279,7 +292,8 @@ class HBNIFilter(StreamingFilter):
 
 
 def _checked_draws(posterior: Any) -> dict[str, Tensor]:
-    """The posterior's pooled draws as float64, checked: finite, concentrations > 0, covariances SPD.
+    """The posterior's pooled draws as float64, checked: finite, concentrations > 0, covariances SPD (values
+    are not checked on ``meta``).
 
     An object with only ``theta_draws()`` (``(S, M)``) stands for a paper's-model posterior."""
     if not callable(getattr(posterior, "draws", None)):
@@ -294,15 +308,17 @@ def _checked_draws(posterior: Any) -> dict[str, Tensor]:
     draws = {
         k: torch.as_tensor(v, dtype=DTYPE).contiguous() for k, v in draws.items()
     }  # torch's median misreads stride-0 views
-    for name, x in draws.items():
-        if not torch.isfinite(x).all():
-            raise ValueError(f"posterior: {name} draws must be finite")
     if "theta" in draws:
         theta = draws["theta"]
         if theta.dim() != 2 or theta.shape[0] < 1 or theta.shape[1] < 2:
             raise ValueError(f"posterior: theta_draws() must have shape (S, M), got {tuple(theta.shape)}")
-        if (theta <= 0).any() or ("beta" in draws and (draws["beta"] <= 0).any()):
-            raise ValueError("posterior: theta draws must be finite and > 0")
+    if not has_values(next(iter(draws.values()))):
+        return draws
+    for name, x in draws.items():
+        if not torch.isfinite(x).all():
+            raise ValueError(f"posterior: {name} draws must be finite")
+    if "theta" in draws and ((draws["theta"] <= 0).any() or ("beta" in draws and (draws["beta"] <= 0).any())):
+        raise ValueError("posterior: theta draws must be finite and > 0")
     for name in ("between", "within"):
         if name in draws and torch.linalg.cholesky_ex(draws[name]).info.any():
             raise ValueError(f"posterior: every {name} draw must be a positive-definite covariance")
@@ -312,19 +328,27 @@ def _checked_draws(posterior: Any) -> dict[str, Tensor]:
 FILTERS = ("hbni", "ssbf", "max_of_mean", "voting")
 
 
-def make_filter(name: str, posterior: Any = None, *, num_classes: int | None = None, **options: Any) -> StreamingFilter:
+def make_filter(
+    name: str,
+    posterior: Any = None,
+    *,
+    num_classes: int | None = None,
+    device: str | torch.device | None = None,
+    **options: Any,
+) -> StreamingFilter:
     """The streaming filter called ``name`` (one of :data:`FILTERS`).
 
     ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
     ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
-    (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``.
+    (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``. ``device``: where the filter runs (``None``:
+    the posterior's device, else the CPU).
     """
     if name not in FILTERS:
         raise ValueError(f"name: expected one of {FILTERS}, got {name!r}")
     if name == "hbni":
         if posterior is None:
             raise ValueError("posterior: the 'hbni' filter needs a fitted posterior, got None")
-        return HBNIFilter(posterior, **options)
+        return HBNIFilter(posterior, device=device, **options)
     if num_classes is None:
         if posterior is None:
             raise ValueError(f"num_classes: the {name!r} filter needs num_classes or a posterior")
@@ -333,6 +357,8 @@ def make_filter(name: str, posterior: Any = None, *, num_classes: int | None = N
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
+    if device is None:
+        device = getattr(posterior, "device", "cpu")
     return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
-        num_classes, **options
+        num_classes, device=device, **options
     )

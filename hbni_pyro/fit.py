@@ -4,6 +4,12 @@
 program (one block of chains per dataset), which is how a study that refits the model on
 dozens of training sets, or a simulation-based calibration, stays fast. ``model`` picks the
 variant (a name of :data:`hbni_pyro.variants.NOISE_MODELS`); a sequence model needs ``sequence_ids``.
+
+MH runs on the device of the data, or of ``device=``: the data, every state tensor and the
+kernel's ``torch.Generator`` live there, and so does the returned posterior. On the CPU the
+paper's class move is the compiled one (:mod:`hbni_pyro.kernels.class_move_numba`), so a seed
+gives the same draws as ever; another device draws another random stream (the same law).
+NUTS runs on the CPU only.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from hbni_pyro.validation import (
     as_sequence_ids,
 )
 from hbni_pyro.variants import NoiseModel, noise_model
-from infra.checks import as_int, as_names
+from infra.checks import as_device, as_int, as_names
 from infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
@@ -55,6 +61,7 @@ def fit(
     class_prior: Any = None,
     jit: bool = True,
     class_names: Any = None,
+    device: str | torch.device | None = None,
 ) -> HBNIPosterior:
     """Infer a noise model's posterior from classifier outputs.
 
@@ -76,19 +83,24 @@ def fit(
         class_prior: ``(M,)`` prior ``p`` over classes (``None`` = uniform).
         jit: compile the NUTS potential with the PyTorch JIT (ignored by MH).
         class_names: ``M`` names of the classes, in column order, stored with the posterior (``None``: unnamed).
+        device: where MH runs, a ``str`` or ``torch.device`` (``None``: the device of ``obs``); the data are
+            moved there. NUTS runs on the CPU only: another device raises ``ValueError``, and so does ``"meta"``
+            (MH needs values).
 
     Returns:
-        An :class:`HBNIPosterior` with ``num_chains`` chains of ``num_samples`` draws.
+        An :class:`HBNIPosterior` with ``num_chains`` chains of ``num_samples`` draws, on ``device``.
     """
     x = as_outputs(obs, min_dim=2)
     if x.dim() != 2:
         raise ValueError(f"obs: expected shape (N, M), got {tuple(x.shape)}; use fit_many for a stack of datasets")
     y = None if labels is None else as_labels(labels, x.shape[0], x.shape[1])
     spec = noise_model(model)
-    ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0))
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         method, num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[1]
     )
+    where = _fit_device(device, x, method)
+    x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
+    ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0), where)
     names = as_names("class_names", class_names, x.shape[1])
     settings = dict(
         chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p
@@ -115,12 +127,13 @@ def fit_many(
     hyperprior: HyperPrior | None = None,
     class_prior: Any = None,
     class_names: Any = None,
+    device: str | torch.device | None = None,
 ) -> list[HBNIPosterior]:
     """Fit ``D`` independent datasets ``obs_sets (D, N, M)`` with MH in one vectorised run.
 
     ``labels`` is ``None`` or ``(D, N)`` with -1 for unknown; ``sequence_ids (N,)`` is shared by the
     datasets. Returns ``D`` posteriors, each with ``num_chains`` chains; dataset ``d``'s chains see
-    only dataset ``d``; ``class_names`` names the classes of all of them.
+    only dataset ``d``; ``class_names`` names the classes of all of them. ``device`` as in :func:`fit`.
     """
     x = as_outputs(obs_sets, min_dim=3, name="obs_sets")
     if x.dim() != 3:
@@ -136,10 +149,12 @@ def fit_many(
         if y.shape[0] != x.shape[0]:
             raise ValueError(f"labels: expected {x.shape[0]} rows to match obs_sets, got {y.shape[0]}")
     spec = noise_model(model)
-    ids = _sequence_ids(spec, sequence_ids, x.shape[1], y)
     hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
         "mh", num_chains, num_samples, warmup_steps, seed, hyperprior, class_prior, x.shape[2]
     )
+    where = _fit_device(device, x, "mh", name="obs_sets")
+    x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
+    ids = _sequence_ids(spec, sequence_ids, x.shape[1], y, where)
     names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
     for posterior in posteriors:
@@ -147,15 +162,29 @@ def fit_many(
     return posteriors
 
 
-def _sequence_ids(spec: NoiseModel, sequence_ids: Any, num_obs: int, labels: Tensor | None) -> Tensor | None:
-    """Validated ids remapped to ``0..K-1`` (``None`` for frame-level models); labels must agree within a sequence."""
+def _fit_device(device: Any, data: Tensor, method: str, name: str = "obs") -> torch.device:
+    """The device a fit runs on: ``device`` (checked) or, when ``None``, that of ``data`` (the argument ``name``)."""
+    where = data.device if device is None else as_device("device", device)
+    source = f" (the device of {name})" if device is None else ""
+    if method == "nuts" and where.type != "cpu":
+        raise ValueError(f"device: method='nuts' runs on the CPU only, got {str(where)!r}{source}; use method='mh'")
+    if where.type == "meta":
+        raise ValueError(f"device: MH needs values, and 'meta' tensors carry shapes only{source}")
+    return where
+
+
+def _sequence_ids(
+    spec: NoiseModel, sequence_ids: Any, num_obs: int, labels: Tensor | None, device: torch.device
+) -> Tensor | None:
+    """Validated ids remapped to ``0..K-1`` on ``device`` (``None`` for frame-level models); ``labels`` (on
+    ``device``) must agree within a sequence."""
     if not spec.sequences:
         return None
     if sequence_ids is None:
         raise ValueError(f"sequence_ids: the {spec.name!r} model needs the sequence id of every output, got None")
-    ids = as_sequence_ids(sequence_ids, num_obs)
+    ids = as_sequence_ids(sequence_ids, num_obs).to(device)
     for d, row in enumerate([] if labels is None else labels):
-        high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long).scatter_reduce(
+        high = torch.full((int(ids.max()) + 1,), -1, dtype=torch.long, device=ids.device).scatter_reduce(
             0, ids, row, "amax", include_self=False
         )
         low = torch.full_like(high, -1).scatter_reduce(0, ids, row, "amin", include_self=False)
@@ -183,7 +212,7 @@ def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperpr
 
 def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
     num_seq = int(ids.max()) + 1
-    labels = torch.full(x.shape[:2], -1, dtype=torch.long) if y is None else y
+    labels = torch.full(x.shape[:2], -1, dtype=torch.long, device=x.device) if y is None else y
     per_set = [sequence_stats(x[d], ids, labels[d], num_seq) for d in range(x.shape[0])]
     return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
 
@@ -196,6 +225,8 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
     start = time.perf_counter()
     with single_thread():
         mcmc.run(*args)
+    if x.device.type == "cuda":
+        torch.cuda.synchronize(x.device)
     seconds = time.perf_counter() - start
     draws = {k: v[0].transpose(0, 1) for k, v in mcmc.get_samples(group_by_chain=True).items()}
     label_probs = kernel.label_probs if ids is None else kernel.label_probs[:, ids]

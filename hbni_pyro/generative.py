@@ -4,7 +4,8 @@
 ``x_m ~ Ga(theta_m + 1, 1)`` and ``x_j ~ Ga(1, 1) = Exp(1)`` for ``j != m``. Gamma draws
 with shape >= 1 use Marsaglia and Tsang's squeeze method, vectorised over all entries,
 so every draw is reproducible from the generator alone. Draws are made on the device of the
-parameters, with a generator of that device.
+parameters, with a generator of that device (:func:`seeded_generator`). On ``meta`` parameters
+(shapes only) there is no generator (``None``) and the draws are shapes without values.
 """
 
 from __future__ import annotations
@@ -13,11 +14,18 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.density import helmert_basis
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.validation import DTYPE, has_values
 
 
-def sample_gamma(shape: Tensor, generator: torch.Generator) -> Tensor:
-    """Draw ``Ga(shape, 1)`` for every entry of ``shape`` (all entries must be >= 1)."""
+def seeded_generator(device: torch.device, seed: int) -> torch.Generator | None:
+    """A ``torch.Generator`` on ``device`` seeded with ``seed``; ``None`` on ``meta``, where nothing is drawn."""
+    return torch.Generator(device).manual_seed(seed) if device.type != "meta" else None
+
+
+def sample_gamma(shape: Tensor, generator: torch.Generator | None) -> Tensor:
+    """Draw ``Ga(shape, 1)`` for every entry of ``shape`` (all entries must be >= 1); shapes only on ``meta``."""
+    if not has_values(shape):
+        return torch.empty_like(shape)
     d = shape - 1.0 / 3.0
     c = 1.0 / torch.sqrt(9.0 * d)
     out = torch.empty_like(shape)
@@ -98,4 +106,4 @@ def sample_sequences(
     classes = torch.as_tensor(classes, dtype=torch.long, device=loc.device)
     look = sample_gaussian(loc[classes], between[classes], generator)
     y = sample_gaussian(look.unsqueeze(-2).expand(look.shape[:-1] + (num_frames, look.shape[-1])), within, generator)
-    return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1).to(loc.device), -1).clamp_min(torch.finfo(DTYPE).tiny)
+    return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1, DTYPE, loc.device), -1).clamp_min(torch.finfo(DTYPE).tiny)

@@ -7,6 +7,11 @@ spent, in which case it reports ``timed_out=True`` with the filter's decision at
 :func:`characterize` simulates many streams per true class from a generative source and
 tabulates the joint distribution of ``(label, frames_used)`` given the true class: a
 :class:`MacroObservationModel`, which a Dec-POSMDP planner samples from.
+
+Devices: a process runs on its filter's device (:attr:`hbni_pyro.filters.StreamingFilter.device`);
+:meth:`MacroObservationProcess.run_batch` returns its batch there, and :func:`characterize` and
+:func:`tabulate` build their tables there. ``meta`` filters cannot run a process: where each stream
+stops depends on values.
 """
 
 from __future__ import annotations
@@ -21,8 +26,8 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.generative import sample_outputs, seeded_generator
+from hbni_pyro.validation import DTYPE, has_values
 from infra.checks import as_int, as_names, as_probability
 from infra.tensorfile import load_tensors, save_tensors
 
@@ -91,7 +96,7 @@ class MacroObservationProcess:
         probs = None
         for o in stream:
             probs = self.filter.update(o)
-            confidence = float(probs.max())
+            confidence = float(probs.max())  # the one host read per frame: whether to stop
             if confidence >= self.threshold or self.filter.frames_seen == self.max_frames:
                 return MacroObservation(
                     int(decide(probs)), confidence, self.filter.frames_seen, confidence < self.threshold
@@ -103,7 +108,7 @@ class MacroObservationProcess:
     __call__ = run
 
     def run_batch(self, obs: Any) -> MacroObservationBatch:
-        """Batched :meth:`run` over ``obs (B, N, M)``: the same results as running each row.
+        """Batched :meth:`run` over ``obs (B, N, M)``: the same results as running each row, on the filter's device.
 
         Only the first ``min(N, max_frames)`` frames are used. The posterior is evaluated in
         frame blocks of doubling length, and only for streams that have not stopped yet.
@@ -113,11 +118,12 @@ class MacroObservationProcess:
             raise ValueError(f"obs: expected shape (B, N, M) with N >= 1, got {tuple(obs.shape)}")
         stats, counts = self.filter.statistics(obs[:, : self.max_frames])
         num_streams, horizon = stats.shape[:2]
-        label = torch.zeros(num_streams, dtype=torch.long)
-        confidence = torch.zeros(num_streams, dtype=DTYPE)
-        frames = torch.full((num_streams,), horizon, dtype=torch.long)
-        timed_out = torch.ones(num_streams, dtype=torch.bool)
-        active = torch.arange(num_streams)
+        device = stats.device
+        label = torch.zeros(num_streams, dtype=torch.long, device=device)
+        confidence = torch.zeros(num_streams, dtype=DTYPE, device=device)
+        frames = torch.full((num_streams,), horizon, dtype=torch.long, device=device)
+        timed_out = torch.ones(num_streams, dtype=torch.bool, device=device)
+        active = torch.arange(num_streams, device=device)
         start, width = 0, 1
         while start < horizon and active.numel():
             end = min(horizon, start + width)
@@ -150,19 +156,25 @@ class MacroObservationModel:
             each ``joint[c]`` must sum to 1.
         timed_out: ``(M,)`` probability that the process ran out of frames, per true class.
         info: JSON-serialisable description (threshold, filter, number of simulated streams, ...).
+
+    The tables stay on ``joint``'s device (``timed_out`` is moved there), where :meth:`sample` draws; on
+    ``meta`` only their shapes are checked.
     """
 
     def __init__(self, joint: Any, timed_out: Any, info: dict[str, Any] | None = None, class_names: Any = None) -> None:
         joint = torch.as_tensor(joint, dtype=DTYPE)
         if joint.dim() != 3 or joint.shape[0] != joint.shape[1] or joint.shape[0] < 2 or joint.shape[2] < 1:
             raise ValueError(f"joint: expected shape (M, M, max_frames) with M >= 2, got {tuple(joint.shape)}")
-        if not torch.isfinite(joint).all() or (joint < 0).any():
+        values = has_values(joint)
+        if values and (not torch.isfinite(joint).all() or (joint < 0).any()):
             raise ValueError("joint: expected finite, non-negative probabilities")
         totals = joint.sum((1, 2))
-        if ((totals - 1).abs() > 1e-9).any():
+        if values and ((totals - 1).abs() > 1e-9).any():
             raise ValueError(f"joint: each true class's table must sum to 1, got sums {totals.tolist()}")
-        timed_out = torch.as_tensor(timed_out, dtype=DTYPE)
-        if timed_out.shape != joint.shape[:1] or not ((timed_out >= 0) & (timed_out <= 1)).all():
+        timed_out = torch.as_tensor(timed_out, dtype=DTYPE).to(joint.device)
+        if timed_out.shape != joint.shape[:1]:
+            raise ValueError(f"timed_out: expected shape ({joint.shape[0]},), got {tuple(timed_out.shape)}")
+        if values and not ((timed_out >= 0) & (timed_out <= 1)).all():
             raise ValueError(f"timed_out: expected ({joint.shape[0]},) probabilities, got {timed_out.tolist()}")
         self.joint = joint / totals[:, None, None]
         self.timed_out = timed_out
@@ -191,7 +203,7 @@ class MacroObservationModel:
     @property
     def mean_frames(self) -> Tensor:
         """``(M,)`` expected frames used per true class."""
-        support = torch.arange(1, self.max_frames + 1, dtype=DTYPE)
+        support = torch.arange(1, self.max_frames + 1, dtype=DTYPE, device=self.joint.device)
         return self.frames_pmf @ support
 
     @property
@@ -204,14 +216,15 @@ class MacroObservationModel:
 
         Args:
             true_class: integer tensor of true classes in ``[0, M)``, any shape ``S``.
-            generator: the source of randomness (same state, same draws).
+            generator: the source of randomness (same state, same draws), on the tables' device.
 
         Returns:
-            ``label`` and ``frames_used`` LongTensors of shape ``S`` (frames in ``1..max_frames``).
+            ``label`` and ``frames_used`` LongTensors of shape ``S`` (frames in ``1..max_frames``), on the
+            tables' device.
         """
         if not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator, got {type(generator).__name__}")
-        true_class = torch.as_tensor(true_class)
+        true_class = torch.as_tensor(true_class).to(self.joint.device)
         if true_class.is_floating_point() or true_class.dtype == torch.bool or true_class.is_complex():
             raise TypeError(f"true_class: expected an integer tensor, got dtype {true_class.dtype}")
         true_class = true_class.long()
@@ -232,17 +245,17 @@ class MacroObservationModel:
 
     def outcomes(self) -> tuple[Tensor, Tensor, Tensor]:
         """The law of ``(label, frames_used)`` per true class as outcome tables ``(probs, label, frames)``, each
-        ``(M, M * max_frames)`` (cell ``l * max_frames + f`` is label ``l`` after ``f + 1`` frames): what a
-        compiled simulator samples from (``decpomdp.engine``)."""
+        ``(M, M * max_frames)`` (cell ``l * max_frames + f`` is label ``l`` after ``f + 1`` frames), on the CPU:
+        what a compiled simulator samples from (``decpomdp.engine``)."""
         cells = torch.arange(self.num_classes * self.max_frames).expand(self.num_classes, -1)
-        return self._flat.clone(), cells // self.max_frames, cells % self.max_frames + 1
+        return self._flat.to("cpu", copy=True), cells // self.max_frames, cells % self.max_frames + 1
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the tables and ``info`` to one safetensors file, atomically."""
+        """Write the tables and ``info`` to one safetensors file, atomically (from any device; read back onto the CPU)."""
         return save_tensors(
             path,
             _KIND,
-            {"joint": self.joint, "timed_out": self.timed_out},
+            {"joint": self.joint.cpu(), "timed_out": self.timed_out.cpu()},
             {"info": self.info, "class_names": None if self.class_names is None else list(self.class_names)},
         )
 
@@ -281,17 +294,19 @@ def characterize(
         num_streams: streams simulated per true class.
         seed: same seed, same table.
         progress: show a progress bar over classes.
+
+    Streams are drawn on the device of ``generative`` and filtered on the process's; the table lives there.
     """
     if not isinstance(process, MacroObservationProcess):
         raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
     num_streams = _positive_int(num_streams, "num_streams")
-    streams, source = _stream_sampler(generative, process.num_classes)
+    streams, source, device = _stream_sampler(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
-    g = torch.Generator().manual_seed(seed)
+    g = seeded_generator(device, seed)
     results = []
     for c in tqdm(range(M), desc="characterize", disable=not progress):
         results.append(process.run_batch(streams(c, num_streams, T, g)))
-    truth = torch.arange(M).repeat_interleave(num_streams)
+    truth = torch.arange(M, device=results[0].label.device).repeat_interleave(num_streams)
     batch = MacroObservationBatch(*(torch.cat(parts) for parts in zip(*results)))
     info = {"num_streams": num_streams, "seed": seed, "generative": source}
     return _table(process, batch, truth, info)
@@ -324,20 +339,22 @@ def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) ->
         raise ValueError(
             f"true_class: expected every class in [0, {process.num_classes}) at least once; missing {missing}"
         )
-    return _table(process, batch, truth.long(), {"num_streams": int(truth.numel()), "generative": "recorded streams"})
+    info = {"num_streams": int(truth.numel()), "generative": "recorded streams"}
+    return _table(process, batch, truth.long().to(batch.label.device), info)
 
 
 def _table(
     process: MacroObservationProcess, batch: MacroObservationBatch, truth: Tensor, info: dict
 ) -> MacroObservationModel:
-    """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class."""
+    """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class, on the batch's device."""
     M, T = process.num_classes, process.max_frames
-    counts = torch.zeros(M, M * T, dtype=DTYPE)
+    like = dict(dtype=DTYPE, device=truth.device)
+    counts = torch.zeros(M, M * T, **like)
     counts.index_put_(
-        (truth, batch.label * T + batch.frames_used - 1), torch.ones(truth.shape[0], dtype=DTYPE), accumulate=True
+        (truth, batch.label * T + batch.frames_used - 1), torch.ones(truth.shape[0], **like), accumulate=True
     )
     per_class = counts.sum(-1, keepdim=True)
-    timed_out = torch.zeros(M, dtype=DTYPE).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
+    timed_out = torch.zeros(M, **like).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
     info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
     return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info, process.class_names)
 
@@ -346,8 +363,9 @@ StreamSampler = Callable[[int, int, int, torch.Generator], Tensor]
 """``(true_class, num_streams, num_frames, generator) -> (num_streams, num_frames, M)`` output streams."""
 
 
-def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, str]:
-    """How :func:`characterize` draws streams from ``generative``, and how its table names the source."""
+def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, str, torch.device]:
+    """How :func:`characterize` draws streams from ``generative``, how its table names the source, and on which
+    device the streams are drawn."""
     if callable(getattr(generative, "sample_streams", None)) and hasattr(generative, "model"):
         if generative.num_classes != num_classes:
             raise ValueError(
@@ -357,14 +375,18 @@ def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, s
         def posterior_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
             return generative.sample_streams(c, n, T, generator=g)
 
-        return posterior_streams, f"posterior predictive ({generative.model} model)"
+        return (
+            posterior_streams,
+            f"posterior predictive ({generative.model} model)",
+            getattr(generative, "device", torch.device("cpu")),
+        )
     theta, source = _generative_theta(generative, num_classes)
 
     def theta_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
-        draws = theta[torch.randint(theta.shape[0], (n,), generator=g)].unsqueeze(1)
-        return sample_outputs(draws, torch.full((n, T), c, dtype=torch.long), g)
+        draws = theta[torch.randint(theta.shape[0], (n,), generator=g, device=theta.device)].unsqueeze(1)
+        return sample_outputs(draws, torch.full((n, T), c, dtype=torch.long, device=theta.device), g)
 
-    return theta_streams, source
+    return theta_streams, source, theta.device
 
 
 def _generative_theta(generative: Any, num_classes: int) -> tuple[Tensor, str]:

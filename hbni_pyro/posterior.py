@@ -12,10 +12,11 @@ import torch
 from pyro.ops.stats import effective_sample_size, split_gelman_rubin
 from torch import Tensor
 
+from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
-from infra.checks import as_int, as_names
+from infra.checks import as_device, as_int, as_names
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
@@ -77,7 +78,7 @@ class HBNIPosterior:
 
     def to(self, device: str | torch.device) -> "HBNIPosterior":
         """A copy with every tensor on ``device`` (filters, tables and predictive draws then run there)."""
-        device = torch.device(device)
+        device = as_device("device", device)
         moved = {k: v.to(device) for k, v in self.samples.items()}
         return dataclasses.replace(
             self,
@@ -126,7 +127,7 @@ class HBNIPosterior:
         out: dict[str, dict[str, float]] = {}
         for name, x in self.scalar_sites().items():
             flat = x.reshape(-1)
-            q = torch.quantile(flat, torch.tensor([lo, hi], dtype=flat.dtype))
+            q = torch.quantile(flat, torch.tensor([lo, hi], dtype=flat.dtype, device=flat.device))
             rhat = (
                 split_gelman_rubin(x, chain_dim=0, sample_dim=1) if self.num_draws >= 4 else torch.tensor(float("nan"))
             )
@@ -175,7 +176,8 @@ class HBNIPosterior:
 
         Each stream takes one posterior draw; its frames are then i.i.d. given it (frame-level
         models) or share one new look (the sequence model). ``generator``, when given, is used (and
-        advanced) instead of a new one seeded with ``seed``; it must be on the posterior's device.
+        advanced) instead of a new one seeded with ``seed``; it must be on the posterior's device. The
+        streams are drawn there; on ``meta`` they are shapes without values (no generator).
         """
         true_class = self._check_class(true_class)
         num_streams, num_frames = (
@@ -184,7 +186,7 @@ class HBNIPosterior:
         )
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
-        g = generator if generator is not None else torch.Generator(self.device).manual_seed(seed)
+        g = generator if generator is not None else seeded_generator(self.device, seed)
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g, device=self.device)

@@ -35,7 +35,8 @@ class StreamReplay:
         true_class: ``(B,)`` integer true class of each stream; every class needs at least one stream.
 
     Attributes:
-        results: the process's :class:`MacroObservationBatch` on every stream, ``(B,)`` each.
+        results: the process's :class:`MacroObservationBatch` on every stream, ``(B,)`` each, on the CPU
+            (the process runs on its filter's device; draws are table look-ups).
         true_class: ``(B,)`` long.
     """
 
@@ -58,7 +59,7 @@ class StreamReplay:
         if ((truth < 0) | (truth >= M)).any():
             raise ValueError(f"true_class: expected classes in [0, {M})")
         _check_every_class(truth, M)
-        self._setup(process, truth, process.run_batch(streams))
+        self._setup(process, truth, MacroObservationBatch(*(field.cpu() for field in process.run_batch(streams))))
 
     def _setup(self, process: MacroObservationProcess, truth: Tensor, results: MacroObservationBatch) -> None:
         self.process = process

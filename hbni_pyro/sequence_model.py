@@ -85,34 +85,39 @@ class SequenceStats(NamedTuple):
 
 
 def sequence_stats(obs: Tensor, sequence_ids: Tensor, labels: Tensor, num_sequences: int) -> SequenceStats:
-    """One pass over validated outputs ``obs (N, M)``: statistics of each sequence ``0..K-1``.
+    """One pass over validated outputs ``obs (N, M)``: statistics of each sequence ``0..K-1``, on ``obs``'s device.
 
     ``sequence_ids (N,)`` in ``[0, K)``; ``labels (N,)`` constant within a sequence (-1 unknown).
     """
     y = ilr(obs)
     d = y.shape[-1]
-    count = torch.zeros(num_sequences, dtype=obs.dtype).index_add_(0, sequence_ids, torch.ones_like(y[:, 0]))
-    sum_y = torch.zeros(num_sequences, d, dtype=obs.dtype).index_add_(0, sequence_ids, y)
-    sum_yy = torch.zeros(num_sequences, d * d, dtype=obs.dtype)
+    like = dict(dtype=obs.dtype, device=obs.device)
+    count = torch.zeros(num_sequences, **like).index_add_(0, sequence_ids, torch.ones_like(y[:, 0]))
+    sum_y = torch.zeros(num_sequences, d, **like).index_add_(0, sequence_ids, y)
+    sum_yy = torch.zeros(num_sequences, d * d, **like)
     for start in range(0, y.shape[0], 1 << 16):  # y y^T in chunks: never an (N, d, d) tensor
         block = y[start : start + (1 << 16)]
         sum_yy.index_add_(
             0, sequence_ids[start : start + (1 << 16)], (block.unsqueeze(-1) * block.unsqueeze(-2)).flatten(1)
         )
-    seq_labels = torch.full((num_sequences,), -1, dtype=torch.long).scatter_(0, sequence_ids, labels)
+    seq_labels = torch.full((num_sequences,), -1, dtype=torch.long, device=obs.device).scatter_(0, sequence_ids, labels)
     return SequenceStats(count, sum_y, sum_yy.reshape(num_sequences, d, d), seq_labels)
 
 
-def look_prior_mean(num_classes: int, look_vertex: float, dtype: torch.dtype = torch.float64) -> Tensor:
+def look_prior_mean(
+    num_classes: int, look_vertex: float, dtype: torch.dtype = torch.float64, device: torch.device | None = None
+) -> Tensor:
     """``(M, d)`` prior mean of the class looks: ``look_vertex`` along each vertex's unit direction."""
-    basis = helmert_basis(num_classes, dtype).T  # (M, d): row c = ilr direction of vertex c
+    basis = helmert_basis(num_classes, dtype, device).T  # (M, d): row c = ilr direction of vertex c
     return look_vertex * basis / basis.norm(dim=-1, keepdim=True)
 
 
-def hyper_scales(hp: HyperPrior, d: int, dtype: torch.dtype = torch.float64) -> dict[str, Tensor | float]:
-    """The sequence model's hyperparameters as matrices: Wishart ``df`` and ``scale`` of ``B``,
+def hyper_scales(
+    hp: HyperPrior, d: int, dtype: torch.dtype = torch.float64, device: torch.device | None = None
+) -> dict[str, Tensor | float]:
+    """The sequence model's hyperparameters as matrices (on ``device``): Wishart ``df`` and ``scale`` of ``B``,
     inverse-Wishart ``df`` and ``psi`` of ``W``."""
-    eye = torch.eye(d, dtype=dtype)
+    eye = torch.eye(d, dtype=dtype, device=device)
     between_df = d + hp.between_df
     return {
         "between_df": float(between_df),

@@ -59,7 +59,8 @@ def fit_temper(
         grid: ``(G,)`` candidate tempers in ``(0, 1]``; ``None`` = :data:`DEFAULT_GRID`.
 
     Returns:
-        a :class:`TemperFit`; its ``log_score`` is ``mean_{b, n} log P(c = true_b | o_b,1:n)``.
+        a :class:`TemperFit`; its ``log_score`` is ``mean_{b, n} log P(c = true_b | o_b,1:n)``, on the
+        posterior's device (where the filters run).
     """
     grid = DEFAULT_GRID if grid is None else torch.as_tensor(grid, dtype=DTYPE)
     if grid.dim() != 1 or grid.numel() < 1 or not torch.isfinite(grid).all() or ((grid <= 0) | (grid > 1)).any():
@@ -74,9 +75,9 @@ def fit_temper(
         )
     if ((truth < 0) | (truth >= base.num_classes)).any():
         raise ValueError(f"true_class: expected labels in [0, {base.num_classes}), got {truth.unique().tolist()}")
-    index = truth.long().view(-1, 1, 1).expand(-1, stats.shape[1], 1)
+    index = truth.long().to(stats.device).view(-1, 1, 1).expand(-1, stats.shape[1], 1)
     counts = counts.expand(stats.shape[:-1])
-    scores = torch.empty(grid.shape[0], dtype=DTYPE)
+    scores = torch.empty(grid.shape[0], dtype=DTYPE, device=stats.device)
     for g, tau in enumerate(grid.tolist()):
         probs = HBNIFilter(posterior, mode, num_draws=num_draws, temper=tau).posterior(stats, counts)
         scores[g] = probs.gather(-1, index).clamp_min(torch.finfo(DTYPE).tiny).log().mean()

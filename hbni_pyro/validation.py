@@ -4,7 +4,8 @@ A classifier output is a point on the probability simplex: ``M >= 2`` entries, e
 ``>= 0``, summing to 1. Classifiers emit exact zeros (float32 softmax underflow), and
 ``log 0`` must never reach a sum, so entries are clamped to :data:`OUTPUT_FLOOR` and
 each row is renormalised. Anything else that is off the simplex is rejected with a
-``ValueError`` naming the first offending row.
+``ValueError`` naming the first offending row. Tensors stay on their device; ``meta`` tensors
+(shapes only) pass the shape checks and skip the value checks.
 """
 
 from __future__ import annotations
@@ -75,23 +76,34 @@ def as_outputs(obs: Any, num_classes: int | None = None, *, name: str = "obs", m
     if x.numel() == 0:
         raise ValueError(f"{name}: expected at least one output row, got shape {tuple(x.shape)}")
     rows = x.reshape(-1, x.shape[-1])
-    batch_shape = x.shape[:-1]
-    bad = ~torch.isfinite(rows).all(-1)
-    if bad.any():
-        raise ValueError(f"{name}: {_row_name(int(bad.nonzero()[0]), batch_shape)} contains NaN or inf")
-    bad = (rows < 0).any(-1)
-    if bad.any():
-        raise ValueError(f"{name}: {_row_name(int(bad.nonzero()[0]), batch_shape)} has a negative entry")
-    bad = (rows.sum(-1) - 1).abs() > SIMPLEX_ATOL
-    if bad.any():
-        i = int(bad.nonzero()[0])
-        raise ValueError(
-            f"{name}: {_row_name(i, batch_shape)} sums to {float(rows[i].sum()):.6g}, "
-            f"expected 1 within {SIMPLEX_ATOL} (a probability vector)"
-        )
+    if has_values(rows):
+        _check_rows(rows, x.shape[:-1], name)
     rows = rows.clamp_min(OUTPUT_FLOOR)
     rows = rows / rows.sum(-1, keepdim=True)
     return rows.reshape(x.shape)
+
+
+def _check_rows(rows: Tensor, batch_shape: torch.Size, name: str) -> None:
+    """Raise ``ValueError`` naming the first row ``(R, M)`` off the simplex (one host sync when all are on it)."""
+    non_finite = ~torch.isfinite(rows).all(-1)
+    negative = (rows < 0).any(-1)
+    off_sum = (rows.sum(-1) - 1).abs() > SIMPLEX_ATOL
+    if not (non_finite | negative | off_sum).any():
+        return
+    if non_finite.any():
+        raise ValueError(f"{name}: {_row_name(int(non_finite.nonzero()[0]), batch_shape)} contains NaN or inf")
+    if negative.any():
+        raise ValueError(f"{name}: {_row_name(int(negative.nonzero()[0]), batch_shape)} has a negative entry")
+    i = int(off_sum.nonzero()[0])
+    raise ValueError(
+        f"{name}: {_row_name(i, batch_shape)} sums to {float(rows[i].sum()):.6g}, "
+        f"expected 1 within {SIMPLEX_ATOL} (a probability vector)"
+    )
+
+
+def has_values(x: Tensor) -> bool:
+    """Whether ``x`` holds values: ``meta`` tensors carry shapes only, so value checks skip them."""
+    return x.device.type != "meta"
 
 
 _INT_DTYPES = (torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
@@ -106,7 +118,7 @@ def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "label
             f"{name}: expected integer class indices of shape ({num_obs},), got {type(labels).__name__}"
         ) from None
     if x.is_floating_point():
-        if not torch.equal(x, x.round()):
+        if has_values(x) and not torch.equal(x, x.round()):
             raise TypeError(f"{name}: expected integer class indices, got non-integer values")
     elif x.dtype not in _INT_DTYPES:
         raise TypeError(f"{name}: expected integer class indices, got dtype {x.dtype}")
@@ -114,7 +126,7 @@ def as_labels(labels: Any, num_obs: int, num_classes: int, *, name: str = "label
     if x.shape != (num_obs,):
         raise ValueError(f"{name}: expected shape ({num_obs},) to match obs, got {tuple(x.shape)}")
     bad = (x < -1) | (x >= num_classes)
-    if bad.any():
+    if has_values(x) and bad.any():
         i = int(bad.nonzero()[0])
         raise ValueError(f"{name}: entry {i} is {int(x[i])}, expected a class in [0, {num_classes}) or -1 for unknown")
     return x
@@ -127,10 +139,11 @@ def as_class_prior(prior: Any, num_classes: int, *, name: str = "class_prior") -
     p = torch.as_tensor(prior, dtype=DTYPE)
     if p.shape != (num_classes,):
         raise ValueError(f"{name}: expected shape ({num_classes},), got {tuple(p.shape)}")
-    if not torch.isfinite(p).all() or (p <= 0).any():
-        raise ValueError(f"{name}: expected strictly positive finite entries, got {p.tolist()}")
-    if abs(float(p.sum()) - 1) > SIMPLEX_ATOL:
-        raise ValueError(f"{name}: expected entries summing to 1, got sum {float(p.sum()):.6g}")
+    if has_values(p):
+        if not torch.isfinite(p).all() or (p <= 0).any():
+            raise ValueError(f"{name}: expected strictly positive finite entries, got {p.tolist()}")
+        if abs(float(p.sum()) - 1) > SIMPLEX_ATOL:
+            raise ValueError(f"{name}: expected entries summing to 1, got sum {float(p.sum()):.6g}")
     return p / p.sum()
 
 

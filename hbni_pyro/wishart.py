@@ -63,7 +63,7 @@ def sample_wishart(df: Tensor, scale_tril: Tensor, generator: torch.Generator) -
     Args:
         df: ``(...)`` degrees of freedom (> d - 1).
         scale_tril: ``(..., d, d)`` lower Cholesky factor ``L`` of the scale.
-        generator: the only source of randomness.
+        generator: the only source of randomness, on ``scale_tril``'s device.
 
     Returns:
         ``(..., d, d)`` draws ``L A A^T L^T`` with ``A`` lower triangular, ``A_ii^2 ~ chi2(df - i)``
@@ -71,10 +71,11 @@ def sample_wishart(df: Tensor, scale_tril: Tensor, generator: torch.Generator) -
     """
     d = scale_tril.shape[-1]
     batch = scale_tril.shape[:-2]
-    df = torch.as_tensor(df, dtype=scale_tril.dtype).expand(batch)
-    shapes = 0.5 * (df.unsqueeze(-1) - torch.arange(d, dtype=scale_tril.dtype))
+    like = dict(dtype=scale_tril.dtype, device=scale_tril.device)
+    df = torch.as_tensor(df, **like).expand(batch)
+    shapes = 0.5 * (df.unsqueeze(-1) - torch.arange(d, **like))
     diag = (2 * gamma_variates(shapes, 1.0, generator)).sqrt()
-    normal = torch.randn(batch + (d, d), generator=generator, dtype=scale_tril.dtype).tril(-1)
+    normal = torch.randn(batch + (d, d), generator=generator, **like).tril(-1)
     a = normal + torch.diag_embed(diag)
     la = scale_tril @ a
     return la @ la.transpose(-1, -2)
@@ -83,7 +84,7 @@ def sample_wishart(df: Tensor, scale_tril: Tensor, generator: torch.Generator) -
 def _tril_log_jacobian(tril: Tensor) -> Tensor:
     """``log |d(L L^T) / dL|`` for lower-triangular ``L`` with positive diagonal: ``d log 2 + sum_i (d - i) log L_ii``."""
     d = tril.shape[-1]
-    powers = torch.arange(d, 0, -1, dtype=tril.dtype)
+    powers = torch.arange(d, 0, -1, dtype=tril.dtype, device=tril.device)
     return d * math.log(2) + (powers * tril.diagonal(dim1=-2, dim2=-1).log()).sum(-1)
 
 

@@ -6,6 +6,10 @@ as a single "chain" whose sites carry a leading chain dimension. The data may be
 ``(N, M)`` shared by every chain or ``D`` same-sized datasets ``(D, N, M)``, each fitted by
 ``num_chains / D`` chains (datasets-major order). Inside, state tensors are ``(D, Cp, ...)``
 and data ``(D, 1, ...)``, so one broadcast serves both layouts.
+
+A kernel runs on the device of its data: its state, step sizes, label counts and its
+``torch.Generator`` are created there. Acceptance counts stay there too, as 0-d tensors, and are
+read to the host once per iteration for the progress log (:meth:`BatchedKernel.logging`).
 """
 
 from __future__ import annotations
@@ -29,8 +33,10 @@ def rm_rate(t: int) -> float:
 class AdaptiveWalk:
     """Per-coordinate Gaussian random-walk scales on a log scale, tuned in warm-up towards ``target``."""
 
-    def __init__(self, shape: tuple[int, ...], target: float, init: float = 0.5) -> None:
-        self.log_step = torch.full(shape, math.log(init), dtype=DTYPE)
+    def __init__(
+        self, shape: tuple[int, ...], target: float, init: float = 0.5, device: torch.device | str = "cpu"
+    ) -> None:
+        self.log_step = torch.full(shape, math.log(init), dtype=DTYPE, device=device)
         self.target = target
 
     @property
@@ -45,12 +51,13 @@ class AdaptiveWalk2D:
     """A joint 2-D random walk whose covariance is learnt from each chain's own warm-up draws
     (after a quarter of warm-up), scaled towards acceptance ``target``."""
 
-    def __init__(self, batch: tuple[int, ...], target: float = 0.35) -> None:
-        self.log_scale = torch.full(batch, math.log(0.5), dtype=DTYPE)
-        self.mean = torch.zeros(batch + (2,), dtype=DTYPE)
-        self.m2 = torch.zeros(batch + (2, 2), dtype=DTYPE)
+    def __init__(self, batch: tuple[int, ...], target: float = 0.35, device: torch.device | str = "cpu") -> None:
+        self.log_scale = torch.full(batch, math.log(0.5), dtype=DTYPE, device=device)
+        self.mean = torch.zeros(batch + (2,), dtype=DTYPE, device=device)
+        self.m2 = torch.zeros(batch + (2, 2), dtype=DTYPE, device=device)
         self.n = 0
-        self.chol = torch.eye(2, dtype=DTYPE).expand(batch + (2, 2)).clone()
+        self.eye = torch.eye(2, dtype=DTYPE, device=device)
+        self.chol = self.eye.expand(batch + (2, 2)).clone()
         self.target = target
 
     def adapt(self, x: Tensor, accepted: Tensor, t: int, warmup_steps: int) -> None:
@@ -60,9 +67,9 @@ class AdaptiveWalk2D:
             delta = x - self.mean
             self.mean += delta / self.n
             self.m2 += delta.unsqueeze(-1) * (x - self.mean).unsqueeze(-2)
-        chol = torch.eye(2, dtype=DTYPE).expand(self.chol.shape)
+        chol = self.eye.expand(self.chol.shape)
         if self.n >= 20:
-            chol = cholesky_2x2(self.m2 / (self.n - 1) + 1e-4 * torch.eye(2, dtype=DTYPE))
+            chol = cholesky_2x2(self.m2 / (self.n - 1) + 1e-4 * self.eye)
         self.chol = self.log_scale.exp()[..., None, None] * chol
 
 
@@ -104,17 +111,18 @@ class BatchedKernel(MCMCKernel):
         self.class_prior = class_prior
         self.seed = seed
 
-    def _begin(self, warmup_steps: int, num_datasets: int, num_classes: int) -> None:
-        """Start a run: generator, counters, layout ``(D, Cp)`` and the class prior."""
+    def _begin(self, warmup_steps: int, num_datasets: int, num_classes: int, device: torch.device) -> None:
+        """Start a run on ``device`` (the data's): generator, counters, layout ``(D, Cp)`` and the class prior."""
         if self.num_chains % num_datasets:
             raise ValueError(f"num_chains: expected a multiple of the {num_datasets} datasets, got {self.num_chains}")
+        self.device = device
         self.batch = (num_datasets, self.num_chains // num_datasets)
         prior = self.class_prior if self.class_prior is not None else torch.full((num_classes,), 1.0 / num_classes)
-        self.log_prior = prior.to(DTYPE).log()
+        self.log_prior = prior.to(device, DTYPE).log()
         self._warmup_steps = warmup_steps
         self._t = 0
-        self._gen = torch.Generator().manual_seed(self.seed)
-        self._accept_sum = {k: 0.0 for k in self.moves}
+        self._gen = torch.Generator(device).manual_seed(self.seed)
+        self._accept_sum = {k: torch.zeros((), dtype=DTYPE, device=device) for k in self.moves}
         self._accept_last = dict(self._accept_sum)
 
     @property
@@ -129,8 +137,8 @@ class BatchedKernel(MCMCKernel):
         """Current sites, each flattened to ``(num_chains, ...)``."""
         raise NotImplementedError
 
-    def _step(self, warm: bool) -> dict[str, float]:
-        """Advance every chain one iteration (adapting step sizes if ``warm``); return acceptance rates."""
+    def _step(self, warm: bool) -> dict[str, Tensor]:
+        """Advance every chain one iteration (adapting step sizes if ``warm``); return acceptance rates (0-d)."""
         raise NotImplementedError
 
     def sample(self, params: dict[str, Tensor]) -> dict[str, Tensor]:
@@ -139,7 +147,7 @@ class BatchedKernel(MCMCKernel):
         self._accept_last = self._step(warm)
         if not warm:
             for k, v in self._accept_last.items():
-                self._accept_sum[k] += v
+                self._accept_sum[k] = self._accept_sum[k] + v
         self._t += 1
         return self._params()
 
@@ -148,10 +156,12 @@ class BatchedKernel(MCMCKernel):
         return max(self._t - self._warmup_steps, 1)
 
     def logging(self) -> dict[str, str]:
-        return {f"acc. {k}": f"{v:.2f}" for k, v in self._accept_last.items()}
+        rates = torch.stack(list(self._accept_last.values())).tolist()  # one host sync for every move
+        return {f"acc. {k}": f"{v:.2f}" for k, v in zip(self._accept_last, rates)}
 
     def diagnostics(self) -> dict:
-        return {"divergences": [], "acceptance rate": {k: v / self.draws_done for k, v in self._accept_sum.items()}}
+        sums = torch.stack(list(self._accept_sum.values())).tolist()
+        return {"divergences": [], "acceptance rate": {k: v / self.draws_done for k, v in zip(self._accept_sum, sums)}}
 
 
 def flatten_chains(x: Tensor) -> Tensor:
@@ -159,6 +169,7 @@ def flatten_chains(x: Tensor) -> Tensor:
     return x.reshape((-1,) + x.shape[2:])
 
 
-def fraction(accepted: Tensor, moves: int | None = None) -> float:
-    """Share of accepted moves: ``accepted.sum() / moves`` (``None``: over all elements)."""
-    return float(accepted.sum()) / (accepted.numel() if moves is None else max(moves, 1))
+def fraction(accepted: Tensor, moves: int | None = None) -> Tensor:
+    """Share of accepted moves, a float64 0-d tensor on ``accepted``'s device: ``accepted.sum() / moves``
+    (``None``: over all elements)."""
+    return accepted.sum().to(DTYPE) / (accepted.numel() if moves is None else max(moves, 1))

@@ -73,29 +73,30 @@ class ConfusionMetropolis(BatchedKernel):
         obs = obs if obs.dim() == 3 else obs.unsqueeze(0)
         labels = labels if labels is None or labels.dim() == 2 else labels.unsqueeze(0)
         M = obs.shape[-1]
-        self._begin(warmup_steps, obs.shape[0], M)
+        self._begin(warmup_steps, obs.shape[0], M, obs.device)
         self.frames = FrameData(obs, labels, self.log_prior)
         self._init_state(M)
-        self._walk_conc = AdaptiveWalk(self.batch + (M, M), 0.44)
-        self._walk_hyper = AdaptiveWalk2D(self.batch)
-        self._walk_scale = AdaptiveWalk(self.batch, 0.44)
+        self._walk_conc = AdaptiveWalk(self.batch + (M, M), 0.44, device=obs.device)
+        self._walk_hyper = AdaptiveWalk2D(self.batch, device=obs.device)
+        self._walk_scale = AdaptiveWalk(self.batch, 0.44, device=obs.device)
         self._class_moves = int((self.frames.data.labels < 0).sum()) * self.batch[1]
 
     def _init_state(self, M: int) -> None:
         """Hyperparameters and concentrations from the prior (clamped to a sane range), classes
         from the proposal weights."""
-        g, hp, b = self._gen, self.hyperprior, self.batch
-        kappa = gamma_variates(torch.full(b, hp.beta), hp.eta, g).clamp(0.05, 50)
-        gamma = gamma_variates(torch.full(b, hp.nu), hp.omega, g).clamp(0.05, 500)
+        g, hp, b, device = self._gen, self.hyperprior, self.batch, self.device
+        kappa = gamma_variates(torch.full(b, hp.beta, device=device), hp.eta, g).clamp(0.05, 50)
+        gamma = gamma_variates(torch.full(b, hp.nu, device=device), hp.omega, g).clamp(0.05, 500)
         theta = gamma_variates(kappa.unsqueeze(-1).expand(b + (M,)), gamma.unsqueeze(-1), g).clamp(0.1, 1000)
-        self.beta_loc = (hp.offdiag_loc_sd * torch.randn(b, generator=g, dtype=DTYPE)).clamp(-2, 2)
+        self.beta_loc = (hp.offdiag_loc_sd * torch.randn(b, generator=g, dtype=DTYPE, device=device)).clamp(-2, 2)
         self.log_beta_scale = (
-            (hp.offdiag_scale_sd * torch.randn(b, generator=g, dtype=DTYPE)).abs().clamp(0.05, 2).log()
+            (hp.offdiag_scale_sd * torch.randn(b, generator=g, dtype=DTYPE, device=device)).abs().clamp(0.05, 2).log()
         )
         log_beta = self.beta_loc[..., None, None] + self.log_beta_scale.exp()[..., None, None] * torch.randn(
-            b + (M, M), generator=g, dtype=DTYPE
+            b + (M, M), generator=g, dtype=DTYPE, device=device
         )
-        self.log_conc = torch.where(torch.eye(M, dtype=torch.bool), theta.log().diag_embed(), log_beta.clamp(-4, 3))
+        eye = torch.eye(M, dtype=torch.bool, device=device)
+        self.log_conc = torch.where(eye, theta.log().diag_embed(), log_beta.clamp(-4, 3))
         self.c = self.frames.initial_classes(b, g)
         self.log_kappa, self.log_gamma = kappa.log(), gamma.log()
 
@@ -111,7 +112,7 @@ class ConfusionMetropolis(BatchedKernel):
         }
         return {k: flatten_chains(v) for k, v in sites.items()}
 
-    def _step(self, warm: bool) -> dict[str, float]:
+    def _step(self, warm: bool) -> dict[str, Tensor]:
         g, hp, data = self._gen, self.hyperprior, self.frames.data
         theta, beta = split_conc(self.log_conc)
         state = MHState(self.c, theta.log(), self.log_kappa, self.log_gamma)

@@ -17,7 +17,7 @@ from hbni_pyro.density import assigned_log_lik
 
 def split_conc(log_conc: Tensor) -> tuple[Tensor, Tensor]:
     """``log_conc (..., M, M)`` -> ``theta (..., M)`` (diagonal) and ``beta (..., M, M)`` (diagonal set to 1)."""
-    eye = torch.eye(log_conc.shape[-1], dtype=torch.bool)
+    eye = torch.eye(log_conc.shape[-1], dtype=torch.bool, device=log_conc.device)
     return log_conc.diagonal(dim1=-2, dim2=-1).exp(), log_conc.masked_fill(eye, 0.0).exp()
 
 
@@ -36,7 +36,7 @@ def conc_log_target(
     row = assigned_log_lik(counts, sums, theta, beta)
     diag = kappa[..., None, None] * log_conc - log_conc.exp() / gamma[..., None, None]
     off = -0.5 * ((log_conc - beta_loc[..., None, None]) / beta_scale[..., None, None]) ** 2
-    eye = torch.eye(log_conc.shape[-1], dtype=torch.bool)
+    eye = torch.eye(log_conc.shape[-1], dtype=torch.bool, device=log_conc.device)
     return row.unsqueeze(-1) + torch.where(eye, diag, off)
 
 
@@ -64,9 +64,10 @@ def update_concentrations(
         new ``log_conc (..., M, M)`` and ``accepted (..., M, M)`` bool.
     """
     num_classes = log_conc.shape[-1]
-    accepted = torch.zeros(log_conc.shape, dtype=torch.bool)
-    eps = torch.randn(log_conc.shape, generator=generator, dtype=log_conc.dtype)
-    log_u = torch.rand(log_conc.shape, generator=generator, dtype=log_conc.dtype).log()
+    like = dict(dtype=log_conc.dtype, device=log_conc.device)
+    accepted = torch.zeros(log_conc.shape, dtype=torch.bool, device=log_conc.device)
+    eps = torch.randn(log_conc.shape, generator=generator, **like)
+    log_u = torch.rand(log_conc.shape, generator=generator, **like).log()
     args = (counts, sums, kappa, gamma, beta_loc, beta_scale)
     current = conc_log_target(log_conc, *args)
     for j in range(num_classes):
@@ -82,7 +83,7 @@ def update_concentrations(
 
 def off_diagonal_logs(log_conc: Tensor) -> Tensor:
     """``(..., M * (M - 1))`` the off-diagonal ``log beta_cj``."""
-    mask = ~torch.eye(log_conc.shape[-1], dtype=torch.bool)
+    mask = ~torch.eye(log_conc.shape[-1], dtype=torch.bool, device=log_conc.device)
     return log_conc[..., mask]
 
 
@@ -91,7 +92,7 @@ def draw_beta_loc(log_beta: Tensor, beta_scale: Tensor, loc_sd: float, generator
     the normal prior ``N(0, loc_sd^2)`` is conjugate."""
     prec = 1 / loc_sd**2 + log_beta.shape[-1] / beta_scale**2
     mean = log_beta.sum(-1) / beta_scale**2 / prec
-    return mean + prec.rsqrt() * torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
+    return mean + prec.rsqrt() * torch.randn(mean.shape, generator=generator, dtype=mean.dtype, device=mean.device)
 
 
 def scale_log_target(log_scale: Tensor, log_beta: Tensor, beta_loc: Tensor, scale_sd: float) -> Tensor:
@@ -105,9 +106,10 @@ def update_beta_scale(
     log_scale: Tensor, log_beta: Tensor, beta_loc: Tensor, scale_sd: float, step: Tensor, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on ``log beta_scale (...)``; returns the new value and ``accepted``."""
-    proposal = log_scale + step * torch.randn(log_scale.shape, generator=generator, dtype=log_scale.dtype)
+    like = dict(dtype=log_scale.dtype, device=log_scale.device)
+    proposal = log_scale + step * torch.randn(log_scale.shape, generator=generator, **like)
     ratio = scale_log_target(proposal, log_beta, beta_loc, scale_sd) - scale_log_target(
         log_scale, log_beta, beta_loc, scale_sd
     )
-    ok = torch.rand(log_scale.shape, generator=generator, dtype=log_scale.dtype).log() < ratio
+    ok = torch.rand(log_scale.shape, generator=generator, **like).log() < ratio
     return torch.where(ok, proposal, log_scale), ok

@@ -17,10 +17,9 @@ statistics computed once in ``setup``.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
-
-import numpy as np
 
 from hbni_pyro.density import lifted_normaliser
 from hbni_pyro.generative import gamma_variates
@@ -49,7 +48,8 @@ class FrameData:
     """Outputs of ``D`` datasets split into what moves and what is known, for the frame-level kernels.
 
     Rows labelled in every dataset are reduced once to per-class counts and log-output sums;
-    the other rows (unlabelled in some dataset) keep their own class moves.
+    the other rows (unlabelled in some dataset) keep their own class moves. Everything lives on
+    ``obs``'s device; on the CPU the class move is the compiled one (:func:`class_move_stats`).
 
     Attributes:
         data: the :class:`MHData` (tensors ``(D, 1, ...)``).
@@ -58,7 +58,8 @@ class FrameData:
 
     def __init__(self, obs: Tensor, labels: Tensor | None, log_prior: Tensor) -> None:
         D, N, M = obs.shape
-        labels = torch.full((D, N), -1, dtype=torch.long) if labels is None else labels.expand(D, N)
+        device = obs.device
+        labels = torch.full((D, N), -1, dtype=torch.long, device=device) if labels is None else labels.expand(D, N)
         self.known_labels = labels
         self.free = (labels < 0).any(0)
         fixed = ~self.free
@@ -71,8 +72,8 @@ class FrameData:
             counts.unsqueeze(1),
             sums.unsqueeze(1),
         )
-        self.label_counts = torch.zeros(D, int(self.free.sum()), M, dtype=DTYPE)
-        self.compiled = obs.device.type == "cpu"
+        self.label_counts = torch.zeros(D, int(self.free.sum()), M, dtype=DTYPE, device=device)
+        self.compiled = device.type == "cpu"
         if self.compiled:
             d = self.data
             self._arrays = tuple(
@@ -104,19 +105,21 @@ class FrameData:
         """``(D, Cp, N_free)`` classes drawn from the proposal weights (given labels kept)."""
         d = self.data
         c0 = alias_draw(
-            d.alias_prob, d.alias, torch.rand(batch + d.labels.shape[-1:], generator=generator, dtype=DTYPE)
+            d.alias_prob,
+            d.alias,
+            torch.rand(batch + d.labels.shape[-1:], generator=generator, dtype=DTYPE, device=d.labels.device),
         )
         return torch.where(d.labels >= 0, d.labels, c0)
 
     def record(self, c: Tensor) -> None:
         """Add the current classes ``(D, Cp, N_free)`` of every chain to the label counts."""
         index = c.transpose(1, 2)
-        self.label_counts.scatter_add_(-1, index, torch.ones((), dtype=DTYPE).expand(index.shape))
+        self.label_counts.scatter_add_(-1, index, torch.ones((), dtype=DTYPE, device=index.device).expand(index.shape))
 
     def label_probs(self, draws: int, chains: int) -> Tensor:
         """``(D, N, M)`` posterior frequency of each row's class (labelled rows one-hot)."""
         D = self.known_labels.shape[0]
-        out = torch.zeros(D, self.free.shape[0], self.num_classes, dtype=DTYPE)
+        out = torch.zeros(D, self.free.shape[0], self.num_classes, dtype=DTYPE, device=self.label_counts.device)
         fixed = ~self.free
         out[:, fixed] = torch.nn.functional.one_hot(self.known_labels[:, fixed], self.num_classes).to(DTYPE)
         out[:, self.free] = self.label_counts / (draws * chains)
@@ -132,8 +135,8 @@ class HBNIMetropolis(BatchedKernel):
 
     ``MCMC(kernel, num_samples, warmup_steps).run(obs, labels)`` with validated ``obs`` of shape
     ``(N, M)`` (shared by every chain) or ``(D, N, M)`` (``num_chains / D`` chains per dataset) and
-    optional ``labels`` ``(N,)`` / ``(D, N)`` with -1 for unknown. Sites returned per iteration:
-    ``theta (C, M)``, ``kappa (C,)``, ``gamma (C,)``.
+    optional ``labels`` ``(N,)`` / ``(D, N)`` with -1 for unknown, on one device, where the chains run.
+    Sites returned per iteration: ``theta (C, M)``, ``kappa (C,)``, ``gamma (C,)``.
     """
 
     moves = ("c", "theta", "hyper")
@@ -155,18 +158,18 @@ class HBNIMetropolis(BatchedKernel):
     def setup(self, warmup_steps: int, obs: Tensor, labels: Tensor | None = None) -> None:
         obs = obs if obs.dim() == 3 else obs.unsqueeze(0)
         labels = labels if labels is None or labels.dim() == 2 else labels.unsqueeze(0)
-        self._begin(warmup_steps, obs.shape[0], obs.shape[-1])
+        self._begin(warmup_steps, obs.shape[0], obs.shape[-1], obs.device)
         self.frames = FrameData(obs, labels, self.log_prior)
         self._state = self._initial_state(obs.shape[-1])
-        self._walk_theta = AdaptiveWalk(self.batch + (obs.shape[-1],), 0.44)
-        self._walk_hyper = AdaptiveWalk2D(self.batch)
+        self._walk_theta = AdaptiveWalk(self.batch + (obs.shape[-1],), 0.44, device=obs.device)
+        self._walk_hyper = AdaptiveWalk2D(self.batch, device=obs.device)
         self._class_moves = int((self.frames.data.labels < 0).sum()) * self.batch[1]
 
     def _initial_state(self, num_classes: int) -> MHState:
         g, hp = self._gen, self.hyperprior
         C = self.num_chains
-        kappa = gamma_variates(torch.full((C,), hp.beta), hp.eta, g).clamp(0.05, 50)
-        gamma = gamma_variates(torch.full((C,), hp.nu), hp.omega, g).clamp(0.05, 500)
+        kappa = gamma_variates(torch.full((C,), hp.beta, device=self.device), hp.eta, g).clamp(0.05, 50)
+        gamma = gamma_variates(torch.full((C,), hp.nu, device=self.device), hp.omega, g).clamp(0.05, 500)
         theta = gamma_variates(kappa.unsqueeze(-1).expand(C, num_classes), gamma.unsqueeze(-1), g)
         c = self.frames.initial_classes(self.batch, g)
         return MHState(
@@ -183,7 +186,7 @@ class HBNIMetropolis(BatchedKernel):
             for k, v in (("theta", s.log_theta), ("kappa", s.log_kappa), ("gamma", s.log_gamma))
         }
 
-    def _step(self, warm: bool) -> dict[str, float]:
+    def _step(self, warm: bool) -> dict[str, Tensor]:
         s, g, data, frames = self._state, self._gen, self.frames.data, self.frames
         if frames.compiled:
             acc_c, stats = frames.compiled_move(s.c, s.log_theta, self.stay_prob, self.seed, self._t, not warm)

@@ -1,7 +1,7 @@
 """Pure update steps of the paper's Metropolis-Hastings sampler, vectorised over chains.
 
-Every function takes the current state and data, draws from an explicit generator and
-returns the new values and acceptance indicators. Nothing is mutated, except by
+Every function takes the current state and data, draws from an explicit generator (on the
+data's device, where everything is computed) and returns the new values and acceptance indicators. Nothing is mutated, except by
 :func:`update_classes`, which rewrites the classes in place (see there). Shapes:
 any leading batch ``...`` (chains, or datasets x chains), ``N`` unlabelled outputs, ``M``
 classes; data broadcast against the state (one dataset shared by every chain, or one each).
@@ -74,8 +74,8 @@ def alias_tables(weights: Tensor) -> tuple[Tensor, Tensor]:
     num_classes = weights.shape[-1]
     q = weights * num_classes
     prob = torch.ones_like(q)
-    alias = torch.arange(num_classes).expand(q.shape).clone()
-    open_ = torch.ones(q.shape, dtype=torch.bool)
+    alias = torch.arange(num_classes, device=q.device).expand(q.shape).clone()
+    open_ = torch.ones(q.shape, dtype=torch.bool, device=q.device)
     for _ in range(num_classes - 1):
         small = q.masked_fill(~open_, torch.inf).argmin(-1, keepdim=True)
         large = q.masked_fill(~open_, -torch.inf).argmax(-1, keepdim=True)
@@ -159,11 +159,11 @@ def update_classes(
     dtype = data.log_prior.dtype
     offset, weight = _class_terms(state.log_theta, data.log_prior, beta)
     offset, weight = offset.unsqueeze(-2), weight.unsqueeze(-2 if beta is None else -3)
-    accepted = torch.zeros((), dtype=torch.long)
+    accepted = torch.zeros((), dtype=torch.long, device=c.device)
     for rows in row_blocks(c.shape[:-1], c.shape[-1]):
         cur = c[..., rows]
-        v = torch.rand(cur.shape, generator=generator, dtype=dtype)
-        log_u = torch.rand(cur.shape, generator=generator, dtype=dtype).log()
+        v = torch.rand(cur.shape, generator=generator, dtype=dtype, device=c.device)
+        log_u = torch.rand(cur.shape, generator=generator, dtype=dtype, device=c.device).log()
         move = v >= stay_prob
         proposal = alias_draw(
             data.alias_prob[..., rows, :], data.alias[..., rows, :], (v - stay_prob).clamp_min(0) / (1 - stay_prob)
@@ -189,9 +189,10 @@ def sufficient_stats(c: Tensor, log_obs: Tensor, full: bool = False) -> tuple[Te
     """
     num_classes = log_obs.shape[-1]
     batch = torch.broadcast_shapes(c.shape[:-1], log_obs.shape[:-2])
-    counts = torch.zeros(batch + (num_classes,), dtype=log_obs.dtype)
-    sums = torch.zeros(batch + ((num_classes, num_classes) if full else (num_classes,)), dtype=log_obs.dtype)
-    one = torch.ones((), dtype=log_obs.dtype)
+    like = dict(dtype=log_obs.dtype, device=log_obs.device)
+    counts = torch.zeros(batch + (num_classes,), **like)
+    sums = torch.zeros(batch + ((num_classes, num_classes) if full else (num_classes,)), **like)
+    one = torch.ones((), **like)
     for rows in row_blocks(batch, c.shape[-1]):
         cc = c[..., rows].expand(batch + (-1,))
         block = log_obs[..., rows, :]
@@ -234,11 +235,12 @@ def update_theta(
     known = data.known_sums
     sum_log = sum_log + (known.diagonal(dim1=-2, dim2=-1) if isinstance(known, Tensor) else known)
     kappa, gamma = state.log_kappa.exp(), state.log_gamma.exp()
-    proposal = state.log_theta + step * torch.randn(step.shape, generator=generator, dtype=step.dtype)
+    like = dict(dtype=step.dtype, device=step.device)
+    proposal = state.log_theta + step * torch.randn(step.shape, generator=generator, **like)
     log_ratio = theta_log_target(proposal, counts, sum_log, kappa, gamma) - theta_log_target(
         state.log_theta, counts, sum_log, kappa, gamma
     )
-    accepted = torch.rand(step.shape, generator=generator, dtype=step.dtype).log() < log_ratio
+    accepted = torch.rand(step.shape, generator=generator, **like).log() < log_ratio
     return torch.where(accepted, proposal, state.log_theta), accepted
 
 
@@ -262,11 +264,11 @@ def update_hyper(
     Returns:
         new ``log_kappa (...)``, ``log_gamma (...)`` and ``accepted (...)`` bool.
     """
-    eps = torch.randn(chol.shape[:-1], generator=generator, dtype=chol.dtype)
+    eps = torch.randn(chol.shape[:-1], generator=generator, dtype=chol.dtype, device=chol.device)
     delta = (chol @ eps.unsqueeze(-1)).squeeze(-1)
     new_k, new_g = state.log_kappa + delta[..., 0], state.log_gamma + delta[..., 1]
     log_ratio = hyper_log_target(new_k, new_g, state.log_theta, hp) - hyper_log_target(
         state.log_kappa, state.log_gamma, state.log_theta, hp
     )
-    accepted = torch.rand(log_ratio.shape, generator=generator, dtype=chol.dtype).log() < log_ratio
+    accepted = torch.rand(log_ratio.shape, generator=generator, dtype=chol.dtype, device=chol.device).log() < log_ratio
     return torch.where(accepted, new_k, state.log_kappa), torch.where(accepted, new_g, state.log_gamma), accepted

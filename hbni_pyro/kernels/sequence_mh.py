@@ -41,7 +41,8 @@ class SequenceMetropolis(BatchedKernel):
     """Vectorised sampler for the sequence-aware posterior (see :mod:`hbni_pyro.sequence_model`).
 
     ``MCMC(kernel, num_samples, warmup_steps).run(stats)`` with a :class:`SequenceStats` of ``K``
-    sequences (tensors ``(K, ...)``, shared by every chain) or of ``D`` datasets (``(D, K, ...)``).
+    sequences (tensors ``(K, ...)``, shared by every chain) or of ``D`` datasets (``(D, K, ...)``), on the
+    device where the chains run.
     Sites returned per iteration: ``loc (C, M, d)``, ``between (C, M, d, d)``, ``between_mean (C, d, d)``,
     ``between_pooling (C,)``, ``within (C, d, d)``.
     """
@@ -61,41 +62,41 @@ class SequenceMetropolis(BatchedKernel):
     def setup(self, warmup_steps: int, stats: SequenceStats) -> None:
         if stats.count.dim() == 1:
             stats = SequenceStats(*(t.unsqueeze(0) for t in stats))
-        num_classes = stats.sum_y.shape[-1] + 1
-        self._begin(warmup_steps, stats.count.shape[0], num_classes)
+        num_classes, device = stats.sum_y.shape[-1] + 1, stats.count.device
+        self._begin(warmup_steps, stats.count.shape[0], num_classes, device)
         self.stats = SequenceStats(*(t.unsqueeze(1) for t in stats))
-        self._scales = hyper_scales(self.hyperprior, num_classes - 1)
+        self._scales = hyper_scales(self.hyperprior, num_classes - 1, device=device)
         self._between_scale_inv = torch.linalg.inv(self._scales["between_scale"])
-        self._prior_mean = look_prior_mean(num_classes, self.hyperprior.look_vertex)
-        self._walk = AdaptiveWalk(self.batch, 0.44)
-        self.label_counts = torch.zeros(self.batch[0], stats.count.shape[-1], num_classes, dtype=DTYPE)
+        self._prior_mean = look_prior_mean(num_classes, self.hyperprior.look_vertex, device=device)
+        self._walk = AdaptiveWalk(self.batch, 0.44, device=device)
+        self.label_counts = torch.zeros(self.batch[0], stats.count.shape[-1], num_classes, dtype=DTYPE, device=device)
         self.state = self._initial_state(num_classes)
 
     def _initial_state(self, M: int) -> SequenceState:
         """Shared covariances and the pooling from their priors, class spreads at the shared one,
         class means near their prior mean; then classes and looks from their conditionals."""
         g, h, sc, b = self._gen, self.hyperprior, self._scales, self.batch
-        d = M - 1
-        eye = torch.eye(d, dtype=DTYPE)
+        d, like = M - 1, dict(dtype=DTYPE, device=self.device)
+        eye = torch.eye(d, **like)
         log_pool = (
-            math.log(h.between_pooling_median) + h.between_pooling_sd * torch.randn(b, generator=g, dtype=DTYPE)
+            math.log(h.between_pooling_median) + h.between_pooling_sd * torch.randn(b, generator=g, **like)
         ).clamp(-2, 7)
         mean = sample_wishart(
-            torch.full(b, sc["between_df"], dtype=DTYPE),
+            torch.full(b, sc["between_df"], **like),
             torch.linalg.cholesky(sc["between_scale"]).expand(b + (d, d)),
             g,
         )
         within_prec = sample_wishart(
-            torch.full(b, sc["within_df"], dtype=DTYPE),
+            torch.full(b, sc["within_df"], **like),
             torch.linalg.cholesky(torch.linalg.inv(sc["within_psi"])).expand(b + (d, d)),
             g,
         )
-        loc = self._prior_mean + 0.1 * torch.randn(b + (M, d), generator=g, dtype=DTYPE)
+        loc = self._prior_mean + 0.1 * torch.randn(b + (M, d), generator=g, **like)
         K = self.stats.count.shape[-1]
         mean = mean + 1e-3 * eye
         state = SequenceState(
-            torch.zeros(b + (K,), dtype=torch.long),
-            torch.zeros(b + (K, d), dtype=DTYPE),
+            torch.zeros(b + (K,), dtype=torch.long, device=self.device),
+            torch.zeros(b + (K, d), **like),
             loc,
             mean.unsqueeze(-3).expand(b + (M, d, d)).clone(),
             mean,
@@ -116,7 +117,7 @@ class SequenceMetropolis(BatchedKernel):
         }
         return {k: flatten_chains(v) for k, v in sites.items()}
 
-    def _step(self, warm: bool) -> dict[str, float]:
+    def _step(self, warm: bool) -> dict[str, Tensor]:
         g, h, sc, s = self._gen, self.hyperprior, self._scales, self.state
         c, look = update_classes_and_looks(s, self.stats, self.log_prior, g)
         s = s._replace(c=c, look=look)
@@ -143,7 +144,7 @@ class SequenceMetropolis(BatchedKernel):
             self._walk.adapt(accepted, self._t)
         else:
             index = c.transpose(1, 2)
-            self.label_counts.scatter_add_(-1, index, torch.ones(index.shape, dtype=DTYPE))
+            self.label_counts.scatter_add_(-1, index, torch.ones(index.shape, dtype=DTYPE, device=index.device))
         return {"pooling": fraction(accepted)}
 
     @property

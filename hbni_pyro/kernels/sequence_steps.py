@@ -48,7 +48,7 @@ def gaussian_draw(prec: Tensor, rhs: Tensor, generator: torch.Generator) -> Tens
     """Draw from ``N(prec^-1 rhs, prec^-1)`` for batches of precisions ``(..., d, d)`` and ``rhs (..., d)``."""
     tril = torch.linalg.cholesky(prec)
     mean = torch.cholesky_solve(rhs.unsqueeze(-1), tril).squeeze(-1)
-    z = torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
+    z = torch.randn(mean.shape, generator=generator, dtype=mean.dtype, device=mean.device)
     return mean + torch.linalg.solve_triangular(tril.transpose(-1, -2), z.unsqueeze(-1), upper=True).squeeze(-1)
 
 
@@ -78,7 +78,7 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
     """Exact draw of every unknown ``c_k`` from ``p(c_k | frames, params)`` (look integrated out);
     labelled sequences keep their label and cost nothing."""
     labels = stats.labels.expand(state.c.shape)
-    u = torch.rand(state.c.shape + (1,), generator=generator, dtype=state.loc.dtype)
+    u = torch.rand(state.c.shape + (1,), generator=generator, dtype=state.loc.dtype, device=state.loc.device)
     free = (stats.labels < 0).reshape(-1, stats.labels.shape[-1]).any(0).nonzero().squeeze(-1)
     if not free.numel():
         return labels.clone()
@@ -148,7 +148,10 @@ def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generat
     num_classes, d = state.loc.shape[-2:]
     counts, look_sums = class_totals(state.c, state.look, num_classes)
     prec_between = torch.linalg.inv(state.between)
-    prec = torch.eye(d, dtype=state.loc.dtype) / prior_sd**2 + counts[..., None, None] * prec_between
+    prec = (
+        torch.eye(d, dtype=state.loc.dtype, device=state.loc.device) / prior_sd**2
+        + counts[..., None, None] * prec_between
+    )
     rhs = prior_mean / prior_sd**2 + (prec_between @ look_sums.unsqueeze(-1)).squeeze(-1)
     return gaussian_draw(prec, rhs, generator)
 
@@ -214,10 +217,11 @@ def update_pooling(
     generator: torch.Generator,
 ) -> tuple[Tensor, Tensor]:
     """Gaussian random walk on ``log pool`` (class covariances integrated out); returns it and ``accepted``."""
-    proposal = log_pool + step * torch.randn(log_pool.shape, generator=generator, dtype=log_pool.dtype)
+    like = dict(dtype=log_pool.dtype, device=log_pool.device)
+    proposal = log_pool + step * torch.randn(log_pool.shape, generator=generator, **like)
     args = (mean, counts, scatter, median, sd)
     ratio = pooling_log_target(proposal, *args) - pooling_log_target(log_pool, *args)
-    ok = torch.rand(log_pool.shape, generator=generator, dtype=log_pool.dtype).log() < ratio
+    ok = torch.rand(log_pool.shape, generator=generator, **like).log() < ratio
     return torch.where(ok, proposal, log_pool), ok
 
 

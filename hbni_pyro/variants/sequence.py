@@ -36,7 +36,7 @@ def sample_streams(draws: Draws, true_class: int, num_frames: int, generator: to
         draws["loc"][:, true_class],
         draws["between"][:, true_class],
         draws["within"].unsqueeze(1),
-        torch.arange(n),
+        torch.arange(n, device=draws["loc"].device),
         num_frames,
         generator,
     )
