@@ -82,9 +82,10 @@ def update_concentrations(
 
 
 def off_diagonal_logs(log_conc: Tensor) -> Tensor:
-    """``(..., M * (M - 1))`` the off-diagonal ``log beta_cj``."""
-    mask = ~torch.eye(log_conc.shape[-1], dtype=torch.bool, device=log_conc.device)
-    return log_conc[..., mask]
+    """``(..., M * (M - 1))`` the off-diagonal ``log beta_cj``, row by row (a reshape, not a mask: nothing is read
+    back to the host)."""
+    M = log_conc.shape[-1]
+    return log_conc.flatten(-2)[..., 1:].unflatten(-1, (M - 1, M + 1))[..., :-1].flatten(-2)
 
 
 def draw_beta_loc(log_beta: Tensor, beta_scale: Tensor, loc_sd: float, generator: torch.Generator) -> Tensor:
