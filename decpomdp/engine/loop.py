@@ -4,7 +4,8 @@ Each rollout runs its events in order: the next completion time ``t = min_a end[
 horizon), the completing agents' ``complete`` rule (reward, observation), each of them moves along
 its controller, and their ``start`` rule begins the next MA. Rollouts are split into chunks that
 threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
-each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)``
+each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)`` (with
+common random numbers, ``(seed, first_controller, r)`` for every controller ``k``)
 (:mod:`infra.counter_random`), so the returns do not depend on the thread count or the chunking.
 
 A domain's rules are three compiled scalar functions on one rollout's state, an int64 vector ``si``
@@ -95,10 +96,11 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
     ``out`` (row ``chunk`` of its per-chunk arrays) with the working arrays ``scratch``; see the module doc.
 
     Args:
-        args: the tuple ``(params, tables, perception, action, next_node, first_controller, rollouts, seed,
+        args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
             horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
             (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int64 (K, A, Nn),
-            ``next_node`` int64 (K, A, Nn, O); ``init_int``/``init_float`` a state every rollout starts from
+            ``next_node`` int64 (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
+            or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
             instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
     """
     (
@@ -108,6 +110,7 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
         action,
         next_node,
         first_controller,
+        stride,
         rollouts,
         seed,
         horizon,
@@ -123,7 +126,7 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
     use_init = init_int.shape[0] > 0
     for b in range(lo, hi):
         k = b // rollouts
-        rng[0] = stream_key(seed, first_controller + k, b - k * rollouts)
+        rng[0] = stream_key(seed, first_controller + stride * k, b - k * rollouts)
         if use_init:
             si[:] = init_int
             sf[:] = init_float

@@ -112,6 +112,7 @@ def run(
     seed: int,
     *,
     first_controller: int = 0,
+    common_streams: bool = False,
     visits: bool = False,
     initial_state: dict[str, float] | None = None,
     keep_state: bool = False,
@@ -123,6 +124,9 @@ def run(
         env: a domain whose ``engine_model()`` is not ``None`` (sizes already checked by the caller).
         seed: the engine seed (any int in [0, 2**64)); rollout ``r`` of controller ``k`` draws from the
             stream keyed by ``(seed, first_controller + k, r)``.
+        common_streams: common random numbers: rollout ``r`` of every controller draws from the stream
+            ``(seed, first_controller, r)``, so that controllers which act alike have alike returns, and
+            differences between controllers carry less noise.
         visits: count (agent, node, observation) completions.
         initial_state: start every rollout from these state entries (names of the domain's layout; the
             others 0) instead of the domain's reset.
@@ -144,6 +148,7 @@ def run(
         action,
         next_node,
         np.int64(first_controller),
+        np.int64(0 if common_streams else 1),
         np.int64(rollouts),
         np.uint64(seed % 2**64),
         float(env.horizon),

@@ -64,6 +64,11 @@ class PlannerConfig:
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
         duel_rollouts: fresh rollouts per controller when challengers duel the incumbent.
         duel_z: standard errors of the difference a challenger must win by.
+        common_streams: common random numbers: the candidates of one racing stage, and the incumbent and
+            challengers of a duel, run on the same random streams (rollout ``r`` of each draws from one stream),
+            and a duel judges the rollout-by-rollout differences. Alike controllers then have alike returns, so
+            the noise of a comparison comes from where they differ. Used where the scorer can
+            (``scorer.common_streams``: the compiled engine); elsewhere every controller draws its own streams.
         edge_rate: least traversals per rollout for an edge to be edited.
         visit_rollouts: rollouts counting the incumbent's edge traversals.
     """
@@ -100,6 +105,7 @@ class PlannerConfig:
     ls_patience: int = 3
     duel_rollouts: int = 4000
     duel_z: float = 2.0
+    common_streams: bool = True
     edge_rate: float = 0.01
     visit_rollouts: int = 500
 
@@ -160,7 +166,7 @@ class PlannerConfig:
         object.__setattr__(self, "duel_z", as_float("duel_z", self.duel_z, 0))
         object.__setattr__(self, "edge_rate", as_float("edge_rate", self.edge_rate, 0))
         object.__setattr__(self, "ls_stages", _stages(self.ls_stages))
-        for name in ("ls_team", "ls_compose", "ls_copy", "ce_reactive"):
+        for name in ("ls_team", "ls_compose", "ls_copy", "ce_reactive", "common_streams"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
 
@@ -197,7 +203,8 @@ def gdice_config(**overrides) -> PlannerConfig:
     ``ce_iterations`` (N_k = 100) iterations over ``num_nodes`` (N_n = 13) nodes, ``ce_samples`` (N_s = 100)
     controllers each scored on ``ce_rollouts`` (80) rollouts with no racing, the best ``ce_elites`` (N_b = 10)
     above the previous worst elite updating with learning rate ``ce_alpha`` (0.1), no memory, no local search,
-    and the best controller ever sampled as the result. ``overrides`` change any setting."""
+    and the best controller ever sampled as the result, every sample on its own random streams. ``overrides`` change
+    any setting."""
     paper = dict(
         phases=("ce",),
         cycles=1,
@@ -215,6 +222,7 @@ def gdice_config(**overrides) -> PlannerConfig:
         ce_init_weight=0.0,
         ce_threshold="paper",
         ce_result="best_sampled",
+        common_streams=False,
     )
     paper.update(overrides)
     if "start_nodes" not in overrides:  # the paper's graph has num_nodes nodes from the start

@@ -211,8 +211,10 @@ def iterate(
     alpha: float,
     threshold_rule: str = "none",
     injection: Injection | None = None,
+    common: bool = False,
 ) -> dict[str, float]:
-    """One iteration (see the module doc), updating ``state`` in place.
+    """One iteration (see the module doc), updating ``state`` in place; ``common``: race the samples on common
+    random numbers (:func:`~decpomdp.search.racing.race`).
 
     Returns:
         ``best`` (score of the best pool member), ``mean`` (mean first-stage score of all samples),
@@ -220,7 +222,7 @@ def iterate(
     """
     ctrl = state.sample(samples, generator)
     stages = [(rollouts, elites)] if screen_rollouts == 0 else [(screen_rollouts, screen_keep), (rollouts, elites)]
-    alive, scores, sample_mean = race(scorer, samples, lambda idx: ctrl[idx], stages, generator)
+    alive, scores, sample_mean = race(scorer, samples, lambda idx: ctrl[idx], stages, generator, common=common)
     if float(scores[0]) > state.best_value:
         state.best, state.best_value = ctrl[int(alive[0])], float(scores[0])
     pool, pool_scores = ctrl[alive], scores

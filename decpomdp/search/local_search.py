@@ -64,6 +64,7 @@ def step(
     team: bool = True,
     compose: bool = True,
     copy: bool = False,
+    common: bool = False,
 ) -> StepOutcome:
     """One step (see the module doc)."""
     visits = scorer.visits(incumbent, visit_rollouts, generator)
@@ -81,12 +82,12 @@ def step(
         index = torch.cat(
             [torch.arange(hood.num_singles), hood.sample_chains(candidates - hood.num_singles, generator)]
         )
-    alive, _, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator)
+    alive, _, _ = race(scorer, index.numel(), lambda i: hood.build(index[i]), stages, generator, common=common)
     challengers = hood.build(index[alive])
     merged = composite(incumbent, challengers) if compose else None
     if merged is not None:
         challengers = JointController.cat([challengers, merged])
-    winner, mean, _ = duel(scorer, incumbent, challengers, duel_rollouts, z, generator)
+    winner, mean, _ = duel(scorer, incumbent, challengers, duel_rollouts, z, generator, common)
     best = int(mean[1:].argmax())
     controller = incumbent if winner is None else challengers[winner]
     return StepOutcome(controller, winner is not None, float(mean[0]), float(mean[1 + best]), index.numel(), hood.size)

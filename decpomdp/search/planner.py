@@ -258,6 +258,7 @@ def _ce_step(
         alpha=cfg.ce_alpha,
         threshold_rule=cfg.ce_threshold,
         injection=cross_entropy.Injection(cfg.ce_injection_weight, cfg.ce_injection_threshold) if injecting else None,
+        common=_common(scorer, cfg),
     )
     info["best_sampled"] = run.ce.best_value
     run.phase_step += 1
@@ -275,7 +276,9 @@ def _ce_step(
         run.incumbent, run.value, run.stderr = pool[top], float(mean[top]), float(se[top])
         accepted = True
     else:
-        winner, mean, se = duel(scorer, run.incumbent, elites, cfg.duel_rollouts, cfg.duel_z, generator)
+        winner, mean, se = duel(
+            scorer, run.incumbent, elites, cfg.duel_rollouts, cfg.duel_z, generator, _common(scorer, cfg)
+        )
         accepted = winner is not None
         pick = 0 if winner is None else winner + 1
         run.value, run.stderr = float(mean[pick]), float(se[pick])
@@ -284,6 +287,11 @@ def _ce_step(
     run.distributions = (run.ce.action_probs, run.ce.next_probs)
     run.ce = None
     return True, run.value, info["best"], accepted, info
+
+
+def _common(scorer: Scorer, cfg: PlannerConfig) -> bool:
+    """Whether to race and duel on common random numbers: asked for, and the scorer can."""
+    return cfg.common_streams and getattr(scorer, "common_streams", False)
 
 
 def _ls_step(
@@ -315,6 +323,7 @@ def _ls_step(
         team=cfg.ls_team,
         compose=cfg.ls_compose,
         copy=cfg.ls_copy,
+        common=_common(scorer, cfg),
     )
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value

@@ -8,7 +8,12 @@ scorer (``scorer.exact``) scores every candidate once: its later stages only cut
 
 :func:`duel` then scores the incumbent and the survivors on the same number of fresh rollouts and
 names the best survivor if it beats the incumbent by more than ``z`` standard errors of the
-difference (for exact scores, standard error 0, any strict improvement wins).
+difference (for exact scores, standard error 0, any strict improvement beyond rounding wins).
+
+With ``common=True`` (common random numbers, Glasserman and Yao 1992; PEGASUS, Ng and Jordan 2000) the candidates of
+a stage, and the incumbent and challengers of a duel, run on the same random streams, and the duel's standard
+error is that of the rollout-by-rollout difference: two controllers that act alike until some event share their
+returns' luck up to it, so a race ranks them by what they do differently.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ import torch
 from torch import Tensor
 
 from decpomdp.controller import JointController
-from decpomdp.search.scoring import Scorer
+from decpomdp.search.scoring import Scorer, mean_stderr
 
 ROUNDING = 1e-9
 """Least relative win of a duel: far above float64 rounding of a value, far below any Monte Carlo error."""
@@ -33,6 +38,7 @@ def race(
     stages: Sequence[tuple[int, float]],
     generator: torch.Generator,
     minimum: int = 4,
+    common: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """Race candidates ``0 .. count - 1`` (built on demand by ``build(indices)``) through ``stages``.
 
@@ -47,8 +53,13 @@ def race(
     for stage, (rollouts, keep) in enumerate(stages):
         if stage == 0 or not exact:  # an exact score needs no second look: later stages only cut
             per = max(1, 200_000 // rollouts)  # candidates per batched call
+            streams = _stage_streams(generator) if common else (lambda: generator)
+            kwargs = {"common": True} if common else {}
             scores = torch.cat(
-                [scorer(build(alive[i : i + per]), rollouts, generator)[0] for i in range(0, alive.numel(), per)]
+                [
+                    scorer(build(alive[i : i + per]), rollouts, streams(), **kwargs)[0]
+                    for i in range(0, alive.numel(), per)
+                ]
             )
         first_mean = float(scores.mean()) if math.isnan(first_mean) else first_mean
         kept = int(keep) if keep >= 1 else max(minimum, math.ceil(keep * alive.numel()))
@@ -64,6 +75,7 @@ def duel(
     rollouts: int,
     z: float,
     generator: torch.Generator,
+    common: bool = False,
 ) -> tuple[int | None, Tensor, Tensor]:
     """Score ``incumbent`` (K = 1) and ``challengers`` on ``rollouts`` fresh rollouts each.
 
@@ -74,9 +86,23 @@ def duel(
         scores (zero standard errors) of equally good controllers that differ in their last bits would win duels
         forever.
     """
-    mean, se = scorer(JointController.cat([incumbent, challengers]), rollouts, generator)
-    best = int(mean[1:].argmax()) + 1
+    pool = JointController.cat([incumbent, challengers])
+    if common:
+        returns = scorer.returns(pool, rollouts, generator, True)
+        mean, se = mean_stderr(returns)
+        best = int(mean[1:].argmax()) + 1
+        sd = float(mean_stderr(returns[best] - returns[0])[1])
+    else:
+        mean, se = scorer(pool, rollouts, generator)
+        best = int(mean[1:].argmax()) + 1
+        sd = float((se[best] ** 2 + se[0] ** 2) ** 0.5)
     gap = float(mean[best] - mean[0])
-    sd = float((se[best] ** 2 + se[0] ** 2) ** 0.5)
     margin = max(z * sd, ROUNDING * max(1.0, abs(float(mean[0]))))
     return (best - 1 if gap > margin else None), mean, se
+
+
+def _stage_streams(generator: torch.Generator) -> Callable[[], torch.Generator]:
+    """Generators all in one state, drawn from ``generator``: every batched call of a racing stage gets one, so
+    that its candidates run on common random numbers."""
+    state = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator))).get_state()
+    return lambda: torch.Generator().set_state(state)

@@ -46,6 +46,11 @@ class Scorer(Protocol):
         num_agents, num_actions, num_obs: sizes of the searched controllers (A, |MA|, O).
         rollouts_used: rollouts run so far (0 for exact scorers).
         exact: whether scores are exact (standard error 0): a score is then never repeated to race candidates.
+
+    A scorer that can score on common random numbers says so with ``common_streams = True`` and takes
+    ``common=True`` in ``__call__`` and ``returns(controller, rollouts, generator, common)`` (per-rollout returns,
+    float64 (K, rollouts)): rollout ``r`` of every controller then draws from the same stream, chosen by the
+    generator's state (two calls with generators in the same state use the same streams).
     """
 
     exact: bool
@@ -112,6 +117,7 @@ class RolloutScorer:
         self.num_agents = 1 if shared else env.num_agents
         self.num_actions, self.num_obs = env.num_actions, env.num_obs
         self.rollouts_used, self.exact = 0, False
+        self.common_streams = self.backend == "engine"
 
     def fingerprint(self) -> dict[str, Any]:
         return {
@@ -125,13 +131,24 @@ class RolloutScorer:
         """The joint controller the team runs for searched controllers ``controller``."""
         return shared(controller, self.env.num_agents) if self.shared else controller
 
-    def __call__(self, controller: JointController, rollouts: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    def __call__(
+        self, controller: JointController, rollouts: int, generator: torch.Generator, common: bool = False
+    ) -> tuple[Tensor, Tensor]:
+        return mean_stderr(self.returns(controller, rollouts, generator, common))
+
+    def returns(
+        self, controller: JointController, rollouts: int, generator: torch.Generator, common: bool = False
+    ) -> Tensor:
+        """float64 (K, rollouts) discounted returns; ``common``: every controller on the same streams (engine only)."""
         if not isinstance(controller, JointController):
             raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
         rollouts = as_int("rollouts", rollouts, 2)
+        if common and not self.common_streams:
+            raise ValueError("common: common random numbers need the compiled engine (backend='engine')")
         if self.backend == "engine":
             check(self.env, self.team(controller))
-            returns = run_engine(self.env, self.team(controller), rollouts, draw_seed(generator)).returns
+            seed = draw_seed(generator)
+            returns = run_engine(self.env, self.team(controller), rollouts, seed, common_streams=common).returns
         else:
             per = max(1, _CHUNK // rollouts)
             returns = torch.cat(
@@ -141,7 +158,7 @@ class RolloutScorer:
                 ]
             )
         self.rollouts_used += returns.numel()
-        return mean_stderr(returns)
+        return returns
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:
         rollouts = as_int("rollouts", rollouts, 1)

@@ -440,6 +440,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
         ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
         ({"ls_copy": 0}, TypeError, "ls_copy: expected a bool"),
         ({"ce_reactive": "true"}, TypeError, "ce_reactive: expected a bool"),
+        ({"common_streams": 1}, TypeError, "common_streams: expected a bool"),
     ],
 )
 def test_config_errors(kwargs, error, match):
