@@ -16,6 +16,10 @@ import math
 import numpy as np
 from numba import njit
 
+from infra.numba_cache import use_cache_dir
+
+use_cache_dir()  # before this module's cached function is decorated, and any that inline it
+
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -49,8 +53,9 @@ def next_u64(rng: np.ndarray) -> np.uint64:
 
 @njit(inline="always")
 def uniform(rng: np.ndarray) -> float:
-    """A uniform float64 in [0, 1) (53 random bits)."""
-    return float(next_u64(rng) >> _S11) * (1.0 / 9007199254740992.0)
+    """A uniform float64 in [0, 1) (53 random bits; converted as a signed integer, which is exact below 2**63 and
+    one instruction, where an unsigned 64-bit conversion is a branchy sequence)."""
+    return float(np.int64(next_u64(rng) >> _S11)) * (1.0 / 9007199254740992.0)
 
 
 def _ziggurat(layers: int = 256, r: float = 3.6541528853610088, v: float = 0.00492867323399) -> tuple:
@@ -79,7 +84,7 @@ def normal(rng: np.ndarray) -> float:
         bits = next_u64(rng)
         i = np.int64(bits & _LOW8)
         sign = -1.0 if (bits >> _S8) & np.uint64(1) else 1.0
-        x = float(bits >> _S11) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
+        x = float(np.int64(bits >> _S11)) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
         if x < _ZIG_X[i + 1]:
             return sign * x
         if i == 0:  # the tail beyond r

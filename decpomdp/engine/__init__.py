@@ -1,16 +1,17 @@
 """The compiled rollout engine: one plain event loop per rollout, compiled with numba, parallel over rollouts.
 
-* :mod:`.random`: counter-based random streams, one per rollout, keyed by (seed, controller, rollout);
+* :mod:`infra.counter_random`: counter-based random streams, one per rollout, keyed by (seed, controller, rollout);
 * :mod:`.perception`: perception as a finite law of ``(label, frames)`` outcomes per true class;
 * :mod:`.domain`: what a domain hands the engine (:class:`EngineDomain`, :class:`EngineModel`);
-* :mod:`.loop`: the compiled event loop; :mod:`.simulate`: :func:`run`, its Python entry;
-* :mod:`.cache`: where the compiled code is cached (``CACHE_DIR``, keyed by the engine's sources).
+* :mod:`.loop`: the compiled event loop; :mod:`.simulate`: :func:`run`, its Python entry.
+
+The compiled code is cached on disk (``CACHE_DIR``, :mod:`infra.numba_cache`, keyed by the sources it inlines).
 
 A domain is written once for the engine, as three small scalar rules (``reset``, ``start``,
 ``complete``); ``docs/engine.md`` shows a small domain written this way.
 """
 
-from decpomdp.engine.cache import use_cache_dir
+from infra.numba_cache import use_cache_dir
 
 CACHE_DIR = use_cache_dir()  # before any engine function is decorated
 

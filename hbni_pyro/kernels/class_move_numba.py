@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from infra.counter_random import stream_key, uniform
+from infra.counter_random import stream_key, uniform  # sets numba's cache directory (infra.numba_cache) first
 
 ROWS = 512
 """Outputs per block (one random stream and one partial sum per chain and block)."""

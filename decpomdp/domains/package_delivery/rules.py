@@ -84,6 +84,7 @@ whether it waits for its partner, whether a failed put-down still pays).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -232,6 +233,7 @@ GO_KIND, DROP_KIND, PICK_KIND, JPUT_KIND = 1, 2, 4, 8  # bits of MA_KIND
 P_JOINT_WAIT, P_NOISE, P_MIN_NOISE, P_SOLO_JOINT, P_SUCCESSOR_RULE, P_LARGE_PER_ROBOT = range(6)
 
 
+@functools.cache  # once per setting: a planner asks for the tables at every batch of rollouts
 def start_tables(reference_pickup: bool) -> tuple[np.ndarray, np.ndarray]:
     """``(flags, mean)`` over ``((loc * 6 + load) * 5 + here) * 13 + ma`` (``here``: the package waiting at the
     robot's base): int64 bits ``OK_BIT`` (preconditions hold), ``JOINT_OK`` (a joint MA whose preconditions
@@ -253,6 +255,7 @@ def start_tables(reference_pickup: bool) -> tuple[np.ndarray, np.ndarray]:
     return flags, mean
 
 
+@functools.cache  # once per setting: a planner asks for the tables at every batch of rollouts
 def drop_tables(rewards: Rewards) -> tuple[np.ndarray, np.ndarray]:
     """``(reward, counts)`` over ``(ma * 5 + loc) * 6 + load`` for a drop MA completing: float64 reward credited
     to one robot, int64 (n, 3) increments of (delivered, delivered_large, wrong)."""
@@ -269,6 +272,7 @@ def drop_tables(rewards: Rewards) -> tuple[np.ndarray, np.ndarray]:
     return reward, counts
 
 
+@functools.cache  # once per setting: a planner asks for the tables at every batch of rollouts
 def ma_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(kind, target, successor)``: int64 (13,) bits ``GO_KIND``/``DROP_KIND``/``PICK_KIND``/``JPUT_KIND`` of
     each MA, (13,) the node each go-to MA ends at (0 for others), (13 * 13,) whether MA ``n`` may follow ``m``
