@@ -165,7 +165,7 @@ def _solve(
     for cap, keys in (
         ("iterations", ("ce_iterations",)),
         ("samples", ("ce_samples",)),
-        ("restarts", ("restarts", "jesp_restarts")),
+        ("restarts", ("restarts", "layered_restarts", "jesp_restarts")),
     ):
         if study.caps[cap] is not None:
             for key in keys:

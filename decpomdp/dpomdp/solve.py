@@ -49,8 +49,9 @@ class Solution:
         seconds: wall-clock time of the search and the bounds.
         horizon, gamma: the problem solved (``math.inf``: the discounted infinite horizon).
         bounds: the relaxations behind ``bound`` (:class:`~decpomdp.dpomdp.bounds.Bounds`).
-        restarts: planner runs made (each a free graph and, at a finite horizon, a layered one); ``values`` the
-            exact value every start reached (planner runs in order, then JESP's random starts).
+        restarts: planner rounds made (round ``r`` plans a free graph while ``r < restarts`` and, at a finite
+            horizon, a layered one while ``r < layered_restarts``); ``values`` the exact value every start reached
+            (planner runs in order, then JESP's random starts).
     """
 
     controller: JointController
@@ -95,6 +96,7 @@ def solve(
     *,
     seed: int = 0,
     restarts: int = 2,
+    layered_restarts: int = 3,
     layer_width: int = 3,
     max_layered_horizon: int = 20,
     jesp_restarts: int = 20,
@@ -112,11 +114,14 @@ def solve(
         horizon: steps ``h >= 1``, or ``math.inf`` for the discounted infinite horizon.
         gamma: discount (``None``: the file's; an infinite horizon needs ``gamma < 1``).
         seed: restart ``r`` plans on the stream ``(seed, "solve", r)``: the same seed, the same solution.
-        restarts: planner runs, each from scratch on its own stream; the best is kept. At a finite horizon each
-            result is then improved by exact best responses (:func:`~decpomdp.dpomdp.best_response.jesp`).
-        layer_width: at a finite horizon, each restart also plans a layered controller (node 0, then
-            ``h - 1`` layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end)
-            by cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon); 0 skips it.
+        restarts: planner runs on a free graph of ``num_nodes`` nodes, each from scratch on its own stream; the best
+            of all runs is kept. At a finite horizon each result is then improved by exact best responses
+            (:func:`~decpomdp.dpomdp.best_response.jesp`).
+        layered_restarts: at a finite horizon, planner runs on a layered controller (node 0, then ``h - 1``
+            layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end), by
+            cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon). Cross-entropy on
+            a layered graph depends more on its stream than local search on a free one, hence more runs.
+        layer_width: nodes per layer of a layered controller; 0 skips layered runs.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
             streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
         best_responses: ``False`` turns exact best responses off (no JESP after each run, no JESP restarts): the
@@ -136,6 +141,7 @@ def solve(
     model = _problem(problem)
     env = TabularDecPOSMDP(model, gamma, horizon=horizon)
     restarts = as_int("restarts", restarts, minimum=1)
+    layered_restarts = as_int("layered_restarts", layered_restarts, minimum=0)
     seed = as_int("seed", seed)
     budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
     finite = math.isfinite(env.horizon)
@@ -168,10 +174,12 @@ def solve(
         layered = config.replace(
             num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False
         )
+    rounds = max(restarts, layered_restarts if layered is not None else 0)
     runs = 0
-    while runs < restarts or (budget is not None and time.perf_counter() - start < budget):
-        keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
-        if layered is not None:
+    while runs < rounds or (budget is not None and time.perf_counter() - start < budget):
+        if runs < restarts or runs >= rounds:
+            keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
+        if layered is not None and (runs < layered_restarts or runs >= rounds):
             keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
         runs += 1
     for k in range(jesp_restarts if respond else 0):

@@ -152,7 +152,7 @@ def test_jesp_never_loses_value_and_refuses_trees_too_large():
 
 @pytest.mark.parametrize("row", [("dectiger", 3), ("broadcastChannel", 4), ("GridSmall", 3)])
 def test_solve_reaches_published_optima_with_a_valid_gap(row):
-    s = solve(*row, 1.0, seed=0, restarts=1)
+    s = solve(*row, 1.0, seed=0, restarts=1, layered_restarts=1)
     assert s.value == pytest.approx(PUBLISHED[row], abs=1e-6)
     assert s.value == pytest.approx(float(exact_value(env(*row), s.controller)[0]), abs=1e-12)
     assert s.bound >= PUBLISHED[row] - 1e-9 and s.gap == pytest.approx((s.bound - s.value) / abs(s.bound))
@@ -161,21 +161,36 @@ def test_solve_reaches_published_optima_with_a_valid_gap(row):
 
 def test_solve_is_seeded_and_takes_files_models_and_the_infinite_horizon(tmp_path):
     a, b = (
-        solve("dectiger", 2, seed=4, restarts=1, jesp_restarts=2),
-        solve("dectiger", 2, seed=4, restarts=1, jesp_restarts=2),
+        solve("dectiger", 2, seed=4, restarts=1, layered_restarts=1, jesp_restarts=2),
+        solve("dectiger", 2, seed=4, restarts=1, layered_restarts=1, jesp_restarts=2),
     )
     assert torch.equal(a.controller.action, b.controller.action) and a.values == b.values
     path = save_dpomdp(load_problem("dectiger"), tmp_path / "tiger.dpomdp")
-    assert solve(path, 2, seed=4, restarts=1, jesp_restarts=2).value == a.value
-    inf = solve(load_problem("dectiger"), math.inf, 0.9, seed=0, restarts=1, num_nodes=2, ce_iterations=5)
+    assert solve(path, 2, seed=4, restarts=1, layered_restarts=1, jesp_restarts=2).value == a.value
+    inf = solve(
+        load_problem("dectiger"), math.inf, 0.9, seed=0, restarts=1, layered_restarts=1, num_nodes=2, ce_iterations=5
+    )
     assert inf.horizon == math.inf and inf.controller.num_nodes == 2 and inf.value <= inf.bound
 
 
 def test_without_best_responses_solve_keeps_the_planners_results_alone():
-    s = solve("dectiger", 3, seed=0, restarts=1, best_responses=False)
+    s = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, best_responses=False)
     assert len(s.values) == 2  # one free-graph run and one layered run, no JESP restarts
-    with_br = solve("dectiger", 3, seed=0, restarts=1, jesp_restarts=0)
+    with_br = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, jesp_restarts=0)
     assert with_br.value >= s.value - 1e-12
+
+
+def test_free_and_layered_runs_are_counted_apart():
+    more_layered = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=3, best_responses=False, ce_iterations=10)
+    assert more_layered.restarts == 3 and len(more_layered.values) == 1 + 3
+    no_layers = solve("dectiger", 3, seed=0, restarts=2, layered_restarts=0, best_responses=False, ce_iterations=10)
+    assert no_layers.restarts == 2 and len(no_layers.values) == 2
+    # the first free run and the first layered run are the same whatever the counts
+    assert (
+        more_layered.values[:2]
+        == solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, best_responses=False, ce_iterations=10).values
+    )
+    assert no_layers.values[0] == more_layered.values[0]
 
 
 def test_exact_scores_are_never_raced():
@@ -230,7 +245,7 @@ def test_exact_ties_in_the_last_bits_lose_duels():
         3, num_agents=2, num_nodes=2, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
     )
     assert duel(Rounding(), pool[:1], pool[1:], 1, 2.0, torch.Generator())[0] is None
-    s = solve("GridSmall", 3, 1.0, seed=0, restarts=1, jesp_restarts=0)  # ends (it looped before)
+    s = solve("GridSmall", 3, 1.0, seed=0, restarts=1, layered_restarts=1, jesp_restarts=0)  # ends (it looped before)
     assert s.value == pytest.approx(PUBLISHED[("GridSmall", 3)], abs=1e-6)
 
 
@@ -241,6 +256,8 @@ def test_solve_errors():
         solve("no_such_problem.dpomdp", 2)
     with pytest.raises(ValueError, match="restarts: expected an int >= 1"):
         solve("dectiger", 2, restarts=0)
+    with pytest.raises(ValueError, match="layered_restarts: expected an int >= 0"):
+        solve("dectiger", 2, layered_restarts=-1)
     with pytest.raises(TypeError, match="best_responses: expected True or False"):
         solve("dectiger", 2, best_responses="no")
     with pytest.raises(ValueError, match="time_budget"):
@@ -277,7 +294,7 @@ def _same(m, back):
 
 
 def test_controller_text_lists_every_node():
-    s = solve("dectiger", 2, seed=0, restarts=1, jesp_restarts=1)
+    s = solve("dectiger", 2, seed=0, restarts=1, layered_restarts=1, jesp_restarts=1)
     text = controller_text(s.controller)
     assert text.count("\nagent ") + text.startswith("agent ") == 2
     assert "listen" in text and len(text.strip().splitlines()) == 2 + 2 * (1 + s.controller.num_nodes)
