@@ -1,14 +1,16 @@
 """Exact best responses at a finite horizon, and JESP's alternating improvement (Nair et al., 2003).
 
 With every other agent's controller fixed, one agent faces a POMDP over ``(state, the others' joint
-node)``. Its best policy is a tree over its own observation histories, found by dynamic programming:
-forwards, the unnormalised belief ``P(s, q, history)`` of every (action, observation) history of the
-agent; backwards, ``V(h) = max_a [r(h, a) + gamma * sum_o V(h a o)]``. The tree has
-``(A_i * O_i) ** t`` beliefs at step ``t``, so :func:`best_response` refuses a horizon whose tree
-exceeds ``max_entries`` numbers; :func:`jesp` then leaves the controller as it is.
+node)``. Its best policy is found by dynamic programming over its beliefs: forwards, the normalised belief
+``P(s, q | history)`` after every (action, observation) history of the agent, with histories that reach
+the same belief merged into one (the optimal continuation depends on the belief only, so Dec-Tiger's
+``6 ** t`` histories at step ``t`` collapse to a few dozen beliefs); backwards,
+``V(b) = max_a [r(b, a) + gamma * sum_o P(o | b, a) V(b a o)]``. A layer of more than ``max_entries``
+numbers makes :func:`best_response` refuse; :func:`jesp` then leaves the controller as it is.
 
-The response is returned as a layered controller for that agent (node 0 the empty history, then one
-node per observation history of the chosen policy), beside the others' controllers unchanged.
+The response is returned as a layered controller for that agent (node 0 the start, then one node per
+belief its policy reaches at each step, nodes that act and move alike merged), beside the others'
+controllers unchanged, with its exact value.
 """
 
 from __future__ import annotations
@@ -20,13 +22,36 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, tables
+from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
+DIGITS = 11
+"""Beliefs equal to this many decimals are merged (a merged belief's value is exact up to ~1e-11; the
+response's value is then computed exactly)."""
 
-def tree_size(env: TabularDecPOSMDP, horizon: int, others_nodes: int) -> int:
-    """Numbers the belief tree of one agent's best response holds (``sum_t (A O) ** t * Q * S``)."""
-    branch = env.num_actions * env.num_obs
-    return sum(branch**t for t in range(int(horizon))) * others_nodes * env.num_states
+
+def _others(
+    env: TabularDecPOSMDP, controller: JointController, agent: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The others' fixed controllers as tables over their joint node ``q``: the joint action ``ja[a_i, q]``,
+    the agent's own observation ``jo_own[jo]`` and the others' next joint node ``q_next[q, jo]`` of every
+    joint observation, and the start node's index."""
+    n_agents, n_act, n_obs = env.num_agents, env.num_actions, env.num_obs
+    others = [j for j in range(n_agents) if j != agent]
+    q_tuples = list(itertools.product(range(controller.num_nodes), repeat=len(others)))
+    q_index = {q: k for k, q in enumerate(q_tuples)}
+    act, nxt = controller.action[0].numpy(), controller.next_node[0].numpy()
+    a_stride = env.action_strides.numpy()
+    ja = np.zeros((n_act, len(q_tuples)), dtype=np.int64)
+    for k, q in enumerate(q_tuples):
+        ja[:, k] = sum(a_stride[j] * act[j, node] for j, node in zip(others, q)) + a_stride[agent] * np.arange(n_act)
+    jo_own = np.zeros(n_obs**n_agents, dtype=np.int64)
+    q_next = np.zeros((len(q_tuples), n_obs**n_agents), dtype=np.int64)
+    for jo, parts in enumerate(itertools.product(range(n_obs), repeat=n_agents)):
+        jo_own[jo] = parts[agent]
+        for k, q in enumerate(q_tuples):
+            q_next[k, jo] = q_index[tuple(nxt[j, node, parts[j]] for j, node in zip(others, q))]
+    return ja, jo_own, q_next, q_index[tuple(0 for _ in others)]
 
 
 def best_response(
@@ -39,85 +64,93 @@ def best_response(
 ) -> tuple[JointController, float] | None:
     """Agent ``agent``'s best response to the others' controllers in ``controller`` (K = 1).
 
-    Returns ``(joint controller, its exact value)``, or ``None`` when the belief tree exceeds ``max_entries``.
-    ``tabs`` (default ``tables(env)``) lets a caller build the problem's tables once.
+    Returns ``(joint controller, its exact value)``, or ``None`` when a layer of beliefs (before merging)
+    would exceed ``max_entries`` numbers. ``tabs`` (default ``tables(env)``) lets a caller build the
+    problem's tables once.
     """
     h = int(env.horizon if horizon is None else horizon)
-    n_agents, n_act, n_obs, gamma = env.num_agents, env.num_actions, env.num_obs, env.gamma
-    nodes = controller.num_nodes
-    others = [j for j in range(n_agents) if j != agent]
-    q_tuples = list(itertools.product(range(nodes), repeat=len(others)))
-    if tree_size(env, h, len(q_tuples)) > max_entries:
-        return None
-    act = controller.action[0].numpy()
-    nxt = controller.next_node[0].numpy()
-    a_stride = env.action_strides.numpy()
-    n_q = len(q_tuples)
-    q_index = {q: k for k, q in enumerate(q_tuples)}
-    # ja[a_i, q] and, per joint observation, (o_i, q') after q
-    ja = np.zeros((n_act, n_q), dtype=np.int64)
-    for k, q in enumerate(q_tuples):
-        base = sum(a_stride[j] * act[j, node] for j, node in zip(others, q))
-        ja[:, k] = base + a_stride[agent] * np.arange(n_act)
-    jo_own = np.zeros(n_obs**n_agents, dtype=np.int64)
-    q_next = np.zeros((n_q, n_obs**n_agents), dtype=np.int64)
-    for jo, parts in enumerate(itertools.product(range(n_obs), repeat=n_agents)):
-        jo_own[jo] = parts[agent]
-        for k, q in enumerate(q_tuples):
-            q_next[k, jo] = q_index[tuple(nxt[j, node, parts[j]] for j, node in zip(others, q))]
+    n_act, n_obs, gamma = env.num_actions, env.num_obs, env.gamma
+    ja, jo_own, q_next, q0 = _others(env, controller, agent)
+    n_q, n_s = ja.shape[1], env.num_states
     trans, reward, obs = tabs or tables(env)
-    n_s = env.num_states
-    # forwards: beliefs (n, Q, S) of every (action, observation) history, layer by layer
-    start = np.zeros((1, n_q, n_s))
-    start[0, q_index[tuple(0 for _ in others)]] = env.start_dist.numpy()
-    layers, rewards = [start], []
+    trans_t = [t.T.tocsr() for t in trans]  # T_ja' (S', S)
+    # forwards: the distinct normalised beliefs (n, Q, S) of each step; per belief, the reward of each
+    # action, and the index and probability of the belief after each (action, own observation)
+    belief = np.zeros((1, n_q, n_s))
+    belief[0, q0] = env.start_dist.numpy()
+    rewards, children, probs = [], [], []
     for step in range(h):
-        b = layers[-1]
-        rewards.append(np.stack([np.einsum("nqs,qs->n", b, reward[ja[a]]) for a in range(n_act)], 1))  # (n, A_i)
+        n = belief.shape[0]
+        rewards.append(np.stack([np.einsum("nqs,qs->n", belief, reward[ja[a]]) for a in range(n_act)], 1))
         if step + 1 == h:
             break
-        child = np.zeros((b.shape[0], n_act, n_obs, n_q, n_s))
+        if n * n_act * n_obs * n_q * n_s > max_entries:
+            return None
+        child = np.zeros((n, n_act, n_obs, n_q, n_s))
         for a in range(n_act):
             for k in range(n_q):
                 j = ja[a, k]
-                pred = (trans[j].T @ b[:, k, :].T).T  # (n, S')
+                pred = (trans_t[j] @ belief[:, k, :].T).T  # (n, S')
                 for jo in range(obs.shape[2]):
                     child[:, a, jo_own[jo], q_next[k, jo]] += pred * obs[j, :, jo]
-        layers.append(child.reshape(-1, n_q, n_s))
-    # backwards: values and the chosen action of every history
-    value, choice = np.zeros(layers[-1].shape[0]), []
+        mass = child.sum((3, 4)).reshape(-1)
+        flat = child.reshape(mass.shape[0], -1)
+        live = mass > 0
+        normal = flat[live] / mass[live, None]
+        first, inverse = _distinct_rows(np.round(normal * 10.0**DIGITS))
+        index = np.zeros(mass.shape[0], dtype=np.int64)
+        index[live] = inverse.reshape(-1)
+        children.append(index.reshape(n, n_act, n_obs))
+        probs.append(mass.reshape(n, n_act, n_obs))
+        belief = normal[first].reshape(-1, n_q, n_s)
+    # backwards: the value and the chosen action of every belief
+    value, choice = np.zeros(0), []
     for step in reversed(range(h)):
-        r = rewards[step]
-        future = value.reshape(r.shape[0], n_act, n_obs).sum(2) if step + 1 < h else 0.0
-        total = r + gamma * future
+        total = rewards[step] + (gamma * (probs[step] * value[children[step]]).sum(2) if step + 1 < h else 0.0)
         choice.append(total.argmax(1))
         value = total.max(1)
     choice.reverse()
-    tree = _merge_layers(*_tree(choice, n_act, n_obs, h), [n_obs**t for t in range(h)])
-    return _joint(controller, agent, tree), float(value[0])
+    joint = _joint(controller, agent, _merge_layers(*_policy(choice, children, probs, n_obs, h)))
+    return joint, float(exact_value(env, joint)[0])
 
 
-def _tree(choice: list[np.ndarray], n_act: int, n_obs: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
-    """(action (N,), next (N, O)) of the chosen policy tree: node 0 the empty history, then breadth first."""
-    actions, succ = [], []
-    frontier = [0]  # indices of the current layer's histories in the belief tree
+def _distinct_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For the rows of ``keys (n, d)`` (integral floats): the index of each distinct row's first occurrence,
+    and each row's distinct index (as ``np.unique(axis=0)``, by a 64-bit hash of each row, checked)."""
+    weights = np.random.default_rng(0).integers(1, 2**62, keys.shape[1], dtype=np.int64)
+    with np.errstate(over="ignore"):
+        hashes = (keys.astype(np.int64) * weights).sum(1)
+    _, first, inverse = np.unique(hashes, return_index=True, return_inverse=True)
+    if not np.array_equal(keys[first[inverse]], keys):  # a hash collision: sort the rows themselves
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+def _policy(
+    choice: list[np.ndarray], children: list[np.ndarray], probs: list[np.ndarray], n_obs: int, horizon: int
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """(action (N,), next (N, O), layer sizes) of the chosen policy: layer ``t`` holds a node per belief it
+    reaches at step ``t`` (node 0 the start); an impossible observation moves to the next layer's first node,
+    and the last layer's successors (never used) are the nodes themselves."""
+    actions, succ, sizes = [], [], []
+    layer = np.zeros(1, dtype=np.int64)  # belief indices of this step's nodes
     first = 0
     for step in range(horizon):
-        acts = choice[step][frontier]
+        acts = choice[step][layer]
         actions.extend(int(a) for a in acts)
-        nxt_first = first + len(frontier)
-        children = []
-        for pos, (node, a) in enumerate(zip(frontier, acts)):
-            row = []
-            for o in range(n_obs):
-                if step + 1 < horizon:
-                    row.append(nxt_first + pos * n_obs + o)
-                    children.append((node * n_act + int(a)) * n_obs + o)
-                else:
-                    row.append(first + pos)  # the last layer's successors are never used
-            succ.append(row)
-        frontier, first = children, nxt_first
-    return np.asarray(actions), np.asarray(succ)
+        sizes.append(layer.shape[0])
+        if step + 1 == horizon:
+            succ.extend([[first + pos] * n_obs for pos in range(layer.shape[0])])
+            break
+        reached = children[step][layer, acts]  # (n, O)
+        live = probs[step][layer, acts] > 0
+        nxt_layer, slot = np.unique(reached[live], return_inverse=True)
+        targets = np.zeros(reached.shape, dtype=np.int64)
+        targets[live] = slot.reshape(-1)
+        nxt_first = first + layer.shape[0]
+        succ.extend((nxt_first + targets).tolist())
+        layer, first = (nxt_layer if nxt_layer.size else np.zeros(1, dtype=np.int64)), nxt_first
+    return np.asarray(actions), np.asarray(succ, dtype=np.int64), sizes
 
 
 def _joint(controller: JointController, agent: int, tree: tuple[np.ndarray, np.ndarray]) -> JointController:

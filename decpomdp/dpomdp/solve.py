@@ -129,7 +129,7 @@ def solve(
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
         num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 4 for an infinite horizon).
-        threads: torch threads for exact evaluation.
+        threads: torch threads for the whole search (``None``: torch's current setting).
         **planner: other :class:`~decpomdp.search.PlannerConfig` settings (over :data:`EXACT_DEFAULTS`).
 
     Returns:
@@ -158,8 +158,7 @@ def solve(
 
     def keep(controller: JointController) -> None:
         nonlocal best
-        with torch_threads(threads):
-            value = float(exact_value(env, controller)[0])
+        value = float(exact_value(env, controller)[0])
         if respond:
             controller, value, _ = jesp(env, controller, value)
         values.append(value)
@@ -174,26 +173,27 @@ def solve(
         layered = config.replace(
             num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False
         )
-    rounds = max(restarts, layered_restarts if layered is not None else 0)
-    runs = 0
-    while runs < rounds or (budget is not None and time.perf_counter() - start < budget):
-        if runs < restarts or runs >= rounds:
-            keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
-        if layered is not None and (runs < layered_restarts or runs >= rounds):
-            keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
-        runs += 1
-    for k in range(jesp_restarts if respond else 0):
-        keep(
-            random_controllers(
-                1,
-                num_agents=env.num_agents,
-                num_nodes=3,
-                num_actions=env.num_actions,
-                num_obs=env.num_obs,
-                generator=torch_stream(seed, "solve", "jesp", k),
+    with torch_threads(threads):  # the whole search, not only its exact scores
+        rounds = max(restarts, layered_restarts if layered is not None else 0)
+        runs = 0
+        while runs < rounds or (budget is not None and time.perf_counter() - start < budget):
+            if runs < restarts or runs >= rounds:
+                keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
+            if layered is not None and (runs < layered_restarts or runs >= rounds):
+                keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
+            runs += 1
+        for k in range(jesp_restarts if respond else 0):
+            keep(
+                random_controllers(
+                    1,
+                    num_agents=env.num_agents,
+                    num_nodes=3,
+                    num_actions=env.num_actions,
+                    num_obs=env.num_obs,
+                    generator=torch_stream(seed, "solve", "jesp", k),
+                )
             )
-        )
-    bounds = upper_bounds(env)
+        bounds = upper_bounds(env)
     controller, value = best
     bound = bounds.best
     if value > bound + 1e-9 * max(1.0, abs(bound)):

@@ -139,6 +139,36 @@ def test_a_best_response_is_the_best_policy_tree_against_the_other(name):
     assert value == pytest.approx(float(exact_value(e, JointController(act, nxt)).max()), abs=1e-12)
 
 
+@pytest.mark.parametrize("name, nodes", [("dectiger", 3), ("broadcastChannel", 4), ("GridSmall", 2)])
+def test_a_best_response_beats_every_depth_3_policy_tree(name, nodes):
+    """At horizon 3 (where merged beliefs matter), the response's value is the max over every policy tree of agent 0
+    (7 nodes: one per observation history) against a fixed random controller of agent 1."""
+    import itertools
+
+    from decpomdp import JointController
+
+    e = env(name, 3)
+    other = random_controllers(
+        1,
+        num_agents=2,
+        num_nodes=nodes,
+        num_actions=e.num_actions,
+        num_obs=2,
+        generator=torch.Generator().manual_seed(5),
+    )
+    response, value = best_response(e, other, 0)
+    assert float(exact_value(e, response)[0]) == pytest.approx(value, abs=1e-12)
+    width = max(7, nodes)
+    trees = torch.tensor(list(itertools.product(range(e.num_actions), repeat=7)))
+    act = torch.zeros(len(trees), 2, width, dtype=torch.long)
+    nxt = torch.zeros(len(trees), 2, width, 2, dtype=torch.long)
+    act[:, 0, :7] = trees
+    nxt[:, 0, :3] = torch.tensor([[1, 2], [3, 4], [5, 6]])
+    act[:, 1, :nodes], nxt[:, 1, :nodes] = other.action[0, 1], other.next_node[0, 1]
+    best = float(exact_value(e, JointController(act, nxt)).max())
+    assert value == pytest.approx(best, abs=1e-9)
+
+
 def test_jesp_never_loses_value_and_refuses_trees_too_large():
     e = env("GridSmall", 3)
     start = random_controllers(
