@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import scipy.sparse as sp
 import torch
 
 from decpomdp.controller import JointController
@@ -71,38 +72,50 @@ def best_response(
     h = int(env.horizon if horizon is None else horizon)
     n_act, n_obs, gamma = env.num_actions, env.num_obs, env.gamma
     ja, jo_own, q_next, q0 = _others(env, controller, agent)
-    n_q, n_s = ja.shape[1], env.num_states
+    n_s = env.num_states
     trans, reward, obs = tabs or tables(env)
     trans_t = [t.T.tocsr() for t in trans]  # T_ja' (S', S)
     # forwards: the distinct normalised beliefs (n, Q, S) of each step; per belief, the reward of each
     # action, and the index and probability of the belief after each (action, own observation)
-    belief = np.zeros((1, n_q, n_s))
-    belief[0, q0] = env.start_dist.numpy()
+    n_jo = obs.shape[2]
+    nodes = np.array([q0])  # the others' joint nodes a belief of this step can hold (a layered controller: a layer)
+    belief = env.start_dist.numpy()[None, None, :]  # (Q_t, n, S): by node first, so a node's beliefs are one block
     rewards, children, probs = [], [], []
     for step in range(h):
-        n = belief.shape[0]
-        rewards.append(np.stack([np.einsum("nqs,qs->n", belief, reward[ja[a]]) for a in range(n_act)], 1))
+        n, q_t = belief.shape[1], nodes.size
+        acts = ja[:, nodes]  # (A, Q_t)
+        rewards.append(np.stack([np.einsum("qns,qs->n", belief, reward[acts[a]]) for a in range(n_act)], 1))
         if step + 1 == h:
             break
-        if n * n_act * n_obs * n_q * n_s > max_entries:
+        after = np.unique(q_next[nodes])
+        if n * n_act * n_obs * after.size * n_s > max_entries:
             return None
-        child = np.zeros((n, n_act, n_obs, n_q, n_s))
+        moves = [  # node q (of ``nodes``) to q' (of ``after``) after each joint observation, one 1 per column
+            sp.csr_matrix(
+                (np.ones(q_t), (np.searchsorted(after, q_next[nodes, jo]), np.arange(q_t))), (after.size, q_t)
+            )
+            for jo in range(n_jo)
+        ]
+        child = np.zeros((n_act, n_obs, after.size, n * n_s))
+        pred = np.empty((q_t, n, n_s))
         for a in range(n_act):
-            for k in range(n_q):
-                j = ja[a, k]
-                pred = (trans_t[j] @ belief[:, k, :].T).T  # (n, S')
-                for jo in range(obs.shape[2]):
-                    child[:, a, jo_own[jo], q_next[k, jo]] += pred * obs[j, :, jo]
-        mass = child.sum((3, 4)).reshape(-1)
-        flat = child.reshape(mass.shape[0], -1)
+            for j in np.unique(acts[a]):  # one product per joint action: the nodes that take it
+                qs = np.flatnonzero(acts[a] == j)
+                pred[qs] = (trans_t[j] @ belief[qs].reshape(-1, n_s).T).T.reshape(qs.size, n, n_s)
+            seen = obs[acts[a]]  # (Q_t, S', JO)
+            for jo in range(n_jo):
+                child[a, jo_own[jo]] += moves[jo] @ (pred * seen[:, None, :, jo]).reshape(q_t, -1)
+        flat = child.reshape(n_act, n_obs, after.size, n, n_s).transpose(3, 0, 1, 2, 4).reshape(n * n_act * n_obs, -1)
+        mass = flat.sum(1)
         live = mass > 0
         normal = flat[live] / mass[live, None]
         first, inverse = _distinct_rows(np.round(normal * 10.0**DIGITS))
         index = np.zeros(mass.shape[0], dtype=np.int64)
-        index[live] = inverse.reshape(-1)
+        index[live] = inverse
         children.append(index.reshape(n, n_act, n_obs))
         probs.append(mass.reshape(n, n_act, n_obs))
-        belief = normal[first].reshape(-1, n_q, n_s)
+        belief = np.ascontiguousarray(normal[first].reshape(-1, after.size, n_s).transpose(1, 0, 2))
+        nodes = after
     # backwards: the value and the chosen action of every belief
     value, choice = np.zeros(0), []
     for step in reversed(range(h)):
