@@ -71,15 +71,18 @@ class TransitionOperator:
         return m if m.layout == torch.strided else m.to_dense()
 
     def backup(self, v: Tensor, cols: Columns) -> Tensor:
-        """``P V`` (C, S) for the columns ``cols``; ``v`` (C', S) holds the values of ``cols.next``'s targets."""
+        """``P V`` (C, S) for the columns ``cols``; ``v`` (C', S) holds the values of ``cols.next``'s targets.
+
+        Per joint action (a run of columns), ``sum_jo O(jo | a, .) * V(next_jo)``: the observation row is
+        broadcast over the run, not gathered per column."""
         jo_count = self.num_joint_obs
-        w = torch.zeros(cols.action.numel(), self.num_states, dtype=torch.float64, device=self.device)
-        obs_base = cols.action * jo_count
-        for jo in range(jo_count):
-            w.addcmul_(self.obs_rows.index_select(0, obs_base + jo), v.index_select(0, cols.next[:, jo]))
-        out = torch.empty_like(w)
+        out = torch.empty(cols.action.numel(), self.num_states, dtype=torch.float64, device=self.device)
         for a, lo, hi in cols.groups:
-            out[lo:hi] = (self.matrices[a] @ w[lo:hi].T).T
+            nxt = v.index_select(0, cols.next[lo:hi].reshape(-1)).view(hi - lo, jo_count, -1)
+            w = torch.zeros(hi - lo, self.num_states, dtype=torch.float64, device=self.device)
+            for jo in range(jo_count):
+                w.addcmul_(self.obs_rows[a * jo_count + jo], nxt[:, jo])
+            out[lo:hi] = (self.matrices[a] @ w.T).T
         return out
 
 
