@@ -95,7 +95,7 @@ def solve(
     gamma: float | None = None,
     *,
     seed: int = 0,
-    restarts: int = 2,
+    restarts: int = 1,
     layered_restarts: int = 3,
     layer_width: int = 3,
     max_layered_horizon: int = 20,
