@@ -96,7 +96,7 @@ def solve(
     *,
     seed: int = 0,
     restarts: int = 1,
-    layered_restarts: int = 3,
+    layered_restarts: int = 1,
     layer_width: int = 3,
     max_layered_horizon: int = 20,
     jesp_restarts: int = 20,
@@ -119,8 +119,7 @@ def solve(
             (:func:`~decpomdp.dpomdp.best_response.jesp`).
         layered_restarts: at a finite horizon, planner runs on a layered controller (node 0, then ``h - 1``
             layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end), by
-            cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon). Cross-entropy on
-            a layered graph depends more on its stream than local search on a free one, hence more runs.
+            cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon).
         layer_width: nodes per layer of a layered controller; 0 skips layered runs.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
             streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
