@@ -122,7 +122,7 @@ def solve(
             cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon).
         layer_width: nodes per layer of a layered controller; 0 skips layered runs.
         jesp_restarts: at a finite horizon, also run JESP from this many random 3-node controllers (on the
-            streams ``(seed, "solve", "jesp", k)``); a best response whose belief tree would not fit is skipped.
+            streams ``(seed, "solve", "jesp", k)``); a best response whose beliefs would not fit is skipped.
         best_responses: ``False`` turns exact best responses off (no JESP after each run, no JESP restarts): the
             planner's results alone, as in an ablation.
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
