@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from mission_tiny import TINY_MISSION
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,46 +31,62 @@ def groups(blocks: list[str]) -> list[str]:
     return out
 
 
-def test_readme_has_python_blocks():
-    assert len(BLOCKS) >= 4 and len(groups(BLOCKS)) >= 3  # the robot loop continues the block that writes its files
+SCRIPTS = groups(BLOCKS)
+DOC_SCRIPTS = [
+    (name, script)
+    for name in DOCS
+    for script in groups(re.findall(r"```python\n(.*?)```", (ROOT / "docs" / f"{name}.md").read_text(), re.S))
+]
 
 
-def test_readme_python_blocks_run_as_written(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(tmp_path)}  # outputs/ of the scratch folder
-    run_dir = tmp_path / "outputs" / "mission" / "2026-01-01_00-00-00"
+def run_script(script: str, root: Path) -> subprocess.CompletedProcess:
+    """``script`` in a fresh interpreter, in ``root`` made the project root (``outputs/`` under it)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(root)}
+    return subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, env=env)
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    """A scratch project root holding one finished main-job run (the mission tests' small settings)."""
+    root = tmp_path_factory.mktemp("project")
     subprocess.run(
         [
             sys.executable,
             "-m",
             "experiments.run",
             "experiment=mission",
-            f"hydra.run.dir={run_dir}",
-            f"mission.bank.cache_dir={tmp_path / 'banks'}",
+            f"hydra.run.dir={root / 'outputs' / 'mission' / '2026-01-01_00-00-00'}",
+            f"mission.bank.cache_dir={root / 'banks'}",
             *TINY_MISSION,
         ],
         cwd=ROOT,
         check=True,
         capture_output=True,
-        env=env,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(root)},
     )
-    printed = ""
-    for script in groups(BLOCKS):
-        proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
-        assert proc.returncode == 0, f"this block fails alone:\n{script}\n{proc.stderr[-3000:]}"
-        printed += proc.stdout
-    assert "MacroObservation(label=" in printed
+    return root
 
 
-def test_docs_python_blocks_run_as_written(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(tmp_path)}
-    blocks = {
-        name: re.findall(r"```python\n(.*?)```", (ROOT / "docs" / f"{name}.md").read_text(), re.S) for name in DOCS
-    }
-    assert sum(map(len, blocks.values())) >= 4
-    for name, found in blocks.items():
-        for script in groups(found):
-            proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, env=env)
-            assert proc.returncode == 0, f"this block of docs/{name}.md fails alone:\n{script}\n{proc.stderr[-3000:]}"
+def test_readme_has_python_blocks():
+    assert len(BLOCKS) >= 4 and len(SCRIPTS) >= 3  # the robot loop continues the block that writes its files
+    assert any("latest_run(" in s for s in SCRIPTS) and any("print(process.run(" in s for s in SCRIPTS)
+    assert len(DOC_SCRIPTS) >= 4
+
+
+@pytest.mark.parametrize("index", range(len(SCRIPTS)))
+def test_readme_python_blocks_run_as_written(index, tmp_path, request):
+    script = SCRIPTS[index]
+    root = request.getfixturevalue("finished_run") if "latest_run(" in script else tmp_path
+    proc = run_script(script, root)
+    assert proc.returncode == 0, f"this block fails alone:\n{script}\n{proc.stderr[-3000:]}"
+    if "print(process.run(" in script:
+        assert "MacroObservation(label=" in proc.stdout
+
+
+@pytest.mark.parametrize(("name", "script"), DOC_SCRIPTS, ids=[f"{n}-{i}" for i, (n, _) in enumerate(DOC_SCRIPTS)])
+def test_docs_python_blocks_run_as_written(name, script, tmp_path):
+    proc = run_script(script, tmp_path)
+    assert proc.returncode == 0, f"this block of docs/{name}.md fails alone:\n{script}\n{proc.stderr[-3000:]}"
 
 
 def test_the_readme_stays_short_and_its_links_resolve():
