@@ -1,4 +1,4 @@
-"""Thread control: torch's intra-op threads, and the worker threads of compiled loops.
+"""Thread control: torch's intra-op threads (with NumPy's BLAS threads), and the worker threads of compiled loops.
 
 The samplers, filters, SVM solver and simulators work on small tensors; on a shared or loaded
 machine the hand-offs between torch's intra-op threads cost more than the parallelism saves.
@@ -13,21 +13,35 @@ import os
 from collections.abc import Iterator
 
 import torch
+from threadpoolctl import ThreadpoolController
 
 from infra.checks import as_int
 
 _workers: int | None = None  # None: every core this process may run on
+_pools: ThreadpoolController | None = None  # the thread pools of loaded native libraries, found once
+
+
+def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
+    """NumPy's BLAS on ``threads`` threads inside the block (``None``: unchanged)."""
+    global _pools
+    if threads is None:
+        return contextlib.nullcontext()
+    if _pools is None:
+        _pools = ThreadpoolController()
+    return _pools.limit(limits=threads, user_api="blas")
 
 
 @contextlib.contextmanager
 def torch_threads(threads: int | None) -> Iterator[None]:
-    """Run torch on ``threads`` intra-op threads inside the block (``None``: unchanged), then restore."""
+    """Run torch on ``threads`` intra-op threads, and NumPy's BLAS on as many, inside the block (``None``:
+    unchanged), then restore both."""
     _check(threads)
     before = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)
     try:
-        yield
+        with _blas_threads(threads):
+            yield
     finally:
         torch.set_num_threads(before)
 

@@ -26,9 +26,9 @@ from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, tables
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
-DIGITS = 11
-"""Beliefs equal to this many decimals are merged (a merged belief's value is exact up to ~1e-11; the
-response's value is then computed exactly)."""
+RESOLUTION = 1e-11
+"""Beliefs whose two random projections (weights in [1, 2)) agree to this are merged: they are then equal to about
+this much in every entry (a third projection checks each merge). The response's value is computed exactly."""
 
 
 def _others(
@@ -75,17 +75,25 @@ def best_response(
     n_s = env.num_states
     trans, reward, obs = tabs or tables(env)
     trans_t = [t.T.tocsr() for t in trans]  # T_ja' (S', S)
-    # forwards: the distinct normalised beliefs (n, Q, S) of each step; per belief, the reward of each
+    # forwards: the distinct normalised beliefs (Q, n, S) of each step but the last; per belief, the reward of each
     # action, and the index and probability of the belief after each (action, own observation)
     n_jo = obs.shape[2]
     nodes = np.array([q0])  # the others' joint nodes a belief of this step can hold (a layered controller: a layer)
     belief = env.start_dist.numpy()[None, None, :]  # (Q_t, n, S): by node first, so a node's beliefs are one block
-    rewards, children, probs = [], [], []
-    for step in range(h):
+    rewards, children, probs = [_rewards(belief, ja[:, nodes], reward)], [], []
+    for step in range(h - 1):
         n, q_t = belief.shape[1], nodes.size
         acts = ja[:, nodes]  # (A, Q_t)
-        rewards.append(np.stack([np.einsum("qns,qs->n", belief, reward[acts[a]]) for a in range(n_act)], 1))
-        if step + 1 == h:
+        if step + 2 == h:  # the last step's beliefs need only their probability and rewards: no child beliefs
+            if q_t * n * n_s > max_entries:
+                return None
+            mass, gain = _last_step(belief, nodes, ja, q_next, jo_own, trans_t, reward, obs, n_obs)
+            live = np.flatnonzero(mass > 0)
+            index = np.zeros(mass.shape[0], dtype=np.int64)
+            index[live] = np.arange(live.size)
+            children.append(index.reshape(n, n_act, n_obs))
+            probs.append(mass.reshape(n, n_act, n_obs))
+            rewards.append(gain[live] / mass[live, None])
             break
         after = np.unique(q_next[nodes])
         if n * n_act * n_obs * after.size * n_s > max_entries:
@@ -97,25 +105,25 @@ def best_response(
             for jo in range(n_jo)
         ]
         child = np.zeros((n_act, n_obs, after.size, n * n_s))
-        pred = np.empty((q_t, n, n_s))
         for a in range(n_act):
-            for j in np.unique(acts[a]):  # one product per joint action: the nodes that take it
-                qs = np.flatnonzero(acts[a] == j)
-                pred[qs] = (trans_t[j] @ belief[qs].reshape(-1, n_s).T).T.reshape(qs.size, n, n_s)
+            pred = _predicted(belief, acts[a], trans_t)
             seen = obs[acts[a]]  # (Q_t, S', JO)
             for jo in range(n_jo):
                 child[a, jo_own[jo]] += moves[jo] @ (pred * seen[:, None, :, jo]).reshape(q_t, -1)
-        flat = child.reshape(n_act, n_obs, after.size, n, n_s).transpose(3, 0, 1, 2, 4).reshape(n * n_act * n_obs, -1)
+        child = child.reshape(n_act, n_obs, after.size, n, n_s)
+        flat = child.transpose(3, 0, 1, 2, 4).reshape(n * n_act * n_obs, -1)
         mass = flat.sum(1)
-        live = mass > 0
-        normal = flat[live] / mass[live, None]
-        first, inverse = _distinct_rows(np.round(normal * 10.0**DIGITS))
+        live = np.flatnonzero(mass > 0)
+        first, inverse = _distinct_beliefs(flat[live] if live.size < mass.size else flat, mass[live])
         index = np.zeros(mass.shape[0], dtype=np.int64)
         index[live] = inverse
         children.append(index.reshape(n, n_act, n_obs))
         probs.append(mass.reshape(n, n_act, n_obs))
-        belief = np.ascontiguousarray(normal[first].reshape(-1, after.size, n_s).transpose(1, 0, 2))
+        rows = live[first]
+        belief = flat[rows] / mass[rows, None]
+        belief = np.ascontiguousarray(belief.reshape(-1, after.size, n_s).transpose(1, 0, 2))
         nodes = after
+        rewards.append(_rewards(belief, ja[:, nodes], reward))
     # backwards: the value and the chosen action of every belief
     value, choice = np.zeros(0), []
     for step in reversed(range(h)):
@@ -127,15 +135,73 @@ def best_response(
     return joint, float(exact_value(env, joint)[0])
 
 
-def _distinct_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For the rows of ``keys (n, d)`` (integral floats): the index of each distinct row's first occurrence,
-    and each row's distinct index (as ``np.unique(axis=0)``, by a 64-bit hash of each row, checked)."""
-    weights = np.random.default_rng(0).integers(1, 2**62, keys.shape[1], dtype=np.int64)
-    with np.errstate(over="ignore"):
-        hashes = (keys.astype(np.int64) * weights).sum(1)
-    _, first, inverse = np.unique(hashes, return_index=True, return_inverse=True)
-    if not np.array_equal(keys[first[inverse]], keys):  # a hash collision: sort the rows themselves
-        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+def _predicted(belief: np.ndarray, acts: np.ndarray, trans_t: list) -> np.ndarray:
+    """``(Q, n, S')`` unnormalised next-state distribution of each belief ``(Q, n, S)`` when the others' nodes take
+    the joint actions ``acts (Q,)``, one sparse product per joint action; ``trans_t[ja]`` is ``T_ja (S', S)``."""
+    q_t, n, n_s = belief.shape
+    pred = np.empty((q_t, n, n_s))
+    for j in np.unique(acts):
+        qs = np.flatnonzero(acts == j)
+        pred[qs] = (trans_t[j] @ belief[qs].reshape(-1, n_s).T).T.reshape(qs.size, n, n_s)
+    return pred
+
+
+def _last_step(
+    belief: np.ndarray,
+    nodes: np.ndarray,
+    ja: np.ndarray,
+    q_next: np.ndarray,
+    jo_own: np.ndarray,
+    trans_t: list,
+    reward: np.ndarray,
+    obs: np.ndarray,
+    n_obs: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """For the beliefs ``(Q, n, S)`` of the step before the last (the others at ``nodes``): the probability
+    ``(n A O,)`` of each (action, own observation) and ``(n A O, A)`` the expected last reward of each last
+    action times it, rows ordered (belief, action, observation); dense products with the observation and
+    reward tables, no next beliefs formed."""
+    n_act, (_, n, n_s) = ja.shape[0], belief.shape
+    own = np.eye(n_obs)[jo_own]  # (JO, O)
+    mass = np.zeros((n, n_act, n_obs))
+    gain = np.zeros((n, n_act, n_obs, n_act))
+    for a in range(n_act):
+        pred = _predicted(belief, ja[a, nodes], trans_t)
+        seen = obs[ja[a, nodes]]  # (Q, S', JO)
+        for k, q in enumerate(nodes):
+            after = reward[ja[:, q_next[q]]].transpose(2, 1, 0)  # (S', JO, A'): the last reward at the next node
+            table = np.concatenate([seen[k][:, :, None], seen[k][:, :, None] * after], 2)  # (S', JO, 1 + A')
+            out = (pred[k] @ table.reshape(n_s, -1)).reshape(n, -1, 1 + n_act)
+            mass[:, a] += out[:, :, 0] @ own
+            gain[:, a] += np.einsum("njb,jo->nob", out[:, :, 1:], own)
+    return mass.reshape(-1), gain.reshape(-1, n_act)
+
+
+def _rewards(belief: np.ndarray, acts: np.ndarray, reward: np.ndarray) -> np.ndarray:
+    """``(n, A)`` expected reward of each action from each belief ``(Q, n, S)`` over the others' nodes, whose
+    joint actions are ``acts (A, Q)``; ``reward (JA, S)``."""
+    return np.stack([np.einsum("qns,qs->n", belief, reward[acts[a]]) for a in range(acts.shape[0])], 1)
+
+
+def _distinct_beliefs(mass_rows: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For the rows of ``mass_rows (n, d)`` (unnormalised beliefs of total ``mass (n,)``, all positive): the index
+    of each distinct belief's first row, and each row's distinct index.
+
+    Rows are keyed by two random projections of the normalised belief on :data:`RESOLUTION`'s grid, and every merge
+    is checked by a third projection; should one fail, the beliefs are compared entry by entry (``np.unique``).
+    """
+    weights = np.random.default_rng(0).uniform(1.0, 2.0, (mass_rows.shape[1], 3))
+    proj = (mass_rows @ weights) / mass[:, None]  # (n, 3), each in [1, 2)
+    keys = np.rint(proj[:, :2] / RESOLUTION).astype(np.int64)
+    order = np.lexsort((keys[:, 1], keys[:, 0]))  # stable: a group's first row in ``order`` is its first row
+    ordered = keys[order]
+    starts = np.concatenate([[True], (ordered[1:] != ordered[:-1]).any(1)])
+    inverse = np.empty(order.size, dtype=np.int64)
+    inverse[order] = np.cumsum(starts) - 1
+    first = order[starts]
+    if np.abs(proj[first[inverse], 2] - proj[:, 2]).max(initial=0.0) > 4 * RESOLUTION:
+        exact = np.rint(mass_rows / mass[:, None] / RESOLUTION)
+        _, first, inverse = np.unique(exact, axis=0, return_index=True, return_inverse=True)
     return first, inverse.reshape(-1)
 
 

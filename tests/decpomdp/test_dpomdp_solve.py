@@ -22,7 +22,7 @@ from decpomdp.dpomdp import (
     solve,
     upper_bounds,
 )
-from decpomdp.dpomdp.best_response import best_response, jesp
+from decpomdp.dpomdp.best_response import _distinct_beliefs, best_response, jesp
 from decpomdp.dpomdp.bounds import lookahead_bound, q_fib, q_mdp
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum, tree_controllers
 from dpomdp_synthetic import synthetic_text
@@ -139,10 +139,12 @@ def test_a_best_response_is_the_best_policy_tree_against_the_other(name):
     assert value == pytest.approx(float(exact_value(e, JointController(act, nxt)).max()), abs=1e-12)
 
 
-@pytest.mark.parametrize("name, nodes", [("dectiger", 3), ("broadcastChannel", 4), ("GridSmall", 2)])
-def test_a_best_response_beats_every_depth_3_policy_tree(name, nodes):
-    """At horizon 3 (where merged beliefs matter), the response's value is the max over every policy tree of agent 0
-    (7 nodes: one per observation history) against a fixed random controller of agent 1."""
+@pytest.mark.parametrize(
+    "name, nodes, agent", [("dectiger", 3, 0), ("dectiger", 3, 1), ("broadcastChannel", 4, 0), ("GridSmall", 2, 0)]
+)
+def test_a_best_response_beats_every_depth_3_policy_tree(name, nodes, agent):
+    """At horizon 3 (where merged beliefs matter), the response's value is the max over every policy tree of the
+    agent (7 nodes: one per observation history) against a fixed random controller of the other."""
     import itertools
 
     from decpomdp import JointController
@@ -156,17 +158,33 @@ def test_a_best_response_beats_every_depth_3_policy_tree(name, nodes):
         num_obs=2,
         generator=torch.Generator().manual_seed(5),
     )
-    response, value = best_response(e, other, 0)
+    response, value = best_response(e, other, agent)
     assert float(exact_value(e, response)[0]) == pytest.approx(value, abs=1e-12)
     width = max(7, nodes)
     trees = torch.tensor(list(itertools.product(range(e.num_actions), repeat=7)))
     act = torch.zeros(len(trees), 2, width, dtype=torch.long)
     nxt = torch.zeros(len(trees), 2, width, 2, dtype=torch.long)
-    act[:, 0, :7] = trees
-    nxt[:, 0, :3] = torch.tensor([[1, 2], [3, 4], [5, 6]])
-    act[:, 1, :nodes], nxt[:, 1, :nodes] = other.action[0, 1], other.next_node[0, 1]
+    act[:, agent, :7] = trees
+    nxt[:, agent, :3] = torch.tensor([[1, 2], [3, 4], [5, 6]])
+    fixed = 1 - agent
+    act[:, fixed, :nodes], nxt[:, fixed, :nodes] = other.action[0, fixed], other.next_node[0, fixed]
     best = float(exact_value(e, JointController(act, nxt)).max())
     assert value == pytest.approx(best, abs=1e-9)
+
+
+def test_beliefs_merge_when_equal_and_a_projection_collision_is_caught():
+    """Rows of one belief (at any mass, or 1e-13 apart) merge; beliefs 1e-6 apart do not; two beliefs whose first
+    projection is equal (their difference is orthogonal to its weights) are told apart by the second."""
+    rng = np.random.default_rng(1)
+    base = rng.dirichlet(np.ones(6))
+    w0 = np.random.default_rng(0).uniform(1.0, 2.0, (6, 3))[:, 0]  # the first projection's weights
+    hidden = np.zeros(6)
+    hidden[:3] = np.cross(w0[:3], np.ones(3)) * 1e-4  # sums to 0 and w0 . hidden = 0
+    rows = np.stack([base, 3 * base, base + 1e-13 * np.eye(6)[0], base + 1e-6 * (np.eye(6)[1] - np.eye(6)[2])])
+    rows = np.concatenate([rows, (base + hidden)[None]])
+    first, inverse = _distinct_beliefs(rows, rows.sum(1))
+    assert inverse[0] == inverse[1] == inverse[2] and len({inverse[0], inverse[3], inverse[4]}) == 3
+    assert first.size == 3 and (inverse[first] == np.arange(3)).all()
 
 
 def test_jesp_never_loses_value_and_refuses_trees_too_large():

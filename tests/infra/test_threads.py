@@ -1,16 +1,22 @@
-"""Thread control restores torch's setting, also after an exception, and rejects bad counts."""
+"""Thread control restores torch's and NumPy BLAS's settings, also after an exception, and rejects bad counts."""
 
 import pytest
 import torch
+from threadpoolctl import threadpool_info
 
 from infra.threads import single_thread, torch_threads
 
 
+def _blas_threads() -> list[int]:
+    return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+
 def test_threads_are_restored():
-    before = torch.get_num_threads()
+    before, blas = torch.get_num_threads(), _blas_threads()
+    assert blas  # NumPy's BLAS is found
     with single_thread():
-        assert torch.get_num_threads() == 1
-    assert torch.get_num_threads() == before
+        assert torch.get_num_threads() == 1 and set(_blas_threads()) == {1}
+    assert torch.get_num_threads() == before and _blas_threads() == blas
     with torch_threads(None):
         assert torch.get_num_threads() == before
     with pytest.raises(RuntimeError), torch_threads(1):
