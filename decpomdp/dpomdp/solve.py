@@ -128,7 +128,7 @@ def solve(
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
         num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or 4 for an infinite horizon).
-        threads: torch threads for the whole search (``None``: torch's current setting).
+        threads: torch's and NumPy BLAS's threads for the whole search (``None``: their current settings).
         **planner: other :class:`~decpomdp.search.PlannerConfig` settings (over :data:`EXACT_DEFAULTS`).
 
     Returns:
