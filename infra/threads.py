@@ -64,10 +64,12 @@ def worker_threads() -> int:
 
 
 def set_threads(count: int) -> None:
-    """Use ``count`` threads for torch's intra-op work and for compiled loops from now on (a whole run's setting)."""
+    """Use ``count`` threads for torch's intra-op work, NumPy's BLAS and compiled loops from now on (a whole run's
+    setting)."""
     global _workers
     _check(count)
     torch.set_num_threads(count)
+    _blas_threads(count)  # a limit applies when made; it is never lifted
     _workers = count
 
 

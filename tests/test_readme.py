@@ -39,10 +39,16 @@ DOC_SCRIPTS = [
 ]
 
 
+def project_env(root: Path) -> dict[str, str]:
+    """The environment that makes ``root`` the project root (``outputs/`` under it), with the package importable."""
+    return {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(root)}
+
+
 def run_script(script: str, root: Path) -> subprocess.CompletedProcess:
-    """``script`` in a fresh interpreter, in ``root`` made the project root (``outputs/`` under it)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(root)}
-    return subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, env=env)
+    """``script`` in a fresh interpreter, in ``root`` made the project root."""
+    return subprocess.run(
+        [sys.executable, "-c", script], cwd=root, capture_output=True, text=True, env=project_env(root)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +68,7 @@ def finished_run(tmp_path_factory) -> Path:
         cwd=ROOT,
         check=True,
         capture_output=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT), "HBNI_PYRO_ROOT": str(root)},
+        env=project_env(root),
     )
     return root
 

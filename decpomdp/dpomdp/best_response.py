@@ -89,41 +89,40 @@ def best_response(
                 return None
             mass, gain = _last_step(belief, nodes, ja, q_next, jo_own, trans_t, reward, obs, n_obs)
             live = np.flatnonzero(mass > 0)
-            index = np.zeros(mass.shape[0], dtype=np.int64)
-            index[live] = np.arange(live.size)
-            children.append(index.reshape(n, n_act, n_obs))
-            probs.append(mass.reshape(n, n_act, n_obs))
+            inverse = np.arange(live.size)
             rewards.append(gain[live] / mass[live, None])
-            break
-        after = np.unique(q_next[nodes])
-        if n * n_act * n_obs * after.size * n_s > max_entries:
-            return None
-        moves = [  # node q (of ``nodes``) to q' (of ``after``) after each joint observation, one 1 per column
-            sp.csr_matrix(
-                (np.ones(q_t), (np.searchsorted(after, q_next[nodes, jo]), np.arange(q_t))), (after.size, q_t)
+        else:
+            after = np.unique(q_next[nodes])
+            if n * n_act * n_obs * after.size * n_s > max_entries:
+                return None
+            moves = [  # node q (of ``nodes``) to q' (of ``after``) after each joint observation, one 1 per column
+                sp.csr_matrix(
+                    (np.ones(q_t), (np.searchsorted(after, q_next[nodes, jo]), np.arange(q_t))), (after.size, q_t)
+                )
+                for jo in range(n_jo)
+            ]
+            child = np.zeros((n_act, n_obs, after.size, n * n_s))
+            for a in range(n_act):
+                pred = _predicted(belief, acts[a], trans_t)
+                seen = obs[acts[a]]  # (Q_t, S', JO)
+                for jo in range(n_jo):
+                    child[a, jo_own[jo]] += moves[jo] @ (pred * seen[:, None, :, jo]).reshape(q_t, -1)
+            flat = (
+                child.reshape(n_act, n_obs, after.size, n, n_s).transpose(3, 0, 1, 2, 4).reshape(n * n_act * n_obs, -1)
             )
-            for jo in range(n_jo)
-        ]
-        child = np.zeros((n_act, n_obs, after.size, n * n_s))
-        for a in range(n_act):
-            pred = _predicted(belief, acts[a], trans_t)
-            seen = obs[acts[a]]  # (Q_t, S', JO)
-            for jo in range(n_jo):
-                child[a, jo_own[jo]] += moves[jo] @ (pred * seen[:, None, :, jo]).reshape(q_t, -1)
-        child = child.reshape(n_act, n_obs, after.size, n, n_s)
-        flat = child.transpose(3, 0, 1, 2, 4).reshape(n * n_act * n_obs, -1)
-        mass = flat.sum(1)
-        live = np.flatnonzero(mass > 0)
-        first, inverse = _distinct_beliefs(flat[live] if live.size < mass.size else flat, mass[live])
+            mass = flat.sum(1)
+            live = np.flatnonzero(mass > 0)
+            first, inverse = _distinct_beliefs(flat[live] if live.size < mass.size else flat, mass[live])
+            rows = live[first]
+            belief = np.ascontiguousarray(
+                (flat[rows] / mass[rows, None]).reshape(-1, after.size, n_s).transpose(1, 0, 2)
+            )
+            nodes = after
+            rewards.append(_rewards(belief, ja[:, nodes], reward))
         index = np.zeros(mass.shape[0], dtype=np.int64)
         index[live] = inverse
         children.append(index.reshape(n, n_act, n_obs))
         probs.append(mass.reshape(n, n_act, n_obs))
-        rows = live[first]
-        belief = flat[rows] / mass[rows, None]
-        belief = np.ascontiguousarray(belief.reshape(-1, after.size, n_s).transpose(1, 0, 2))
-        nodes = after
-        rewards.append(_rewards(belief, ja[:, nodes], reward))
     # backwards: the value and the chosen action of every belief
     value, choice = np.zeros(0), []
     for step in reversed(range(h)):
@@ -165,12 +164,12 @@ def _last_step(
     own = np.eye(n_obs)[jo_own]  # (JO, O)
     mass = np.zeros((n, n_act, n_obs))
     gain = np.zeros((n, n_act, n_obs, n_act))
+    after = [reward[ja[:, q_next[q]]].transpose(2, 1, 0) for q in nodes]  # (S', JO, A'): last rewards at the next node
     for a in range(n_act):
         pred = _predicted(belief, ja[a, nodes], trans_t)
         seen = obs[ja[a, nodes]]  # (Q, S', JO)
-        for k, q in enumerate(nodes):
-            after = reward[ja[:, q_next[q]]].transpose(2, 1, 0)  # (S', JO, A'): the last reward at the next node
-            table = np.concatenate([seen[k][:, :, None], seen[k][:, :, None] * after], 2)  # (S', JO, 1 + A')
+        for k in range(nodes.size):
+            table = np.concatenate([seen[k][:, :, None], seen[k][:, :, None] * after[k]], 2)  # (S', JO, 1 + A')
             out = (pred[k] @ table.reshape(n_s, -1)).reshape(n, -1, 1 + n_act)
             mass[:, a] += out[:, :, 0] @ own
             gain[:, a] += np.einsum("njb,jo->nob", out[:, :, 1:], own)

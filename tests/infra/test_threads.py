@@ -1,10 +1,13 @@
-"""Thread control restores torch's and NumPy BLAS's settings, also after an exception, and rejects bad counts."""
+"""Thread control restores torch's and NumPy BLAS's settings, also after an exception, rejects bad counts, and one
+setting covers a whole run."""
+
+import importlib
 
 import pytest
 import torch
-from threadpoolctl import threadpool_info
+from threadpoolctl import ThreadpoolController, threadpool_info
 
-from infra.threads import single_thread, torch_threads
+from infra.threads import set_threads, single_thread, torch_threads, worker_threads
 
 
 def _blas_threads() -> list[int]:
@@ -31,3 +34,14 @@ def test_bad_thread_counts(bad, error):
     with pytest.raises(error, match="threads: expected an int"):
         with torch_threads(bad):
             pass
+
+
+def test_a_whole_runs_setting_covers_torch_blas_and_compiled_loops(monkeypatch):
+    before, blas = torch.get_num_threads(), _blas_threads()
+    monkeypatch.setattr(importlib.import_module("infra.threads"), "_workers", None)  # the module, not infra.threads()
+    with ThreadpoolController().limit(limits=blas[0], user_api="blas"):  # restores NumPy's BLAS afterwards
+        try:
+            set_threads(1)
+            assert torch.get_num_threads() == 1 and set(_blas_threads()) == {1} and worker_threads() == 1
+        finally:
+            torch.set_num_threads(before)
