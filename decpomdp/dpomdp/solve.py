@@ -32,9 +32,10 @@ MAX_FINITE_NODES = 32
 INFINITE_NODES = 4
 """Default node budget of an infinite-horizon controller (each exact score solves a linear system over
 joint nodes x states, so larger controllers cost much more)."""
-EXACT_DEFAULTS = {"ls_candidates": 500}
+EXACT_DEFAULTS = {"ls_candidates": 500, "ls_lookahead": 0}
 """Planner settings :func:`solve` changes from the cold-start defaults: with exact scores, a local-search
-step needs no tens of thousands of candidates to see past noise (each costs an exact evaluation)."""
+step needs no tens of thousands of candidates to see past noise (each costs an exact evaluation), and the
+exact best responses (JESP) take the place of looking through insertions."""
 
 
 @dataclass

@@ -62,6 +62,10 @@ class PlannerConfig:
         ls_candidates: most moves raced per local-search step (chains are sampled beyond it).
         ls_stages: racing stages ``(rollouts, keep)`` of a step; ``keep`` < 1 is a fraction, else a count.
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
+        ls_lookahead: before a local-search phase ends, the number of information-gathering insertions to take
+            a local-search step from (:mod:`decpomdp.search.lookahead`; 0: none). Insertions are screened on
+            twice the rollouts of the second racing stage (of the first if there is one).
+        ls_lookahead_loss: most value an insertion may lose, as a fraction of the incumbent's, to be looked through.
         duel_rollouts: fresh rollouts per controller when challengers duel the incumbent.
         duel_z: standard errors of the difference a challenger must win by.
         common_streams: common random numbers: the candidates of one racing stage, and the incumbent and
@@ -103,6 +107,8 @@ class PlannerConfig:
     ls_candidates: int = 30_000
     ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 6)))
     ls_patience: int = 3
+    ls_lookahead: int = 3
+    ls_lookahead_loss: float = 0.15
     duel_rollouts: int = 4000
     duel_z: float = 2.0
     common_streams: bool = True
@@ -130,6 +136,7 @@ class PlannerConfig:
             ("ls_chain", 0),
             ("ls_candidates", 1),
             ("ls_patience", 1),
+            ("ls_lookahead", 0),
             ("duel_rollouts", 2),
             ("visit_rollouts", 1),
         ):
@@ -145,6 +152,7 @@ class PlannerConfig:
         object.__setattr__(self, "ce_screen_keep", as_float("ce_screen_keep", self.ce_screen_keep, 0, 1, low_open=True))
         object.__setattr__(self, "ce_alpha", as_float("ce_alpha", self.ce_alpha, 0, 1, low_open=True))
         object.__setattr__(self, "ce_init_weight", as_float("ce_init_weight", self.ce_init_weight, 0, 1))
+        object.__setattr__(self, "ls_lookahead_loss", as_float("ls_lookahead_loss", self.ls_lookahead_loss, 0, 1))
         for name in ("ce_injection_weight", "ce_injection_threshold", "ce_injection_until"):
             object.__setattr__(self, name, as_float(name, getattr(self, name), 0, 1))
         for name, options in (("ce_threshold", THRESHOLD_RULES), ("ce_result", RESULTS)):

@@ -10,7 +10,9 @@ From no controller at all (or from a warm-start controller ``init``), the run cy
   ``ce_reactive``, a phase searches reactive controllers (tied edges) while the incumbent is reactive
   (the cold phase always): a reactive start, refined by whole-graph phases once local search unties it;
 * ``"ls"``: local search (:mod:`decpomdp.search.local_search`) until ``ls_patience`` steps in a row
-  find nothing; it grows the graph up to ``num_nodes`` nodes when it needs free nodes for a chain.
+  find nothing; it grows the graph up to ``num_nodes`` nodes when it needs free nodes for a chain. Before
+  the phase gives up, it looks through the ``ls_lookahead`` most informative insertions
+  (:mod:`decpomdp.search.lookahead`): two-move improvements whose first move loses value alone.
 
 The run stops at the first step boundary past ``budget`` rollouts, or after ``patience`` whole cycles
 without an improvement. Every step draws from one generator seeded by ``seed``, and the budget is
@@ -33,7 +35,7 @@ from infra.checks import as_int
 from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
 from decpomdp.identity import describe
-from decpomdp.search import cross_entropy, local_search
+from decpomdp.search import cross_entropy, local_search, lookahead
 from decpomdp.search.config import PHASES, PlannerConfig
 from decpomdp.search.racing import duel
 from decpomdp.search.scoring import Scorer
@@ -325,6 +327,28 @@ def _ls_step(
         copy=cfg.ls_copy,
         common=_common(scorer, cfg),
     )
+    if not out.accepted and run.phase_step + 1 >= cfg.ls_patience and cfg.ls_lookahead > 0:
+        out = lookahead.step(
+            out.controller,
+            scorer,
+            generator,
+            width=cfg.ls_lookahead,
+            loss=cfg.ls_lookahead_loss,
+            screen_rollouts=2 * cfg.ls_stages[min(1, len(cfg.ls_stages) - 1)][0],
+            max_chain=cfg.ls_chain,
+            max_nodes=cfg.num_nodes,
+            grow_nodes=cfg.grow_nodes,
+            candidates=cfg.ls_candidates,
+            stages=cfg.ls_stages,
+            duel_rollouts=cfg.duel_rollouts,
+            z=cfg.duel_z,
+            edge_rate=cfg.edge_rate,
+            visit_rollouts=cfg.visit_rollouts,
+            team=cfg.ls_team,
+            compose=cfg.ls_compose,
+            copy=cfg.ls_copy,
+            common=_common(scorer, cfg),
+        )
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1

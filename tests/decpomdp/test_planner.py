@@ -351,7 +351,7 @@ def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
         assert res.value >= start - 1e-12
         assert res.history["phase"][0] == 1.0  # the cycle's first phase (local search) edits init from step one
     ones = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
-    budget_one = dataclasses.replace(cfg, phases=("ls",), budget=1)
+    budget_one = dataclasses.replace(cfg, phases=("ls",), budget=1, ls_lookahead=0)
     first = plan(ExactScorer(env), budget_one, seed=0, init=ones)
     assert first.history["value"][0] == pytest.approx(exact_value(env, first.best).item())
 
@@ -436,6 +436,8 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
         ({"duel_z": -1}, ValueError, "duel_z"),
         ({"edge_rate": math.nan}, ValueError, "edge_rate"),
         ({"ls_chain": -1}, ValueError, "ls_chain"),
+        ({"ls_lookahead": -1}, ValueError, "ls_lookahead: expected an int >= 0"),
+        ({"ls_lookahead_loss": 1.5}, ValueError, "ls_lookahead_loss"),
         ({"ls_team": 1}, TypeError, "ls_team: expected a bool"),
         ({"ls_compose": "yes"}, TypeError, "ls_compose: expected a bool"),
         ({"ls_copy": 0}, TypeError, "ls_copy: expected a bool"),
