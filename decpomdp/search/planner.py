@@ -309,10 +309,7 @@ def _ls_step(
             torch.zeros(1, scorer.num_agents, cfg.start_nodes, dtype=torch.long),
             torch.zeros(1, scorer.num_agents, cfg.start_nodes, scorer.num_obs, dtype=torch.long),
         )
-    out = local_search.step(
-        run.incumbent,
-        scorer,
-        generator,
+    settings = dict(
         max_chain=cfg.ls_chain,
         max_nodes=cfg.num_nodes,
         grow_nodes=cfg.grow_nodes,
@@ -327,27 +324,12 @@ def _ls_step(
         copy=cfg.ls_copy,
         common=_common(scorer, cfg),
     )
+    out = local_search.step(run.incumbent, scorer, generator, **settings)
     if not out.accepted and run.phase_step + 1 >= cfg.ls_patience and cfg.ls_lookahead > 0:
+        screen = 2 * cfg.ls_stages[min(1, len(cfg.ls_stages) - 1)][0]
+        width, loss = cfg.ls_lookahead, cfg.ls_lookahead_loss
         out = lookahead.step(
-            out.controller,
-            scorer,
-            generator,
-            width=cfg.ls_lookahead,
-            loss=cfg.ls_lookahead_loss,
-            screen_rollouts=2 * cfg.ls_stages[min(1, len(cfg.ls_stages) - 1)][0],
-            max_chain=cfg.ls_chain,
-            max_nodes=cfg.num_nodes,
-            grow_nodes=cfg.grow_nodes,
-            candidates=cfg.ls_candidates,
-            stages=cfg.ls_stages,
-            duel_rollouts=cfg.duel_rollouts,
-            z=cfg.duel_z,
-            edge_rate=cfg.edge_rate,
-            visit_rollouts=cfg.visit_rollouts,
-            team=cfg.ls_team,
-            compose=cfg.ls_compose,
-            copy=cfg.ls_copy,
-            common=_common(scorer, cfg),
+            out.controller, scorer, generator, width=width, loss=loss, screen_rollouts=screen, **settings
         )
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value

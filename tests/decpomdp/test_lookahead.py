@@ -17,6 +17,29 @@ from infra.threads import threads
 from tiny_problems import dec_tiger
 
 
+def look(ctrl, scorer, generator, **changes):
+    """A lookahead step with the planner's default settings at a small scale, ``changes`` applied."""
+    settings = dict(
+        width=3,
+        loss=0.15,
+        screen_rollouts=256,
+        max_chain=3,
+        max_nodes=12,
+        grow_nodes=4,
+        candidates=200,
+        stages=((2, 4),),
+        duel_rollouts=2000,
+        z=2.0,
+        edge_rate=0.01,
+        visit_rollouts=300,
+        team=True,
+        compose=True,
+        copy=False,
+        common=False,
+    )
+    return lookahead.step(ctrl, scorer, generator, **{**settings, **changes})
+
+
 def test_fill_routes_untraversed_edges_of_visited_nodes_to_their_main_successor():
     action = torch.zeros(1, 1, 4, dtype=torch.long)
     next_node = torch.tensor([[[[1, 2, 0], [2, 2, 3], [0, 0, 0], [3, 1, 2]]]])
@@ -83,27 +106,7 @@ def test_a_lookahead_step_never_worsens_under_exact_values():
         ctrl = JointController(
             torch.randint(0, 3, (1, 2, 4), generator=g), torch.randint(0, 4, (1, 2, 4, 2), generator=g)
         )
-        out = lookahead.step(
-            ctrl,
-            scorer,
-            g,
-            width=2,
-            loss=0.5,
-            screen_rollouts=2,
-            max_chain=1,
-            max_nodes=6,
-            grow_nodes=1,
-            candidates=200,
-            stages=((2, 4),),
-            duel_rollouts=2,
-            z=0.0,
-            edge_rate=0.0,
-            visit_rollouts=2,
-            team=True,
-            compose=True,
-            copy=False,
-            common=False,
-        )
+        out = look(ctrl, scorer, g, width=2, loss=0.5, screen_rollouts=2, max_chain=1, max_nodes=6, grow_nodes=1)
         before, after = exact_value(env, ctrl).item(), exact_value(env, out.controller).item()
         assert after >= before - 1e-12 and (after > before) == out.accepted
 
@@ -121,27 +124,7 @@ def test_a_lookahead_step_escapes_delivering_blind():
     with threads(1):
         scorer = RolloutScorer(env)
         g = torch.Generator().manual_seed(0)
-        out = lookahead.step(
-            blind,
-            scorer,
-            g,
-            width=3,
-            loss=0.15,
-            screen_rollouts=256,
-            max_chain=3,
-            max_nodes=12,
-            grow_nodes=4,
-            candidates=10000,
-            stages=((16, 0.05), (128, 0.1), (1024, 6)),
-            duel_rollouts=2000,
-            z=2.0,
-            edge_rate=0.01,
-            visit_rollouts=300,
-            team=True,
-            compose=True,
-            copy=False,
-            common=True,
-        )
+        out = look(blind, scorer, g, candidates=10000, stages=((16, 0.05), (128, 0.1), (1024, 6)), common=True)
         assert out.accepted
         inferring = [ACTION_NAMES.index("infer") in out.controller.action[0, a].tolist() for a in range(2)]
         (before, se0), (after, se1) = (
