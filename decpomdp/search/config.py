@@ -60,6 +60,9 @@ class PlannerConfig:
         ls_copy: also move by copying one agent's whole graph onto another (no effect with one agent).
         ls_compose: also duel the racing survivors' changes merged into one move.
         ls_candidates: most moves raced per local-search step (chains are sampled beyond it).
+        ls_candidates_first: moves raced by a step that follows an accepted move or opens a phase (at most
+            ``ls_candidates``); a step after a failed one races ``ls_candidates``. While steps succeed, cheap steps
+            climb fast; where improvements are rare, each step looks wider.
         ls_stages: racing stages ``(rollouts, keep)`` of a step; ``keep`` < 1 is a fraction, else a count.
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
         ls_lookahead: before a local-search phase ends, the number of information-gathering insertions to take
@@ -106,6 +109,7 @@ class PlannerConfig:
     ls_copy: bool = True
     ls_candidates: int = 30_000
     ls_stages: tuple[tuple[int, float], ...] = field(default=((16, 0.05), (128, 0.1), (1024, 6)))
+    ls_candidates_first: int = 10_000
     ls_patience: int = 3
     ls_lookahead: int = 3
     ls_lookahead_loss: float = 0.15
@@ -135,6 +139,7 @@ class PlannerConfig:
             ("ce_memory", 0),
             ("ls_chain", 0),
             ("ls_candidates", 1),
+            ("ls_candidates_first", 1),
             ("ls_patience", 1),
             ("ls_lookahead", 0),
             ("duel_rollouts", 2),

@@ -313,7 +313,7 @@ def _ls_step(
         max_chain=cfg.ls_chain,
         max_nodes=cfg.num_nodes,
         grow_nodes=cfg.grow_nodes,
-        candidates=cfg.ls_candidates,
+        candidates=cfg.ls_candidates if run.phase_step > 0 else min(cfg.ls_candidates_first, cfg.ls_candidates),
         stages=cfg.ls_stages,
         duel_rollouts=cfg.duel_rollouts,
         z=cfg.duel_z,

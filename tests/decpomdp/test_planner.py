@@ -319,6 +319,29 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive)
     )
 
 
+def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
+    asked = []
+    step = local_search.step
+
+    def recording(*args, **kwargs):
+        asked.append(kwargs["candidates"])
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(local_search, "step", recording)
+    cfg = small_config(
+        budget=20_000, patience=3, ls_patience=2, ls_candidates=30, ls_candidates_first=10, ls_lookahead=0
+    )
+    res = plan(toy_scorer(toy_env), cfg, seed=1)
+    expected, before = [], None  # before: whether the previous local-search step was accepted (None: a phase starts)
+    for phase, accepted in zip(res.history["phase"], res.history["accepted"]):
+        if phase != 1.0:
+            before = None
+            continue
+        expected.append(30 if before is False else 10)
+        before = bool(accepted)
+    assert asked == expected and 30 in asked and 10 in asked
+
+
 def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
     # from a warm-start controller, local search and warm cross-entropy phases (each ending in a duel against
     # the incumbent) keep the incumbent unless a challenger beats it: under exact scores, never worse than init
