@@ -67,7 +67,8 @@ class PlannerConfig:
         ls_patience: local-search steps in a row without improvement that end a local-search phase.
         ls_lookahead: before a local-search phase ends, the number of information-gathering insertions to take
             a local-search step from (:mod:`decpomdp.search.lookahead`; 0: none). Insertions are screened on
-            twice the rollouts of the second racing stage (of the first if there is one).
+            twice the rollouts of the second racing stage (of the first if there is one). A lookahead costs about
+            ``ls_lookahead + 1`` local-search steps, and starts only if the budget has that much left.
         ls_lookahead_loss: most value an insertion may lose, as a fraction of the incumbent's, to be looked through.
         duel_rollouts: fresh rollouts per controller when challengers duel the incumbent.
         duel_z: standard errors of the difference a challenger must win by.

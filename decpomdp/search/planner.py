@@ -324,8 +324,16 @@ def _ls_step(
         copy=cfg.ls_copy,
         common=_common(scorer, cfg),
     )
+    before = scorer.rollouts_used
     out = local_search.step(run.incumbent, scorer, generator, **settings)
-    if not out.accepted and run.phase_step + 1 >= cfg.ls_patience and cfg.ls_lookahead > 0:
+    cost = scorer.rollouts_used - before  # a lookahead costs about ls_lookahead + 1 such steps
+    left = cfg.budget - run.used - cost
+    if (
+        not out.accepted
+        and run.phase_step + 1 >= cfg.ls_patience
+        and 0 < cfg.ls_lookahead
+        and left >= cost * (cfg.ls_lookahead + 1)
+    ):
         screen = 2 * cfg.ls_stages[min(1, len(cfg.ls_stages) - 1)][0]
         width, loss = cfg.ls_lookahead, cfg.ls_lookahead_loss
         out = lookahead.step(

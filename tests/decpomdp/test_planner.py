@@ -13,7 +13,7 @@ import torch
 from decpomdp import JointController
 from decpomdp.dpomdp import exact_value
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
-from decpomdp.search import local_search
+from decpomdp.search import local_search, lookahead
 from decpomdp.search.cross_entropy import iterate, start_state
 from decpomdp.search.moves import Neighbourhood, grow
 from decpomdp.search.racing import duel, race
@@ -340,6 +340,22 @@ def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
         expected.append(30 if before is False else 10)
         before = bool(accepted)
     assert asked == expected and 30 in asked and 10 in asked
+
+
+def test_a_lookahead_starts_only_where_the_budget_has_room_for_it(toy_env, monkeypatch):
+    calls = []
+    step = lookahead.step
+
+    def recording(*args, **kwargs):
+        calls.append(kwargs["width"])
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(lookahead, "step", recording)
+    roomy = plan(toy_scorer(toy_env), small_config(budget=60_000, ls_lookahead=2), seed=0)
+    assert calls and set(calls) == {2} and roomy.rollouts < 60_000 + 30_000
+    calls.clear()
+    plan(toy_scorer(toy_env), small_config(budget=6_000, ls_lookahead=50), seed=0)
+    assert not calls  # 51 local-search steps of room never fit in 6000 rollouts
 
 
 def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
