@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 
 from decpomdp.controller import JointController
-from decpomdp.search.moves import Neighbourhood, grow
+from decpomdp.search.moves import Neighbourhood, make_room
 from decpomdp.search.racing import duel, race
 from decpomdp.search.scoring import Scorer
 
@@ -68,11 +68,7 @@ def step(
 ) -> StepOutcome:
     """One step (see the module doc)."""
     visits = scorer.visits(incumbent, visit_rollouts, generator)
-    free = int((visits.sum(-1) == 0)[:, 1:].sum(1).min())
-    if free < max_chain and incumbent.num_nodes < max_nodes and grow_nodes > 0:
-        extra = min(grow_nodes, max_nodes - incumbent.num_nodes)
-        incumbent = grow(incumbent, extra)
-        visits = torch.cat([visits, visits.new_zeros(visits.shape[0], extra, visits.shape[2])], 1)
+    incumbent, visits = make_room(incumbent, visits, max_chain, max_nodes, grow_nodes)
     hood = Neighbourhood(incumbent, visits, scorer.num_actions, max_chain, edge_rate, team, copy)
     if hood.size == 0:
         return StepOutcome(incumbent, False, float("nan"), float("nan"), 0, 0)

@@ -29,7 +29,7 @@ from torch import Tensor
 from decpomdp.controller import JointController
 from decpomdp.search import local_search
 from decpomdp.search.local_search import StepOutcome
-from decpomdp.search.moves import grow
+from decpomdp.search.moves import free_nodes, grow, make_room
 from decpomdp.search.racing import duel
 from decpomdp.search.scoring import Scorer
 
@@ -106,6 +106,7 @@ def step(
     width: int,
     loss: float,
     screen_rollouts: int,
+    max_nodes: int,
     duel_rollouts: int,
     z: float,
     edge_rate: float,
@@ -114,15 +115,14 @@ def step(
     common: bool,
     **local: object,
 ) -> StepOutcome:
-    """Look through the ``width`` most novel insertions that lose at most ``loss`` (see the module doc);
-    ``local`` holds the other settings of :func:`decpomdp.search.local_search.step`."""
+    """Look through the ``width`` most novel insertions that lose at most ``loss`` (see the module doc); none when
+    an agent has no free node and the graph has ``max_nodes`` nodes. ``local`` holds the other settings of
+    :func:`decpomdp.search.local_search.step`."""
     visits = scorer.visits(incumbent, visit_rollouts, generator)
-    base = fill_untraversed(incumbent, visits)
-    if bool(((visits.sum(-1) == 0)[:, 1:]).sum(1).min() == 0):
-        base = grow(base, 1)
-        visits = torch.cat([visits, visits.new_zeros(visits.shape[0], 1, visits.shape[2])], 1)
-    moves = insertions(base, visits, scorer.num_actions, edge_rate, team)
-    if moves.num_controllers == 0:
+    base, visits = make_room(fill_untraversed(incumbent, visits), visits, 1, max_nodes, 1)
+    room = free_nodes(visits) > 0  # else no free node, and no room to grow one
+    moves = insertions(base, visits, scorer.num_actions, edge_rate, team) if room else None
+    if moves is None or moves.num_controllers == 0:
         return StepOutcome(incumbent, False, float("nan"), float("nan"), 0, 0)
     pool = JointController.cat([base, moves])
     kwargs = {"common": True} if common else {}
@@ -139,6 +139,7 @@ def step(
             moves[k],
             scorer,
             generator,
+            max_nodes=max_nodes,
             duel_rollouts=duel_rollouts,
             z=z,
             edge_rate=edge_rate,

@@ -206,3 +206,20 @@ def grow(controller: JointController, extra: int) -> JointController:
     action = torch.cat([controller.action, torch.zeros(k, a, extra, dtype=torch.long)], 2)
     next_node = torch.cat([controller.next_node, torch.zeros(k, a, extra, o, dtype=torch.long)], 2)
     return JointController(action, next_node)
+
+
+def free_nodes(visits: Tensor) -> int:
+    """The fewest free (never visited, not node 0) nodes any agent has, from visits (A, Nn, O)."""
+    return int((visits.sum(-1) == 0)[:, 1:].sum(1).min())
+
+
+def make_room(
+    controller: JointController, visits: Tensor, needed: int, max_nodes: int, extra: int
+) -> tuple[JointController, Tensor]:
+    """``controller`` (K = 1) and its visits (A, Nn, O) with ``extra`` more unreachable nodes (up to ``max_nodes``)
+    if some agent has fewer than ``needed`` free (never visited, not node 0) nodes; else both unchanged."""
+    if free_nodes(visits) < needed and controller.num_nodes < max_nodes and extra > 0:
+        extra = min(extra, max_nodes - controller.num_nodes)
+        controller = grow(controller, extra)
+        visits = torch.cat([visits, visits.new_zeros(visits.shape[0], extra, visits.shape[2])], 1)
+    return controller, visits

@@ -111,6 +111,18 @@ def test_a_lookahead_step_never_worsens_under_exact_values():
         assert after >= before - 1e-12 and (after > before) == out.accepted
 
 
+def test_a_lookahead_step_keeps_within_max_nodes():
+    env = dec_tiger(3)
+    scorer = ExactScorer(env)
+    g = torch.Generator().manual_seed(0)
+    ctrl = JointController(torch.tensor([[[0, 1], [0, 1]]]), torch.tensor([[[[1, 0], [0, 1]], [[1, 0], [0, 1]]]]))
+    full = look(ctrl, scorer, g, max_nodes=2, screen_rollouts=2, edge_rate=0.0)
+    assert full.controller is ctrl and not full.accepted and full.candidates == 0  # no free node, no room to grow
+    for max_nodes in (3, 4):
+        out = look(ctrl, scorer, g, max_nodes=max_nodes, grow_nodes=4, screen_rollouts=2, edge_rate=0.0)
+        assert out.candidates > 0 and out.controller.num_nodes <= max_nodes
+
+
 def test_a_lookahead_step_escapes_delivering_blind():
     # both robots pick up, drive to the crate zone, put down and return to Base1 without ever inferring: one
     # delivery in three is right, and inferring alone only costs time, so no single move improves much. Looking
