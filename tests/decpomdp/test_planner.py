@@ -319,15 +319,20 @@ def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive)
     )
 
 
-def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
-    asked = []
-    step = local_search.step
+def record_argument(monkeypatch, module, argument: str) -> list:
+    """Replace ``module.step`` by a wrapper that records the keyword ``argument`` of every call; returns the record."""
+    calls, step = [], module.step
 
     def recording(*args, **kwargs):
-        asked.append(kwargs["candidates"])
+        calls.append(kwargs[argument])
         return step(*args, **kwargs)
 
-    monkeypatch.setattr(local_search, "step", recording)
+    monkeypatch.setattr(module, "step", recording)
+    return calls
+
+
+def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
+    asked = record_argument(monkeypatch, local_search, "candidates")
     cfg = small_config(
         budget=20_000, patience=3, ls_patience=2, ls_candidates=30, ls_candidates_first=10, ls_lookahead=0
     )
@@ -343,14 +348,7 @@ def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
 
 
 def test_a_lookahead_starts_only_where_the_budget_has_room_for_it(toy_env, monkeypatch):
-    calls = []
-    step = lookahead.step
-
-    def recording(*args, **kwargs):
-        calls.append(kwargs["width"])
-        return step(*args, **kwargs)
-
-    monkeypatch.setattr(lookahead, "step", recording)
+    calls = record_argument(monkeypatch, lookahead, "width")
     roomy = plan(toy_scorer(toy_env), small_config(budget=60_000, ls_lookahead=2), seed=0)
     assert calls and set(calls) == {2} and roomy.rollouts < 60_000 + 30_000
     calls.clear()
