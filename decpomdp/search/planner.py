@@ -336,9 +336,10 @@ def _ls_step(
     ):
         screen = 2 * cfg.ls_stages[min(1, len(cfg.ls_stages) - 1)][0]
         width, loss = cfg.ls_lookahead, cfg.ls_lookahead_loss
-        out = lookahead.step(
+        looked = lookahead.step(
             out.controller, scorer, generator, width=width, loss=loss, screen_rollouts=screen, **settings
         )
+        out = looked if looked.accepted else out  # else the step's own duel values stand
     run.incumbent = out.controller
     run.value = out.challenger_value if out.accepted else out.incumbent_value
     run.phase_step = 0 if out.accepted else run.phase_step + 1
