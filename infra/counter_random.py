@@ -98,6 +98,24 @@ def normal(rng: np.ndarray) -> float:
 
 
 @njit(inline="always")
+def accepts(rng: np.ndarray, log_ratio: float) -> bool:
+    """A Metropolis-Hastings acceptance: ``True`` with probability ``min(1, exp(log_ratio))``.
+
+    Draws one uniform ``u`` when ``log_ratio < 0`` and decides ``u < exp(log_ratio)`` exactly, but mostly
+    without the exponential: ``1 + x <= exp(x) <= 1 / (1 - x)`` for ``x < 0`` settles all but the ``u`` between the
+    two bounds (a rejection far below zero costs a division, not an ``exp``).
+    """
+    if log_ratio >= 0.0:
+        return True
+    u = uniform(rng)
+    if u >= 1.0 / (1.0 - log_ratio):
+        return False
+    if u < 1.0 + log_ratio:
+        return True
+    return u < math.exp(log_ratio)
+
+
+@njit(inline="always")
 def below(rng: np.ndarray, n: np.int64) -> np.int64:
     """A uniform integer in [0, n) for a small ``n >= 1``."""
     k = np.int64(uniform(rng) * n)

@@ -17,12 +17,10 @@ Shapes: ``D`` datasets, ``Cp`` chains per dataset, ``N`` outputs, ``M`` classes.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
-from infra.counter_random import stream_key, uniform  # sets numba's cache directory (infra.numba_cache) first
+from infra.counter_random import accepts, stream_key, uniform  # sets numba's cache directory (infra.numba_cache) first
 
 ROWS = 512
 """Outputs per block (one random stream and one partial sum per chain and block)."""
@@ -92,7 +90,7 @@ def class_move_stats(
                                 + lw_i[cur]
                                 - lw_i[p]
                             )
-                            if log_ratio >= 0.0 or uniform(rng) < math.exp(log_ratio):
+                            if accepts(rng, log_ratio):
                                 cur = p
                                 c[d, ch, i] = p
                                 part_acc[d, b, ch] += 1

@@ -97,7 +97,7 @@ class ConfusionMetropolis(BatchedKernel):
         )
         eye = torch.eye(M, dtype=torch.bool, device=device)
         self.log_conc = torch.where(eye, theta.log().diag_embed(), log_beta.clamp(-4, 3))
-        self.c = self.frames.initial_classes(b, g)
+        self.c = self.frames.initial_classes(b)
         self.log_kappa, self.log_gamma = kappa.log(), gamma.log()
 
     def _params(self) -> dict[str, Tensor]:
