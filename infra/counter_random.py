@@ -83,7 +83,7 @@ def normal(rng: np.ndarray) -> float:
     while True:
         bits = next_u64(rng)
         i = np.int64(bits & _LOW8)
-        sign = -1.0 if (bits >> _S8) & np.uint64(1) else 1.0
+        sign = 1.0 - 2.0 * float(np.int64((bits >> _S8) & np.uint64(1)))  # no branch: the bit is a coin flip
         x = float(np.int64(bits >> _S11)) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
         if x < _ZIG_X[i + 1]:
             return sign * x

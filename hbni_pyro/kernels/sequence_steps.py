@@ -16,12 +16,15 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from hbni_pyro.density import look_basis, look_log_marginal, normal_log_prob
+from hbni_pyro.kernels import sequence_numba
 from hbni_pyro.sequence_model import SequenceStats, look_residuals
 from hbni_pyro.wishart import logdet_spd, sample_wishart
+from infra.counter_random import draw_seed
 
 LOOK_CHUNK = 4096
 """Sequences per block when their looks are drawn by gathering each one's factors."""
@@ -92,39 +95,97 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
     return c
 
 
-def draw_looks(state: SequenceState, stats: SequenceStats, c: Tensor, generator: torch.Generator) -> Tensor:
-    """Exact draw of every look ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)`` with
-    ``P = B_c^-1 + n W^-1``. ``P`` depends only on the class and the frame count, so it is factored
-    once per (class, distinct count); with at most :data:`GROUPED_LOOKS` such groups every sequence goes through
-    every group's factors in one batched product and keeps its own, else the factors are gathered per sequence
-    in blocks of :data:`LOOK_CHUNK`."""
+def _compiled(compiled: bool | None, t: Tensor) -> bool:
+    """Whether to use the compiled loops of :mod:`hbni_pyro.kernels.sequence_numba` (``None``: on the CPU)."""
+    return t.device.type == "cpu" if compiled is None else compiled
+
+
+def _chains_flat(t: Tensor, batch: torch.Size, trailing: int) -> np.ndarray:
+    """``t (..., *trailing dims)`` broadcast to the chain batch and flattened to ``(B, *trailing dims)``, as numpy."""
+    tail = t.shape[t.dim() - trailing :]
+    return np.ascontiguousarray(t.expand(batch + tail).reshape((-1,) + tail).numpy())
+
+
+class LookFactors(NamedTuple):
+    """What every look's conditional needs: per (class, frame count) group ``g = c * U + u`` (``U`` distinct frame
+    counts) the covariance ``cov (..., G, d, d)`` and its lower Cholesky factor ``tril``; per class
+    ``pb_loc = B_c^-1 m_c (..., M, d)``; per sequence ``wy = W^-1 sum y (..., K, d)`` and its ``group (..., K)``."""
+
+    cov: Tensor
+    tril: Tensor
+    pb_loc: Tensor
+    wy: Tensor
+    group: Tensor
+
+
+def look_factors(state: SequenceState, stats: SequenceStats, c: Tensor) -> LookFactors:
+    """The :class:`LookFactors` of the looks' conditional given the classes ``c (..., K)``: ``P = B_c^-1 + n W^-1``
+    depends only on the class and the frame count, so it is factored once per group."""
     counts, which = torch.unique(stats.count, return_inverse=True)
     prec_between = torch.linalg.inv(state.between)  # (..., M, d, d)
     prec_within = torch.linalg.inv(state.within)  # (..., d, d)
     prec = prec_between.unsqueeze(-3) + counts[:, None, None] * prec_within[..., None, None, :, :]  # (..., M, U, d, d)
     cov = torch.linalg.inv(prec)
-    flat_cov, flat_tril = cov.flatten(-4, -3), torch.linalg.cholesky(cov).flatten(-4, -3)  # (..., M * U, d, d)
-    pb_loc = (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1)  # (..., M, d)
-    wy = stats.sum_y @ prec_within.transpose(-1, -2)  # (..., K, d): W^-1 sum y per sequence
-    z = torch.randn(c.shape + state.loc.shape[-1:], generator=generator, dtype=state.loc.dtype, device=state.loc.device)
-    group = c * counts.shape[0] + which.expand(c.shape)
-    if flat_cov.shape[-3] <= GROUPED_LOOKS:  # few groups: every sequence through every group's factors at once
+    return LookFactors(
+        cov.flatten(-4, -3),
+        torch.linalg.cholesky(cov).flatten(-4, -3),
+        (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1),
+        stats.sum_y @ prec_within.transpose(-1, -2),
+        c * counts.shape[0] + which.expand(c.shape),
+    )
+
+
+def look_products(f: LookFactors, c: Tensor, z: Tensor, compiled: bool | None = None) -> Tensor:
+    """Every look ``cov_g (pb_loc_c + wy_k) + tril_g z_k`` for standard normals ``z (..., K, d)``.
+
+    ``compiled`` (default: on the CPU) reads each sequence's own factors in a compiled loop
+    (:func:`hbni_pyro.kernels.sequence_numba.looks`). Otherwise, with at most :data:`GROUPED_LOOKS` groups every
+    sequence goes through every group's factors in one batched product and keeps its own, else the factors are
+    gathered per sequence in blocks of :data:`LOOK_CHUNK`."""
+    if _compiled(compiled, z):
+        batch = c.shape[:-1]
+        drawn = sequence_numba.looks(
+            *(_chains_flat(t, batch, 3) for t in (f.cov, f.tril)),
+            *(_chains_flat(t, batch, 2) for t in (f.pb_loc, f.wy, z)),
+            *(_chains_flat(t, batch, 1) for t in (c, f.group)),
+        )
+        return torch.from_numpy(drawn).view(z.shape)
+    if f.cov.shape[-3] <= GROUPED_LOOKS:  # few groups: every sequence through every group's factors at once
         d = z.shape[-1]
-        lhs = torch.cat([_per_sequence(pb_loc, c) + wy, z], -1)  # (..., K, 2d)
-        factors = torch.cat([flat_cov.transpose(-1, -2), flat_tril.transpose(-1, -2)], -2)  # (..., G, 2d, d)
+        lhs = torch.cat([_per_sequence(f.pb_loc, c) + f.wy, z], -1)  # (..., K, 2d)
+        factors = torch.cat([f.cov.transpose(-1, -2), f.tril.transpose(-1, -2)], -2)  # (..., G, 2d, d)
         factors = factors.movedim(-3, -2).flatten(-2)  # (..., 2d, G * d)
         drawn = (lhs @ factors).unflatten(-1, (-1, d))  # (..., K, G, d): mean + tril z under every group
-        index = group[..., None, None].expand(group.shape + (1, d))
+        index = f.group[..., None, None].expand(f.group.shape + (1, d))
         return drawn.gather(-2, index).squeeze(-2)
     look = torch.empty(z.shape, dtype=z.dtype, device=z.device)
     for start in range(0, c.shape[-1], LOOK_CHUNK):
         rows = slice(start, start + LOOK_CHUNK)
-        rhs = _per_sequence(pb_loc, c[..., rows]) + wy[..., rows, :]
-        mean = (_per_sequence(flat_cov, group[..., rows]) @ rhs.unsqueeze(-1)).squeeze(-1)
-        look[..., rows, :] = mean + (
-            _per_sequence(flat_tril, group[..., rows]) @ z[..., rows, :].unsqueeze(-1)
-        ).squeeze(-1)
+        rhs = _per_sequence(f.pb_loc, c[..., rows]) + f.wy[..., rows, :]
+        mean = (_per_sequence(f.cov, f.group[..., rows]) @ rhs.unsqueeze(-1)).squeeze(-1)
+        look[..., rows, :] = mean + (_per_sequence(f.tril, f.group[..., rows]) @ z[..., rows, :].unsqueeze(-1)).squeeze(
+            -1
+        )
     return look
+
+
+def draw_looks(
+    state: SequenceState, stats: SequenceStats, c: Tensor, generator: torch.Generator, compiled: bool | None = None
+) -> Tensor:
+    """Exact draw of every look ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)`` with
+    ``P = B_c^-1 + n W^-1`` (:func:`look_factors`, :func:`look_products`). ``compiled`` (default: on the CPU): the
+    standard normals come from counter-based streams seeded by ``generator``
+    (:func:`hbni_pyro.kernels.sequence_numba.normals`), else from ``torch.randn``."""
+    factors = look_factors(state, stats, c)
+    shape = c.shape + state.loc.shape[-1:]
+    if _compiled(compiled, state.loc):
+        z = torch.from_numpy(
+            sequence_numba.normals(np.uint64(draw_seed(generator)), math.prod(shape[:-2]), *shape[-2:])
+        )
+        z = z.view(shape)
+    else:
+        z = torch.randn(shape, generator=generator, dtype=state.loc.dtype, device=state.loc.device)
+    return look_products(factors, c, z, compiled)
 
 
 def update_classes_and_looks(
@@ -135,8 +196,17 @@ def update_classes_and_looks(
     return c, draw_looks(state, stats, c, generator)
 
 
-def class_totals(c: Tensor, values: Tensor, num_classes: int) -> tuple[Tensor, Tensor]:
-    """``counts (..., M)`` of sequences per class and ``sum_{k: c_k = m} values_k`` ``(..., M, *value shape)``."""
+def class_totals(c: Tensor, values: Tensor, num_classes: int, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
+    """``counts (..., M)`` of sequences per class and ``sum_{k: c_k = m} values_k`` ``(..., M, *value shape)``: in a
+    compiled loop (``compiled``, default: on the CPU; :func:`hbni_pyro.kernels.sequence_numba.class_sums`) or by a
+    one-hot product."""
+    if _compiled(compiled, values):
+        batch, tail = c.shape[:-1], values.shape[c.dim() :]
+        flat = values.reshape(values.shape[: c.dim()] + (-1,))
+        counts, sums = sequence_numba.class_sums(_chains_flat(flat, batch, 2), _chains_flat(c, batch, 1), num_classes)
+        return torch.from_numpy(counts).view(batch + (num_classes,)), torch.from_numpy(sums).view(
+            batch + (num_classes,) + tail
+        )
     one_hot = torch.nn.functional.one_hot(c, num_classes).to(values.dtype)  # (..., K, M)
     flat = values.reshape(values.shape[: c.dim()] + (-1,))
     sums = one_hot.transpose(-1, -2) @ flat
@@ -156,20 +226,38 @@ def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generat
     return gaussian_draw(prec, rhs, generator)
 
 
-def between_data(state: SequenceState) -> tuple[Tensor, Tensor]:
-    """Per class: the number of sequences and the scatter of their looks about the class mean,
+def between_data(state: SequenceState, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
+    """Per class: the number of sequences and the scatter of their looks about the class mean, in a compiled
+    loop (``compiled``, default: on the CPU; :func:`hbni_pyro.kernels.sequence_numba.class_scatter`) or
     accumulated class by class (no per-sequence outer products)."""
     num_classes = state.loc.shape[-2]
+    if _compiled(compiled, state.look):
+        batch = state.c.shape[:-1]
+        counts, scatter = sequence_numba.class_scatter(
+            *(_chains_flat(t, batch, 2) for t in (state.look, state.loc)), _chains_flat(state.c, batch, 1)
+        )
+        return torch.from_numpy(counts).view(state.loc.shape[:-1]), torch.from_numpy(scatter).view(
+            state.loc.shape + state.loc.shape[-1:]
+        )
     one_hot = torch.nn.functional.one_hot(state.c, num_classes).to(state.look.dtype)  # (..., K, M)
     dev = state.look - _per_sequence(state.loc, state.c)
     scatter = torch.stack([(dev * one_hot[..., m : m + 1]).transpose(-1, -2) @ dev for m in range(num_classes)], -3)
     return one_hot.sum(-2), scatter
 
 
-def within_data(state: SequenceState, stats: SequenceStats) -> tuple[Tensor, Tensor]:
-    """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``,
+def within_data(state: SequenceState, stats: SequenceStats, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
+    """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``: in a compiled
+    loop (``compiled``, default: on the CPU), each sequence's scatter about its mean plus
+    ``n (ybar - mu)(ybar - mu)^T`` (:func:`hbni_pyro.kernels.sequence_numba.offset_scatter`); else
     ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]`` by matrix products over the sequences."""
     mu = state.look
+    if _compiled(compiled, mu):
+        batch = state.c.shape[:-1]
+        offsets = sequence_numba.offset_scatter(
+            _chains_flat(stats.mean_y, batch, 2), _chains_flat(mu, batch, 2), _chains_flat(stats.count, batch, 1)
+        )
+        scatter = stats.scatter.sum(-3) + torch.from_numpy(offsets).view(batch + mu.shape[-1:] * 2)
+        return stats.count.sum(-1), scatter
     cross = stats.sum_y.transpose(-1, -2) @ mu  # sum_k s_k mu_k^T
     scatter = (
         stats.sum_yy.sum(-3) - cross - cross.transpose(-1, -2) + (mu * stats.count.unsqueeze(-1)).transpose(-1, -2) @ mu

@@ -66,7 +66,9 @@ def test_unlabelled_chains_agree(seed):
     g = torch.Generator().manual_seed(0)
     theta = torch.linspace(1.0, 20.0, 10, dtype=torch.float64)
     obs = sample_outputs(theta, torch.arange(10).repeat_interleave(500), g)
-    post: HBNIPosterior = hbni_pyro.fit(obs, num_chains=16, num_samples=300, warmup_steps=300, seed=seed, progress=False)
+    post: HBNIPosterior = hbni_pyro.fit(
+        obs, num_chains=16, num_samples=300, warmup_steps=300, seed=seed, progress=False
+    )
     chain_means = post.draws()["theta"].mean(1)  # (chains, M)
     assert (chain_means.min(0).values > 0.8 * chain_means.max(0).values).all()
     assert max(row["r_hat"] for name, row in post.summary().items() if name.startswith("theta")) < 1.2
