@@ -2,12 +2,28 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """In the main process, before any xdist worker starts: compile the numba kernels into their on-disk cache, in
+    two processes side by side (``tests/compile_kernels.py``), so that the workers load them instead of each
+    compiling them at once on a fresh machine. A part that fails is reported; the tests that need it then fail."""
+    if hasattr(config, "workerinput"):
+        return
+    script = REPO_ROOT / "tests" / "compile_kernels.py"
+    parts = ("package_delivery", "others")
+    jobs = [subprocess.Popen([sys.executable, "-P", str(script), part], cwd=REPO_ROOT) for part in parts]
+    for part, job in zip(parts, jobs, strict=True):
+        if job.wait():
+            print(f"tests/compile_kernels.py {part}: exit status {job.returncode}", file=sys.stderr)
 
 
 @pytest.fixture(scope="session")
