@@ -13,10 +13,11 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """In the main process, before any xdist worker starts: compile the numba kernels into their on-disk cache, in
-    two processes side by side (``tests/compile_kernels.py``), so that the workers load them instead of each
-    compiling them at once on a fresh machine. A part that fails is reported; the tests that need it then fail."""
-    if hasattr(config, "workerinput"):
+    """In the main process of a run with xdist workers, before they start: compile the numba kernels into their
+    on-disk cache, in two processes side by side (``tests/compile_kernels.py``), so that the workers load them
+    instead of each compiling them at once on a fresh machine. A run without workers compiles each kernel once
+    anyway, where a test first needs it. A part that fails is reported; the tests that need it then fail."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", 0):
         return
     script = REPO_ROOT / "tests" / "compile_kernels.py"
     parts = ("package_delivery", "others")
