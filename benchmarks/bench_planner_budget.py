@@ -5,7 +5,7 @@ controller shared by both robots, as in the G-DICE paper's study) and on disaste
 perception, at a rollout budget chosen to take about 60 CPU seconds on one thread, for several seeds.
 Each best controller is re-evaluated on ``--reeval`` rollouts the search never saw.
 
-    python benchmarks/bench_planner_budget.py [--seeds 0 1 2] [--pd-budget 6.5e6] [--dr-budget 16e6]
+    python benchmarks/bench_planner_budget.py [--seeds 0 1 2] [--pd-budget 18e6] [--dr-budget 20e6]
 
 Prints, per domain and seed: rollouts spent, CPU seconds, the re-evaluated value, and whether it
 reached the floor (package delivery 14.4, disaster relief 6.0) within 60 CPU seconds.
@@ -29,8 +29,8 @@ FLOORS = {"package delivery": 14.4, "disaster relief, perfect perception": 6.0}
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--pd-budget", type=float, default=6.5e6)
-    parser.add_argument("--dr-budget", type=float, default=16e6)
+    parser.add_argument("--pd-budget", type=float, default=18e6)
+    parser.add_argument("--dr-budget", type=float, default=20e6)
     parser.add_argument("--reeval", type=int, default=4000)
     args = parser.parse_args()
     domains = {

@@ -80,14 +80,22 @@ class _NoAliasCompiler(Compiler):
         return super().define_pipelines()
 
 
+_CHUNK_OPTIONS = {"nogil": True, "pipeline_class": _NoAliasCompiler, "_nrt": False}
+
+
 def chunk_function(fn):
     """The decorator of a domain's chunk function: compiled, releasing the GIL, its array arguments declared free
     of aliases, and cached on disk when its source is a file (not when typed into an interpreter). Every array
-    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it)."""
+    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it).
+
+    It compiles without numba's reference counting (``_nrt=False``): every array the loop and the rules touch
+    comes from the caller, and with counting on, each array or tuple of arrays handed to an inlined rule costs an
+    atomic increment and decrement, which took 60 % of package delivery's event loop. Rules therefore may not
+    allocate arrays (numba then stops with "NRT required but not enabled")."""
     try:
-        return njit(cache=True, nogil=True, pipeline_class=_NoAliasCompiler)(fn)
+        return njit(cache=True, **_CHUNK_OPTIONS)(fn)
     except RuntimeError:  # no file to cache against
-        return njit(nogil=True, pipeline_class=_NoAliasCompiler)(fn)
+        return njit(**_CHUNK_OPTIONS)(fn)
 
 
 @njit(inline="always")
@@ -128,8 +136,10 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
         k = b // rollouts
         rng[0] = stream_key(seed, first_controller + stride * k, b - k * rollouts)
         if use_init:
-            si[:] = init_int
-            sf[:] = init_float
+            for i in range(si.shape[0]):
+                si[i] = init_int[i]
+            for i in range(sf.shape[0]):
+                sf[i] = init_float[i]
         else:
             si[:] = 0
             sf[:] = 0.0
@@ -168,5 +178,7 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
         for j in range(counter_slots.shape[0]):
             out.counters[b, j] = si[counter_slots[j]]
         if keep_state:
-            out.final_int[b] = si
-            out.final_float[b] = sf
+            for i in range(si.shape[0]):
+                out.final_int[b, i] = si[i]
+            for i in range(sf.shape[0]):
+                out.final_float[b, i] = sf[i]
