@@ -95,7 +95,7 @@ def chunk_function(fn):
 
     It compiles without numba's reference counting (``_nrt=False``): every array the loop and the rules touch
     comes from the caller, and with counting on, each array or tuple of arrays handed to an inlined rule costs an
-    atomic increment and decrement, which took 60 % of package delivery's event loop. Rules therefore may not
+    atomic increment and decrement, which took about half of package delivery's event loop. Rules therefore may not
     allocate arrays (numba then stops with "NRT required but not enabled")."""
     try:
         return njit(cache=True, **_CHUNK_OPTIONS)(fn)
