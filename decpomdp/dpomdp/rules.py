@@ -43,7 +43,7 @@ def reset(si, sf, p, tab, perception, num_agents, rng):
 @njit(inline="always")
 def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
     """Every action lasts one step."""
-    for a in range(agents.shape[0]):
+    for a in range(len(agents)):
         if agents[a]:
             end[a] = t + 1.0
 

@@ -174,7 +174,7 @@ def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
     """Flagged robots begin ``actions``; all of them see the state before any of them started, then
     the pick-ups take the objects in robot order."""
     destination = tab[2]
-    for a in range(agents.shape[0]):
+    for a in range(len(agents)):
         if not agents[a]:
             continue
         ma = actions[a]
@@ -193,7 +193,7 @@ def start(si, sf, p, tab, perception, agents, actions, t, end, rng):
             si[at(a, FRESH)] = 0
         si[at(a, MA)], si[at(a, OK)] = ma, ok
         end[a] = t + duration
-    for a in range(agents.shape[0]):
+    for a in range(len(agents)):
         if agents[a] and si[at(a, OK)] == 1 and si[at(a, MA)] == PICK:
             base = OBJECT + si[at(a, LOC)]
             si[at(a, CARRY)] = si[base]
@@ -205,7 +205,7 @@ def complete(si, sf, p, tab, perception, agents, actions, t, obs, rng):
     """Flagged robots finish their MAs: move, deliver, count; health degrades; each reads its context."""
     destination = tab[2]
     reward = 0.0
-    for a in range(agents.shape[0]):
+    for a in range(len(agents)):
         if not agents[a]:
             continue
         ma, effective = si[at(a, MA)], si[at(a, OK)] == 1
