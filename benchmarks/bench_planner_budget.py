@@ -35,13 +35,14 @@ def main() -> None:
     parser.add_argument("--domains", nargs="+", choices=["pd", "dr"], default=["pd", "dr"])
     args = parser.parse_args()
     domains = {
-        "package delivery": (PackageDelivery(), True, int(args.pd_budget)),
-        "disaster relief, perfect perception": (DisasterRelief(), False, int(args.dr_budget)),
+        "package delivery": ("pd", PackageDelivery, True, args.pd_budget),
+        "disaster relief, perfect perception": ("dr", DisasterRelief, False, args.dr_budget),
     }
-    if "pd" not in args.domains:
-        del domains["package delivery"]
-    if "dr" not in args.domains:
-        del domains["disaster relief, perfect perception"]
+    domains = {
+        name: (make(), share, int(budget))
+        for name, (key, make, share, budget) in domains.items()
+        if key in args.domains
+    }
     print("| domain | seed | rollouts | CPU s | value ± s.e. | floor within 60 CPU s |\n|---|---|---|---|---|---|")
     with threads(1):
         for name, (env, share, budget) in domains.items():
