@@ -255,7 +255,7 @@ class Backbone:
         return moved
 
     def __call__(
-        self, x: Tensor, batch_size: int = 8, threads: int | None = 1, output_device: str | torch.device | None = "cpu"
+        self, x: Tensor, batch_size: int = 4, threads: int | None = 1, output_device: str | torch.device | None = "cpu"
     ) -> Tensor:
         """ImageNet scores (logits) ``(B, 1000)`` float32 for normalised input ``(B, 3, S, S)``.
 

@@ -45,7 +45,8 @@ class FrameClassifier:
         weights_path: local backbone weights; ``None`` = the packaged EfficientNet-Lite0 weights.
         C: SVM penalty. cv: Platt cross-validation folds. padding: crop padding fraction.
         seed: seed of the augmentation and of the Platt split.
-        batch_size: images per backbone call.
+        batch_size: images per backbone call (4 keeps a CPU core's activations in its cache: a quarter faster
+            than 8; outputs are the same for any batch size).
         threads: torch intra-op threads for feature extraction and prediction (``None``: torch's
             global setting). One thread is the default: on a small shared machine it is as fast as
             two when idle and many times faster when other processes compete for the cores.
@@ -64,7 +65,7 @@ class FrameClassifier:
         cv: int = 5,
         padding: float = 0.1,
         seed: int = 0,
-        batch_size: int = 8,
+        batch_size: int = 4,
         threads: int | None = 1,
         device: str | torch.device = "cpu",
         dtype: torch.dtype | None = None,

@@ -131,7 +131,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         empirical = characterize_processes(noise, outputs.held_out, cfg, settings, run_dir)
         generative = characterize_generative(noise, cfg, settings, run_dir)
         models = planning_models(empirical, generative, settings)
-        results, histories = plan(models, cfg, settings, run_dir)
+        results, histories = plan(models, cfg, settings, run_dir, bank)
         settings.clock.start("bank_wait", "waiting for the held-out bank")
         banked = bank.result(settings.progress)
         reliability = execute_closed_loop(banked, outputs.held_out, noise, models, results, cfg, settings, run_dir)
@@ -196,6 +196,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
     settings.clock.start("classify", "2/6 classifying mission-condition frames")
     st, seed, progress = cfg.mission, settings.seed, settings.progress
     mission = get_conditions("mission", **settings.overrides)
+    workers = int(cfg.study.threads)
     calib = sequence_outputs(
         clf,
         CLASSES,
@@ -205,6 +206,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
         stream_seed(seed, "calibration"),
         progress,
         "calibration",
+        workers,
     )[0]
     held = sequence_outputs(
         clf,
@@ -215,6 +217,7 @@ def classify_sequences(clf: FrameClassifier, cfg: DictConfig, settings: Settings
         stream_seed(seed, "held-out"),
         progress,
         "held-out",
+        workers,
     )[0]
     return Outputs(calib.double(), held.double())
 
@@ -331,12 +334,19 @@ def planners(cfg: DictConfig) -> tuple[PlannerConfig, PlannerConfig | None]:
 
 
 def plan(
-    models: dict[str, hbni_pyro.MacroObservationModel], cfg: DictConfig, settings: Settings, run_dir: Path
+    models: dict[str, hbni_pyro.MacroObservationModel],
+    cfg: DictConfig,
+    settings: Settings,
+    run_dir: Path,
+    bank: BankBuild | None = None,
 ) -> tuple[dict[str, dict], dict[str, dict]]:
     """Stage 5: a controller per perception variant and for perfect perception (saved as
     ``controller_<variant>``): perfect perception planned from scratch with ``planner``, each variant from that
     plan with ``warm_planner`` (or from scratch too without ``warm_start``), each re-evaluated on independent
     rollouts beside the greedy controller.
+
+    Rollouts run on ``study.threads`` threads, less the cores ``bank``'s background workers still hold (a
+    parallel loop with a contended core waits for it); a seed gives the same results on any thread count.
 
     Returns the score entry and the search history of every variant.
     """
@@ -346,8 +356,9 @@ def plan(
     results: dict[str, Any] = {}
     histories = {}
     start = None  # with warm_start: the perfect-perception plan every perception variant starts from
-    with threads(int(study.threads)):
-        for name in ("perfect", *models):
+    for name in ("perfect", *models):
+        busy = bank.workers if bank is not None and bank.building else 0
+        with threads(max(1, int(study.threads) - busy)):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
             result, best, entry = run_planner(

@@ -200,6 +200,11 @@ class BankBuild:
             self._pool.submit(_classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
         }
 
+    @property
+    def building(self) -> bool:
+        """Whether background workers are still rendering and classifying (each keeps a core busy)."""
+        return self._pool is not None and any(not future.done() for future in self._futures)
+
     def result(self, progress: bool = False) -> Tensor:
         """The bank's outputs ``(C, S, F, C)`` float32 (waits for the build, then writes the cache)."""
         if self._outputs is None and not self._lock.held:  # another job builds it: wait for its file

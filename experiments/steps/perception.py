@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import torch
 from hydra.utils import instantiate
@@ -10,6 +13,8 @@ from tqdm.auto import tqdm
 
 from classifiers import FrameClassifier, class_columns
 from classifiers.data import render_images, render_sequence
+from infra.checks import as_int
+from infra.threads import single_thread
 
 
 def train_classifier(
@@ -30,22 +35,39 @@ def train_classifier(
 
 
 def sequence_outputs(
-    clf: FrameClassifier, classes: list[str], n_seq: int, frames: int, cond, seed: int, progress: bool, desc: str
+    clf: FrameClassifier,
+    classes: list[str],
+    n_seq: int,
+    frames: int,
+    cond,
+    seed: int,
+    progress: bool,
+    desc: str,
+    workers: int = 1,
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Classifier outputs ``(C, n_seq, frames, C)`` and one thumbnail strip per (class, sequence) ``[0]`` frames.
 
     Row ``c`` holds sequences of ``classes[c]``; output columns follow ``classes`` too (the
-    classifier's own column order is alphabetical, ``clf.classes_``).
+    classifier's own column order is alphabetical, ``clf.classes_``). ``workers`` threads render and
+    classify sequences side by side, each on one torch thread (rendering and the backbone release the
+    GIL), so the outputs are the same for any ``workers``.
     """
+    workers = as_int("workers", workers, minimum=1)
+    if workers > 1 and clf.threads not in (None, 1):
+        raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {clf.threads}")
     order = class_columns(clf, classes)
     out = torch.empty(len(classes), n_seq, frames, len(classes))
     thumbs = np.empty((len(classes), n_seq), dtype=object)
-    bar = tqdm(total=len(classes) * n_seq, desc=desc, unit="seq", disable=not progress)
-    for c, name in enumerate(classes):
-        for s in range(n_seq):
-            seq = render_sequence(name, frames, cond, seed=seed, index=s)
-            out[c, s] = clf.predict_proba(seq)[:, order]
+    jobs = [(c, s) for c in range(len(classes)) for s in range(n_seq)]
+
+    def classify(job: tuple[int, int]) -> tuple[np.ndarray, torch.Tensor]:
+        seq = render_sequence(classes[job[0]], frames, cond, seed=seed, index=job[1])
+        return seq, clf.predict_proba(seq)[:, order]
+
+    with single_thread() if workers > 1 else contextlib.nullcontext(), ThreadPoolExecutor(workers) as pool:
+        for (c, s), (seq, proba) in zip(
+            jobs, tqdm(pool.map(classify, jobs), total=len(jobs), desc=desc, unit="seq", disable=not progress)
+        ):
+            out[c, s] = proba
             thumbs[c, s] = seq
-            bar.update()
-    bar.close()
     return out, thumbs

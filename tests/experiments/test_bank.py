@@ -66,6 +66,7 @@ def test_background_workers_build_the_same_bank(tmp_path, classifiers):
     inline = BankBuild(_spec(), clf, path, tmp_path / "a", workers=0).result()
     background = BankBuild(_spec(), clf, path, tmp_path / "b", workers=1, chunk=1)
     assert torch.equal(background.result(), inline)
+    assert not background.building  # its workers are done
 
 
 @pytest.mark.parametrize(
