@@ -14,7 +14,7 @@ from tqdm.auto import tqdm
 from classifiers import FrameClassifier, class_columns
 from classifiers.data import render_images, render_sequence
 from infra.checks import as_int
-from infra.threads import single_thread
+from infra.threads import single_thread, worker_threads
 
 
 def train_classifier(
@@ -43,15 +43,18 @@ def sequence_outputs(
     seed: int,
     progress: bool,
     desc: str,
-    workers: int = 1,
+    workers: int | None = None,
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Classifier outputs ``(C, n_seq, frames, C)`` and one thumbnail strip per (class, sequence) ``[0]`` frames.
 
     Row ``c`` holds sequences of ``classes[c]``; output columns follow ``classes`` too (the
-    classifier's own column order is alphabetical, ``clf.classes_``). ``workers`` threads render and
+    classifier's own column order is alphabetical, ``clf.classes_``). ``workers`` threads (``None``:
+    :func:`infra.threads.worker_threads`, or one for a classifier set to several torch threads) render and
     classify sequences side by side, each on one torch thread (rendering and the backbone release the
     GIL), so the outputs are the same for any ``workers``.
     """
+    if workers is None:
+        workers = worker_threads() if clf.threads in (None, 1) else 1
     workers = as_int("workers", workers, minimum=1)
     if workers > 1 and clf.threads not in (None, 1):
         raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {clf.threads}")

@@ -49,5 +49,6 @@ def test_bad_workers_are_clear_errors(clf):
     try:
         with pytest.raises(ValueError, match="workers: 2 threads need a classifier on one torch thread"):
             _outputs(clf, 2)
+        assert torch.equal(_outputs(clf, None)[0], _outputs(clf, 1)[0])  # the default falls back to one worker
     finally:
         clf.threads = 1
