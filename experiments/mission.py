@@ -448,7 +448,8 @@ def execute_closed_loop(
             )
         )
         entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
-        table_streams = held.shape[1] if entry_planning(settings, name) == "empirical" else None
+        empirical = entry_planning(settings, name) == "empirical"
+        table_streams = held.shape[1] if empirical else settings.loop.generative_streams
         entry["distribution_check"] = honesty.distribution_check(
             models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
         )

@@ -4,10 +4,11 @@ A policy is planned on a table of ``P(label, frames | true class)``. Two checks 
 
 - :func:`distribution_check`, per class: the table's accuracy and mean frames against what the
   process does on the bank's streams of that class, each by a parametric-bootstrap test of "one
-  law behind both" (a generative table of thousands of simulated streams is taken as exact; an
-  empirical one is a sample of ``table_streams`` streams, so the test is two-sample under the
-  pooled law), with a Wilson interval on the bank's accuracy and a bootstrap interval on its mean
-  frames. A class passes when both p-values reach ``alpha`` over the number of tests (Bonferroni).
+  law behind both". A table is a sample of ``table_streams`` streams per class (held-out streams for
+  an empirical table, simulated ones for a generative table), so the test is two-sample under the
+  pooled law: a table that saw no error in a thousand streams does not make one error on the bank
+  impossible (``table_streams=None`` takes the table as exact). A Wilson interval on the bank's
+  accuracy and a bootstrap interval on its mean frames go with the p-values. A class passes when both p-values reach ``alpha`` over the number of tests (Bonferroni).
 - :func:`value_power`: the executed-value test (``|gap| <= within`` total standard errors) is weak
   where the bank is small. It reports the test's power against a given relative shortfall and the
   bank size that would give the target power (stream standard errors scale as ``1 / sqrt(size)``).

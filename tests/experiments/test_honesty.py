@@ -117,3 +117,25 @@ def test_reliability_figure_draws_every_process(tmp_path):
     assert len(fig.axes[0].get_legend().get_texts()) == 4  # calibrated, two processes, the threshold
     fig.savefig(tmp_path / "r.png")
     assert (tmp_path / "r.png").stat().st_size > 0
+
+
+def test_a_table_with_no_error_in_its_streams_is_a_sample_not_a_certainty():
+    """A table right in all of its 1000 streams, a bank right in 39 of 40: two-sample, the accuracy p-value is the
+    exact null probability of a gap as wide (binomials under the pooled law, summed), within 4 Monte Carlo
+    standard errors; taken as exact, the table makes the bank's one error impossible."""
+    n, m, replicates = 40, 1000, 4000
+    right = torch.ones(n, dtype=torch.bool)
+    right[0] = False
+    frames = torch.ones(n, dtype=torch.long)
+    pmf = torch.tensor([1.0, 0.0], dtype=torch.float64)
+    g = torch.Generator().manual_seed(0)
+    sample = honesty.class_check(pmf, 1.0, right, frames, m, replicates, g)["accuracy_p"]
+    exact = honesty.class_check(pmf, 1.0, right, frames, None, replicates, g)["accuracy_p"]
+    p0 = torch.tensor((m + n - 1) / (m + n), dtype=torch.float64)
+    bank = torch.distributions.Binomial(n, p0).log_prob(torch.arange(n + 1, dtype=torch.float64)).exp()
+    table = torch.distributions.Binomial(m, p0).log_prob(torch.arange(m + 1, dtype=torch.float64)).exp()
+    gap = (torch.arange(n + 1, dtype=torch.float64)[:, None] / n - torch.arange(m + 1, dtype=torch.float64) / m).abs()
+    want = float((bank[:, None] * table[None, :] * (gap >= 1 / n - 1e-12)).sum())
+    assert 0.01 < want < 0.02  # about (1 - p0^40) p0^1000: above the check's per-test level of 0.05 / 12
+    assert abs(sample - want) <= 4 * math.sqrt(want * (1 - want) / replicates) + 1 / (replicates + 1)
+    assert exact == pytest.approx(1 / (replicates + 1))  # no null draw is as far out
