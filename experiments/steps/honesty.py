@@ -8,7 +8,8 @@ A policy is planned on a table of ``P(label, frames | true class)``. Two checks 
   an empirical table, simulated ones for a generative table), so the test is two-sample under the
   pooled law: a table that saw no error in a thousand streams does not make one error on the bank
   impossible (``table_streams=None`` takes the table as exact). A Wilson interval on the bank's
-  accuracy and a bootstrap interval on its mean frames go with the p-values. A class passes when both p-values reach ``alpha`` over the number of tests (Bonferroni).
+  accuracy and a bootstrap interval on its mean frames go with the p-values. A class passes when both
+  p-values reach ``alpha`` over the number of tests (Bonferroni).
 - :func:`value_power`: the executed-value test (``|gap| <= within`` total standard errors) is weak
   where the bank is small. It reports the test's power against a given relative shortfall and the
   bank size that would give the target power (stream standard errors scale as ``1 / sqrt(size)``).

@@ -1,25 +1,23 @@
-"""The perception steps of the experiments: rendered sequences classified, on one thread or several."""
+"""The perception steps of the experiments: a classifier trained on rendered snapshots, rendered sequences classified
+on one thread or several."""
 
 from __future__ import annotations
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from classifiers import FrameClassifier
-from classifiers.data import get_conditions, render_images, render_sequence
-from experiments.steps.perception import sequence_outputs
+from classifiers.data import get_conditions, render_sequence
+from experiments.steps.perception import sequence_outputs, train_classifier
 
 CLASSES = ["ambulance", "police_car", "food_crate"]
 
 
 @pytest.fixture(scope="module")
 def clf() -> FrameClassifier:
-    images, labels = [], []
-    for name in CLASSES:
-        snaps = render_images(name, 6, "training", seed=0, shape=(72, 96))
-        images += list(snaps)
-        labels += [name] * len(snaps)
-    return FrameClassifier(seed=0).fit(images, labels)
+    config = OmegaConf.create({"_target_": "classifiers.FrameClassifier", "seed": 0})
+    return train_classifier(config, CLASSES, per_class=6, augment=0, seed=0, progress=False)
 
 
 def _outputs(clf: FrameClassifier, workers: int) -> tuple[torch.Tensor, object]:
