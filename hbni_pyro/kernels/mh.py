@@ -87,8 +87,10 @@ class FrameData:
         returns the accepted moves and the statistics ``counts, sums (D, Cp, M)``, recording the labels if asked."""
         theta = log_theta.exp()
         offset = lifted_normaliser(theta, self.num_classes) + self.data.log_prior
+        classes = c.numpy().transpose(0, 2, 1)  # (D, N, Cp): a view if c is stored outputs_major, else copied back
+        work = classes if classes.flags.c_contiguous else np.ascontiguousarray(classes)
         counts, sums, accepted = class_move_stats(
-            c.numpy(),
+            work,
             *self._arrays,
             np.ascontiguousarray(offset.numpy()),
             np.ascontiguousarray(theta.numpy()),
@@ -98,6 +100,8 @@ class FrameData:
             self.label_counts.numpy(),
             record,
         )
+        if work is not classes:
+            classes[...] = work
         return torch.from_numpy(accepted).sum(), (torch.from_numpy(counts), torch.from_numpy(sums))
 
     def initial_classes(self, batch: tuple[int, int]) -> Tensor:
@@ -112,6 +116,11 @@ class FrameData:
         d = self.data
         c0 = d.log_proposal.argmax(-1).expand(batch + d.labels.shape[-1:])
         return torch.where(d.labels >= 0, d.labels, c0)
+
+    @staticmethod
+    def outputs_major(c: Tensor) -> Tensor:
+        """``c (D, Cp, N)`` stored with each output's chains adjacent, as :func:`class_move_stats` reads them in place."""
+        return c.transpose(1, 2).contiguous().transpose(1, 2)
 
     def record(self, c: Tensor) -> None:
         """Add the current classes ``(D, Cp, N_free)`` of every chain to the label counts."""
@@ -175,7 +184,7 @@ class HBNIMetropolis(BatchedKernel):
         theta = gamma_variates(kappa.unsqueeze(-1).expand(C, num_classes), gamma.unsqueeze(-1), g)
         c = self.frames.initial_classes(self.batch)
         return MHState(
-            c,
+            self.frames.outputs_major(c) if self.frames.compiled else c,
             theta.clamp(0.1, 1000).log().reshape(self.batch + (-1,)),
             kappa.log().reshape(self.batch),
             gamma.log().reshape(self.batch),
