@@ -73,20 +73,34 @@ _LOW8, _S8 = np.uint64(255), np.uint64(8)
 
 
 @njit(inline="always")
+def _layer_point(rng: np.ndarray) -> tuple[np.int64, float, float]:
+    """One 64-bit draw as a ziggurat (layer, sign, position): its low 8 bits pick the layer, bit 8 the sign
+    (no branch: the bit is a coin flip) and its top 53 bits the position within the layer's width."""
+    bits = next_u64(rng)
+    i = np.int64(bits & _LOW8)
+    sign = 1.0 - 2.0 * float(np.int64((bits >> _S8) & np.uint64(1)))
+    return i, sign, float(np.int64(bits >> _S11)) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
+
+
+@njit(inline="always")
 def normal(rng: np.ndarray) -> float:
     """A standard normal float64 (ziggurat: one 64-bit draw in about 99 % of the calls).
 
-    The draw's low 8 bits pick a layer, bit 8 the sign and its top 53 bits the position; a point
-    outside the layer's inner rectangle is accepted under the density by a second uniform, and the
-    base layer's overhang is the tail ``x > r`` (Marsaglia's tail method).
+    A point inside its layer's inner rectangle is returned at once; the rest (about 1 %) goes to
+    :func:`_normal_edge`, compiled apart so that the inlined fast path stays small.
     """
+    i, sign, x = _layer_point(rng)
+    if x < _ZIG_X[i + 1]:
+        return sign * x
+    return _normal_edge(rng, i, sign, x)
+
+
+@njit(inline="never", error_model="numpy")
+def _normal_edge(rng: np.ndarray, i: np.int64, sign: float, x: float) -> float:
+    """The ziggurat's rare path for a point ``x`` of layer ``i`` outside the inner rectangle: accepted under the
+    density by a second uniform, the base layer's overhang being the tail ``x > r`` (Marsaglia's tail method);
+    a rejected point draws again."""
     while True:
-        bits = next_u64(rng)
-        i = np.int64(bits & _LOW8)
-        sign = 1.0 - 2.0 * float(np.int64((bits >> _S8) & np.uint64(1)))  # no branch: the bit is a coin flip
-        x = float(np.int64(bits >> _S11)) * (1.0 / 9007199254740992.0) * _ZIG_X[i]
-        if x < _ZIG_X[i + 1]:
-            return sign * x
         if i == 0:  # the tail beyond r
             while True:
                 tx = -math.log(1.0 - uniform(rng)) / _ZIG_R
@@ -94,6 +108,9 @@ def normal(rng: np.ndarray) -> float:
                 if 2.0 * ty > tx * tx:
                     return sign * (_ZIG_R + tx)
         if _ZIG_F[i] + uniform(rng) * (_ZIG_F[i + 1] - _ZIG_F[i]) < math.exp(-0.5 * x * x):
+            return sign * x
+        i, sign, x = _layer_point(rng)
+        if x < _ZIG_X[i + 1]:
             return sign * x
 
 
