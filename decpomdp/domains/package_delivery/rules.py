@@ -328,8 +328,9 @@ def waiting_here(si, a):
 
 @njit(inline="always")
 def situation(si, a, ma, here):
-    """Index of robot ``a`` beginning ``ma`` with ``here`` at its base in the start tables."""
-    return ((si[at(a, LOC)] * _N_LOAD + si[at(a, LOAD)]) * _N_PKG + here) * _N_MA + ma
+    """Index of robot ``a`` beginning ``ma`` with ``here`` at its base in the start tables (unsigned: numba adds
+    no negative-index wraparound to a lookup with it)."""
+    return np.uint64(((si[at(a, LOC)] * _N_LOAD + si[at(a, LOAD)]) * _N_PKG + here) * _N_MA + ma)
 
 
 @njit(inline="always")
@@ -452,7 +453,7 @@ def complete(si, sf, p, tab, perception, agents, actions, t, obs, rng):
             dropped = dropped or si[at(a, PAYS)] == 1
             si[at(a, PAYS)] = 0
         if dropped:
-            i = (ma * _N_LOC + si[at(a, LOC)]) * _N_LOAD + si[at(a, LOAD)]
+            i = np.uint64((ma * _N_LOC + si[at(a, LOC)]) * _N_LOAD + si[at(a, LOAD)])
             credit = drop_reward[i]
             if p[P_LARGE_PER_ROBOT] == 0 and (k & JPUT_KIND) and not jput:
                 credit *= 2.0  # a solo joint put-down gets the whole reward
