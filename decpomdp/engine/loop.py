@@ -142,8 +142,8 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
     Args:
         args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
             horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
-            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int64 (K, A, Nn),
-            ``next_node`` int64 (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
+            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int32 (K, A, Nn),
+            ``next_node`` int32 (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
             or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
             instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
     """

