@@ -350,3 +350,12 @@ def test_controller_text_lists_every_node():
         controller_text("x")
     with pytest.raises(TypeError, match="model: expected a DPOMDPModel"):
         dpomdp_text("x")
+
+
+def test_infinite_horizon_node_budget_keeps_the_joint_system_small():
+    """The default infinite-horizon budget: the most nodes from 4 to 8 with ``nodes ** agents * states <= 256``."""
+    from decpomdp.dpomdp.solve import infinite_nodes
+
+    cases = {(2, 2): 8, (2, 4): 8, (2, 5): 7, (2, 16): 4, (2, 2025): 4, (3, 2): 5, (1, 3): 8}
+    for (agents, states), nodes in cases.items():
+        assert infinite_nodes(agents, states) == nodes, (agents, states)
