@@ -41,6 +41,7 @@ from hbni_pyro.kernels.mh_steps import (
 )
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
+from infra.checks import as_float
 
 
 class FrameData:
@@ -161,9 +162,7 @@ class HBNIMetropolis(BatchedKernel):
         seed: int = 0,
     ) -> None:
         super().__init__(num_chains, hyperprior, class_prior, seed)
-        if not 0 <= stay_prob < 1:
-            raise ValueError(f"stay_prob: expected a probability in [0, 1), got {stay_prob!r}")
-        self.stay_prob = stay_prob
+        self.stay_prob = as_float("stay_prob", stay_prob, 0.0, 1.0, high_open=True)
         self.save_params = ["gamma", "kappa", "theta"]
 
     def setup(self, warmup_steps: int, obs: Tensor, labels: Tensor | None = None) -> None:
