@@ -14,7 +14,8 @@ CPU time of the process is the steadier figure.
    each output's current and proposed class, run over the outputs in cache-sized blocks and
    rewrite the classes in place (no chains x outputs array is allocated per iteration, so the
    heap does not grow over the run); label frequencies are pooled over chains. On the CPU the class
-   move, its statistics and the label counts are one compiled pass. Floors: 60 CPU s, 1 GB peak.
+   move, its statistics and the label counts are one compiled function, three branch-poor passes over
+   each block (coins and proposals, acceptances, statistics). Floors: 60 CPU s, 1 GB peak.
 3. Per-frame filter update (``HBNIFilter.update``, marginal over the posterior's draws) of every
    model on 6 classes, against the paper's filter in the same process. Floor: 2 ms.
 
