@@ -20,17 +20,23 @@ from numba import njit
 from infra.counter_random import normal, stream_key  # sets numba's cache directory (infra.numba_cache) first
 
 
-@njit(cache=True, nogil=True)
 def normals(key: np.uint64, B: int, K: int, d: int) -> np.ndarray:
     """``(B, K, d)`` standard normals, chain ``b``'s from the stream keyed by ``(key, b, 0)``."""
     out = np.empty((B, K, d))
-    rng = np.zeros(1, dtype=np.uint64)
+    _fill_normals(key, out, np.zeros(1, dtype=np.uint64))
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _fill_normals(key: np.uint64, out: np.ndarray, rng: np.ndarray) -> None:
+    """Fill ``out (B, K, d)`` as :func:`normals` returns it. Compiled without reference counting, which would
+    cost about 9 ns a draw around the ziggurat's out-of-line rare path (see :func:`infra.counter_random.normal`)."""
+    B, K, d = out.shape
     for b in range(B):
         rng[0] = stream_key(key, b, 0)
         for k in range(K):
             for j in range(d):
                 out[b, k, j] = normal(rng)
-    return out
 
 
 @njit(cache=True, nogil=True, fastmath=True)
