@@ -9,7 +9,7 @@ ratio. Under the paper's model ``log p(c_i = k) + log Dir(o_i; theta_k e_k + 1)`
 Given the parameters the classes are independent, so the moves of a block of :data:`ROWS` outputs
 run in three passes, each a loop without unpredictable branches: :func:`propose` draws every
 (output, chain) pair's coin and proposal and keeps the pairs that would change class (about a
-third of them); :func:`accept` decides those by the Hastings ratio (about one in sixty is accepted);
+third of them); :func:`accept` decides those by the Hastings ratio (about one in thirty is accepted);
 :func:`tally` sums the statistics of the new classes. A proposal decided in the same loop as the
 coin flip cost three times as much, the flip and the acceptance being branches the processor
 cannot predict.
