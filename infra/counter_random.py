@@ -100,32 +100,26 @@ def normal(rng: np.ndarray) -> float:
     i, sign, x = _layer_point(next_u64(rng))
     if x < _ZIG_X[i + 1]:
         return sign * x
-    value, rng[0] = _normal_edge(rng[0], i, sign, x)
-    return value
+    return _normal_edge(rng, i, sign, x)
 
 
 @njit(inline="never", error_model="numpy")
-def _normal_edge(state: np.uint64, i: np.int64, sign: float, x: float) -> tuple[float, np.uint64]:
+def _normal_edge(rng: np.ndarray, i: np.int64, sign: float, x: float) -> float:
     """The ziggurat's rare path for a point ``x`` of layer ``i`` outside the inner rectangle: accepted under the
     density by a second uniform, the base layer's overhang being the tail ``x > r`` (Marsaglia's tail method);
-    a rejected point draws again. Returns the value and the stream's new ``state`` (the draws of
-    :func:`next_u64`)."""
+    a rejected point draws again."""
     while True:
         if i == 0:  # the tail beyond r
             while True:
-                state += GOLDEN
-                tx = -math.log(1.0 - unit(mix64(state))) / _ZIG_R
-                state += GOLDEN
-                ty = -math.log(1.0 - unit(mix64(state)))
+                tx = -math.log(1.0 - uniform(rng)) / _ZIG_R
+                ty = -math.log(1.0 - uniform(rng))
                 if 2.0 * ty > tx * tx:
-                    return sign * (_ZIG_R + tx), state
-        state += GOLDEN
-        if _ZIG_F[i] + unit(mix64(state)) * (_ZIG_F[i + 1] - _ZIG_F[i]) < math.exp(-0.5 * x * x):
-            return sign * x, state
-        state += GOLDEN
-        i, sign, x = _layer_point(mix64(state))
+                    return sign * (_ZIG_R + tx)
+        if _ZIG_F[i] + uniform(rng) * (_ZIG_F[i + 1] - _ZIG_F[i]) < math.exp(-0.5 * x * x):
+            return sign * x
+        i, sign, x = _layer_point(next_u64(rng))
         if x < _ZIG_X[i + 1]:
-            return sign * x, state
+            return sign * x
 
 
 @njit(inline="always")
