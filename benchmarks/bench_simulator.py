@@ -78,7 +78,7 @@ def rate(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds; the median is reported")
-    parser.add_argument("--repeats", type=int, default=3, help="calls per measurement; the fastest counts")
+    parser.add_argument("--repeats", type=int, default=5, help="calls per measurement; the fastest counts")
     parser.add_argument("--patterns", nargs="+", default=["8000x8", "400x80"], help="controllers x rollouts")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

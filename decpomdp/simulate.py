@@ -44,7 +44,10 @@ def check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"controller: has {controller.num_agents} agents, env has {env.num_agents}")
     if controller.num_obs != env.num_obs:
         raise ValueError(f"controller: has {controller.num_obs} observations, env has {env.num_obs}")
-    if int(controller.action.max()) >= env.num_actions:
+    # on the CPU, NumPy's single-threaded reduction: torch's wakes its intra-op threads, which then spin for
+    # milliseconds beside the engine's workers (a two-thread batch of 8000 controllers ran 10 % slower)
+    action = controller.action
+    if int(action.numpy().max() if action.device.type == "cpu" else action.max()) >= env.num_actions:
         raise ValueError(f"controller: action entries must lie in [0, {env.num_actions})")
     if not math.isfinite(env.horizon):
         raise ValueError(f"env: simulation needs a finite horizon, got {env.horizon}")
