@@ -277,7 +277,9 @@ def characterize_generative(
     ``mission.planning_model=generative``, else HBNI when ``mission.compare_planning_models``): each
     process run on ``mission.generative_streams`` streams per class drawn from the posterior predictive
     of the fitted ``hbni.model`` (a posterior draw per stream; its frames i.i.d. given it under the
-    frame-level models, sharing one look under ``sequence``); saved as ``macro_<variant>_generative``."""
+    frame-level models, sharing one look under ``sequence``, about which consecutive frames correlate as in the
+    calibration sequences: :attr:`hbni_pyro.HBNIPosterior.frame_correlation`); saved as
+    ``macro_<variant>_generative``."""
     loop = settings.loop
     needed = (
         settings.variants
@@ -512,6 +514,7 @@ def write_outputs(
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
+        "hbni_frame_correlation": noise.posterior.frame_correlation,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
         "planner": dataclasses.asdict(planner),
         "warm_planner": None if warm is None else dataclasses.asdict(warm),

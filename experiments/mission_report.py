@@ -84,7 +84,8 @@ def report(metrics: dict, figures: list[str]) -> str:
     how = "fitted by log score on the labelled calibration sequences" if temper["fitted"] else "set in the config"
     temper_line = (
         "HBNI's noise model is the sequence-aware one: it integrates each sequence's look out and uses no "
-        "likelihood temper."
+        "likelihood temper; its generative streams correlate consecutive frames about their look by "
+        f"{metrics.get('hbni_frame_correlation', 0.0):.2f}, as the calibration sequences do."
         if temper.get("needed") is False
         else f"HBNI's likelihood temper is {temper['value']:g} ({how}; 1 treats a sequence's frames as independent)."
     )

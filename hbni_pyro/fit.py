@@ -25,6 +25,7 @@ from pyro import poutine
 from pyro.infer import MCMC, NUTS, infer_discrete
 from torch import Tensor
 
+from hbni_pyro.frame_correlation import estimate_frame_correlation
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
 from hbni_pyro.sequence_model import SequenceStats, sequence_stats
@@ -74,7 +75,8 @@ def fit(
         model: the noise model's name, ``"paper"`` (default), ``"confusion"``, ``"sequence"`` or
             another registered one (:func:`hbni_pyro.variants.register`), or its spec.
         sequence_ids: ``(N,)`` integer id of each output's sequence (required by a sequence
-            model, ignored by the others).
+            model, ignored by the others); a sequence's outputs in time order, from which a model with
+            ``correlated_frames`` estimates :attr:`~HBNIPosterior.frame_correlation`.
         method: ``"mh"`` (the vectorised kernels) or ``"nuts"`` (Pyro NUTS on the Pyro model with
             the classes enumerated out, labels recovered by ``infer_discrete``).
         num_chains: chains (``None`` = ``DEFAULT_CHAINS[method]``).
@@ -112,6 +114,8 @@ def fit(
     else:
         posterior = _fit_nuts(spec, x, y, ids, jit=jit, **settings)
     posterior.class_names = names
+    if spec.correlated_frames:
+        posterior.frame_correlation = estimate_frame_correlation(x, ids)
     return posterior
 
 
@@ -159,8 +163,10 @@ def fit_many(
     ids = _sequence_ids(spec, sequence_ids, x.shape[1], y, where)
     names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
-    for posterior in posteriors:
+    for d, posterior in enumerate(posteriors):
         posterior.class_names = names
+        if spec.correlated_frames:
+            posterior.frame_correlation = estimate_frame_correlation(x[d], ids)
     return posteriors
 
 

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from hbni_pyro.density import helmert_basis
+from hbni_pyro.frame_correlation import ar1_normals
 from hbni_pyro.validation import DTYPE, has_values
 
 
@@ -95,15 +96,24 @@ def sample_gaussian(loc: Tensor, cov: Tensor, generator: torch.Generator) -> Ten
 
 
 def sample_sequences(
-    loc: Tensor, between: Tensor, within: Tensor, classes: Tensor, num_frames: int, generator: torch.Generator
+    loc: Tensor,
+    between: Tensor,
+    within: Tensor,
+    classes: Tensor,
+    num_frames: int,
+    generator: torch.Generator,
+    correlation: float = 0.0,
 ) -> Tensor:
     """Output sequences from the sequence-aware model: ``(K, num_frames, M)`` for ``classes (K,)``.
 
     Each sequence draws its look ``mu_k ~ N(loc[c_k], between[c_k])``, then its frames'
     log-ratio coordinates ``y ~ N(mu_k, within)``, mapped to the simplex by ``softmax(H^T y)``.
     ``loc (M, d)``, ``between (M, d, d)``, ``within (d, d)`` (or ``(K, 1, d, d)``: one per sequence).
+    With ``correlation`` (in (-1, 1)) the frames' scatter about the look is an AR(1) series with that lag-1
+    correlation (:mod:`hbni_pyro.frame_correlation`); 0 draws them i.i.d.
     """
     classes = torch.as_tensor(classes, dtype=torch.long, device=loc.device)
     look = sample_gaussian(loc[classes], between[classes], generator)
-    y = sample_gaussian(look.unsqueeze(-2).expand(look.shape[:-1] + (num_frames, look.shape[-1])), within, generator)
+    z = ar1_normals(look.shape[:-1] + (num_frames, look.shape[-1]), correlation, generator, look.device)
+    y = look.unsqueeze(-2) + (torch.linalg.cholesky(within) @ z.unsqueeze(-1)).squeeze(-1)
     return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1, DTYPE, loc.device), -1).clamp_min(torch.finfo(DTYPE).tiny)

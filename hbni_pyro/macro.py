@@ -289,7 +289,7 @@ def characterize(
         generative: where streams come from: an :class:`hbni_pyro.HBNIPosterior` of any noise
             model (its posterior predictive of a new object, :meth:`~hbni_pyro.HBNIPosterior.sample_streams`:
             each stream takes one posterior draw, then ``max_frames`` outputs given it, sharing one
-            look under the sequence model), anything else with ``theta_draws() -> (S, M)`` (taken
+            look under the sequence model, about which they scatter with its ``frame_correlation``), anything else with ``theta_draws() -> (S, M)`` (taken
             as the paper's model) or a true theta tensor ``(M,)``.
         num_streams: streams simulated per true class.
         seed: same seed, same table.

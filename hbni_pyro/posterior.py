@@ -16,7 +16,7 @@ from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
-from infra.checks import as_device, as_int, as_names
+from infra.checks import as_device, as_float, as_int, as_names
 from infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
@@ -37,6 +37,9 @@ class HBNIPosterior:
         model: the noise model's name, a key of :data:`hbni_pyro.variants.NOISE_MODELS` (default ``"paper"``).
         class_names: the name of each class, in the order of the outputs' columns (``None``: unnamed); filters,
             tables and streams built on the posterior check their names against it.
+        frame_correlation: the lag-1 correlation in ``(-1, 1)`` of a stream's frames about its look, for
+            predictive streams (:mod:`hbni_pyro.frame_correlation`); fits of a model with ``correlated_frames``
+            estimate it from their sequences, and it must be 0 under other models.
     """
 
     samples: dict[str, Tensor]
@@ -46,10 +49,15 @@ class HBNIPosterior:
     info: dict[str, Any] = field(default_factory=dict)
     model: str = "paper"
     class_names: tuple[str, ...] | None = None
+    frame_correlation: float = 0.0
 
     def __post_init__(self) -> None:
         self.model = self.noise_model.name
         self.class_names = as_names("class_names", self.class_names, self.num_classes)
+        rho = as_float("frame_correlation", self.frame_correlation, -1.0, 1.0, low_open=True, high_open=True)
+        if rho != 0.0 and not self.noise_model.correlated_frames:
+            raise ValueError(f"frame_correlation: the {self.model!r} model draws frames i.i.d., expected 0, got {rho}")
+        self.frame_correlation = rho
         shapes = self.noise_model.site_shapes(self.num_classes)
         missing = [k for k in shapes if k not in self.samples]
         if missing:
@@ -175,7 +183,8 @@ class HBNIPosterior:
         """Posterior-predictive output streams ``(num_streams, num_frames, M)`` of new class-``true_class`` objects.
 
         Each stream takes one posterior draw; its frames are then i.i.d. given it (frame-level
-        models) or share one new look (the sequence model). ``generator``, when given, is used (and
+        models) or share one new look (the sequence model), about which they scatter with the lag-1 correlation
+        :attr:`frame_correlation`. ``generator``, when given, is used (and
         advanced) instead of a new one seeded with ``seed``; it must be on the posterior's device. The
         streams are drawn there; on ``meta`` they are shapes without values (no generator).
         """
@@ -190,7 +199,10 @@ class HBNIPosterior:
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g, device=self.device)
-        return self.noise_model.sample_streams({k: v[idx] for k, v in draws.items()}, true_class, num_frames, g)
+        chosen = {k: v[idx] for k, v in draws.items()}
+        if self.noise_model.correlated_frames:
+            return self.noise_model.sample_streams(chosen, true_class, num_frames, g, self.frame_correlation)
+        return self.noise_model.sample_streams(chosen, true_class, num_frames, g)
 
     def check(
         self,
@@ -238,6 +250,7 @@ class HBNIPosterior:
             "hyperprior": self.hyperprior.as_dict(),
             "info": self.info,
             "class_names": None if self.class_names is None else list(self.class_names),
+            "frame_correlation": self.frame_correlation,
         }
         return save_tensors(path, _KIND, tensors, meta, version=_VERSION)
 
@@ -262,6 +275,7 @@ class HBNIPosterior:
                 info=meta.get("info", {}),
                 model=model,
                 class_names=meta.get("class_names"),
+                frame_correlation=meta.get("frame_correlation", 0.0),
             )
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
@@ -286,6 +300,8 @@ class HBNIPosterior:
         head = f"HBNIPosterior(model={self.model!r}, M={self.num_classes}, chains={self.num_chains}, draws={self.num_draws}"
         if "theta" in self.samples:
             head += ", theta mean=[" + ", ".join(f"{float(v):.3g}" for v in self.theta_point()) + "]"
+        if self.frame_correlation:
+            head += f", frame_correlation={self.frame_correlation:.3f}"
         return head + f", method={self.info.get('method')!r})"
 
 

@@ -30,7 +30,9 @@ def nuts_sites(raw: Draws) -> Draws:
     return {"loc": raw["loc"], **outer, **{k: v for k, v in raw.items() if k.endswith("_pooling")}}
 
 
-def sample_streams(draws: Draws, true_class: int, num_frames: int, generator: torch.Generator) -> Tensor:
+def sample_streams(
+    draws: Draws, true_class: int, num_frames: int, generator: torch.Generator, correlation: float = 0.0
+) -> Tensor:
     n = draws["loc"].shape[0]
     return sample_sequences(
         draws["loc"][:, true_class],
@@ -39,6 +41,7 @@ def sample_streams(draws: Draws, true_class: int, num_frames: int, generator: to
         torch.arange(n, device=draws["loc"].device),
         num_frames,
         generator,
+        correlation,
     )
 
 
@@ -98,6 +101,7 @@ NOISE_MODEL = NoiseModel(
     nuts_sites=nuts_sites,
     sample_streams=sample_streams,
     sequences=True,
+    correlated_frames=True,
     filter_draws=2000,  # a draw costs M - 1 times the paper's; 2000 keep a frame under 2 ms
     point_estimate=lambda draws: {k: v.mean(0, keepdim=True) for k, v in draws.items()},
     free_entry=lambda site, index: site not in COVARIANCES or index[-2] <= index[-1],

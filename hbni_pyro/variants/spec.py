@@ -46,6 +46,9 @@ class NoiseModel:
         sample_streams: ``(draws, true_class, num_frames, generator) -> (n, num_frames, M)`` output
             streams, one per draw of ``draws`` (site -> ``(n, ...)``).
         sequences: fits take sequence ids, and a sequence's frames share a latent look.
+        correlated_frames: ``sample_streams`` also takes ``correlation``, the AR(1) lag-1 correlation of a
+            stream's frames about its look, and fits estimate it from their sequences
+            (:mod:`hbni_pyro.frame_correlation`; a sequence model only).
         max_plate_nesting: the Pyro program's plate depth (for NUTS).
         filter_draws: the filter's default number of draws (``None``: all).
         point_estimate: the filter's plug-in draw from pooled draws.
@@ -65,6 +68,7 @@ class NoiseModel:
     nuts_sites: Callable[[Draws], Draws]
     sample_streams: Callable[[Draws, int, int, torch.Generator], Tensor]
     sequences: bool = False
+    correlated_frames: bool = False
     max_plate_nesting: int = 1
     filter_draws: int | None = None
     point_estimate: Callable[[Draws], Draws] = median_point
@@ -73,6 +77,10 @@ class NoiseModel:
     draw_prior: Callable | None = None
     simulate: Callable | None = None
     rank_statistics: Callable[[Draws], dict[str, Tensor]] | None = None
+
+    def __post_init__(self) -> None:
+        if self.correlated_frames and not self.sequences:
+            raise ValueError(f"correlated_frames: the {self.name!r} model has no sequences to correlate frames in")
 
     @property
     def class_site(self) -> str:

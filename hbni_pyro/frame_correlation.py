@@ -1,0 +1,107 @@
+"""How a camera's consecutive frames resemble each other: an AR(1) correlation of frames around their look.
+
+The sequence model treats a sequence's frames as exchangeable given its look: i.i.d. scatter ``W``
+around ``mu_k``. A moving camera's frames are closer to their neighbours than that (the mission's
+held-out streams: lag-1 correlation of the scatter about 0.7, lag-2 about 0.5, lag-5 about 0.1, an
+AR(1) decay). The filter keeps the exchangeable model; streams simulated from a fitted posterior
+(the generative planning tables, posterior predictive checks) use the AR(1) scatter
+
+    y_t = mu_k + e_t,   e_1 = L z_1,   e_t = rho e_{t-1} + sqrt(1 - rho^2) L z_t   (L L^T = W, z ~ N(0, I))
+
+so every frame still scatters by ``W`` about the look, and neighbours correlate by ``rho^|s - t|``.
+
+``rho`` is estimated from labelled or unlabelled sequences alike: the scatter of each sequence about
+its own mean, in log-ratio coordinates, gives the pooled lag-1 ratio ``r = sum e_t . e_{t+1} / sum e_t . e_t``.
+Centring on the sample mean biases ``r`` down (to ``-1 / n`` for i.i.d. frames), so ``rho`` solves
+``E[numerator](rho) / E[denominator](rho) = r`` with both expectations in closed form for the
+sequences' lengths (:func:`lag_one_ratio`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from hbni_pyro.density import ilr
+from hbni_pyro.validation import DTYPE
+
+LIMIT = 0.99
+"""Estimates are kept in ``[-LIMIT, LIMIT]``."""
+
+
+def _row_sums(rho: float, n: int) -> Tensor:
+    """``(R 1)_t`` for the AR(1) correlation matrix ``R_st = rho^|s - t|`` of ``n`` frames, float64 ``(n,)``."""
+    t = torch.arange(1, n + 1, dtype=DTYPE)
+    if rho == 1.0:
+        return torch.full((n,), float(n), dtype=DTYPE)
+    return ((1 - rho**t) + (1 - rho ** (n - t + 1))) / (1 - rho) - 1
+
+
+def lag_one_ratio(rho: float, lengths: Tensor) -> float:
+    """``E[sum_t e_t e_{t+1}] / E[sum_t e_t^2]`` for AR(1) sequences of ``lengths`` frames (long ``(K,)``, each
+    at least 2) centred on their own means; ``-1 / n`` at ``rho = 0`` for a single length ``n``."""
+    num = den = 0.0
+    sizes, counts = torch.unique(lengths, return_counts=True)
+    for n, count in zip(sizes.tolist(), counts.tolist()):
+        r1 = _row_sums(rho, n)
+        total = float(r1.sum())  # 1' R 1
+        den += count * (n - total / n)  # tr(C R C)
+        lagged = (n - 1) * rho - (float(r1[:-1].sum()) + float(r1[1:].sum())) / n + (n - 1) * total / n**2
+        num += count * lagged  # sum of the first super-diagonal of C R C
+    return num / den
+
+
+def estimate_frame_correlation(obs: Tensor, sequence_ids: Tensor) -> float:
+    """The AR(1) correlation of frames about their sequence's look (see the module doc).
+
+    Args:
+        obs: ``(N, M)`` outputs on the simplex, each sequence's frames in time order.
+        sequence_ids: long ``(N,)`` ids ``0..K-1``.
+
+    Returns:
+        ``rho`` in ``[-LIMIT, LIMIT]``; 0.0 when no sequence has three frames (two frames centred on their mean
+        are perfectly anti-correlated whatever ``rho``).
+    """
+    x = obs.to(DTYPE).cpu()
+    ids = sequence_ids.cpu()
+    order = torch.argsort(ids, stable=True)
+    y, ids = ilr(x[order].clamp_min(torch.finfo(DTYPE).tiny)), ids[order]
+    num_seq = int(ids.max()) + 1
+    counts = torch.bincount(ids, minlength=num_seq)
+    means = torch.zeros(num_seq, y.shape[1], dtype=DTYPE).index_add_(0, ids, y) / counts.clamp_min(1).unsqueeze(1)
+    e = y - means[ids]
+    used = counts[ids] >= 3
+    same = (ids[1:] == ids[:-1]) & used[1:]
+    den = float((e[used] ** 2).sum())
+    if not bool(same.any()) or den == 0.0:
+        return 0.0
+    observed = float((e[1:] * e[:-1]).sum(1)[same].sum()) / den
+    lengths = counts[counts >= 3]
+    lo, hi = -LIMIT, LIMIT
+    if observed <= lag_one_ratio(lo, lengths):
+        return lo
+    if observed >= lag_one_ratio(hi, lengths):
+        return hi
+    for _ in range(60):  # the ratio increases with rho: bisection to about 1e-18
+        mid = 0.5 * (lo + hi)
+        if lag_one_ratio(mid, lengths) < observed:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def ar1_normals(shape: tuple[int, ...], correlation: float, generator: torch.Generator, device=None) -> Tensor:
+    """Standard normals float64 ``(*shape)`` forming, along the second-to-last axis, AR(1) series with lag-1
+    correlation ``correlation`` and unit variance at every step (``correlation = 0``: i.i.d.)."""
+    z = torch.randn(shape, generator=generator, dtype=DTYPE, device=device)
+    if correlation == 0.0 or shape[-2] < 2:
+        return z
+    scale = math.sqrt(1.0 - correlation**2)
+    out = torch.empty_like(z)
+    out[..., 0, :] = z[..., 0, :]
+    for t in range(1, shape[-2]):
+        out[..., t, :] = correlation * out[..., t - 1, :] + scale * z[..., t, :]
+    return out
