@@ -9,14 +9,15 @@ then the policy executed with the actual filter on held-out frames.
    cache or built in background processes while the next stages run.
 2. :func:`classify_sequences`: render labelled calibration and held-out mission-condition
    sequences and classify every frame.
-3. :func:`fit_noise`: fit HBNI on the calibration outputs, then its likelihood temper on the same
-   sequences (:func:`hbni_pyro.fit_temper`: their frames are correlated, not i.i.d.).
+3. :func:`fit_noise`: fit HBNI on the calibration outputs (the sequence model: each sequence's look and
+   the correlation of its consecutive frames); a frame-level model also gets its likelihood temper fitted on
+   the same sequences (:func:`hbni_pyro.fit_temper`: their frames are correlated, not i.i.d.).
 4. :func:`characterize_processes`: run HBNI, SSBF and max-of-mean macro-observation processes
    (threshold, frame budget) on the held-out streams and tabulate each one's
    ``P(label, frames | true class)``: the :class:`~hbni_pyro.MacroObservationModel` of the
    "infer with 95 % confidence" MA (the empirical planning model). :func:`characterize_generative`:
    the same processes run on streams simulated from HBNI's fitted posterior predictive (the
-   generative planning model); :func:`planning_models` gives each variant the one
+   generative planning model, the default); :func:`planning_models` gives each variant the one
    ``mission.planning_model`` names, and HBNI also the other one (``hbni_<other>``).
 5. :func:`plan`: plug each model (and perfect perception) into the disaster-relief domain and search a
    controller with the planner (no hand-written controller): perfect perception from scratch (settings

@@ -108,12 +108,23 @@ class SequenceEvidence:
     ``loc (S, M, d)``, ``between (S, M, d, d)``, ``within (S, d, d)``. Each sequence's look is
     integrated out exactly: the evidence of ``n`` frames is that of their mean look under
     ``N(loc_c, between_c + within / n)`` times the frames' scatter term under ``within`` (the same
-    for every class, but not for every draw)."""
+    for every class, but not for every draw).
 
-    def __init__(self, draws: dict[str, Tensor]) -> None:
+    With ``correlation`` ``rho`` (:mod:`hbni_pyro.frame_correlation`), the frames scatter about their look as
+    an AR(1) series. Their Prais-Winsten transform ``u_1 = sqrt(1 - rho^2) y_1``, ``u_t = y_t - rho y_{t-1}``
+    has independent rows ``u_t ~ N(a_t mu, (1 - rho^2) within)`` with ``a_1 = sqrt(1 - rho^2)`` and
+    ``a_t = 1 - rho``, so the features become ``a_t u_t`` and ``u_t u_t^T`` (frame ``t``'s depend on frame
+    ``t - 1``: :attr:`lagged`), the mean look their weighted mean, and ``n`` frames count as
+    ``n_eff = 1 + (n - 1)(1 - rho) / (1 + rho)`` in ``between_c + within / n_eff``.
+    """
+
+    def __init__(self, draws: dict[str, Tensor], correlation: float = 0.0) -> None:
         loc, between, within = draws["loc"], draws["between"], draws["within"]
         S, self.num_classes, self.dim = loc.shape
         self.feature_size = self.dim + self.dim**2
+        self.correlation = float(correlation)
+        self.lagged = self.correlation != 0.0
+        """Whether a frame's features depend on the frame before it (time is the second-to-last axis)."""
         self._basis, self._lam, self._logdet = look_basis(
             between, within.unsqueeze(1)
         )  # (S, M, d, d), (S, M, d), (S, 1)
@@ -121,13 +132,25 @@ class SequenceEvidence:
         self._within_prec = torch.linalg.inv(within).reshape(S, -1)  # (S, d d)
 
     def features(self, obs: Tensor) -> Tensor:
+        """``(..., M) -> (..., d + d^2)``; when :attr:`lagged`, ``obs (..., N, M)`` holds streams from their first
+        frame."""
         y = ilr(obs)
+        if self.lagged:
+            rho, edge = self.correlation, math.sqrt(1.0 - self.correlation**2)
+            u = torch.cat([edge * y[..., :1, :], y[..., 1:, :] - rho * y[..., :-1, :]], -2)
+            weighted = torch.cat([edge * u[..., :1, :], (1.0 - rho) * u[..., 1:, :]], -2)
+            return torch.cat([weighted, (u.unsqueeze(-1) * u.unsqueeze(-2)).flatten(-2)], -1)
         return torch.cat([y, (y.unsqueeze(-1) * y.unsqueeze(-2)).flatten(-2)], -1)
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
         S, M, d = self._basis.shape[0], self.num_classes, self.dim
-        mean_y = stats[:, :d] / counts.unsqueeze(-1)
-        scatter = stats[:, d:] - counts[:, None] * (mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)).flatten(-2)  # (K, d d)
+        rho = self.correlation
+        weight = (1.0 - rho**2) + (counts - 1.0) * (1.0 - rho) ** 2  # sum_t a_t^2 (= n without correlation)
+        mean_y = stats[:, :d] / weight.unsqueeze(-1)
+        scatter = stats[:, d:] - weight[:, None] * (mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)).flatten(-2)  # (K, d d)
+        effective = weight / (1.0 - rho**2)  # n_eff
+        # the AR(1) density's terms that depend on neither class nor draw (0 without correlation)
+        shift = -0.5 * d * ((weight / counts).log() + (counts - 2.0) * math.log(1.0 - rho**2))
         flat_basis = self._basis.reshape(S * M * d, d)
         out = torch.empty(stats.shape[0], M, dtype=stats.dtype, device=stats.device)
         step = max(1, _CHUNK_ELEMENTS // (S * M * d))
@@ -137,8 +160,11 @@ class SequenceEvidence:
             resid = (flat_basis @ mean_y[rows].T).reshape(S, M, d, k).permute(
                 3, 0, 1, 2
             ) - self._basis_loc  # (k, S, M, d)
-            n = counts[rows][:, None, None]
-            trace = (scatter[rows] @ self._within_prec.T).unsqueeze(-1)  # (k, S, 1): tr(W^-1 scatter) by one matmul
-            terms = look_log_marginal(n, resid, self._lam, self._logdet) + within_log_prob(n, trace, self._logdet, d)
+            n, n_eff = counts[rows][:, None, None], effective[rows][:, None, None]
+            # tr(W^-1 scatter) by one matmul, over (1 - rho^2) W
+            trace = (scatter[rows] @ self._within_prec.T).unsqueeze(-1) / (1.0 - rho**2)  # (k, S, 1)
+            terms = look_log_marginal(n_eff, resid, self._lam, self._logdet) + within_log_prob(
+                n, trace, self._logdet, d
+            )
             out[rows] = logsumexp_in_order(terms.transpose(1, 2))
-        return out - math.log(S)
+        return out - math.log(S) + shift.unsqueeze(-1)

@@ -61,7 +61,9 @@ class StreamingFilter:
 
     Subclasses define :meth:`features` (per-frame ``(..., M) -> (..., F)``) and
     :meth:`posterior` (running feature sum and frame count ``-> (..., M)`` class probabilities);
-    ``F = feature_size`` (``M`` unless a subclass says otherwise). ``class_names`` are the classes' names in
+    ``F = feature_size`` (``M`` unless a subclass says otherwise). A subclass whose :attr:`lagged` is true
+    computes a frame's feature from it and the frame before: its :meth:`features` takes streams
+    ``(..., N, M)`` from their first frame. ``class_names`` are the classes' names in
     column order when the filter knows them (an HBNI filter: its posterior's), else ``None``. ``device`` is
     where it runs: a ``str`` or ``torch.device``.
     """
@@ -73,6 +75,11 @@ class StreamingFilter:
     @property
     def feature_size(self) -> int:
         return self.num_classes
+
+    @property
+    def lagged(self) -> bool:
+        """Whether a frame's feature depends on the frame before it."""
+        return False
 
     def __init__(self, num_classes: int, device: str | torch.device = "cpu") -> None:
         self.num_classes = as_int("num_classes", num_classes, minimum=2)
@@ -91,6 +98,7 @@ class StreamingFilter:
         """Forget the stream seen so far."""
         self._stats = torch.zeros(self.feature_size, dtype=DTYPE, device=self.device)
         self._count = 0
+        self._last: Tensor | None = None
 
     @property
     def frames_seen(self) -> int:
@@ -102,7 +110,13 @@ class StreamingFilter:
         o = as_outputs(o, self.num_classes, name=f"o (frame {self.frames_seen + 1} of the stream)")
         if o.dim() != 1:
             raise ValueError(f"o: expected one output of shape ({self.num_classes},), got {tuple(o.shape)}")
-        self._stats = self._stats + self.features(o.to(self.device))
+        o = o.to(self.device)
+        if self.lagged:  # the feature of o as the last frame of (previous frame, o)
+            window = o.unsqueeze(0) if self._last is None else torch.stack([self._last, o])
+            self._stats = self._stats + self.features(window)[-1]
+            self._last = o
+        else:
+            self._stats = self._stats + self.features(o)
         self._count += 1
         count = torch.full((1,), self._count, dtype=DTYPE, device=self.device)
         return self.posterior(self._stats.unsqueeze(0), count)[0]
@@ -217,6 +231,10 @@ class HBNIFilter(StreamingFilter):
             about as much evidence as ``tau * N`` independent outputs. ``1`` is the model's own
             filter; :func:`hbni_pyro.fit_temper` fits ``tau`` on labelled sequences. The sequence
             model integrates each sequence's look out instead and needs no temper.
+        frame_correlation: under the sequence model, the lag-1 correlation in ``(-1, 1)`` of a stream's frames
+            about its look (:mod:`hbni_pyro.frame_correlation`): ``N`` correlated frames then count as
+            ``1 + (N - 1)(1 - rho) / (1 + rho)`` about their look. ``None`` takes the posterior's
+            ``frame_correlation`` (0 when it has none); 0 treats the frames as exchangeable.
         device: where the filter runs (the draws are moved there); ``None``: the device of the posterior's draws.
 
     The frame-level models have the sufficient statistic ``sum_i log o_i`` and ``N``; the sequence
@@ -233,6 +251,7 @@ class HBNIFilter(StreamingFilter):
         *,
         num_draws: int | None = None,
         temper: float = 1.0,
+        frame_correlation: float | None = None,
         device: str | torch.device | None = None,
     ) -> None:
         if mode not in self.MODES:
@@ -240,6 +259,12 @@ class HBNIFilter(StreamingFilter):
         num_draws = None if num_draws is None else as_int("num_draws", num_draws, minimum=1)
         temper = as_float("temper", temper, 0.0, 1.0, low_open=True)
         spec = noise_model(getattr(posterior, "model", "paper"))
+        if frame_correlation is None:
+            frame_correlation = getattr(posterior, "frame_correlation", 0.0)
+        rho = as_float("frame_correlation", frame_correlation, -1.0, 1.0, low_open=True, high_open=True)
+        if rho != 0.0 and not spec.correlated_frames:
+            raise ValueError(f"frame_correlation: the {spec.name!r} model's filter takes none, got {rho}")
+        self.frame_correlation = rho
         self.model = spec.name
         self.class_names = getattr(posterior, "class_names", None)
         draws = _checked_draws(posterior)
@@ -261,7 +286,7 @@ class HBNIFilter(StreamingFilter):
             draws = {k: v[picks] for k, v in draws.items()}
         self.draws = draws
         """The draws used, site -> ``(S, ...)`` (``S = 1`` in plugin mode)."""
-        self._evidence = spec.evidence(draws)
+        self._evidence = spec.evidence(draws, correlation=rho) if spec.correlated_frames else spec.evidence(draws)
         super().__init__(num_classes, device)
 
     @property
@@ -272,6 +297,10 @@ class HBNIFilter(StreamingFilter):
     @property
     def feature_size(self) -> int:
         return self._evidence.feature_size
+
+    @property
+    def lagged(self) -> bool:
+        return getattr(self._evidence, "lagged", False)
 
     def features(self, obs: Tensor) -> Tensor:
         return self._evidence.features(obs)
@@ -287,7 +316,8 @@ class HBNIFilter(StreamingFilter):
     def __repr__(self) -> str:
         return (
             f"HBNIFilter(model={self.model!r}, num_classes={self.num_classes}, mode={self.mode!r}, "
-            f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g})"
+            f"draws={len(next(iter(self.draws.values())))}, temper={self.temper:g}"
+            + (f", frame_correlation={self.frame_correlation:.3f})" if self.frame_correlation else ")")
         )
 
 

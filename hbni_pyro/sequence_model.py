@@ -16,6 +16,8 @@ The frames' scatter around the look is the same for every class, so it carries n
 about the class: a class-specific ``W_c`` lets evidence from that scatter grow with every frame,
 and frames of a moving camera are correlated in time, so it grows too fast (held-out log score
 of the mission's in-flight sequences -0.43 against -0.21 with one ``W``).
+The fit keeps the frames exchangeable given the look; the filter and the predictive streams add
+the AR(1) correlation of frames about it that the fit estimates apart (:mod:`hbni_pyro.frame_correlation`).
 A class's mean look is a full vector, so the model is confusion-aware as well: the looks of
 medical and news copters may lie close together, those of copters and crates far apart.
 

@@ -46,8 +46,8 @@ class NoiseModel:
         sample_streams: ``(draws, true_class, num_frames, generator) -> (n, num_frames, M)`` output
             streams, one per draw of ``draws`` (site -> ``(n, ...)``).
         sequences: fits take sequence ids, and a sequence's frames share a latent look.
-        correlated_frames: ``sample_streams`` also takes ``correlation``, the AR(1) lag-1 correlation of a
-            stream's frames about its look, and fits estimate it from their sequences
+        correlated_frames: ``sample_streams`` and ``evidence`` also take ``correlation``, the AR(1) lag-1
+            correlation of a stream's frames about its look, and fits estimate it from their sequences
             (:mod:`hbni_pyro.frame_correlation`; a sequence model only).
         max_plate_nesting: the Pyro program's plate depth (for NUTS).
         filter_draws: the filter's default number of draws (``None``: all).

@@ -31,7 +31,7 @@ def mission_run(tmp_path_factory, repo_root):
 
 def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     metrics = json.loads((mission_run / "metrics.json").read_text())
-    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean", "hbni_generative"}
+    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean", "hbni_empirical"}
     for entry in metrics["variants"].values():
         assert {"value", "stderr", "delivered_per_rollout", "wrong_per_rollout", "mean_inference_frames"} <= set(entry)
         assert {"value", "stderr", "gap_in_stderr", "wrong_per_rollout"} <= set(entry["executed"])
@@ -39,10 +39,10 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     loop = metrics["closed_loop"]
     assert loop["planning"] == {
         "perfect": "exact",
-        "hbni": "empirical",
-        "ssbf": "empirical",
-        "max_of_mean": "empirical",
-        "hbni_generative": "generative",
+        "hbni": "generative",
+        "ssbf": "generative",
+        "max_of_mean": "generative",
+        "hbni_empirical": "empirical",
     }
     assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
     assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
@@ -70,7 +70,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
         "hbni": "perfect",
         "ssbf": "perfect",
         "max_of_mean": "perfect",
-        "hbni_generative": "perfect",
+        "hbni_empirical": "perfect",
     }
     assert all(
         entry["rollouts"] > 0 and entry["planner_value"] == entry["planner_value"]
@@ -95,11 +95,13 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
         "macro_ssbf",
         "macro_max_of_mean",
         "macro_hbni_generative",
+        "macro_ssbf_generative",
+        "macro_max_of_mean_generative",
         "controller_perfect",
         "controller_hbni",
         "controller_ssbf",
         "controller_max_of_mean",
-        "controller_hbni_generative",
+        "controller_hbni_empirical",
     }
     generative = MacroObservationModel.load(mission_run / "macro_hbni_generative.safetensors")
     assert (
@@ -177,7 +179,7 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     _run(repo_root, f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf", multirun=True)
     for job, variant in (("0", "hbni"), ("1", "ssbf")):
         metrics = json.loads((tmp_path / job / "metrics.json").read_text())
-        assert set(metrics["variants"]) == {"perfect", variant} | ({"hbni_generative"} if variant == "hbni" else set())
+        assert set(metrics["variants"]) == {"perfect", variant} | ({"hbni_empirical"} if variant == "hbni" else set())
     report = (tmp_path / "report.md").read_text()
     header = next(line for line in report.splitlines() if line.startswith("| job"))
     assert header.startswith("| job | status | perception | variants.perfect | variants.hbni |")

@@ -178,3 +178,75 @@ def test_a_sequence_fit_estimates_the_correlation_and_a_frame_level_fit_does_not
         progress=False,
     )
     assert flat.frame_correlation == 0.0
+
+
+def _two_draws() -> dict[str, torch.Tensor]:
+    """Two draws of a three-class sequence model that differ in every site."""
+    g = torch.Generator().manual_seed(11)
+    a = torch.randn(2, 2, 2, generator=g, dtype=D)
+    b = torch.randn(2, 3, 2, 2, generator=g, dtype=D)
+    return {
+        "loc": torch.randn(2, 3, 2, generator=g, dtype=D),
+        "between": b @ b.transpose(-1, -2) + 0.3 * torch.eye(2, dtype=D),
+        "within": a @ a.transpose(-1, -2) + 0.5 * torch.eye(2, dtype=D),
+    }
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.6, -0.3])
+def test_lagged_evidence_is_the_joint_gaussian_of_ar1_frames(rho):
+    """``log mean_s N(y_1:n; 1 loc_c, 1 1^T between_c + R(rho) within)`` for every class, by brute force."""
+    from hbni_pyro.evidence import SequenceEvidence
+
+    draws = _two_draws()
+    evidence = SequenceEvidence(draws, correlation=rho)
+    g = torch.Generator().manual_seed(12)
+    for n in (1, 2, 5):
+        obs = torch.softmax(torch.randn(n, 3, generator=g, dtype=D), -1)
+        stats = evidence.features(obs).sum(0, keepdim=True)
+        ours = evidence.log_evidence(stats, torch.tensor([float(n)], dtype=D))[0]
+        y = obs.log() @ helmert_basis(3, D, "cpu").T
+        i = torch.arange(n, dtype=D)
+        corr = rho ** (i[:, None] - i[None, :]).abs()
+        for c in range(3):
+            per_draw = [
+                torch.distributions.MultivariateNormal(
+                    draws["loc"][s, c].repeat(n),
+                    torch.kron(torch.ones(n, n, dtype=D), draws["between"][s, c])
+                    + torch.kron(corr, draws["within"][s]),
+                ).log_prob(y.reshape(-1))
+                for s in range(2)
+            ]
+            ref = torch.logsumexp(torch.stack(per_draw), 0) - math.log(2)
+            assert float(ours[c]) == pytest.approx(float(ref), abs=1e-9), (n, c)
+
+
+def test_a_lagged_filter_streams_as_it_batches_and_takes_the_posteriors_correlation():
+    post = _sequence_posterior(0.7)
+    filt = hbni_pyro.HBNIFilter(post)
+    assert filt.frame_correlation == 0.7 and filt.lagged and "frame_correlation=0.700" in repr(filt)
+    streams = post.sample_streams(2, 3, 9, seed=1)
+    batch = filt.run(streams)
+    for b in range(3):
+        filt.reset()
+        steps = torch.stack([filt.update(o) for o in streams[b]])
+        torch.testing.assert_close(steps, batch[b], rtol=0, atol=1e-12)
+    exchangeable = hbni_pyro.HBNIFilter(post, frame_correlation=0.0)
+    assert not exchangeable.lagged
+    # n identical frames: their look is that frame, and they count as n_eff = 1 + (n - 1)(1 - rho) / (1 + rho)
+    frame = streams[0, :1]
+    n_eff = 1 + 8 * 0.3 / 1.7
+    expected = exchangeable.posterior(n_eff * exchangeable.features(frame), torch.tensor([n_eff], dtype=D))
+    torch.testing.assert_close(filt.run(frame.expand(9, -1).unsqueeze(0))[0, -1], expected[0], rtol=0, atol=1e-12)
+
+
+def test_filter_refuses_a_correlation_its_model_cannot_use():
+    with pytest.raises(ValueError, match="frame_correlation"):
+        hbni_pyro.HBNIFilter(_sequence_posterior(), frame_correlation=1.0)
+    theta = torch.ones(1, 4, 3, dtype=D)
+    ones = torch.ones(1, 4, dtype=D)
+    paper = hbni_pyro.posterior.posterior_from_samples(
+        {"theta": theta, "kappa": ones, "gamma": ones}, torch.full((3,), 1 / 3), hbni_pyro.HyperPrior()
+    )
+    with pytest.raises(ValueError, match="'paper' model's filter takes none"):
+        hbni_pyro.HBNIFilter(paper, frame_correlation=0.5)
+    assert not hbni_pyro.HBNIFilter(paper).lagged
