@@ -53,6 +53,14 @@ def lag_one_ratio(rho: float, lengths: Tensor) -> float:
     return num / den
 
 
+_ROWS = 1 << 16
+"""Outputs per chunk of the estimator's passes (a few MB each: a fit's data is not copied whole)."""
+
+
+def _chunked_ilr(x: Tensor, start: int) -> Tensor:
+    return ilr(x[start : start + _ROWS].to(dtype=DTYPE, device="cpu").clamp_min(torch.finfo(DTYPE).tiny))
+
+
 def estimate_frame_correlation(obs: Tensor, sequence_ids: Tensor) -> float:
     """The AR(1) correlation of frames about their sequence's look (see the module doc).
 
@@ -64,20 +72,32 @@ def estimate_frame_correlation(obs: Tensor, sequence_ids: Tensor) -> float:
         ``rho`` in ``[-LIMIT, LIMIT]``; 0.0 when no sequence has three frames (two frames centred on their mean
         are perfectly anti-correlated whatever ``rho``).
     """
-    x = obs.to(DTYPE).cpu()
     ids = sequence_ids.cpu()
-    order = torch.argsort(ids, stable=True)
-    y, ids = ilr(x[order].clamp_min(torch.finfo(DTYPE).tiny)), ids[order]
-    num_seq = int(ids.max()) + 1
+    if bool((ids[1:] < ids[:-1]).any()):  # sequences interleaved: put each one's frames together, in order
+        order = torch.argsort(ids, stable=True)
+        obs, ids = obs[order.to(obs.device)], ids[order]
+    num_seq, n = int(ids.max()) + 1, ids.shape[0]
     counts = torch.bincount(ids, minlength=num_seq)
-    means = torch.zeros(num_seq, y.shape[1], dtype=DTYPE).index_add_(0, ids, y) / counts.clamp_min(1).unsqueeze(1)
-    e = y - means[ids]
-    used = counts[ids] >= 3
-    same = (ids[1:] == ids[:-1]) & used[1:]
-    den = float((e[used] ** 2).sum())
-    if not bool(same.any()) or den == 0.0:
+    sums = torch.zeros(num_seq, obs.shape[1] - 1, dtype=DTYPE)
+    for start in range(0, n, _ROWS):  # pass 1: each sequence's mean look
+        sums.index_add_(0, ids[start : start + _ROWS], _chunked_ilr(obs, start))
+    means = sums / counts.clamp_min(1).unsqueeze(1)
+    num = den = 0.0
+    previous: tuple[Tensor, Tensor] | None = None  # the last residual of the chunk before, and its id
+    for start in range(0, n, _ROWS):  # pass 2: residuals, their squares and lag-1 products within sequences
+        part = ids[start : start + _ROWS]
+        e = _chunked_ilr(obs, start) - means[part]
+        used = counts[part] >= 3
+        den += float((e[used] ** 2).sum())
+        if previous is not None:
+            e, part = torch.cat([previous[0], e]), torch.cat([previous[1], part])
+            used = torch.cat([used.new_zeros(1), used])  # (the first flag is never read)
+        same = (part[1:] == part[:-1]) & used[1:]
+        num += float((e[1:] * e[:-1]).sum(1)[same].sum())
+        previous = e[-1:], part[-1:]
+    if den == 0.0 or not bool((counts >= 3).any()):
         return 0.0
-    observed = float((e[1:] * e[:-1]).sum(1)[same].sum()) / den
+    observed = num / den
     lengths = counts[counts >= 3]
     lo, hi = -LIMIT, LIMIT
     if observed <= lag_one_ratio(lo, lengths):

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 import hbni_pyro
+import hbni_pyro.frame_correlation as fc
 from hbni_pyro import HBNIPosterior
 from hbni_pyro.density import helmert_basis
 from hbni_pyro.frame_correlation import LIMIT, ar1_normals, estimate_frame_correlation, lag_one_ratio
@@ -77,6 +78,10 @@ def test_estimate_uses_time_order_within_interleaved_sequences_and_skips_short_o
     )
     shuffled = torch.randperm(obs.shape[0], generator=torch.Generator().manual_seed(2))
     assert abs(estimate_frame_correlation(obs[shuffled], ids[shuffled])) < 0.1  # time order lost: about 0
+    whole = estimate_frame_correlation(obs, ids)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fc, "_ROWS", 7)  # chunks that split sequences: the same sums
+        assert estimate_frame_correlation(obs, ids) == pytest.approx(whole, abs=1e-12)
     short = torch.cat([obs, obs[:2]]), torch.cat([ids, torch.tensor([500, 500])])
     assert estimate_frame_correlation(*short) == pytest.approx(estimate_frame_correlation(obs, ids), abs=1e-12)
     assert estimate_frame_correlation(obs[:2], torch.zeros(2, dtype=torch.long)) == 0.0
