@@ -525,6 +525,7 @@ def write_outputs(
             "train_snapshots_per_class": int(st.train_per_class),
             "calibration_frames": int(calib[..., 0].numel()),
             "held_out_streams": int(held.shape[0] * held.shape[1]),
+            "generative_streams_per_class": settings.loop.generative_streams,
             "frames_per_stream": settings.frames,
         },
         "cpu_seconds": _cpu_seconds(),

@@ -18,7 +18,9 @@ def _explanation(metrics: dict) -> list[str]:
     v = metrics["variants"]
     if "hbni" not in v:
         return []
-    n = metrics["sizes"]["held_out_streams"] / len(CLASSES)
+    planning = metrics.get("closed_loop", {}).get("planning", {}).get("hbni", "empirical")
+    sizes = metrics["sizes"]
+    n = sizes["generative_streams_per_class"] if planning == "generative" else sizes["held_out_streams"] / len(CLASSES)
     h = v["hbni"]
     acc_h, frames_h = float(np.mean(h["macro_accuracy"])), float(np.mean(h["macro_mean_frames"]))
     out = []
@@ -97,7 +99,8 @@ def report(metrics: dict, figures: list[str]) -> str:
         "",
         *rows,
         "",
-        "Macro-observation processes characterised on held-out classifier output streams:",
+        "Macro-observation processes as each policy plans on them (an empirical table: held-out classifier output "
+        "streams; a generative one: streams simulated from the fitted noise model):",
         "",
         *macro,
         "",
