@@ -4,7 +4,8 @@ Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: `
 ``"confusion"`` or ``"sequence"``, each a :class:`NoiseModel` in :mod:`hbni_pyro.variants`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`StaticStateBayesFilter`, :class:`VotingFilter`,
-:class:`MaxOfMeanFilter`), the frame-correlation temper (:func:`fit_temper`) and
+:class:`MaxOfMeanFilter`), the frame-correlation temper of the frame-level models (:func:`fit_temper`; the
+sequence model estimates an AR(1) correlation of its frames instead, :mod:`hbni_pyro.frame_correlation`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
 (:func:`threshold_checks`, :func:`stream_reliability`), closed-loop perception replaying recorded

@@ -264,6 +264,11 @@ class HBNIFilter(StreamingFilter):
         rho = as_float("frame_correlation", frame_correlation, -1.0, 1.0, low_open=True, high_open=True)
         if rho != 0.0 and not spec.correlated_frames:
             raise ValueError(f"frame_correlation: the {spec.name!r} model's filter takes none, got {rho}")
+        if rho != 0.0 and temper != 1.0:  # the temper scales counts, which the AR(1) weights are not linear in
+            raise ValueError(
+                f"temper: a filter with frame_correlation {rho:g} counts correlated frames itself; expected "
+                f"temper 1 (or frame_correlation=0), got {temper:g}"
+            )
         self.frame_correlation = rho
         self.model = spec.name
         self.class_names = getattr(posterior, "class_names", None)

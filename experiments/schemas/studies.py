@@ -395,6 +395,13 @@ class Mission(Root):
         unknown = [v for v in chosen if v not in MISSION_VARIANTS]
         if unknown or not chosen:
             raise ValueError(f"perception: expected a subset of {list(MISSION_VARIANTS)}, got {chosen}")
+        from hbni_pyro.variants import noise_model
+
+        if self.mission.temper != "fit" and noise_model(self.hbni.model).correlated_frames:
+            raise ValueError(
+                f"mission.temper: the {self.hbni.model!r} model counts correlated frames itself (its fitted "
+                f"frame correlation); a fixed temper is for hbni.model=paper or confusion, got {self.mission.temper!r}"
+            )
 
 
 ANNOTATIONS = ("video", "strip")

@@ -197,6 +197,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             repo_root,
             f"hydra.run.dir={tmp_path}",
             "perception=hbni",
+            "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
             tiny=[*TINY_MISSION_GDICE, BANKS],
@@ -206,6 +207,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             repo_root,
             f"hydra.run.dir={tmp_path}",
             "perception=hbni",
+            "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
             planning,
@@ -237,6 +239,14 @@ def test_bad_temper_is_a_clear_error(tmp_path, repo_root, temper):
     ]
     proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
     assert proc.returncode != 0 and "mission.temper: expected 'fit' or a float in (0, 1]" in proc.stderr
+
+
+def test_a_fixed_temper_on_the_sequence_model_is_a_clear_error(tmp_path, repo_root):
+    cmd = [sys.executable, "-m", "experiments.run", "experiment=mission", *TINY, f"hydra.run.dir={tmp_path}"]
+    proc = subprocess.run([*cmd, "mission.temper=0.5"], cwd=repo_root, capture_output=True, text=True)
+    assert proc.returncode != 0
+    assert "mission.temper: the 'sequence' model counts correlated frames itself" in proc.stderr
+    assert not (tmp_path / "metrics.json").exists()
 
 
 def test_unknown_condition_field_is_a_clear_error(tmp_path, repo_root):

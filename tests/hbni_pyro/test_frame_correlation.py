@@ -252,6 +252,9 @@ def test_filter_refuses_a_correlation_its_model_cannot_use():
     paper = hbni_pyro.posterior.posterior_from_samples(
         {"theta": theta, "kappa": ones, "gamma": ones}, torch.full((3,), 1 / 3), hbni_pyro.HyperPrior()
     )
+    with pytest.raises(ValueError, match="temper: a filter with frame_correlation 0.4 counts correlated frames"):
+        hbni_pyro.HBNIFilter(_sequence_posterior(0.4), temper=0.5)
+    assert hbni_pyro.HBNIFilter(_sequence_posterior(0.4), temper=0.5, frame_correlation=0.0).temper == 0.5
     with pytest.raises(ValueError, match="'paper' model's filter takes none"):
         hbni_pyro.HBNIFilter(paper, frame_correlation=0.5)
     assert not hbni_pyro.HBNIFilter(paper).lagged
