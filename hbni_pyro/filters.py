@@ -374,7 +374,7 @@ def make_filter(
     """The streaming filter called ``name`` (one of :data:`FILTERS`).
 
     ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
-    ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
+    ``class_prior``, ``frame_correlation``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
     (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``. ``device``: where the filter runs (``None``:
     the posterior's device, else the CPU).
     """
