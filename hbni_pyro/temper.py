@@ -61,10 +61,19 @@ def fit_temper(
     Returns:
         a :class:`TemperFit`; its ``log_score`` is ``mean_{b, n} log P(c = true_b | o_b,1:n)``, on the
         posterior's device (where the filters run).
+
+    Raises:
+        ValueError: the posterior's filter counts correlated frames itself (a nonzero ``frame_correlation``).
     """
     grid = DEFAULT_GRID if grid is None else torch.as_tensor(grid, dtype=DTYPE)
     if grid.dim() != 1 or grid.numel() < 1 or not torch.isfinite(grid).all() or ((grid <= 0) | (grid > 1)).any():
         raise ValueError(f"grid: expected a non-empty 1-D sequence of tempers in (0, 1], got {grid.tolist()}")
+    rho = getattr(posterior, "frame_correlation", 0.0)
+    if rho:
+        raise ValueError(
+            f"posterior: its filter counts correlated frames itself (frame_correlation {rho:g}); a temper is for the "
+            "frame-level models (or a posterior with frame_correlation 0)"
+        )
     base = HBNIFilter(posterior, mode, num_draws=num_draws)
     stats, counts = base.statistics(streams)
     truth = torch.as_tensor(true_class)

@@ -185,7 +185,13 @@ def test_macro_observations_on_cpu(posterior):
         ).joint,
     )
     calibration = hbni_pyro.stream_reliability(process.filter, streams, truth)
-    temper = hbni_pyro.fit_temper(posterior, streams, truth, grid=[0.5, 1.0])
+    if posterior.frame_correlation:  # the sequence model counts correlated frames itself: no temper
+        with pytest.raises(ValueError, match="counts correlated frames itself"):
+            hbni_pyro.fit_temper(posterior, streams, truth, grid=[0.5, 1.0])
+        exchangeable = dataclasses.replace(posterior, frame_correlation=0.0)
+        temper = hbni_pyro.fit_temper(exchangeable, streams, truth, grid=[0.5, 1.0])
+    else:
+        temper = hbni_pyro.fit_temper(posterior, streams, truth, grid=[0.5, 1.0])
     assert _on("cpu", calibration, temper)
     assert hbni_pyro.threshold_checks(process.filter, streams, truth, thresholds=(0.9,))["0.9"]["emitted"] >= 0
 
