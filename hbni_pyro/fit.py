@@ -113,10 +113,7 @@ def fit(
         posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
     else:
         posterior = _fit_nuts(spec, x, y, ids, jit=jit, **settings)
-    posterior.class_names = names
-    if spec.correlated_frames:
-        posterior.frame_correlation = estimate_frame_correlation(x, ids)
-    return posterior
+    return _finish(posterior, spec, names, x, ids)
 
 
 def fit_many(
@@ -163,11 +160,16 @@ def fit_many(
     ids = _sequence_ids(spec, sequence_ids, x.shape[1], y, where)
     names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
-    for d, posterior in enumerate(posteriors):
-        posterior.class_names = names
-        if spec.correlated_frames:
-            posterior.frame_correlation = estimate_frame_correlation(x[d], ids)
-    return posteriors
+    return [_finish(posterior, spec, names, x[d], ids) for d, posterior in enumerate(posteriors)]
+
+
+def _finish(posterior: HBNIPosterior, spec: NoiseModel, names: Any, x: Tensor, ids: Tensor | None) -> HBNIPosterior:
+    """``posterior`` of the outputs ``x (N, M)`` with its class names and, under a model with ``correlated_frames``,
+    the frame correlation of its sequences."""
+    posterior.class_names = names
+    if spec.correlated_frames:
+        posterior.frame_correlation = estimate_frame_correlation(x, ids)
+    return posterior
 
 
 def _fit_device(device: Any, data: Tensor, method: str, name: str = "obs") -> torch.device:

@@ -32,16 +32,15 @@ LIMIT = 0.99
 
 
 def _row_sums(rho: float, n: int) -> Tensor:
-    """``(R 1)_t`` for the AR(1) correlation matrix ``R_st = rho^|s - t|`` of ``n`` frames, float64 ``(n,)``."""
+    """``(R 1)_t`` for the AR(1) correlation matrix ``R_st = rho^|s - t|`` of ``n`` frames, float64 ``(n,)``;
+    ``rho`` in ``(-1, 1)``."""
     t = torch.arange(1, n + 1, dtype=DTYPE)
-    if rho == 1.0:
-        return torch.full((n,), float(n), dtype=DTYPE)
     return ((1 - rho**t) + (1 - rho ** (n - t + 1))) / (1 - rho) - 1
 
 
 def lag_one_ratio(rho: float, lengths: Tensor) -> float:
-    """``E[sum_t e_t e_{t+1}] / E[sum_t e_t^2]`` for AR(1) sequences of ``lengths`` frames (long ``(K,)``, each
-    at least 2) centred on their own means; ``-1 / n`` at ``rho = 0`` for a single length ``n``."""
+    """``E[sum_t e_t e_{t+1}] / E[sum_t e_t^2]`` for AR(1) sequences (``rho`` in ``(-1, 1)``) of ``lengths`` frames
+    (long ``(K,)``, each at least 2) centred on their own means; ``-1 / n`` at ``rho = 0`` for a single length ``n``."""
     num = den = 0.0
     sizes, counts = torch.unique(lengths, return_counts=True)
     for n, count in zip(sizes.tolist(), counts.tolist()):

@@ -92,6 +92,11 @@ def sample_gaussian(loc: Tensor, cov: Tensor, generator: torch.Generator) -> Ten
     z = torch.randn(
         torch.broadcast_shapes(loc.shape, cov.shape[:-1]), generator=generator, dtype=DTYPE, device=loc.device
     )
+    return _scaled(loc, cov, z)
+
+
+def _scaled(loc: Tensor, cov: Tensor, z: Tensor) -> Tensor:
+    """``loc + L z`` with ``L L^T = cov``: standard normals ``z (..., d)`` mapped to ``N(loc, cov)`` (broadcasting)."""
     return loc + (torch.linalg.cholesky(cov) @ z.unsqueeze(-1)).squeeze(-1)
 
 
@@ -115,5 +120,5 @@ def sample_sequences(
     classes = torch.as_tensor(classes, dtype=torch.long, device=loc.device)
     look = sample_gaussian(loc[classes], between[classes], generator)
     z = ar1_normals(look.shape[:-1] + (num_frames, look.shape[-1]), correlation, generator, look.device)
-    y = look.unsqueeze(-2) + (torch.linalg.cholesky(within) @ z.unsqueeze(-1)).squeeze(-1)
+    y = _scaled(look.unsqueeze(-2), within, z)
     return torch.softmax(y @ helmert_basis(loc.shape[-1] + 1, DTYPE, loc.device), -1).clamp_min(torch.finfo(DTYPE).tiny)
