@@ -406,7 +406,7 @@ def execute_closed_loop(
     streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
     the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
     executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences, the
-    distribution check of the entry's table against its process on the bank and the value test's power.
+    distribution check of the entry's table against its process on the bank and the value test.
     Returns the reliability diagram of every process on the bank (``None`` without variants)."""
     settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
@@ -456,7 +456,7 @@ def execute_closed_loop(
         entry["distribution_check"] = honesty.distribution_check(
             models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
         )
-        entry["value_power"] = honesty.value_power(results[name], entry, bank.shape[1])
+        entry["value_test"] = honesty.value_test(results[name], entry, bank.shape[1])
         results[name]["executed"] = entry
     return (
         honesty.reliability_figure(

@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
+from statistics import NormalDist
 from typing import Any, NamedTuple
 
 import matplotlib.pyplot as plt
@@ -39,6 +40,7 @@ from decpomdp import JointController
 from experiments import figures
 from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
+from experiments.steps import honesty
 from experiments.steps.planning import delivery_rates, score
 from infra.streams import stream_seed, torch_stream
 
@@ -118,7 +120,9 @@ def stream_stderr(
     Each replicate draws ``size`` of ``pool`` sequence indices with replacement (all classes' sequence ``i``
     together: they share imaging conditions), builds ``perception_of(indices)`` (a table or a replay) and
     scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
-    rollout variance is the streams' share (floored at 0).
+    rollout variance is the streams' share (floored at 0). That difference is only as good as the
+    replicates' variance estimate (relative s.e. ``sqrt(2 / (replicates - 1))`` of the streams' plus the
+    rollouts' share): give each replicate enough rollouts that their noise does not swamp the streams'.
     """
     g = torch_stream(seed, "resample")
     values, variances = [], []
@@ -243,25 +247,22 @@ def report_lines(
     return lines + honesty_lines(results, planning) + [""]
 
 
-HONEST_WITHIN = 3.0
-"""A planning model is called honest when every policy planned on it executes within this many (full) standard
-errors of its planned value: the tolerance this project uses for two Monte Carlo estimates of one quantity."""
-
-
 def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[str]:
-    """Which planning model predicts its policies' executed values (every |full gap| <= :data:`HONEST_WITHIN`),
-    with the gaps and, per policy, what its table predicted against what the bank gave (accuracy, frames)."""
+    """Which planning model predicts its policies' executed values (no policy planned on it fails the value test,
+    :func:`experiments.steps.honesty.value_test`), with the gaps and, per policy, what its table predicted against
+    what the bank gave (accuracy, frames)."""
     out = []
     for model in PLANNING_MODELS:
         names = [name for name in results if planning.get(name) == model]
         if not names:
             continue
         gaps = {name: results[name]["executed"]["gap_in_total_stderr"] for name in names}
-        honest = all(abs(g) <= HONEST_WITHIN for g in gaps.values())
+        honest = all(honesty.shortfall_p(results[n], results[n]["executed"]) >= honesty.VALUE_ALPHA for n in names)
         listed = ", ".join(f"{n} {g:+.1f}" for n, g in gaps.items())
         out.append(
             f"- The **{model}** planning model is **{'honest' if honest else 'not honest'}** here: full gaps "
-            f"{listed} s.e. (honest: every |gap| <= {HONEST_WITHIN:g})."
+            f"{listed} s.e. (honest: no executed value falls short of its plan at level {honesty.VALUE_ALPHA:g}, "
+            f"every gap >= {NormalDist().inv_cdf(honesty.VALUE_ALPHA):.2f})."
         )
         for name in names:
             r, e = results[name], results[name]["executed"]

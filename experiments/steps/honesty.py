@@ -10,9 +10,11 @@ A policy is planned on a table of ``P(label, frames | true class)``. Two checks 
   impossible (``table_streams=None`` takes the table as exact). A Wilson interval on the bank's
   accuracy and a bootstrap interval on its mean frames go with the p-values. A class passes when both
   p-values reach ``alpha`` over the number of tests (Bonferroni).
-- :func:`value_power`: the executed-value test (``|gap| <= within`` total standard errors) is weak
-  where the bank is small. It reports the test's power against a given relative shortfall and the
-  bank size that would give the target power (stream standard errors scale as ``1 / sqrt(size)``).
+- :func:`value_test`: does the policy's executed value fall short of its planned value? A one-sided
+  test at level :data:`VALUE_ALPHA` on the full gap (rollout and stream standard errors of both
+  values): a plan that promises too much fails it. It reports its p-value, its power against a given
+  relative shortfall and the bank size that would give the target power (stream standard errors
+  scale as ``1 / sqrt(size)``).
 """
 
 from __future__ import annotations
@@ -31,6 +33,16 @@ from infra.streams import torch_stream
 
 ALPHA = 0.05
 """Family-wise level of the distribution check (split over its classes and its two statistics)."""
+
+VALUE_ALPHA = 0.05
+"""Level of the value test: a policy fails when ``(executed - planned) / full s.e.`` is below the
+``VALUE_ALPHA`` quantile of the standard normal (-1.645)."""
+
+SHORTFALL = 0.03
+"""The relative shortfall of the executed value below the planned one whose detection power is reported."""
+
+TARGET_POWER = 0.8
+"""The power against :data:`SHORTFALL` the reported bank size is for."""
 
 
 def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -145,47 +157,52 @@ def distribution_check(
     return {"classes": classes, "alpha_per_test": per_test, "passed": all(e["passed"] for e in classes)}
 
 
-def value_power(
+def shortfall_p(planned: dict[str, float], executed: dict[str, float]) -> float:
+    """One-sided p-value of "the executed value is at least the planned one": the normal tail at the full gap
+    ``executed["gap_in_total_stderr"]``; without any error (no gap in standard errors) 1 or 0, exactly."""
+    gap = executed["gap_in_total_stderr"]
+    if math.isnan(gap):
+        return 1.0 if executed["value"] >= planned["value"] else 0.0
+    return NormalDist().cdf(gap)
+
+
+def value_test(
     planned: dict[str, float],
     executed: dict[str, float],
     bank_size: int,
-    shortfall: float = 0.03,
-    within: float = 3.0,
-    target: float = 0.8,
-) -> dict[str, float]:
-    """Power of the test ``|gap| <= within`` total s.e. against an executed value ``shortfall`` (relative) below
-    the planned one, and the bank sequences per class that would give ``target`` power.
+    shortfall: float = SHORTFALL,
+    alpha: float = VALUE_ALPHA,
+    target: float = TARGET_POWER,
+) -> dict[str, float | bool]:
+    """The value test of one policy: its p-value and verdict, its power against an executed value ``shortfall``
+    (relative) below the planned one, and the bank sequences per class that would give ``target`` power.
 
-    ``planned``: ``{"value", "stderr"}``; ``executed``: the closed-loop entry (``stderr``, ``stream_stderr``,
-    ``planned_stream_stderr``). The bank's stream standard error is scaled as ``sqrt(bank_size / size)``.
+    ``planned``: ``{"value", "stderr"}``; ``executed``: the closed-loop entry (``value``, ``stderr``,
+    ``stream_stderr``, ``planned_stream_stderr``, ``gap_in_total_stderr``). The bank's stream standard error is scaled as
+    ``sqrt(bank_size / size)``; the other errors stay (the rollouts' and those of the table's own sequences).
     """
     fixed = planned["stderr"] ** 2 + executed["stderr"] ** 2 + executed["planned_stream_stderr"] ** 2
     bank = executed["stream_stderr"] ** 2
     delta = shortfall * abs(planned["value"])
     se = math.sqrt(fixed + bank)
     z = NormalDist()
+    p = shortfall_p(planned, executed)
+    out = {"p_value": p, "passed": p >= alpha, "alpha": alpha, "shortfall": shortfall, "target_power": target}
     if se == 0:  # no error at all: any shortfall shows
         return {
-            "shortfall": shortfall,
+            **out,
             "power": 1.0 if delta > 0 else 0.0,
             "total_stderr": 0.0,
-            "target_power": target,
             "sequences_for_target": float(bank_size),
         }
-    power = z.cdf(delta / se - within) + z.cdf(-delta / se - within)
-    need_se = delta / (within + z.inv_cdf(target))
-    room = need_se**2 - fixed
+    critical = z.inv_cdf(1 - alpha)
+    power = z.cdf(delta / se - critical)
+    room = (delta / (critical + z.inv_cdf(target))) ** 2 - fixed
     if bank == 0:
-        size = float(bank_size) if room >= 0 else float("inf")
+        size = float(bank_size) if room >= 0 else math.inf
     else:
-        size = float(math.ceil(bank_size * bank / room)) if room > 0 else float("inf")
-    return {
-        "shortfall": shortfall,
-        "power": power,
-        "total_stderr": se,
-        "target_power": target,
-        "sequences_for_target": size,
-    }
+        size = float(math.ceil(bank_size * bank / room)) if room > 0 else math.inf
+    return {**out, "power": power, "total_stderr": se, "sequences_for_target": size}
 
 
 def reliability_figure(
@@ -229,7 +246,7 @@ def reliability_figure(
 
 
 def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list[str]) -> list[str]:
-    """Markdown: each planned policy's distribution check per class, and its value test's power."""
+    """Markdown: each planned policy's distribution check per class, and its value test."""
     lines = [
         "## Honesty of the planning models",
         "",
@@ -261,14 +278,15 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list
                 f" | {e['accuracy_p']:.3f} | {e['predicted_frames']:.2f} | {e['bank_frames']:.2f} "
                 f"[{flo:.2f}, {fhi:.2f}] | {e['frames_p']:.3f} | {'ok' if e['passed'] else 'FAIL'} |"
             )
-        power = r["executed"].get("value_power")
-        if power:
-            need = power["sequences_for_target"]
+        test = r["executed"].get("value_test")
+        if test:
+            need = test["sequences_for_target"]
             lines += [
                 "",
-                f"Value test (|gap| <= 3 total s.e.): power {power['power']:.2f} against a "
-                f"{100 * power['shortfall']:.0f} % shortfall (total s.e. {power['total_stderr']:.3f}); "
-                f"{power['target_power']:.0%} power needs "
+                f"Value test (one-sided, level {test['alpha']:g}: does the executed value fall short of the planned "
+                f"one?): p = {test['p_value']:.3f}, {'passes' if test['passed'] else 'FAILS'}; power "
+                f"{test['power']:.2f} against a {100 * test['shortfall']:.0f} % shortfall (full s.e. "
+                f"{test['total_stderr']:.3f}); {test['target_power']:.0%} power needs "
                 + (
                     "more than any bank: the planned and executed values' rollout errors and the table's "
                     "sequences alone are too large"

@@ -1,4 +1,4 @@
-"""The EfficientNet-Lite0 backbone: real ImageNet weights loaded offline, fused == unfused, errors."""
+"""The EfficientNet-Lite0 backbone: real ImageNet weights loaded offline, TensorFlow padding, fused == unfused, errors."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from classifiers import Backbone, FrameClassifier, center_crop, default_weights_path, normalize
-from classifiers.backbone import EfficientNetLite0, fuse_batchnorm
+from classifiers.backbone import EfficientNetLite0, SameConv2d, fuse_batchnorm
 
 skimage_data = pytest.importorskip("skimage.data")
 
@@ -47,6 +47,24 @@ def test_fused_matches_unfused_and_batching(backbone):
     assert out.shape == (5, 1000)
     assert torch.allclose(out, ref, atol=1e-3, rtol=1e-4)
     assert torch.allclose(backbone(x[:1]), out[:1], atol=1e-4)  # batch composition does not matter
+
+
+@pytest.mark.parametrize("size", [(224, 224), (7, 9), (14, 13)])
+@pytest.mark.parametrize(("kernel", "stride"), [(1, 1), (3, 1), (5, 1), (3, 2), (5, 2)])
+def test_same_padding_is_tensorflows(size, kernel, stride):
+    """TensorFlow's "SAME": output ceil(size / stride), the pad split with the odd pixel at the bottom/right."""
+    g = torch.Generator().manual_seed(0)
+    conv = SameConv2d(4, 4, kernel, stride=stride, groups=4, bias=False)
+    x = torch.randn(2, 4, *size, generator=g)
+    pads = []
+    for n in size[::-1]:
+        total = max((-(-n // stride) - 1) * stride + kernel - n, 0)
+        pads += [total // 2, total - total // 2]
+    ref = torch.nn.functional.conv2d(torch.nn.functional.pad(x, pads), conv.weight, None, stride, 0, 1, 4)
+    with torch.inference_mode():
+        out = conv(x)
+    assert out.shape[-2:] == (-(-size[0] // stride), -(-size[1] // stride))
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
 
 
 def test_missing_weights_file(tmp_path):

@@ -84,21 +84,43 @@ def test_level_of_the_class_test(table_streams):
     assert all(count / reps <= bound for count in rejected.values()), rejected
 
 
-def test_value_power_closed_form_and_the_size_it_asks_for():
-    planned = {"value": 5.0, "stderr": 0.01}
-    executed = {"stderr": 0.01, "planned_stream_stderr": 0.0, "stream_stderr": 0.3}
-    p = honesty.value_power(planned, executed, bank_size=40)
-    se = math.sqrt(0.01**2 * 2 + 0.09)
-    z = 0.15 / se
+def test_value_test_closed_form_and_the_size_it_asks_for():
+    """One-sided: p = Phi(gap), power Phi(delta / se - z_0.95); the size it asks for is the smallest with 80 % power."""
     phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))  # noqa: E731
-    assert p["power"] == pytest.approx(phi(z - 3) + phi(-z - 3), rel=1e-12)
-    need = p["sequences_for_target"]
+    planned = {"value": 5.0, "stderr": 0.01}
+    executed = {
+        "value": 4.7,
+        "stderr": 0.01,
+        "planned_stream_stderr": 0.0,
+        "stream_stderr": 0.3,
+        "gap_in_total_stderr": -1.0,
+    }
+    t = honesty.value_test(planned, executed, bank_size=40)
+    se = math.sqrt(0.01**2 * 2 + 0.09)
+    assert t["total_stderr"] == pytest.approx(se, rel=1e-12)
+    assert t["p_value"] == pytest.approx(phi(-1.0), rel=1e-12) and t["passed"] is True
+    assert t["power"] == pytest.approx(phi(0.15 / se - 1.6448536269514722), rel=1e-9)
+    need = t["sequences_for_target"]
     bigger = dict(executed, stream_stderr=0.3 * math.sqrt(40 / need))
-    assert honesty.value_power(planned, bigger, bank_size=int(need))["power"] >= 0.8
+    assert honesty.value_test(planned, bigger, bank_size=int(need))["power"] >= 0.8
     smaller = dict(executed, stream_stderr=0.3 * math.sqrt(40 / (need - 2)))
-    assert honesty.value_power(planned, smaller, bank_size=int(need) - 2)["power"] < 0.8
-    hopeless = honesty.value_power({"value": 5.0, "stderr": 1.0}, executed, bank_size=40)
+    assert honesty.value_test(planned, smaller, bank_size=int(need) - 2)["power"] < 0.8
+    hopeless = honesty.value_test({"value": 5.0, "stderr": 1.0}, executed, bank_size=40)
     assert math.isinf(hopeless["sequences_for_target"])
+
+
+def test_value_test_fails_a_shortfall_only():
+    """A plan that promises too much fails (gap below -1.645 s.e.); one that delivers more than it promised passes."""
+    planned = {"value": 5.0, "stderr": 0.1}
+    base = {"value": 5.0, "stderr": 0.1, "planned_stream_stderr": 0.0, "stream_stderr": 0.0}
+    for gap, passed in ((-1.7, False), (-1.6, True), (0.0, True), (4.0, True)):
+        t = honesty.value_test(planned, dict(base, gap_in_total_stderr=gap), bank_size=40)
+        assert t["passed"] is passed, gap
+    exact = {"value": 5.0, "stderr": 0.0}  # no error at all: the gap in standard errors is undefined
+    same = honesty.value_test(exact, dict(base, stderr=0.0, gap_in_total_stderr=math.nan), 40)
+    assert same["p_value"] == 1.0 and same["passed"] and same["power"] == 1.0 and same["sequences_for_target"] == 40.0
+    short = honesty.value_test(exact, dict(base, value=4.9, stderr=0.0, gap_in_total_stderr=math.nan), 40)
+    assert short["p_value"] == 0.0 and not short["passed"]
 
 
 def test_distribution_check_rejects_a_table_of_other_classes():

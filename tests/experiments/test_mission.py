@@ -53,12 +53,13 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
         assert f"]({png})" in report
     assert metrics["hbni_temper"] == {"value": 1.0, "fitted": False, "needed": False}  # the sequence model's
     assert "uses no likelihood temper" in report
-    assert "## Honesty of the planning models" in report and "Value test (|gap| <= 3 total s.e.): power" in report
+    assert "## Honesty of the planning models" in report and "Value test (one-sided, level 0.05" in report
     for name, entry in metrics["variants"].items():
         if name != "perfect":
             check = entry["executed"]["distribution_check"]
             assert len(check["classes"]) == 6 and check["passed"] == all(c["passed"] for c in check["classes"])
-            assert 0 <= entry["executed"]["value_power"]["power"] <= 1
+            test = entry["executed"]["value_test"]
+            assert 0 <= test["power"] <= 1 and test["passed"] == (test["p_value"] >= 0.05)
     assert "hbni_distribution_check_passed" in loop["acceptance"]
     assert (mission_run / "reliability.png").stat().st_size > 10_000 and "](reliability.png)" in report
     assert metrics["conditions"]["overrides"] == {"gain": [0.45, 0.8], "noise": [3.0, 8.0], "blur": [1.0, 6.0]}
