@@ -286,7 +286,7 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list
                 f"Value test (one-sided, level {test['alpha']:g}: does the executed value fall short of the planned "
                 f"one?): p = {test['p_value']:.3f}, {'passes' if test['passed'] else 'FAILS'}; power "
                 f"{test['power']:.2f} against a {100 * test['shortfall']:.0f} % shortfall (full s.e. "
-                f"{test['total_stderr']:.3f}); {test['target_power']:.0%} power needs "
+                f"{test['total_stderr']:.3f}); {100 * test['target_power']:.0f} % power needs "
                 + (
                     "more than any bank: the planned and executed values' rollout errors and the table's "
                     "sequences alone are too large"
