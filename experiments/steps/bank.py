@@ -4,9 +4,9 @@ The closed-loop evaluation draws a fresh recorded stream for every "infer" MA fr
 mission-condition sequences that neither noise fitting nor tabulation saw. Rendering and
 classifying them is the costly part, so the bank is built once and cached, keyed by everything
 that produced it (:func:`fingerprint`): the classifier (a digest of its head, standardisation,
-crop setting and backbone weights), the renderer's code, the class order, the imaging conditions,
-the seed, the number of sequences per class, the frames per sequence, the frame shape and the
-torch and OpenCV versions.
+crop setting and backbone weights), the code that draws and classifies frames, the class order,
+the imaging conditions, the seed, the number of sequences per class, the frames per sequence, the
+frame shape and the torch and OpenCV versions.
 
 The bank is an entry of the project's one cache (:mod:`infra.cache`): the file name is a digest of
 that fingerprint, a run whose inputs differ in any field builds its own bank next to the old one,
@@ -42,7 +42,6 @@ from infra.fingerprint import digest
 
 _KIND = "experiments.OutputBank"
 _VERSION = 2
-_RENDERER_MODULES = ("classifiers.data.render", "classifiers.data.sprites", "classifiers.data.conditions")
 
 
 @dataclass(frozen=True)
@@ -76,9 +75,9 @@ def classifier_identity(clf: FrameClassifier) -> str:
     )
 
 
-def renderer_identity() -> str:
-    """Digest of the renderer's source code (a change to how frames are drawn is a new bank)."""
-    return source_identity(*_RENDERER_MODULES)
+def code_identity() -> str:
+    """Digest of the ``classifiers`` package's source (a change to how frames are drawn or classified is a new bank)."""
+    return source_identity("classifiers")
 
 
 def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
@@ -87,7 +86,7 @@ def fingerprint(spec: BankSpec, clf: FrameClassifier) -> dict[str, Any]:
         "kind": _KIND,
         "version": _VERSION,
         "classifier": classifier_identity(clf),
-        "renderer": renderer_identity(),
+        "code": code_identity(),
         "classes": list(spec.classes),
         "conditions": asdict(spec.conditions),
         "seed": spec.seed,

@@ -50,21 +50,27 @@ def test_fused_matches_unfused_and_batching(backbone):
 
 
 @pytest.mark.parametrize("size", [(224, 224), (7, 9), (14, 13)])
-@pytest.mark.parametrize(("kernel", "stride"), [(1, 1), (3, 1), (5, 1), (3, 2), (5, 2)])
-def test_same_padding_is_tensorflows(size, kernel, stride):
-    """TensorFlow's "SAME": output ceil(size / stride), the pad split with the odd pixel at the bottom/right."""
+@pytest.mark.parametrize(("kernel", "stride"), [(1, 1), (2, 1), (3, 1), (5, 1), (1, 2), (3, 2), (5, 2), (3, 3)])
+@pytest.mark.parametrize(("groups", "bias"), [(4, False), (1, True)])
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_same_padding_is_tensorflows(size, kernel, stride, groups, bias, channels_last):
+    """TensorFlow's "SAME": output ceil(size / stride), the pad split with the odd pixel at the bottom/right; the
+    convolution on an explicitly padded copy is the reference of every path (1x1 product, even padding and crop,
+    explicit padding for an even kernel)."""
     g = torch.Generator().manual_seed(0)
-    conv = SameConv2d(4, 4, kernel, stride=stride, groups=4, bias=False)
+    conv = SameConv2d(4, 4, kernel, stride=stride, groups=groups, bias=bias)
     x = torch.randn(2, 4, *size, generator=g)
+    if channels_last:
+        x = x.contiguous(memory_format=torch.channels_last)
     pads = []
     for n in size[::-1]:
         total = max((-(-n // stride) - 1) * stride + kernel - n, 0)
         pads += [total // 2, total - total // 2]
-    ref = torch.nn.functional.conv2d(torch.nn.functional.pad(x, pads), conv.weight, None, stride, 0, 1, 4)
+    ref = torch.nn.functional.conv2d(torch.nn.functional.pad(x, pads), conv.weight, conv.bias, stride, 0, 1, groups)
     with torch.inference_mode():
         out = conv(x)
-    assert out.shape[-2:] == (-(-size[0] // stride), -(-size[1] // stride))
-    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
+    assert out.shape == (2, 4, -(-size[0] // stride), -(-size[1] // stride))
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
 
 
 def test_missing_weights_file(tmp_path):

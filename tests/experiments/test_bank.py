@@ -93,15 +93,15 @@ def test_any_changed_input_is_a_new_bank(tmp_path, classifiers, field, change):
     assert outputs.shape == (len(new.spec.classes), new.spec.sequences, new.spec.frames, len(new.spec.classes))
 
 
-def test_another_classifier_or_renderer_is_a_new_bank(tmp_path, classifiers, monkeypatch):
+def test_another_classifier_or_its_code_is_a_new_bank(tmp_path, classifiers, monkeypatch):
     (clf0, path0), (clf1, path1) = classifiers
     old = BankBuild(_spec(), clf0, path0, tmp_path, workers=0)
     old.result()
     other = BankBuild(_spec(), clf1, path1, tmp_path, workers=0)
     assert not other.cached and other.key["classifier"] != old.key["classifier"]
-    monkeypatch.setattr(bank_module, "renderer_identity", lambda: "another renderer")
+    monkeypatch.setattr(bank_module, "code_identity", lambda: "another renderer or backbone")
     redrawn = BankBuild(_spec(), clf0, path0, tmp_path, workers=0)
-    assert not redrawn.cached and redrawn.key["renderer"] == "another renderer"
+    assert not redrawn.cached and redrawn.key["code"] == "another renderer or backbone"
 
 
 def test_a_file_recording_another_fingerprint_is_refused(tmp_path, classifiers):
