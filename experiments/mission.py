@@ -402,12 +402,16 @@ def execute_closed_loop(
     settings: Settings,
     run_dir: Path,
 ) -> plt.Figure | None:
-    """Stage 6: each saved controller executed with its variant's actual process on fresh held-out bank
-    streams (perfect perception: in its own domain again); adds ``executed`` to every result entry, with
-    the stream standard errors of the planned value (an empirical table of ``held``'s size) and of the
-    executed one (the bank's size), by bootstrap from the pooled held-out and bank sequences, the
-    distribution check of the entry's table against its process on the bank and the value test.
-    Returns the reliability diagram of every process on the bank (``None`` without variants)."""
+    """Stage 6: each saved controller executed with its variant's actual process on fresh held-out streams
+    (perfect perception: in its own domain again); adds ``executed`` to every result entry, with the stream
+    standard errors of the planned value (an empirical table of ``held``'s size) and of the executed one, by
+    bootstrap from the pooled held-out and bank sequences, the distribution check of the entry's table against
+    its process on those streams and the value test.
+
+    A policy planned on an empirical table runs on the bank alone (its table was tabulated on ``held``); one
+    planned on a simulated table saw no recorded sequence, so it runs on ``held`` and the bank together, which
+    makes its value test more powerful at no cost. Returns the reliability diagram of every process on the bank
+    (``None`` without variants)."""
     settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
     C, P = pooled.shape[:2]
@@ -425,21 +429,23 @@ def execute_closed_loop(
             results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
             continue
         pool = on_pool[_entry_variant(name)]
-        replay = closed_loop.resampled(pool, C, P, torch.arange(held.shape[1], P))  # the bank
+        empirical = entry_planning(settings, name) == "empirical"
+        first = held.shape[1] if empirical else 0  # an empirical table's own sequences are not fresh to it
+        replay = closed_loop.resampled(pool, C, P, torch.arange(first, P))
         executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
         resample = functools.partial(closed_loop.resampled, pool, C, P)
         on_bank = closed_loop.stream_stderr(
             controller,
             resample,
             P,
-            bank.shape[1],
+            P - first,
             cfg.domain,
             boot,
             stream_seed(settings.seed, "bootstrap", "bank", name),
         )
         on_table = (
             0.0
-            if entry_planning(settings, name) != "empirical"
+            if not empirical
             else closed_loop.stream_stderr(
                 controller,
                 resample,
@@ -451,12 +457,12 @@ def execute_closed_loop(
             )
         )
         entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
-        empirical = entry_planning(settings, name) == "empirical"
+        entry["sequences_per_class"] = P - first
         table_streams = held.shape[1] if empirical else settings.loop.generative_streams
         entry["distribution_check"] = honesty.distribution_check(
             models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
         )
-        entry["value_test"] = honesty.value_test(results[name], entry, bank.shape[1])
+        entry["value_test"] = honesty.value_test(results[name], entry, P - first)
         results[name]["executed"] = entry
     return (
         honesty.reliability_figure(
@@ -509,6 +515,7 @@ def write_outputs(
                 "cached": bank.cached,
                 "seed": bank.spec.seed,
                 "sequences_per_class": bank.spec.sequences,
+                "held_out_sequences_per_class": int(held.shape[1]),
                 "frames": bank.spec.frames,
             },
         },

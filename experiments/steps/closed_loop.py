@@ -163,7 +163,7 @@ def summarise(
     planned_streams: float = 0.0,
     executed_streams: float = 0.0,
 ) -> dict[str, Any]:
-    """The closed-loop part of a variant's metrics: executed score, gaps, and the process on the bank.
+    """The closed-loop part of a variant's metrics: executed score, gaps, and the process on the streams it ran on.
 
     ``planned_streams``/``executed_streams``: the stream standard errors of the two values (:func:`stream_stderr`).
     """
@@ -233,9 +233,12 @@ def report_lines(
     lines = [
         "## Closed loop: planned against executed",
         "",
-        f'Every "infer" MA of an executed rollout draws one of {bank["sequences_per_class"]} held-out mission '
-        f"sequences per class ({bank['frames']} frames each, seed {bank['seed']}, never used to fit or tabulate; "
-        f"{source}: `{bank['path']}`) and runs that variant's filter and threshold on it. The rollout gap is "
+        f'Every "infer" MA of an executed rollout draws a held-out mission sequence of the true class '
+        f"({bank['frames']} frames) and runs that variant's filter and threshold on it: a policy planned on a "
+        f"simulated table draws from {bank['held_out_sequences_per_class'] + bank['sequences_per_class']} per "
+        f"class (the {bank['held_out_sequences_per_class']} characterisation sequences and the bank's "
+        f"{bank['sequences_per_class']}, none of which it saw), one planned on an empirical table from the bank's "
+        f"only (seed {bank['seed']}, never used to fit or tabulate; {source}: `{bank['path']}`). The rollout gap is "
         "(executed - planned) / sqrt(se_planned^2 + se_executed^2) with rollout standard errors; the full gap "
         "adds both values' stream standard errors (bootstrap over the sequences of the table and of the bank; "
         "0 for a simulated table). The last column runs the same controllers on the batched torch simulator, the "
@@ -269,7 +272,7 @@ def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[st
             if "macro_accuracy" in r and "bank_accuracy" in e:
                 out.append(
                     f"  - {name}: its table says accuracy {np.mean(r['macro_accuracy']):.3f} after "
-                    f"{np.mean(r['macro_mean_frames']):.1f} frames; on the bank the process gets "
+                    f"{np.mean(r['macro_mean_frames']):.1f} frames; on its held-out streams the process gets "
                     f"{np.mean(e['bank_accuracy']):.3f} after {np.mean(e['bank_mean_frames']):.1f}."
                 )
     return out

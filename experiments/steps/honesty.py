@@ -175,7 +175,7 @@ def value_test(
     target: float = TARGET_POWER,
 ) -> dict[str, float | bool]:
     """The value test of one policy: its p-value and verdict, its power against an executed value ``shortfall``
-    (relative) below the planned one, and the bank sequences per class that would give ``target`` power.
+    (relative) below the planned one, and the held-out sequences per class that would give ``target`` power.
 
     ``planned``: ``{"value", "stderr"}``; ``executed``: the closed-loop entry (``value``, ``stderr``,
     ``stream_stderr``, ``planned_stream_stderr``, ``gap_in_total_stderr``). The bank's stream standard error is scaled as
@@ -267,7 +267,7 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list
             f"{', '.join(classes[c] for c, e in enumerate(check['classes']) if not e['passed'])}"
             f" (per-test level {check['alpha_per_test']:.4f}).",
             "",
-            "| class | table accuracy | bank accuracy [95 %] | p | table frames | bank frames [95 %] | p | |",
+            "| class | table accuracy | held-out accuracy [95 %] | p | table frames | held-out frames [95 %] | p | |",
             "|---|---|---|---|---|---|---|---|",
         ]
         for c, e in enumerate(check["classes"]):
@@ -291,7 +291,7 @@ def report_lines(results: dict[str, dict], labels: dict[str, str], classes: list
                     "more than any bank: the planned and executed values' rollout errors and the table's "
                     "sequences alone are too large"
                     if math.isinf(need)
-                    else f"{need:.0f} bank sequences per class"
+                    else f"{need:.0f} held-out sequences per class"
                 )
                 + ".",
             ]

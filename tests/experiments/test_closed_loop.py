@@ -180,16 +180,24 @@ def test_report_pieces_and_acceptance():
         results,
         {"hbni": "HBNI"},
         planning,
-        {"cached": True, "sequences_per_class": 40, "frames": 30, "seed": 3, "path": "x"},
+        {
+            "cached": True,
+            "sequences_per_class": 40,
+            "held_out_sequences_per_class": 16,
+            "frames": 30,
+            "seed": 3,
+            "path": "x",
+        },
     )
     text = "\n".join(lines)
+    assert "a policy planned on a simulated table draws from 56 per class" in text
     assert "| HBNI | empirical | 5.000 ± 0.100; 0.100 | 4.700 ± 0.100; 0.000 | -2.1 | -1.5 |" in text
     # one-sided at level 0.05: a gap of -1.6 s.e. (p = 0.055) passes, -3.2 fails
     assert "The **empirical** planning model is **honest** here: full gaps hbni -1.5, ssbf -1.6 s.e." in text
     assert "The **generative** planning model is **not honest** here: full gaps hbni_generative -3.2 s.e." in text
     assert (
-        "hbni_generative: its table says accuracy 1.000 after 6.0 frames; on the bank the process gets 0.900 after 9.0"
-        in text
+        "hbni_generative: its table says accuracy 1.000 after 6.0 frames; on its held-out streams the process gets 0.900 "
+        "after 9.0" in text
     )
     assert closed_loop.gap({"value": 1.0, "stderr": 0.3}, {"value": 0.5, "stderr": 0.4}) == pytest.approx(-1.0)
     assert closed_loop.gap({"value": 1.0, "stderr": 0.0}, {"value": 0.5, "stderr": 0.3}, 0.4) == pytest.approx(-1.0)
@@ -230,7 +238,7 @@ def test_loop_settings_are_read_from_the_mission_config():
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
         full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
-    assert loop.planning_model == "generative" and loop.bank_sequences == 160 and loop.workers == 2
+    assert loop.planning_model == "generative" and loop.bank_sequences == 224 and loop.workers == 2
     assert (
         loop.bootstrap == closed_loop.Bootstrap(64, 4000) and loop.cache_dir == project_root() / ".cache" / "banks"
     )  # the project's, from anywhere

@@ -45,6 +45,11 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
         "hbni_empirical": "empirical",
     }
     assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
+    held = loop["bank"]["held_out_sequences_per_class"]
+    for name, entry in metrics["variants"].items():  # a simulated table saw neither set: it runs on both
+        if name != "perfect":
+            fresh = 2 if loop["planning"][name] == "empirical" else 2 + held
+            assert entry["executed"]["sequences_per_class"] == fresh
     assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
     report = (mission_run / "report.md").read_text()
     assert "## Closed loop: planned against executed" in report and "The **generative** planning model is" in report
