@@ -238,7 +238,7 @@ def test_loop_settings_are_read_from_the_mission_config():
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
         full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
-    assert loop.planning_model == "generative" and loop.bank_sequences == 224 and loop.workers == 2
+    assert loop.planning_model == "generative" and loop.bank_sequences == 192 and loop.workers == 2
     assert (
         loop.bootstrap == closed_loop.Bootstrap(64, 4000) and loop.cache_dir == project_root() / ".cache" / "banks"
     )  # the project's, from anywhere
