@@ -15,7 +15,7 @@ import torch
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions, render_images, render_sequence
 from experiments.steps import bank as bank_module
-from experiments.steps.bank import BankBuild, BankSpec, cache_path, fingerprint
+from experiments.steps.bank import BankBuild, BankSpec, cache_path, class_seed, fingerprint
 
 CLASSES = ("ambulance", "police_car", "food_crate")
 SHAPE = (72, 96)  # small frames keep rendering cheap; the classifier resizes its crop anyway
@@ -52,10 +52,12 @@ def test_bank_is_the_classified_rendered_sequences_and_is_reused(tmp_path, class
     outputs = first.result()
     assert outputs.shape == (3, 2, 3, 3) and first.path.is_file()
     order = [clf.classes_.index(n) for n in CLASSES]
+    police = class_seed(7, "police_car")
     expect = clf.predict_proba(
-        render_sequence("police_car", 3, get_conditions("mission"), seed=7, index=1, shape=SHAPE)
+        render_sequence("police_car", 3, get_conditions("mission"), seed=police, index=1, shape=SHAPE)
     )
     torch.testing.assert_close(outputs[1, 1], expect[:, order])  # row = class, columns in CLASSES order
+    assert len({class_seed(7, name) for name in CLASSES} | {7}) == len(CLASSES) + 1  # each class its own conditions
     again = BankBuild(_spec(), clf, path, tmp_path, workers=0)
     assert again.cached and again.path == first.path
     assert torch.equal(again.result(), outputs)
