@@ -216,7 +216,7 @@ def report_lines(
     rows = [
         "| policy | planned on | planned value (± rollout s.e.; streams s.e.) | executed value (± rollout s.e.; "
         "streams s.e.) | gap (rollout s.e.) | gap (all s.e.) | executed wrong / run | executed frames / inference "
-        "| bank accuracy | bank mean frames | executed on the torch oracle (gap) |",
+        "| held-out accuracy | held-out mean frames | executed on the torch oracle (gap) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
