@@ -70,7 +70,7 @@ def test_same_padding_is_tensorflows(size, kernel, stride, groups, bias, channel
     with torch.inference_mode():
         out = conv(x)
     assert out.shape == (2, 4, -(-size[0] // stride), -(-size[1] // stride))
-    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
 
 
 def test_missing_weights_file(tmp_path):
