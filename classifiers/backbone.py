@@ -65,9 +65,7 @@ class SameConv2d(nn.Conv2d):
         if self.kernel_size == (1, 1) and self.stride == (1, 1) and self.groups == 1:
             return _pointwise(x, self.weight, self.bias)
         pads, crops = [], []
-        for size, k, s in zip(x.shape[-2:], self.kernel_size, self.stride):
-            total = max((math.ceil(size / s) - 1) * s + k - size, 0)
-            before, after = total // 2, total - total // 2
+        for (before, after), s in zip(self._same_pads(x), self.stride):
             if after != before and s == 1:  # an even kernel at stride 1: no even padding gives these windows
                 return self._padded(x)
             crop = 1 if after != before else 0
@@ -76,13 +74,19 @@ class SameConv2d(nn.Conv2d):
         y = F.conv2d(x, self.weight, self.bias, self.stride, tuple(pads), self.dilation, self.groups)
         return y[..., crops[0] :, crops[1] :] if any(crops) else y
 
+    def _same_pads(self, x: Tensor) -> list[tuple[int, int]]:
+        """TensorFlow's "SAME" padding ``(before, after)`` of the height, then the width, of ``x``."""
+        pads = []
+        for size, k, s in zip(x.shape[-2:], self.kernel_size, self.stride):
+            total = max((math.ceil(size / s) - 1) * s + k - size, 0)
+            pads.append((total // 2, total - total // 2))
+        return pads
+
     def _padded(self, x: Tensor) -> Tensor:
         """The same convolution on an explicitly padded copy of ``x``."""
-        pads = []
-        for size, k, s in zip(x.shape[-1:-3:-1], self.kernel_size[::-1], self.stride[::-1]):
-            total = max((math.ceil(size / s) - 1) * s + k - size, 0)
-            pads += [total // 2, total - total // 2]
-        return F.conv2d(F.pad(x, pads), self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
+        (top, bottom), (left, right) = self._same_pads(x)
+        padded = F.pad(x, [left, right, top, bottom])
+        return F.conv2d(padded, self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
 
 
 def _pointwise(x: Tensor, weight: Tensor, bias: Tensor | None) -> Tensor:

@@ -26,8 +26,9 @@ then the policy executed with the actual filter on held-out frames.
    scratch too (``warm_start: false``). Each controller, and the greedy controller itself, is
    re-evaluated on independent rollouts: the planned value.
 6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
-   answered by that variant's process on a fresh bank stream of the true class: the executed value,
-   and its gap to the planned one in standard errors.
+   answered by that variant's process on a fresh held-out stream of the true class (the bank's; a
+   generative table's policy also the characterisation sequences'): the executed value, and its gap
+   to the planned one in standard errors.
 
 Writes ``metrics.json``, ``report.md`` with the figures ``values.png``, ``confusion.png``,
 ``frames.png``, ``learning_curves.png`` and ``closed_loop.png``, and every fitted artefact
@@ -431,6 +432,7 @@ def execute_closed_loop(
         pool = on_pool[_entry_variant(name)]
         empirical = entry_planning(settings, name) == "empirical"
         first = held.shape[1] if empirical else 0  # an empirical table's own sequences are not fresh to it
+        fresh = P - first
         replay = closed_loop.resampled(pool, C, P, torch.arange(first, P))
         executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
         resample = functools.partial(closed_loop.resampled, pool, C, P)
@@ -438,7 +440,7 @@ def execute_closed_loop(
             controller,
             resample,
             P,
-            P - first,
+            fresh,
             cfg.domain,
             boot,
             stream_seed(settings.seed, "bootstrap", "bank", name),
@@ -457,12 +459,12 @@ def execute_closed_loop(
             )
         )
         entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
-        entry["sequences_per_class"] = P - first
+        entry["sequences_per_class"] = fresh
         table_streams = held.shape[1] if empirical else settings.loop.generative_streams
         entry["distribution_check"] = honesty.distribution_check(
             models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
         )
-        entry["value_test"] = honesty.value_test(results[name], entry, P - first)
+        entry["value_test"] = honesty.value_test(results[name], entry, fresh)
         results[name]["executed"] = entry
     return (
         honesty.reliability_figure(

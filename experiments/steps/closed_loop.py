@@ -11,15 +11,14 @@ Two kinds of standard error enter that gap. Rollouts: each value is a Monte Carl
 a table tabulated on 16 recorded sequences per class, or a bank of 64, is itself a sample of
 imaging conditions (a table's sequence ``i`` of every class shares its pose, light and background;
 the bank's classes each have their own), so a planned or executed value carries the luck of its
-sequences too. :func:`stream_stderr` measures
-that part by bootstrap: if the planning model is honest, the table's recorded sequences and the
-bank's are draws from one population, so (as in a pooled two-sample test) each value's stream
-standard error is the spread of that policy's value over tables or banks of the same size drawn
-from the pooled sequences (a table of some sequences and a replay of them give the same law of
-``(label, frames)``, so both are replays of the process's results on the pooled streams, computed
-once). The honesty verdict uses the gap in all four standard errors together.
-A generative table is simulated (1000 streams per class by default): its own simulation error is
-neglected.
+sequences too. :func:`stream_stderr` measures that part by bootstrap: if the planning model is
+honest, the table's recorded sequences and the bank's are draws from one population, so (as in a
+pooled two-sample test) each value's stream standard error is the spread of that policy's value
+over tables or banks of the same size drawn from the pooled sequences (a table of some sequences
+and a replay of them give the same law of ``(label, frames)``, so both are replays of the process's
+results on the pooled streams, computed once). The honesty verdict uses the gap in all four standard
+errors together. A generative table is simulated (1000 streams per class by default): its own
+simulation error is neglected.
 """
 
 from __future__ import annotations
@@ -119,8 +118,8 @@ def stream_stderr(
     """Standard error of a policy's value from the finite set of ``size`` recorded sequences behind its perception.
 
     Each replicate draws ``size`` of ``pool`` sequence indices with replacement (all classes' sequence ``i``
-    together: where they share imaging conditions, their outcomes go together), builds ``perception_of(indices)`` (a table or a replay) and
-    scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
+    together: where they share imaging conditions, their outcomes go together), builds
+    ``perception_of(indices)`` (a table or a replay) and scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
     rollout variance is the streams' share (floored at 0). That difference is only as good as the
     replicates' variance estimate (relative s.e. ``sqrt(2 / (replicates - 1))`` of the streams' plus the
     rollouts' share): give each replicate enough rollouts that their noise does not swamp the streams'.
