@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import resource
 import time
 from pathlib import Path
@@ -63,6 +64,7 @@ from experiments.report import write_report
 from experiments.schemas.studies import MISSION_VARIANTS
 from experiments.steps import closed_loop, honesty
 from experiments.steps.bank import BankBuild, BankSpec
+from experiments.steps.on_demand import OnDemandStreams
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
@@ -136,7 +138,12 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         results, histories = plan(models, cfg, settings, run_dir, bank)
         settings.clock.start("bank_wait", "waiting for the held-out bank")
         banked = bank.result(settings.progress)
-        reliability = execute_closed_loop(banked, outputs.held_out, noise, models, results, cfg, settings, run_dir)
+        more = OnDemandStreams(
+            bank.spec, clf, run_dir / "classifier.safetensors", int(cfg.study.threads), settings.progress
+        )
+        reliability = execute_closed_loop(
+            banked, outputs.held_out, noise, models, results, cfg, settings, run_dir, more
+        )
     finally:
         bank.cancel()
     return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank, reliability)
@@ -402,6 +409,7 @@ def execute_closed_loop(
     cfg: DictConfig,
     settings: Settings,
     run_dir: Path,
+    more: OnDemandStreams | None = None,
 ) -> plt.Figure | None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out streams
     (perfect perception: in its own domain again); adds ``executed`` to every result entry, with the stream
@@ -411,60 +419,28 @@ def execute_closed_loop(
 
     A policy planned on an empirical table runs on the bank alone (its table was tabulated on ``held``); one
     planned on a simulated table saw no recorded sequence, so it runs on ``held`` and the bank together, which
-    makes its value test more powerful at no cost. Returns the reliability diagram of every process on the bank
-    (``None`` without variants)."""
+    makes its value test more powerful at no cost. An entry of ``mission.bank.powered`` whose value test has
+    less than its target power is executed again on more held-out sequences (:func:`_powered`). Returns the reliability diagram of
+    every process on the bank (``None`` without variants)."""
     settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
-    C, P = pooled.shape[:2]
     processes = build_processes(noise, cfg, settings)
-    on_pool = {
-        name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))  # each stream run once
-        for name, p in processes.items()
+    on_pool = {  # each variant's streams (C, sequences, F, C) and its replay of them (each stream run once)
+        name: (pooled, hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))) for name, p in processes.items()
     }
-    boot, reeval = settings.loop.bootstrap, int(cfg.study.reeval_rollouts)
+    context = (held.shape[1], models, results, cfg, settings)
     for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
-        seed = stream_seed(settings.seed, "execute", name)
         if name == "perfect":
-            executed = closed_loop.execute(controller, None, cfg.domain, reeval, seed)
+            seed = stream_seed(settings.seed, "execute", name)
+            executed = closed_loop.execute(controller, None, cfg.domain, int(cfg.study.reeval_rollouts), seed)
             results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
             continue
-        pool = on_pool[_entry_variant(name)]
-        empirical = entry_planning(settings, name) == "empirical"
-        first = held.shape[1] if empirical else 0  # an empirical table's own sequences are not fresh to it
-        fresh = P - first
-        replay = closed_loop.resampled(pool, C, P, torch.arange(first, P))
-        executed = closed_loop.execute(controller, replay, cfg.domain, reeval, seed)
-        resample = functools.partial(closed_loop.resampled, pool, C, P)
-        on_bank = closed_loop.stream_stderr(
-            controller,
-            resample,
-            P,
-            fresh,
-            cfg.domain,
-            boot,
-            stream_seed(settings.seed, "bootstrap", "bank", name),
-        )
-        on_table = (
-            0.0
-            if not empirical
-            else closed_loop.stream_stderr(
-                controller,
-                resample,
-                P,
-                held.shape[1],
-                cfg.domain,
-                boot,
-                stream_seed(settings.seed, "bootstrap", "table", name),
-            )
-        )
-        entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
-        entry["sequences_per_class"] = fresh
-        table_streams = held.shape[1] if empirical else settings.loop.generative_streams
-        entry["distribution_check"] = honesty.distribution_check(
-            models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
-        )
-        entry["value_test"] = honesty.value_test(results[name], entry, fresh)
+        variant = _entry_variant(name)
+        streams, replay = on_pool[variant]
+        entry = _executed(name, controller, streams.shape[1], replay, *context)
+        if more is not None and name in settings.loop.powered.entries:
+            entry = _powered(name, controller, entry, on_pool, processes[variant], more, *context)
         results[name]["executed"] = entry
     return (
         honesty.reliability_figure(
@@ -473,6 +449,96 @@ def execute_closed_loop(
         if processes
         else None
     )
+
+
+def _powered(
+    name: str,
+    controller: JointController,
+    entry: dict[str, Any],
+    on_pool: dict[str, tuple[torch.Tensor, hbni_pyro.StreamReplay]],
+    process: hbni_pyro.MacroObservationProcess,
+    more: OnDemandStreams,
+    held: int,
+    models: dict[str, hbni_pyro.MacroObservationModel],
+    results: dict[str, dict],
+    cfg: DictConfig,
+    settings: Settings,
+) -> dict[str, Any]:
+    """Policy ``name``'s closed-loop ``entry``, executed again on more held-out sequences while its value test has
+    less than the target power: each step adds the bank's next sequences, rendered by ``more`` only as far as the
+    process reads them, up to ``margin`` times what the power calculation asks for but at most doubling the
+    sequences (the calculation rests on a noisy estimate of the streams' variance), never past
+    ``max_sequences`` per class. Updates the variant's entry in ``on_pool``."""
+    powered, variant = settings.loop.powered, _entry_variant(name)
+    first = held if entry_planning(settings, name) == "empirical" else 0
+    added, rendered = 0, []
+    while entry["value_test"]["power"] < honesty.TARGET_POWER:
+        streams = on_pool[variant][0]
+        have = streams.shape[1]
+        want = first + math.ceil(powered.margin * min(entry["value_test"]["sequences_for_target"], 1e9))
+        count = min(want, 2 * have, powered.max_sequences) - have
+        if count <= 0:
+            break
+        settings.clock.say(
+            f"{name}: value test power {entry['value_test']['power']:.2f} on {have - first} held-out sequences "
+            f"per class; rendering {count} more, each as far as its process reads it"
+        )
+        replay, streams, frames = more.replay(process, streams, have - held, count)  # the bank's next
+        on_pool[variant] = (streams, replay)
+        added, rendered = added + count, rendered + [frames]
+        entry = _executed(name, controller, streams.shape[1], replay, held, models, results, cfg, settings)
+    if added:
+        frames = torch.cat(rendered, dim=1).double()
+        entry["on_demand"] = {"sequences_per_class": added, "mean_frames_rendered": float(frames.mean())}
+    return entry
+
+
+def _executed(
+    name: str,
+    controller: JointController,
+    per_class: int,
+    pool: hbni_pyro.StreamReplay,
+    held: int,
+    models: dict[str, hbni_pyro.MacroObservationModel],
+    results: dict[str, dict],
+    cfg: DictConfig,
+    settings: Settings,
+) -> dict[str, Any]:
+    """The closed-loop entry of policy ``name`` on ``pool``, a replay of ``per_class`` sequences per class of
+    which the first ``held`` are the characterisation sequences (not fresh to an empirical table)."""
+    C = pool.num_classes
+    seed = stream_seed(settings.seed, "execute", name)
+    empirical = entry_planning(settings, name) == "empirical"
+    first = held if empirical else 0
+    fresh = per_class - first
+    replay = closed_loop.resampled(pool, C, per_class, torch.arange(first, per_class))
+    executed = closed_loop.execute(controller, replay, cfg.domain, int(cfg.study.reeval_rollouts), seed)
+    resample = functools.partial(closed_loop.resampled, pool, C, per_class)
+    boot = settings.loop.bootstrap
+    on_bank = closed_loop.stream_stderr(
+        controller, resample, per_class, fresh, cfg.domain, boot, stream_seed(settings.seed, "bootstrap", "bank", name)
+    )
+    on_table = (
+        0.0
+        if not empirical
+        else closed_loop.stream_stderr(
+            controller,
+            resample,
+            per_class,
+            held,
+            cfg.domain,
+            boot,
+            stream_seed(settings.seed, "bootstrap", "table", name),
+        )
+    )
+    entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
+    entry["sequences_per_class"] = fresh
+    table_streams = held if empirical else settings.loop.generative_streams
+    entry["distribution_check"] = honesty.distribution_check(
+        models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
+    )
+    entry["value_test"] = honesty.value_test(results[name], entry, fresh)
+    return entry
 
 
 def write_outputs(

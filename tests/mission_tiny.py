@@ -21,6 +21,7 @@ _BASE = [
     "progress=false",
     "mission.bank.sequences=2",
     "mission.bank.workers=0",
+    "mission.bank.powered.max_sequences=8",  # HBNI's value test: at most 4 sequences per class rendered on demand
     "mission.generative_streams=50",
     "mission.bootstrap.replicates=2",
     "mission.bootstrap.rollouts=4",

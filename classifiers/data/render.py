@@ -230,6 +230,8 @@ def render_sequence(
     seed: int = 0,
     index: int = 0,
     shape: tuple[int, int] = FRAME_SHAPE,
+    start: int = 0,
+    stop: int | None = None,
 ) -> np.ndarray:
     """Frames ``(n_frames, H, W, 3)`` uint8 BGR of one object seen from a camera moving along a path.
 
@@ -237,10 +239,17 @@ def render_sequence(
     background pans with the camera; the light level drifts slowly (``conditions.drift``);
     motion blur grows with the camera's image-plane speed along its direction. Draws are
     seeded by ``(seed, index)``, the same for every class.
+
+    ``start``, ``stop``: render only frames ``start .. stop - 1`` (default: all), ``(stop - start, H, W, 3)``,
+    the same pixels as those frames of the whole sequence (an earlier frame only advances the sensor noise's
+    stream), so a sequence can be rendered a block of frames at a time.
     """
     _check_class(name)
     if n_frames < 1:
         raise ValueError(f"n_frames: expected >= 1, got {n_frames}")
+    stop = n_frames if stop is None else stop
+    if not 0 <= start < stop <= n_frames:
+        raise ValueError(f"start, stop: expected 0 <= start < stop <= n_frames = {n_frames}, got {start}, {stop}")
     cond = get_conditions(conditions)
     rng = _rng(seed, index)
     h, w = shape
@@ -254,8 +263,12 @@ def render_sequence(
     pan = 0.35 * h
     pan_dir = rng.uniform(-1, 1, size=2)
     big = _background(cond, rng, (h + int(2 * pan) + 2, w + int(2 * pan) + 2))
-    frames = np.empty((n_frames, h, w, 3), np.uint8)
-    for i in range(n_frames):
+    frames = np.empty((stop - start, h, w, 3), np.uint8)
+    for i in range(stop):
+        if i < start:  # a frame not asked for: only its sensor noise's draws, to keep the stream's place
+            if base.noise > 0:
+                rng.standard_normal(size=(h, w, 3))
+            continue
         px, py = (int(round(pan * (1 + 2 * d * (t[i] - 0.5)))) for d in pan_dir)
         bg = big[py : py + h, px : px + w]
         j = max(i - 1, 0)
@@ -264,7 +277,7 @@ def render_sequence(
         angle = float(np.rad2deg(np.arctan2(dy[i] - dy[j], dx[i] - dx[j] + 1e-9))) if i > 0 else base.blur_angle
         look = Look(float(gain[i]), base.cast, base.shade_dir, base.shading, blur, angle, base.noise)
         pose = Pose(path["scale"][i], path["yaw"][i], path["pitch"][i], path["roll"][i], dx[i], dy[i])
-        frames[i] = render_frame(name, pose, look, bg, rng)
+        frames[i - start] = render_frame(name, pose, look, bg, rng)
     return frames
 
 

@@ -314,6 +314,27 @@ class DPOMDPBenchmarks(Root):
 
 
 PLANNING_MODELS = ("empirical", "generative")
+MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
+
+
+@dataclass
+class PoweredBlock:
+    """``mission.bank.powered``: policies whose value test gets held-out sequences rendered on demand until it
+    has its target power, at most ``max_sequences`` per class in all, ``margin`` times what the power calculation
+    asks for."""
+
+    entries: list[str] = MISSING
+    max_sequences: int = MISSING
+    margin: float = MISSING
+
+    def check(self, path: str) -> None:
+        known = (*MISSION_VARIANTS, *(f"{v}_{m}" for v in MISSION_VARIANTS for m in PLANNING_MODELS))
+        unknown = sorted(set(self.entries) - set(known))
+        if unknown:
+            raise ValueError(f"entries: expected policies among {list(known)}, got {unknown}")
+        positive_int("max_sequences", self.max_sequences, 2)
+        if not 1.0 <= self.margin <= 4.0:
+            raise ValueError(f"margin: expected a float in [1, 4], got {self.margin}")
 
 
 @dataclass
@@ -323,6 +344,7 @@ class BankBlock:
     sequences: int = MISSING
     cache_dir: str = MISSING
     workers: int = MISSING
+    powered: PoweredBlock = field(default_factory=PoweredBlock)
 
     def check(self, path: str) -> None:
         positive_int("sequences", self.sequences, 2)
@@ -372,9 +394,6 @@ class MissionBlock:
         if t != "fit" and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t <= 1):
             raise ValueError(f"temper: expected 'fit' or a float in (0, 1], got {t!r}")
         _check_conditions("conditions", self.conditions)
-
-
-MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
 
 
 @dataclass

@@ -145,28 +145,45 @@ def _load_worker(classifier_path: str) -> None:
     _WORKER["clf"] = FrameClassifier.load(classifier_path)
 
 
+def worker_pool(classifier_path: str | os.PathLike, workers: int) -> ProcessPoolExecutor:
+    """``workers`` spawned processes, each with one torch thread and the classifier saved at ``classifier_path``;
+    they run :func:`classify_in_worker` and :func:`classify_blocks_in_worker`."""
+    context = multiprocessing.get_context("spawn")
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=_load_worker, initargs=(str(classifier_path),))
+
+
+def classify_frames(
+    clf: FrameClassifier, spec: BankSpec, c: int, index: int, start: int = 0, stop: int | None = None
+) -> Tensor:
+    """Outputs ``(stop - start, C)`` of frames ``start .. stop - 1`` (default: all) of sequence ``index`` of class ``c``,
+    columns in ``spec.classes`` order (the same values as those frames of the whole sequence)."""
+    name = spec.classes[c]
+    frames = render_sequence(
+        name,
+        spec.frames,
+        spec.conditions,
+        seed=class_seed(spec.seed, name),
+        index=index,
+        shape=spec.shape,
+        start=start,
+        stop=stop,
+    )
+    return clf.predict_proba(frames)[:, class_columns(clf, spec.classes)]
+
+
 def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: int) -> Tensor:
     """Outputs ``(last - first, F, C)`` of sequences ``first..last-1`` of class ``c``, columns in ``spec.classes`` order."""
-    order = class_columns(clf, spec.classes)
-    return torch.stack(
-        [
-            clf.predict_proba(
-                render_sequence(
-                    spec.classes[c],
-                    spec.frames,
-                    spec.conditions,
-                    seed=class_seed(spec.seed, spec.classes[c]),
-                    index=i,
-                    shape=spec.shape,
-                )
-            )[:, order]
-            for i in range(first, last)
-        ]
-    )
+    return torch.stack([classify_frames(clf, spec, c, i) for i in range(first, last)])
 
 
-def _classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
+def classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
+    """:func:`_classify` in a :func:`worker_pool` process."""
     return _classify(_WORKER["clf"], spec, c, first, last)
+
+
+def classify_blocks_in_worker(spec: BankSpec, blocks: list[tuple[int, int, int, int]]) -> list[Tensor]:
+    """:func:`classify_frames` of each ``(class, index, start, stop)`` in a :func:`worker_pool` process."""
+    return [classify_frames(_WORKER["clf"], spec, *block) for block in blocks]
 
 
 class BankBuild:
@@ -207,12 +224,9 @@ class BankBuild:
             self._start_workers()
 
     def _start_workers(self) -> None:
-        context = multiprocessing.get_context("spawn")
-        self._pool = ProcessPoolExecutor(
-            self.workers, mp_context=context, initializer=_load_worker, initargs=(self._classifier_path,)
-        )
+        self._pool = worker_pool(self._classifier_path, self.workers)
         self._futures = {
-            self._pool.submit(_classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
+            self._pool.submit(classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
         }
 
     @property

@@ -52,6 +52,15 @@ class Bootstrap(NamedTuple):
     rollouts: int
 
 
+class Powered(NamedTuple):
+    """``mission.bank.powered``: entries whose value test gets held-out sequences rendered on demand until it has
+    its target power, the sequences per class it may have in all, and the margin over the power calculation."""
+
+    entries: tuple[str, ...]
+    max_sequences: int
+    margin: float
+
+
 class LoopSettings(NamedTuple):
     """The mission's closed-loop settings (``mission.planning_model``, ``mission.bank``, ...)."""
 
@@ -62,6 +71,7 @@ class LoopSettings(NamedTuple):
     cache_dir: Path
     workers: int
     bootstrap: Bootstrap  # stream standard errors
+    powered: Powered  # more held-out sequences for these entries' value tests
 
 
 def read_loop_settings(cfg: DictConfig) -> LoopSettings:
@@ -75,6 +85,11 @@ def read_loop_settings(cfg: DictConfig) -> LoopSettings:
         Path(os.path.expanduser(str(st.bank.cache_dir))),
         int(st.bank.workers),
         Bootstrap(int(st.bootstrap.replicates), int(st.bootstrap.rollouts)),
+        Powered(
+            tuple(str(e) for e in st.bank.powered.entries),
+            int(st.bank.powered.max_sequences),
+            float(st.bank.powered.margin),
+        ),
     )
 
 
@@ -247,7 +262,17 @@ def report_lines(
         *rows,
         "",
     ]
-    return lines + honesty_lines(results, planning) + [""]
+    for name, r in results.items():
+        more = r["executed"].get("on_demand")
+        if more:
+            lines.append(
+                f"- {labels.get(name, name)}: its value test had less than {honesty.TARGET_POWER:.0%} power on those "
+                f"sequences, so its process also ran on the bank's next {more['sequences_per_class']} sequences per "
+                f"class, each rendered a block of frames at a time only as far as the process read it (mean "
+                f"{more['mean_frames_rendered']:.1f} of {bank['frames']} frames): "
+                f"{r['executed']['sequences_per_class']} held-out sequences per class in all."
+            )
+    return lines + ([""] if lines[-1] else []) + honesty_lines(results, planning) + [""]
 
 
 def honesty_lines(results: dict[str, dict], planning: dict[str, str]) -> list[str]:

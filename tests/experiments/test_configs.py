@@ -113,6 +113,9 @@ RANGE_ERRORS = [
     ("mission", "study.threads=0", "study.threads: expected an int >= 1"),
     ("mission", "+mission.foo=1", "mission.foo: Key 'foo' not in 'MissionBlock'"),
     ("mission_full", "planner.num_nodes=0", "planner.num_nodes: expected an int >= 1"),
+    ("mission", "mission.bank.powered.entries=[hbni_exact]", "mission.bank.powered.entries: expected policies among"),
+    ("mission", "mission.bank.powered.max_sequences=1", "mission.bank.powered.max_sequences: expected an int >= 2"),
+    ("mission", "mission.bank.powered.margin=0.5", "mission.bank.powered.margin: expected a float in [1, 4]"),
 ]
 
 

@@ -46,10 +46,14 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     }
     assert loop["bank"]["sequences_per_class"] == 2 and Path(loop["bank"]["path"]).is_file()
     held = loop["bank"]["held_out_sequences_per_class"]
+    more = metrics["variants"]["hbni"]["executed"]["on_demand"]  # its value test short of power: 4 more per class
+    assert more["sequences_per_class"] == 4 and 1 <= more["mean_frames_rendered"] <= 5
     for name, entry in metrics["variants"].items():  # a simulated table saw neither set: it runs on both
         if name != "perfect":
-            fresh = 2 if loop["planning"][name] == "empirical" else 2 + held
+            extra = 4 if name.startswith("hbni") else 0  # both HBNI policies replay the variant's streams
+            fresh = 2 + extra if loop["planning"][name] == "empirical" else 2 + held + extra
             assert entry["executed"]["sequences_per_class"] == fresh
+            assert ("on_demand" in entry["executed"]) == (name == "hbni")  # mission.bank.powered.entries
     assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
     report = (mission_run / "report.md").read_text()
     assert "## Closed loop: planned against executed" in report and "The **generative** planning model is" in report
@@ -59,6 +63,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert metrics["hbni_temper"] == {"value": 1.0, "fitted": False, "needed": False}  # the sequence model's
     assert "uses no likelihood temper" in report
     assert "## Honesty of the planning models" in report and "Value test (one-sided, level 0.05" in report
+    assert "so its process also ran on the bank's next 4 sequences per class" in report
     for name, entry in metrics["variants"].items():
         if name != "perfect":
             check = entry["executed"]["distribution_check"]

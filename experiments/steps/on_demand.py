@@ -1,0 +1,134 @@
+"""Held-out sequences for one process, rendered only as far as the process reads them.
+
+A macro-observation process decides on the frames up to its decision and never reads the rest, so its
+outcome ``(label, frames used)`` on a sequence is known once those frames are. The HBNI process decides
+after about 5 of the mission's 30 frames, so the held-out sequences that power its value test cost a
+fraction of whole ones when each is rendered and classified a block at a time (:data:`LENGTHS`) until
+the process has decided on it. The frames it never reads are left as uniform outputs, which the
+process does not reach.
+
+The sequences are those of a larger bank (:class:`~experiments.steps.bank.BankSpec`, sequence ``i`` of
+class ``c`` from ``(class_seed(seed, c), i)``), their frames the same values as the whole sequences'
+(:func:`~experiments.steps.bank.classify_frames`), so a replay of them is a replay of the process on
+those sequences.
+"""
+
+from __future__ import annotations
+
+import os
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+import hbni_pyro
+from classifiers import FrameClassifier
+from experiments.steps.bank import BankSpec, classify_blocks_in_worker, classify_frames, worker_pool
+
+LENGTHS = (2, 4, 8, 16)
+"""Frames rendered of a sequence the process has not decided on, in turn, before all of them."""
+
+_TASK = 8  # sequences per worker task
+
+
+def _lengths(frames: int) -> list[int]:
+    return [n for n in LENGTHS if n < frames] + [frames]
+
+
+class OnDemandStreams:
+    """Bank sequences rendered and classified for a process, a block of frames at a time.
+
+    Args:
+        spec: the bank the sequences belong to (its ``sequences`` are not read: any index may be asked for).
+        clf: the fitted classifier; ``classifier_path`` its saved file (loaded by the workers).
+        workers: processes rendering side by side (0: in this process).
+        progress: show a progress bar.
+    """
+
+    def __init__(
+        self,
+        spec: BankSpec,
+        clf: FrameClassifier,
+        classifier_path: str | os.PathLike,
+        workers: int,
+        progress: bool = False,
+    ) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise ValueError(f"workers: expected an int >= 0, got {workers!r}")
+        self.spec, self.clf, self.workers, self.progress = spec, clf, workers, progress
+        self._classifier_path = str(classifier_path)
+
+    def replay(
+        self, process: hbni_pyro.MacroObservationProcess, held: Tensor, first: int, count: int
+    ) -> tuple[hbni_pyro.StreamReplay, Tensor, Tensor]:
+        """``process`` replayed on ``held (C, P, F, C)`` and on sequences ``first .. first + count - 1`` of every
+        class after them (per class ``P + count`` streams, in ``closed_loop.as_streams`` order), those streams
+        ``(C, P + count, F, C)`` float64, and the frames rendered of each new sequence ``(C, count)`` long.
+
+        Raises:
+            ValueError: ``held`` does not have the spec's classes and frames, or ``first``/``count`` are negative.
+        """
+        C, F = len(self.spec.classes), self.spec.frames
+        if held.dim() != 4 or held.shape[0] != C or held.shape[2:] != (F, C):
+            raise ValueError(f"held: expected shape ({C}, P, {F}, {C}), got {tuple(held.shape)}")
+        if first < 0 or count < 0:
+            raise ValueError(f"first, count: expected ints >= 0, got {first}, {count}")
+        streams = torch.full((C, count, F, C), 1.0 / C, dtype=torch.float64)
+        rendered = torch.zeros(C, count, dtype=torch.long)
+        todo = [(c, i) for c in range(C) for i in range(count)]
+        pool = worker_pool(self._classifier_path, self.workers) if self.workers and todo else None
+        try:
+            with tqdm(total=len(todo), desc="powered held-out", unit="seq", disable=not self.progress) as bar:
+                for length in _lengths(F):
+                    if not todo:
+                        break
+                    self._render(todo, length, first, streams, rendered, pool)
+                    todo = self._undecided(process, todo, streams, rendered)
+                    bar.n = C * count - len(todo)
+                    bar.refresh()
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+        pooled = torch.cat([held.double(), streams], dim=1)
+        replay = hbni_pyro.StreamReplay(
+            process, pooled.reshape(-1, F, C), torch.arange(C).repeat_interleave(pooled.shape[1])
+        )
+        used = replay.results.frames_used.view(C, -1)[:, held.shape[1] :]
+        if ((used > rendered) & (rendered < F)).any():
+            raise RuntimeError(
+                "process: a decision read frames after those it had decided on (its filter is not causal)"
+            )
+        return replay, pooled, rendered
+
+    def _render(
+        self,
+        todo: list[tuple[int, int]],
+        length: int,
+        first: int,
+        streams: Tensor,
+        rendered: Tensor,
+        pool,
+    ) -> None:
+        """Render and classify frames ``rendered .. length - 1`` of each ``(class, sequence)`` in ``todo``."""
+        blocks = [(c, first + i, int(rendered[c, i]), length) for c, i in todo]
+        if pool is None:
+            outputs = [classify_frames(self.clf, self.spec, *block) for block in blocks]
+        else:
+            tasks = [blocks[j : j + _TASK] for j in range(0, len(blocks), _TASK)]
+            futures = [pool.submit(classify_blocks_in_worker, self.spec, task) for task in tasks]
+            outputs = [out for future in futures for out in future.result()]
+        for (c, i), (_, _, start, stop), out in zip(todo, blocks, outputs):
+            streams[c, i, start:stop] = out.double()
+            rendered[c, i] = stop
+
+    @staticmethod
+    def _undecided(
+        process: hbni_pyro.MacroObservationProcess, todo: list[tuple[int, int]], streams: Tensor, rendered: Tensor
+    ) -> list[tuple[int, int]]:
+        """Those of ``todo`` on which ``process`` has not decided within their rendered frames."""
+        if not todo:
+            return todo
+        cs, idx = torch.tensor(todo).T
+        result = process.run_batch(streams[cs, idx])
+        undecided = result.frames_used.cpu() > rendered[cs, idx]  # it read a frame not rendered yet
+        return [todo[j] for j in undecided.nonzero().flatten().tolist()]

@@ -1,0 +1,95 @@
+"""Held-out sequences rendered on demand: the process's outcomes on them are those on the whole sequences."""
+
+import numpy as np
+import pytest
+import torch
+
+import hbni_pyro
+from classifiers import FrameClassifier
+from classifiers.data import get_conditions, render_images, render_sequence
+from experiments.steps.bank import BankBuild, BankSpec, classify_frames
+from experiments.steps.on_demand import LENGTHS, OnDemandStreams
+
+CLASSES = ("ambulance", "police_car", "food_crate")
+SHAPE = (72, 96)
+FRAMES = 20
+
+
+@pytest.fixture(scope="module")
+def classifier(tmp_path_factory):
+    images, labels = [], []
+    for name in CLASSES:
+        snaps = render_images(name, 6, "training", seed=3, shape=SHAPE)
+        images += list(snaps)
+        labels += [name] * len(snaps)
+    clf = FrameClassifier(seed=0).fit(images, labels)
+    return clf, clf.save(tmp_path_factory.mktemp("clf") / "clf.safetensors")
+
+
+def _spec(sequences: int) -> BankSpec:
+    return BankSpec(CLASSES, get_conditions("mission"), seed=11, sequences=sequences, frames=FRAMES, shape=SHAPE)
+
+
+@pytest.mark.parametrize("start, stop", [(0, 4), (4, 8), (8, 20), (19, 20), (7, 9)])
+def test_a_block_of_frames_is_those_frames_of_the_whole_sequence(start, stop):
+    cond = get_conditions("mission")
+    whole = render_sequence("police_car", FRAMES, cond, seed=5, index=2, shape=SHAPE)
+    part = render_sequence("police_car", FRAMES, cond, seed=5, index=2, shape=SHAPE, start=start, stop=stop)
+    assert part.shape == (stop - start, *SHAPE, 3)
+    assert np.array_equal(part, whole[start:stop])
+
+
+@pytest.mark.parametrize("start, stop", [(-1, 3), (3, 3), (4, 2), (0, FRAMES + 1)])
+def test_a_block_outside_the_sequence_is_refused(start, stop):
+    with pytest.raises(ValueError, match="start, stop: expected 0 <= start < stop <= n_frames"):
+        render_sequence("police_car", FRAMES, "mission", seed=5, shape=SHAPE, start=start, stop=stop)
+
+
+def _process(threshold: float) -> hbni_pyro.MacroObservationProcess:
+    return hbni_pyro.MacroObservationProcess(hbni_pyro.make_filter("ssbf", num_classes=3), threshold, FRAMES)
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_outcomes_on_demand_are_those_on_whole_sequences(tmp_path, classifier, workers):
+    """The bank's next sequences, rendered only as far as the process reads them, give the outcomes that a larger
+    bank's whole sequences give; each rendered length is one of the blocks' ends, and the frames rendered are
+    those of the whole sequences."""
+    clf, path = classifier
+    held = BankBuild(_spec(2), clf, path, tmp_path / "a", workers=0).result()
+    larger = BankBuild(_spec(6), clf, path, tmp_path / "b", workers=0).result()
+    process = _process(0.99)  # the crates decide at once, the cars take longer or time out
+    replay, streams, rendered = OnDemandStreams(_spec(2), clf, path, workers).replay(process, held, first=2, count=4)
+    whole = hbni_pyro.StreamReplay(
+        process, larger.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
+    )
+    for field in ("label", "frames_used", "timed_out"):
+        assert torch.equal(getattr(replay.results, field), getattr(whole.results, field)), field
+    assert set(rendered.unique().tolist()) <= {*LENGTHS, FRAMES}
+    assert rendered.min() < FRAMES and rendered.max() > LENGTHS[0]  # some stopped early, some read further
+    used = replay.results.frames_used.view(3, 6)[:, 2:]
+    assert (used <= rendered).all()
+    assert streams.shape == (3, 6, FRAMES, 3) and torch.equal(streams[:, :2], held.double())
+    for c in range(3):
+        for i in range(4):
+            n = int(rendered[c, i])
+            torch.testing.assert_close(streams[c, 2 + i, :n], larger[c, 2 + i, :n].double())
+            assert (streams[c, 2 + i, n:] == 1 / 3).all()  # frames never rendered: uniform outputs
+    torch.testing.assert_close(classify_frames(clf, _spec(2), 1, 3, 2, 9), larger[1, 3, 2:9])  # a block alone
+
+
+def test_no_new_sequences_replays_the_held_ones(tmp_path, classifier):
+    clf, path = classifier
+    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
+    replay, streams, rendered = OnDemandStreams(_spec(2), clf, path, 0).replay(_process(0.9), held, first=2, count=0)
+    assert rendered.shape == (3, 0) and replay.streams_per_class.tolist() == [2, 2, 2]
+
+
+def test_bad_arguments_are_refused(tmp_path, classifier):
+    clf, path = classifier
+    with pytest.raises(ValueError, match="workers: expected an int >= 0"):
+        OnDemandStreams(_spec(2), clf, path, -1)
+    more = OnDemandStreams(_spec(2), clf, path, 0)
+    with pytest.raises(ValueError, match=r"held: expected shape \(3, P, 20, 3\)"):
+        more.replay(_process(0.9), torch.ones(3, 2, 5, 3) / 3, first=2, count=1)
+    with pytest.raises(ValueError, match="first, count: expected ints >= 0"):
+        more.replay(_process(0.9), torch.ones(3, 2, FRAMES, 3) / 3, first=-1, count=1)
