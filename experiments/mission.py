@@ -27,8 +27,10 @@ then the policy executed with the actual filter on held-out frames.
    re-evaluated on independent rollouts: the planned value.
 6. :func:`execute_closed_loop`: every saved controller run in the domain with each "infer" MA
    answered by that variant's process on a fresh held-out stream of the true class (the bank's; a
-   generative table's policy also the characterisation sequences'): the executed value, and its gap
-   to the planned one in standard errors.
+   generative table's policy also the characterisation sequences'; HBNI's, when its value test lacks
+   power, also the bank's next sequences, rendered only as far as its process reads them:
+   :mod:`experiments.steps.on_demand`): the executed value, and its gap to the planned one in
+   standard errors.
 
 Writes ``metrics.json``, ``report.md`` with the figures ``values.png``, ``confusion.png``,
 ``frames.png``, ``learning_curves.png`` and ``closed_loop.png``, and every fitted artefact
