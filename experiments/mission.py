@@ -430,7 +430,7 @@ def execute_closed_loop(
     on_pool = {  # each variant's streams (C, sequences, F, C) and its replay of them (each stream run once)
         name: (pooled, hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))) for name, p in processes.items()
     }
-    context = (held.shape[1], models, results, cfg, settings)
+    loop = _Loop(held.shape[1], models, results, cfg, settings)
     for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
         controller = JointController.load(run_dir / f"controller_{name}.safetensors")
         if name == "perfect":
@@ -440,9 +440,9 @@ def execute_closed_loop(
             continue
         variant = _entry_variant(name)
         streams, replay = on_pool[variant]
-        entry = _executed(name, controller, streams.shape[1], replay, *context)
+        entry = _executed(name, controller, streams.shape[1], replay, loop)
         if more is not None and name in settings.loop.powered.entries:
-            entry = _powered(name, controller, entry, on_pool, processes[variant], more, *context)
+            entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
     return (
         honesty.reliability_figure(
@@ -453,6 +453,17 @@ def execute_closed_loop(
     )
 
 
+class _Loop(NamedTuple):
+    """What every closed-loop entry reads: the characterisation sequences per class, the planning models, the
+    planned results, the config and the settings."""
+
+    held: int
+    models: dict[str, hbni_pyro.MacroObservationModel]
+    results: dict[str, dict]
+    cfg: DictConfig
+    settings: Settings
+
+
 def _powered(
     name: str,
     controller: JointController,
@@ -460,17 +471,14 @@ def _powered(
     on_pool: dict[str, tuple[torch.Tensor, hbni_pyro.StreamReplay]],
     process: hbni_pyro.MacroObservationProcess,
     more: OnDemandStreams,
-    held: int,
-    models: dict[str, hbni_pyro.MacroObservationModel],
-    results: dict[str, dict],
-    cfg: DictConfig,
-    settings: Settings,
+    loop: _Loop,
 ) -> dict[str, Any]:
     """Policy ``name``'s closed-loop ``entry``, executed again on more held-out sequences while its value test has
     less than the target power: each step adds the bank's next sequences, rendered by ``more`` only as far as the
     process reads them, up to ``margin`` times what the power calculation asks for but at most doubling the
     sequences (the calculation rests on a noisy estimate of the streams' variance), never past
     ``max_sequences`` per class. Updates the variant's entry in ``on_pool``."""
+    held, settings = loop.held, loop.settings
     powered, variant = settings.loop.powered, _entry_variant(name)
     first = held if entry_planning(settings, name) == "empirical" else 0
     added, rendered = 0, []
@@ -488,7 +496,7 @@ def _powered(
         replay, streams, frames = more.replay(process, streams, have - held, count)  # the bank's next
         on_pool[variant] = (streams, replay)
         added, rendered = added + count, rendered + [frames]
-        entry = _executed(name, controller, streams.shape[1], replay, held, models, results, cfg, settings)
+        entry = _executed(name, controller, streams.shape[1], replay, loop)
     if added:
         frames = torch.cat(rendered, dim=1).double()
         entry["on_demand"] = {"sequences_per_class": added, "mean_frames_rendered": float(frames.mean())}
@@ -500,14 +508,11 @@ def _executed(
     controller: JointController,
     per_class: int,
     pool: hbni_pyro.StreamReplay,
-    held: int,
-    models: dict[str, hbni_pyro.MacroObservationModel],
-    results: dict[str, dict],
-    cfg: DictConfig,
-    settings: Settings,
+    loop: _Loop,
 ) -> dict[str, Any]:
     """The closed-loop entry of policy ``name`` on ``pool``, a replay of ``per_class`` sequences per class of
-    which the first ``held`` are the characterisation sequences (not fresh to an empirical table)."""
+    which the first ``loop.held`` are the characterisation sequences (not fresh to an empirical table)."""
+    held, models, results, cfg, settings = loop
     C = pool.num_classes
     seed = stream_seed(settings.seed, "execute", name)
     empirical = entry_planning(settings, name) == "empirical"
