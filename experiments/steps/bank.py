@@ -148,6 +148,9 @@ def _load_worker(classifier_path: str) -> None:
 def worker_pool(classifier_path: str | os.PathLike, workers: int) -> ProcessPoolExecutor:
     """``workers`` spawned processes, each with one torch thread and the classifier saved at ``classifier_path``;
     they run :func:`classify_in_worker` and :func:`classify_blocks_in_worker`."""
+    if multiprocessing.get_start_method(allow_none=True) not in (None, *multiprocessing.get_all_start_methods()):
+        # a job of a joblib sweep runs in a loky worker, whose start method a spawned child cannot look up
+        multiprocessing.set_start_method("spawn", force=True)
     context = multiprocessing.get_context("spawn")
     return ProcessPoolExecutor(workers, mp_context=context, initializer=_load_worker, initargs=(str(classifier_path),))
 
