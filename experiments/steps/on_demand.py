@@ -96,7 +96,8 @@ class OnDemandStreams:
         used = replay.results.frames_used.view(C, -1)[:, held.shape[1] :]
         if ((used > rendered) & (rendered < F)).any():
             raise RuntimeError(
-                "process: a decision read frames after those it had decided on (its filter is not causal)"
+                "process: run on all the streams together, it read frames it had not read on the new ones alone "
+                "(a filter whose result depends on the batch)"
             )
         return replay, pooled, rendered
 

@@ -93,3 +93,13 @@ def test_bad_arguments_are_refused(tmp_path, classifier):
         more.replay(_process(0.9), torch.ones(3, 2, 5, 3) / 3, first=2, count=1)
     with pytest.raises(ValueError, match="first, count: expected ints >= 0"):
         more.replay(_process(0.9), torch.ones(3, 2, FRAMES, 3) / 3, first=-1, count=1)
+
+
+def test_a_replay_that_reads_past_the_rendered_frames_is_refused(tmp_path, classifier, monkeypatch):
+    """The final replay of all streams together must decide within each new sequence's rendered frames; a process
+    taken as decided too early (here: after the first block) is caught, not replayed on uniform filler frames."""
+    clf, path = classifier
+    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
+    monkeypatch.setattr(OnDemandStreams, "_undecided", staticmethod(lambda process, todo, streams, rendered: []))
+    with pytest.raises(RuntimeError, match="it read frames it had not read on the new ones alone"):
+        OnDemandStreams(_spec(2), clf, path, 0).replay(_process(0.99), held, first=2, count=4)
