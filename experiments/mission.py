@@ -411,7 +411,7 @@ def execute_closed_loop(
     cfg: DictConfig,
     settings: Settings,
     run_dir: Path,
-    more: OnDemandStreams | None = None,
+    more: OnDemandStreams,
 ) -> plt.Figure | None:
     """Stage 6: each saved controller executed with its variant's actual process on fresh held-out streams
     (perfect perception: in its own domain again); adds ``executed`` to every result entry, with the stream
@@ -422,13 +422,14 @@ def execute_closed_loop(
     A policy planned on an empirical table runs on the bank alone (its table was tabulated on ``held``); one
     planned on a simulated table saw no recorded sequence, so it runs on ``held`` and the bank together, which
     makes its value test more powerful at no cost. An entry of ``mission.bank.powered`` whose value test has
-    less than its target power is executed again on more held-out sequences (:func:`_powered`). Returns the reliability diagram of
-    every process on the bank (``None`` without variants)."""
+    less than its target power is executed again on more held-out sequences, rendered by ``more``
+    (:func:`_powered`). Returns the reliability diagram of every process on the bank (``None`` without
+    variants)."""
     settings.clock.start("closed_loop", "6/6 executing every policy in closed loop on the held-out bank")
     pooled = torch.cat([held.double(), bank.double()], dim=1)  # (C, held + bank sequences, F, C)
     processes = build_processes(noise, cfg, settings)
-    on_pool = {  # each variant's streams (C, sequences, F, C) and its replay of them (each stream run once)
-        name: (pooled, hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled))) for name, p in processes.items()
+    on_pool = {  # each variant's replay of every pooled stream (each run once)
+        name: hbni_pyro.StreamReplay(p, *closed_loop.as_streams(pooled)) for name, p in processes.items()
     }
     loop = _Loop(held.shape[1], models, results, cfg, settings)
     for name in tqdm(list(results), desc="closed loop", disable=not settings.progress):
@@ -439,9 +440,8 @@ def execute_closed_loop(
             results[name]["executed"] = closed_loop.summarise(results[name], executed, None)
             continue
         variant = _entry_variant(name)
-        streams, replay = on_pool[variant]
-        entry = _executed(name, controller, streams.shape[1], replay, loop)
-        if more is not None and name in settings.loop.powered.entries:
+        entry = _executed(name, controller, on_pool[variant], loop)
+        if name in settings.loop.powered.entries:
             entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
     return (
@@ -468,7 +468,7 @@ def _powered(
     name: str,
     controller: JointController,
     entry: dict[str, Any],
-    on_pool: dict[str, tuple[torch.Tensor, hbni_pyro.StreamReplay]],
+    on_pool: dict[str, hbni_pyro.StreamReplay],
     process: hbni_pyro.MacroObservationProcess,
     more: OnDemandStreams,
     loop: _Loop,
@@ -483,8 +483,7 @@ def _powered(
     first = held if entry_planning(settings, name) == "empirical" else 0
     added, rendered = 0, []
     while entry["value_test"]["power"] < honesty.TARGET_POWER:
-        streams = on_pool[variant][0]
-        have = streams.shape[1]
+        have = int(on_pool[variant].streams_per_class[0])
         want = first + math.ceil(powered.margin * min(entry["value_test"]["sequences_for_target"], 1e9))
         count = min(want, 2 * have, powered.max_sequences) - have
         if count <= 0:
@@ -493,27 +492,21 @@ def _powered(
             f"{name}: value test power {entry['value_test']['power']:.2f} on {have - first} held-out sequences "
             f"per class; rendering {count} more, each as far as its process reads it"
         )
-        replay, streams, frames = more.replay(process, streams, have - held, count)  # the bank's next
-        on_pool[variant] = (streams, replay)
+        on_pool[variant], frames = more.replay(process, on_pool[variant], have - held, count)  # the bank's next
         added, rendered = added + count, rendered + [frames]
-        entry = _executed(name, controller, streams.shape[1], replay, loop)
+        entry = _executed(name, controller, on_pool[variant], loop)
     if added:
         frames = torch.cat(rendered, dim=1).double()
         entry["on_demand"] = {"sequences_per_class": added, "mean_frames_rendered": float(frames.mean())}
     return entry
 
 
-def _executed(
-    name: str,
-    controller: JointController,
-    per_class: int,
-    pool: hbni_pyro.StreamReplay,
-    loop: _Loop,
-) -> dict[str, Any]:
-    """The closed-loop entry of policy ``name`` on ``pool``, a replay of ``per_class`` sequences per class of
-    which the first ``loop.held`` are the characterisation sequences (not fresh to an empirical table)."""
+def _executed(name: str, controller: JointController, pool: hbni_pyro.StreamReplay, loop: _Loop) -> dict[str, Any]:
+    """The closed-loop entry of policy ``name`` on ``pool``, a replay of as many sequences of every class (in
+    ``closed_loop.as_streams`` order), of which the first ``loop.held`` are the characterisation sequences (not
+    fresh to an empirical table)."""
     held, models, results, cfg, settings = loop
-    C = pool.num_classes
+    C, per_class = pool.num_classes, int(pool.streams_per_class[0])
     seed = stream_seed(settings.seed, "execute", name)
     empirical = entry_planning(settings, name) == "empirical"
     first = held if empirical else 0

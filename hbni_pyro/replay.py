@@ -12,7 +12,7 @@ The process is a deterministic function of the stream, so every bank stream is r
 at construction (batched, :meth:`MacroObservationProcess.run_batch`, which equals running each
 stream alone); a draw then replays its stream's result. :meth:`StreamReplay.draw` also says which
 stream each inference used, and :meth:`StreamReplay.subset` replays part of the bank without running
-the process again (a bootstrap over the bank's sequences).
+the process again (a bootstrap over the bank's sequences), and :meth:`StreamReplay.joined` two banks as one.
 """
 
 from __future__ import annotations
@@ -91,6 +91,19 @@ class StreamReplay:
         part = StreamReplay.__new__(StreamReplay)
         part._setup(self.process, truth, MacroObservationBatch(*(field[index] for field in self.results)))
         return part
+
+    def joined(self, other: StreamReplay) -> StreamReplay:
+        """A replay of this replay's bank streams followed by ``other``'s: their results, not rerun.
+
+        Raises:
+            ValueError: ``other`` replays another process.
+        """
+        if not isinstance(other, StreamReplay) or other.process is not self.process:
+            raise ValueError("other: expected a StreamReplay of the same process")
+        both = StreamReplay.__new__(StreamReplay)
+        results = MacroObservationBatch(*(torch.cat([a, b]) for a, b in zip(self.results, other.results)))
+        both._setup(self.process, torch.cat([self.true_class, other.true_class]), results)
+        return both
 
     @property
     def streams_per_class(self) -> Tensor:

@@ -147,7 +147,7 @@ def _load_worker(classifier_path: str) -> None:
 
 def worker_pool(classifier_path: str | os.PathLike, workers: int) -> ProcessPoolExecutor:
     """``workers`` spawned processes, each with one torch thread and the classifier saved at ``classifier_path``;
-    they run :func:`classify_in_worker` and :func:`classify_blocks_in_worker`."""
+    they run :func:`_classify_in_worker` and :func:`classify_blocks_in_worker`."""
     if multiprocessing.get_start_method(allow_none=True) not in (None, *multiprocessing.get_all_start_methods()):
         # a job of a joblib sweep runs in a loky worker, whose start method a spawned child cannot look up
         multiprocessing.set_start_method("spawn", force=True)
@@ -158,8 +158,8 @@ def worker_pool(classifier_path: str | os.PathLike, workers: int) -> ProcessPool
 def classify_frames(
     clf: FrameClassifier, spec: BankSpec, c: int, index: int, start: int = 0, stop: int | None = None
 ) -> Tensor:
-    """Outputs ``(stop - start, C)`` of frames ``start .. stop - 1`` (default: all) of sequence ``index`` of class ``c``,
-    columns in ``spec.classes`` order (the same values as those frames of the whole sequence)."""
+    """Outputs ``(stop - start, C)`` of frames ``start .. stop - 1`` (default: all) of sequence ``index`` of class
+    ``c``, columns in ``spec.classes`` order (the same values as those frames of the whole sequence)."""
     name = spec.classes[c]
     frames = render_sequence(
         name,
@@ -179,7 +179,7 @@ def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: in
     return torch.stack([classify_frames(clf, spec, c, i) for i in range(first, last)])
 
 
-def classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
+def _classify_in_worker(spec: BankSpec, c: int, first: int, last: int) -> Tensor:
     """:func:`_classify` in a :func:`worker_pool` process."""
     return _classify(_WORKER["clf"], spec, c, first, last)
 
@@ -229,7 +229,7 @@ class BankBuild:
     def _start_workers(self) -> None:
         self._pool = worker_pool(self._classifier_path, self.workers)
         self._futures = {
-            self._pool.submit(classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
+            self._pool.submit(_classify_in_worker, self.spec, *task): task for task in _chunks(self.spec, self.chunk)
         }
 
     @property

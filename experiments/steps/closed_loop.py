@@ -134,8 +134,8 @@ def stream_stderr(
 
     Each replicate draws ``size`` of ``pool`` sequence indices with replacement (all classes' sequence ``i``
     together: where they share imaging conditions, their outcomes go together), builds
-    ``perception_of(indices)`` (a table or a replay) and scores the policy on ``boot.rollouts`` fresh rollouts. The replicates' variance minus their mean
-    rollout variance is the streams' share (floored at 0). That difference is only as good as the
+    ``perception_of(indices)`` (a table or a replay) and scores the policy on ``boot.rollouts`` fresh rollouts.
+    The replicates' variance minus their mean rollout variance is the streams' share (floored at 0). That difference is only as good as the
     replicates' variance estimate (relative s.e. ``sqrt(2 / (replicates - 1))`` of the streams' plus the
     rollouts' share): give each replicate enough rollouts that their noise does not swamp the streams'.
     """

@@ -16,6 +16,7 @@ those sequences.
 from __future__ import annotations
 
 import os
+from concurrent.futures import ProcessPoolExecutor
 
 import torch
 from torch import Tensor
@@ -59,47 +60,50 @@ class OnDemandStreams:
         self._classifier_path = str(classifier_path)
 
     def replay(
-        self, process: hbni_pyro.MacroObservationProcess, held: Tensor, first: int, count: int
-    ) -> tuple[hbni_pyro.StreamReplay, Tensor, Tensor]:
-        """``process`` replayed on ``held (C, P, F, C)`` and on sequences ``first .. first + count - 1`` of every
-        class after them (per class ``P + count`` streams, in ``closed_loop.as_streams`` order), those streams
-        ``(C, P + count, F, C)`` float64, and the frames rendered of each new sequence ``(C, count)`` long.
+        self, process: hbni_pyro.MacroObservationProcess, pool: hbni_pyro.StreamReplay, first: int, count: int
+    ) -> tuple[hbni_pyro.StreamReplay, Tensor]:
+        """``pool`` (``process`` replayed on ``P`` sequences per class, in ``closed_loop.as_streams`` order) with
+        sequences ``first .. first + count - 1`` of every class after each class's ``P`` (the process run on the new
+        streams only), and the frames rendered of each new sequence ``(C, count)`` long.
 
         Raises:
-            ValueError: ``held`` does not have the spec's classes and frames, or ``first``/``count`` are negative.
+            ValueError: ``pool`` replays another process or another number of classes, or ``first``/``count`` are
+                negative.
         """
         C, F = len(self.spec.classes), self.spec.frames
-        if held.dim() != 4 or held.shape[0] != C or held.shape[2:] != (F, C):
-            raise ValueError(f"held: expected shape ({C}, P, {F}, {C}), got {tuple(held.shape)}")
+        if pool.process is not process or pool.num_classes != C:
+            raise ValueError(f"pool: expected a replay of this process on {C} classes")
         if first < 0 or count < 0:
             raise ValueError(f"first, count: expected ints >= 0, got {first}, {count}")
         streams = torch.full((C, count, F, C), 1.0 / C, dtype=torch.float64)
         rendered = torch.zeros(C, count, dtype=torch.long)
         todo = [(c, i) for c in range(C) for i in range(count)]
-        pool = worker_pool(self._classifier_path, self.workers) if self.workers and todo else None
+        workers = worker_pool(self._classifier_path, self.workers) if self.workers and todo else None
         try:
             with tqdm(total=len(todo), desc="powered held-out", unit="seq", disable=not self.progress) as bar:
                 for length in _lengths(F):
                     if not todo:
                         break
-                    self._render(todo, length, first, streams, rendered, pool)
+                    self._render(todo, length, first, streams, rendered, workers)
                     todo = self._undecided(process, todo, streams, rendered)
                     bar.n = C * count - len(todo)
                     bar.refresh()
         finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
-        pooled = torch.cat([held.double(), streams], dim=1)
-        replay = hbni_pyro.StreamReplay(
-            process, pooled.reshape(-1, F, C), torch.arange(C).repeat_interleave(pooled.shape[1])
-        )
-        used = replay.results.frames_used.view(C, -1)[:, held.shape[1] :]
+            if workers is not None:
+                workers.shutdown(cancel_futures=True)
+        if not count:
+            return pool, rendered
+        new = hbni_pyro.StreamReplay(process, streams.reshape(-1, F, C), torch.arange(C).repeat_interleave(count))
+        used = new.results.frames_used.view(C, count)
         if ((used > rendered) & (rendered < F)).any():
             raise RuntimeError(
-                "process: run on all the streams together, it read frames it had not read on the new ones alone "
-                "(a filter whose result depends on the batch)"
+                "process: run on all the new streams together, it read frames it had not read on those undecided "
+                "alone (a filter whose result depends on the batch)"
             )
-        return replay, pooled, rendered
+        P = int(pool.streams_per_class[0])
+        old = torch.arange(C * P).view(C, P)
+        added = C * P + torch.arange(C * count).view(C, count)
+        return pool.joined(new).subset(torch.cat([old, added], dim=1).reshape(-1)), rendered
 
     def _render(
         self,
@@ -108,15 +112,15 @@ class OnDemandStreams:
         first: int,
         streams: Tensor,
         rendered: Tensor,
-        pool,
+        workers: ProcessPoolExecutor | None,
     ) -> None:
         """Render and classify frames ``rendered .. length - 1`` of each ``(class, sequence)`` in ``todo``."""
         blocks = [(c, first + i, int(rendered[c, i]), length) for c, i in todo]
-        if pool is None:
+        if workers is None:
             outputs = [classify_frames(self.clf, self.spec, *block) for block in blocks]
         else:
             tasks = [blocks[j : j + _TASK] for j in range(0, len(blocks), _TASK)]
-            futures = [pool.submit(classify_blocks_in_worker, self.spec, task) for task in tasks]
+            futures = [workers.submit(classify_blocks_in_worker, self.spec, task) for task in tasks]
             outputs = [out for future in futures for out in future.result()]
         for (c, i), (_, _, start, stop), out in zip(todo, blocks, outputs):
             streams[c, i, start:stop] = out.double()

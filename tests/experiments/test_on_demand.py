@@ -49,38 +49,50 @@ def _process(threshold: float) -> hbni_pyro.MacroObservationProcess:
     return hbni_pyro.MacroObservationProcess(hbni_pyro.make_filter("ssbf", num_classes=3), threshold, FRAMES)
 
 
+def _held(tmp_path, clf, path, process) -> hbni_pyro.StreamReplay:
+    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
+    return hbni_pyro.StreamReplay(process, held.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(2))
+
+
 @pytest.mark.parametrize("workers", [0, 1])
-def test_outcomes_on_demand_are_those_on_whole_sequences(tmp_path, classifier, workers):
+def test_outcomes_on_demand_are_those_on_whole_sequences(tmp_path, classifier, workers, monkeypatch):
     """The bank's next sequences, rendered only as far as the process reads them, give the outcomes that a larger
     bank's whole sequences give; each rendered length is one of the blocks' ends, and the frames rendered are
     those of the whole sequences."""
     clf, path = classifier
-    held = BankBuild(_spec(2), clf, path, tmp_path / "a", workers=0).result()
-    larger = BankBuild(_spec(6), clf, path, tmp_path / "b", workers=0).result()
     process = _process(0.99)  # the crates decide at once, the cars take longer or time out
-    replay, streams, rendered = OnDemandStreams(_spec(2), clf, path, workers).replay(process, held, first=2, count=4)
+    held = _held(tmp_path / "a", clf, path, process)
+    larger = BankBuild(_spec(6), clf, path, tmp_path / "b", workers=0).result()
+    seen = []  # the new sequences' streams, as the process reads them
+    undecided = OnDemandStreams._undecided
+    monkeypatch.setattr(
+        OnDemandStreams, "_undecided", staticmethod(lambda *args: seen.append(args[2]) or undecided(*args))
+    )
+    replay, rendered = OnDemandStreams(_spec(2), clf, path, workers).replay(process, held, first=2, count=4)
     whole = hbni_pyro.StreamReplay(
         process, larger.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
     )
     for field in ("label", "frames_used", "timed_out"):
         assert torch.equal(getattr(replay.results, field), getattr(whole.results, field)), field
+    assert torch.equal(replay.true_class, whole.true_class)
     assert set(rendered.unique().tolist()) <= {*LENGTHS, FRAMES}
     assert rendered.min() < FRAMES and rendered.max() > LENGTHS[0]  # some stopped early, some read further
     used = replay.results.frames_used.view(3, 6)[:, 2:]
     assert (used <= rendered).all()
-    assert streams.shape == (3, 6, FRAMES, 3) and torch.equal(streams[:, :2], held.double())
+    streams = seen[-1]
+    assert streams.shape == (3, 4, FRAMES, 3)
     for c in range(3):
         for i in range(4):
             n = int(rendered[c, i])
-            torch.testing.assert_close(streams[c, 2 + i, :n], larger[c, 2 + i, :n].double())
-            assert (streams[c, 2 + i, n:] == 1 / 3).all()  # frames never rendered: uniform outputs
+            torch.testing.assert_close(streams[c, i, :n], larger[c, 2 + i, :n].double())
+            assert (streams[c, i, n:] == 1 / 3).all()  # frames never rendered: uniform outputs
     torch.testing.assert_close(classify_frames(clf, _spec(2), 1, 3, 2, 9), larger[1, 3, 2:9])  # a block alone
 
 
 def test_no_new_sequences_replays_the_held_ones(tmp_path, classifier):
     clf, path = classifier
-    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
-    replay, streams, rendered = OnDemandStreams(_spec(2), clf, path, 0).replay(_process(0.9), held, first=2, count=0)
+    held = _held(tmp_path, clf, path, _process(0.9))
+    replay, rendered = OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=0)
     assert rendered.shape == (3, 0) and replay.streams_per_class.tolist() == [2, 2, 2]
 
 
@@ -89,17 +101,18 @@ def test_bad_arguments_are_refused(tmp_path, classifier):
     with pytest.raises(ValueError, match="workers: expected an int >= 0"):
         OnDemandStreams(_spec(2), clf, path, -1)
     more = OnDemandStreams(_spec(2), clf, path, 0)
-    with pytest.raises(ValueError, match=r"held: expected shape \(3, P, 20, 3\)"):
-        more.replay(_process(0.9), torch.ones(3, 2, 5, 3) / 3, first=2, count=1)
+    held = _held(tmp_path, clf, path, _process(0.9))
+    with pytest.raises(ValueError, match="pool: expected a replay of this process on 3 classes"):
+        more.replay(_process(0.9), held, first=2, count=1)
     with pytest.raises(ValueError, match="first, count: expected ints >= 0"):
-        more.replay(_process(0.9), torch.ones(3, 2, FRAMES, 3) / 3, first=-1, count=1)
+        more.replay(held.process, held, first=-1, count=1)
 
 
 def test_a_replay_that_reads_past_the_rendered_frames_is_refused(tmp_path, classifier, monkeypatch):
-    """The final replay of all streams together must decide within each new sequence's rendered frames; a process
-    taken as decided too early (here: after the first block) is caught, not replayed on uniform filler frames."""
+    """The replay of all new streams together must decide within each one's rendered frames; a process taken as
+    decided too early (here: after the first block) is caught, not replayed on uniform filler frames."""
     clf, path = classifier
-    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
+    held = _held(tmp_path, clf, path, _process(0.99))
     monkeypatch.setattr(OnDemandStreams, "_undecided", staticmethod(lambda process, todo, streams, rendered: []))
-    with pytest.raises(RuntimeError, match="it read frames it had not read on the new ones alone"):
-        OnDemandStreams(_spec(2), clf, path, 0).replay(_process(0.99), held, first=2, count=4)
+    with pytest.raises(RuntimeError, match="it read frames it had not read on those undecided alone"):
+        OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=4)

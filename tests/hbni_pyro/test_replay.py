@@ -109,3 +109,19 @@ def test_a_subset_replays_the_same_results_without_running_the_process_again():
         replay.subset(torch.tensor([0, 1]))
     with pytest.raises(TypeError, match="index: expected a 1-D integer tensor"):
         replay.subset(torch.tensor([0.0]))
+
+
+def test_joined_replays_are_the_replay_of_all_their_streams():
+    streams, truth = _bank()
+    process = _process()
+    even, odd = torch.arange(0, 15, 2), torch.arange(1, 15, 2)  # each with streams of every class
+    both = hbni_pyro.StreamReplay(process, streams[even], truth[even]).joined(
+        hbni_pyro.StreamReplay(process, streams[odd], truth[odd])
+    )
+    whole = hbni_pyro.StreamReplay(process, streams, truth).subset(torch.cat([even, odd]))
+    assert torch.equal(both.true_class, whole.true_class)
+    for mine, theirs in zip(both.results, whole.results):
+        assert torch.equal(mine, theirs)
+    assert both.streams_per_class.tolist() == [5, 5, 5]
+    with pytest.raises(ValueError, match="other: expected a StreamReplay of the same process"):
+        whole.joined(hbni_pyro.StreamReplay(_process("ssbf"), streams, truth))
