@@ -271,29 +271,16 @@ def look_log_marginal(count: Tensor | float, resid: Tensor, lam: Tensor, logdet_
     return -0.5 * ((resid * resid / var).sum(-1) + var.log().sum(-1) + logdet_within + d * math.log(2 * math.pi))
 
 
-def within_log_prob(
-    count: Tensor | float, trace: Tensor, logdet_within: Tensor, dim: int, effective: Tensor | float | None = None
-) -> Tensor:
+def within_log_prob(count: Tensor | float, trace: Tensor, logdet_within: Tensor, dim: int) -> Tensor:
     """The rest of ``n`` frames' density in the two-level model (see :func:`look_log_marginal`):
     ``-(n - 1) d/2 log 2 pi - (n - 1)/2 log|W| - d/2 log n - trace/2``.
 
     Args:
         count: frames ``n``; trace: ``tr(W^-1 scatter)`` with ``scatter = sum_i (y_i - ybar)(y_i - ybar)^T``
             (see :func:`scatter_trace`); logdet_within: ``log|W|``; dim: ``d``. All broadcast.
-        effective: for AR(1) frames whitened by :func:`hbni_pyro.frame_correlation.whiten`, their
-            ``n_eff = 1 + (n - 1)(1 - rho) / (1 + rho)``, the scatter and mean being those of the whitened
-            coordinates; ``log n`` becomes ``log n_eff`` and the whitening's log-Jacobian
-            ``-(n - 1) d/2 log(1 - rho^2)`` is added (``rho`` read back from ``n`` and ``n_eff``), so the result
-            stays the frames' own density. ``None``: i.i.d. frames (``n_eff = n``).
     """
     count = torch.as_tensor(count, dtype=trace.dtype)
-    out = -0.5 * (count - 1) * (dim * math.log(2 * math.pi) + logdet_within) - 0.5 * trace
-    if effective is None:
-        return out - 0.5 * dim * count.log()
-    effective = torch.as_tensor(effective, dtype=trace.dtype)
-    q = (effective - 1) / (count - 1).clamp_min(1)  # (1 - rho) / (1 + rho); 1 - rho^2 = 4 q / (1 + q)^2
-    log_shrink = torch.where(count > 1, (count - 1) * ((4 * q).log() - 2 * (1 + q).log()), 0.0)  # (n-1) log(1-rho^2)
-    return out - 0.5 * dim * (effective.log() + log_shrink)
+    return -0.5 * (count - 1) * (dim * math.log(2 * math.pi) + logdet_within) - 0.5 * dim * count.log() - 0.5 * trace
 
 
 def scatter_trace(prec: Tensor, scatter: Tensor) -> Tensor:

@@ -14,7 +14,6 @@ NUTS runs on the CPU only.
 
 from __future__ import annotations
 
-import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -110,12 +109,11 @@ def fit(
     settings = dict(
         chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p
     )
-    rho = _frame_correlations(spec, x.unsqueeze(0), ids)
     if method == "mh":
-        posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, rho, **settings)[0]
+        posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
     else:
-        posterior = _fit_nuts(spec, x, y, ids, rho[0], jit=jit, **settings)
-    return _finish(posterior, names, rho[0])
+        posterior = _fit_nuts(spec, x, y, ids, jit=jit, **settings)
+    return _finish(posterior, spec, names, x, ids)
 
 
 def fit_many(
@@ -161,21 +159,16 @@ def fit_many(
     x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
     ids = _sequence_ids(spec, sequence_ids, x.shape[1], y, where)
     names = as_names("class_names", class_names, x.shape[2])
-    rho = _frame_correlations(spec, x, ids)
-    posteriors = _fit_mh(spec, x, y, ids, rho, chains, num_samples, warmup_steps, seed, progress, hp, p)
-    return [_finish(posterior, names, rho[d]) for d, posterior in enumerate(posteriors)]
+    posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
+    return [_finish(posterior, spec, names, x[d], ids) for d, posterior in enumerate(posteriors)]
 
 
-def _frame_correlations(spec: NoiseModel, x: Tensor, ids: Tensor | None) -> list[float]:
-    """Each dataset's frame correlation (:func:`~hbni_pyro.frame_correlation.estimate_frame_correlation` of
-    ``x[d] (N, M)``) under a model with ``correlated_frames``, which its fit then takes; else 0."""
-    return [estimate_frame_correlation(part, ids) if spec.correlated_frames else 0.0 for part in x]
-
-
-def _finish(posterior: HBNIPosterior, names: Any, rho: float) -> HBNIPosterior:
-    """``posterior`` with its class names and the frame correlation ``rho`` its fit took."""
+def _finish(posterior: HBNIPosterior, spec: NoiseModel, names: Any, x: Tensor, ids: Tensor | None) -> HBNIPosterior:
+    """``posterior`` of the outputs ``x (N, M)`` with its class names and, under a model with ``correlated_frames``,
+    the frame correlation of its sequences."""
     posterior.class_names = names
-    posterior.frame_correlation = rho
+    if spec.correlated_frames:
+        posterior.frame_correlation = estimate_frame_correlation(x, ids)
     return posterior
 
 
@@ -227,18 +220,18 @@ def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperpr
     return hp, as_class_prior(class_prior, num_classes), chains, *sizes, as_int("seed", seed)
 
 
-def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor, rho: list[float]) -> SequenceStats:
+def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
     num_seq = int(ids.max()) + 1
     labels = torch.full(x.shape[:2], -1, dtype=torch.long, device=x.device) if y is None else y
-    per_set = [sequence_stats(x[d], ids, labels[d], num_seq, rho[d]) for d in range(x.shape[0])]
+    per_set = [sequence_stats(x[d], ids, labels[d], num_seq) for d in range(x.shape[0])]
     return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
 
 
-def _fit_mh(spec, x, y, ids, rho, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
+def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
     D = x.shape[0]
     kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
-    args = (_stacked_stats(x, y, ids, rho),) if spec.sequences else (x, y)
+    args = (_stacked_stats(x, y, ids),) if spec.sequences else (x, y)
     start = time.perf_counter()
     with single_thread():
         mcmc.run(*args)
@@ -273,11 +266,10 @@ def _fit_mh(spec, x, y, ids, rho, chains, num_samples, warmup_steps, seed, progr
     ]
 
 
-def _fit_nuts(spec, x, y, ids, rho, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
+def _fit_nuts(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
     args = _nuts_args(spec, x, y, ids)
-    model = functools.partial(spec.pyro_model, frame_correlation=rho) if spec.correlated_frames else spec.pyro_model
     pyro.set_rng_seed(seed)
-    kernel = NUTS(model, max_plate_nesting=spec.max_plate_nesting, jit_compile=jit, ignore_jit_warnings=True)
+    kernel = NUTS(spec.pyro_model, max_plate_nesting=spec.max_plate_nesting, jit_compile=jit, ignore_jit_warnings=True)
     start = time.perf_counter()
     with warnings.catch_warnings(), single_thread():
         warnings.filterwarnings("ignore", message="num_chains=.*more than available_cpu")
@@ -298,7 +290,7 @@ def _fit_nuts(spec, x, y, ids, rho, chains, num_samples, warmup_steps, seed, pro
         "jit": jit,
         "divergences": int(sum(len(v) for v in divergences.values())),
     }
-    label_probs = recover_label_probs(model, args, raw, p, hp, seed=seed)
+    label_probs = recover_label_probs(spec.pyro_model, args, raw, p, hp, seed=seed)
     if ids is not None:
         label_probs = label_probs[ids]
     return posterior_from_samples(spec.nuts_sites(raw), p, hp, spec.name, label_probs=label_probs, info=info)

@@ -3,8 +3,8 @@
 The sequence model treats a sequence's frames as exchangeable given its look: i.i.d. scatter ``W``
 around ``mu_k``. A moving camera's frames are closer to their neighbours than that (the mission's
 held-out streams: lag-1 correlation of the scatter about 0.7, lag-2 about 0.5, lag-5 about 0.1, an
-AR(1) decay). The fit, the filter and the streams simulated from a fitted posterior (the generative
-planning tables, posterior predictive checks) all take the AR(1) scatter
+AR(1) decay). The filter keeps the exchangeable model; streams simulated from a fitted posterior
+(the generative planning tables, posterior predictive checks) use the AR(1) scatter
 
     y_t = mu_k + e_t,   e_1 = L z_1,   e_t = rho e_{t-1} + sqrt(1 - rho^2) L z_t   (L L^T = W, z ~ N(0, I))
 
@@ -15,13 +15,6 @@ its own mean, in log-ratio coordinates, gives the pooled lag-1 ratio ``r = sum e
 Centring on the sample mean biases ``r`` down (to ``-1 / n`` for i.i.d. frames), so ``rho`` solves
 ``E[numerator](rho) / E[denominator](rho) = r`` with both expectations in closed form for the
 sequences' lengths (:func:`lag_one_ratio`).
-
-Given ``rho``, :func:`whiten` makes a sequence's frames independent (the Prais-Winsten transform, scaled):
-``v_1 = y_1`` and ``v_t = (y_t - rho y_{t-1}) / sqrt(1 - rho^2)`` are independent ``N(b_t mu_k, W)`` with
-``b_1 = 1`` and ``b_t = sqrt((1 - rho) / (1 + rho))``. The look is then known from ``n`` frames as well as from
-``n_eff = sum_t b_t^2 = 1 + (n - 1)(1 - rho) / (1 + rho)`` independent ones, not ``n``: a fit that took the frames
-as exchangeable would read the scatter of the sequences' mean looks, ``B + W / n_eff``, as ``B + W / n`` and
-inflate the spread of looks ``B``.
 """
 
 from __future__ import annotations
@@ -117,23 +110,6 @@ def estimate_frame_correlation(obs: Tensor, sequence_ids: Tensor) -> float:
         else:
             hi = mid
     return 0.5 * (lo + hi)
-
-
-def whiten(y: Tensor, previous: Tensor, first: Tensor, rho: float) -> tuple[Tensor, Tensor]:
-    """The independent coordinates ``v (..., d)`` of frames ``y (..., d)`` and their look weights ``b (...)``
-    (see the module doc).
-
-    Args:
-        y: frames in log-ratio coordinates; previous: the frame before each one in its sequence (read only where
-            ``first`` is False), shaped as ``y``; first: bool ``(...)``, True for a sequence's first frame;
-        rho: the AR(1) correlation, in ``(-1, 1)``.
-    """
-    if rho == 0.0:
-        return y, torch.ones(y.shape[:-1], dtype=y.dtype, device=y.device)
-    scale = math.sqrt(1.0 - rho**2)
-    v = torch.where(first.unsqueeze(-1), y, (y - rho * previous) / scale)
-    b = torch.full(first.shape, (1.0 - rho) / scale, dtype=y.dtype, device=y.device).masked_fill_(first, 1.0)
-    return v, b
 
 
 def ar1_normals(shape: tuple[int, ...], correlation: float, generator: torch.Generator, device=None) -> Tensor:

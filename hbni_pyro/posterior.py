@@ -37,9 +37,9 @@ class HBNIPosterior:
         model: the noise model's name, a key of :data:`hbni_pyro.variants.NOISE_MODELS` (default ``"paper"``).
         class_names: the name of each class, in the order of the outputs' columns (``None``: unnamed); filters,
             tables and streams built on the posterior check their names against it.
-        frame_correlation: the lag-1 correlation in ``(-1, 1)`` of a stream's frames about its look, taken by the
-            fit, the filter and the predictive streams (:mod:`hbni_pyro.frame_correlation`); fits of a model with
-            ``correlated_frames`` estimate it from their sequences, and it must be 0 under other models.
+        frame_correlation: the lag-1 correlation in ``(-1, 1)`` of a stream's frames about its look, used by the
+            filter and the predictive streams (:mod:`hbni_pyro.frame_correlation`); fits of a model with ``correlated_frames``
+            estimate it from their sequences, and it must be 0 under other models.
     """
 
     samples: dict[str, Tensor]

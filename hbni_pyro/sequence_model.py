@@ -16,10 +16,8 @@ The frames' scatter around the look is the same for every class, so it carries n
 about the class: a class-specific ``W_c`` lets evidence from that scatter grow with every frame,
 and frames of a moving camera are correlated in time, so it grows too fast (held-out log score
 of the mission's in-flight sequences -0.43 against -0.21 with one ``W``).
-Frames of a moving camera also resemble their neighbours: they scatter about the look as an AR(1)
-series whose correlation ``rho`` is estimated before the fit (:mod:`hbni_pyro.frame_correlation`). The fit,
-the filter and the predictive streams all take it: the fit reads each sequence through its whitened
-frames, which are independent and know the look as well as ``n_eff <= n`` frames would.
+The fit keeps the frames exchangeable given the look; the filter and the predictive streams add
+the AR(1) correlation of frames about it that the fit estimates apart (:mod:`hbni_pyro.frame_correlation`).
 A class's mean look is a full vector, so the model is confusion-aware as well: the looks of
 medical and news copters may lie close together, those of copters and crates far apart.
 
@@ -52,7 +50,6 @@ from hbni_pyro.density import (
     scatter_trace,
     within_log_prob,
 )
-from hbni_pyro.frame_correlation import whiten
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.wishart import (
     InvWishartCholesky,
@@ -68,49 +65,37 @@ SITES = ("loc", "between", "between_mean", "between_pooling", "within")
 
 
 class SequenceStats(NamedTuple):
-    """Per-sequence sufficient statistics of the frames' whitened log-ratio coordinates ``v_t ~ N(b_t mu, W)``
-    (:func:`hbni_pyro.frame_correlation.whiten`; ``v = y`` and ``b = 1`` for uncorrelated frames).
+    """Per-sequence sufficient statistics of the frames' log-ratio coordinates.
 
-    ``count (..., K)`` frames, ``weight (..., K)`` ``n_eff = sum_t b_t^2``, ``sum_y (..., K, d)`` ``sum_t b_t v_t``,
-    ``sum_yy (..., K, d, d)`` ``sum_t v_t v_t^T``, ``labels (..., K)`` (-1 unknown).
+    ``count (..., K)`` frames, ``sum_y (..., K, d)``, ``sum_yy (..., K, d, d)``, ``labels (..., K)`` (-1 unknown).
     """
 
     count: Tensor
-    weight: Tensor
     sum_y: Tensor
     sum_yy: Tensor
     labels: Tensor
 
     @property
     def mean_y(self) -> Tensor:
-        """The look's estimate ``sum_t b_t v_t / n_eff`` per sequence ``(..., K, d)``."""
-        return self.sum_y / self.weight.unsqueeze(-1)
+        return self.sum_y / self.count.unsqueeze(-1)
 
     @property
     def scatter(self) -> Tensor:
-        """``sum_t (v_t - b_t ybar)(v_t - b_t ybar)^T`` per sequence ``(..., K, d, d)``."""
+        """``sum_i (y_i - ybar)(y_i - ybar)^T`` per sequence ``(..., K, d, d)``."""
         m = self.mean_y
-        return self.sum_yy - self.weight[..., None, None] * m.unsqueeze(-1) * m.unsqueeze(-2)
+        return self.sum_yy - self.count[..., None, None] * m.unsqueeze(-1) * m.unsqueeze(-2)
 
 
-def sequence_stats(
-    obs: Tensor, sequence_ids: Tensor, labels: Tensor, num_sequences: int, correlation: float = 0.0
-) -> SequenceStats:
+def sequence_stats(obs: Tensor, sequence_ids: Tensor, labels: Tensor, num_sequences: int) -> SequenceStats:
     """One pass over validated outputs ``obs (N, M)``: statistics of each sequence ``0..K-1``, on ``obs``'s device.
 
-    ``sequence_ids (N,)`` in ``[0, K)``, each sequence's outputs in time order; ``labels (N,)`` constant within a
-    sequence (-1 unknown); ``correlation``: the frames' AR(1) correlation ``rho`` about their look.
+    ``sequence_ids (N,)`` in ``[0, K)``; ``labels (N,)`` constant within a sequence (-1 unknown).
     """
     y = ilr(obs)
     d = y.shape[-1]
     like = dict(dtype=obs.dtype, device=obs.device)
-    if correlation != 0.0:
-        y, b = whiten(y, *_previous_frames(y, sequence_ids), correlation)
-    else:
-        b = torch.ones_like(y[:, 0])
     count = torch.zeros(num_sequences, **like).index_add_(0, sequence_ids, torch.ones_like(y[:, 0]))
-    weight = torch.zeros(num_sequences, **like).index_add_(0, sequence_ids, b * b)
-    sum_y = torch.zeros(num_sequences, d, **like).index_add_(0, sequence_ids, b.unsqueeze(-1) * y)
+    sum_y = torch.zeros(num_sequences, d, **like).index_add_(0, sequence_ids, y)
     sum_yy = torch.zeros(num_sequences, d * d, **like)
     for start in range(0, y.shape[0], 1 << 16):  # y y^T in chunks: never an (N, d, d) tensor
         block = y[start : start + (1 << 16)]
@@ -118,19 +103,7 @@ def sequence_stats(
             0, sequence_ids[start : start + (1 << 16)], (block.unsqueeze(-1) * block.unsqueeze(-2)).flatten(1)
         )
     seq_labels = torch.full((num_sequences,), -1, dtype=torch.long, device=obs.device).scatter_(0, sequence_ids, labels)
-    return SequenceStats(count, weight, sum_y, sum_yy.reshape(num_sequences, d, d), seq_labels)
-
-
-def _previous_frames(y: Tensor, sequence_ids: Tensor) -> tuple[Tensor, Tensor]:
-    """Each frame's predecessor in its sequence ``(N, d)`` and whether it is its sequence's first ``(N,)``."""
-    order = torch.argsort(sequence_ids, stable=True)
-    sorted_ids = sequence_ids[order]
-    first_sorted = torch.ones_like(sorted_ids, dtype=torch.bool)
-    first_sorted[1:] = sorted_ids[1:] != sorted_ids[:-1]
-    before = order.roll(1)  # row of the frame sorted just before (only read where it is the same sequence's)
-    previous, first = torch.empty_like(y), torch.empty_like(first_sorted)
-    previous[order], first[order] = y[before], first_sorted
-    return previous, first
+    return SequenceStats(count, sum_y, sum_yy.reshape(num_sequences, d, d), seq_labels)
 
 
 def look_prior_mean(
@@ -158,48 +131,37 @@ def hyper_scales(
 
 class TwoLevelSequence(TorchDistribution):
     """A padded sequence of outputs ``(T, M)`` whose look ``mu ~ N(loc, between)`` is integrated out,
-    frames ``ilr(o)`` scattering by ``within`` about ``mu`` as an AR(1) series of lag-1 ``correlation`` (0: i.i.d.);
-    ``mask (..., T)`` marks the real frames, which come first.
+    frames ``ilr(o) ~ N(mu, within)``; ``mask (..., T)`` marks the real frames.
 
     ``log_prob`` is :func:`~hbni_pyro.density.look_log_marginal` plus
-    :func:`~hbni_pyro.density.within_log_prob` of the whitened frames plus the frames' log-ratio Jacobians.
+    :func:`~hbni_pyro.density.within_log_prob` plus the frames' log-ratio Jacobians.
     """
 
     arg_constraints = {"loc": constraints.real_vector}
     support = constraints.independent(constraints.simplex, 1)
 
     def __init__(
-        self,
-        loc: Tensor,
-        between: Tensor,
-        within: Tensor,
-        mask: Tensor,
-        correlation: float = 0.0,
-        validate_args: bool | None = None,
+        self, loc: Tensor, between: Tensor, within: Tensor, mask: Tensor, validate_args: bool | None = None
     ) -> None:
         batch = torch.broadcast_shapes(loc.shape[:-1], between.shape[:-2], within.shape[:-2], mask.shape[:-1])
-        self.loc, self.between, self.within, self.mask, self.correlation = loc, between, within, mask, correlation
+        self.loc, self.between, self.within, self.mask = loc, between, within, mask
         super().__init__(batch, torch.Size([mask.shape[-1], loc.shape[-1] + 1]), validate_args=validate_args)
 
     def expand(self, batch_shape, _instance=None):
-        mask = self.mask.expand(torch.Size(batch_shape) + self.mask.shape[-1:])
-        return TwoLevelSequence(self.loc, self.between, self.within, mask, self.correlation)
+        return TwoLevelSequence(
+            self.loc, self.between, self.within, self.mask.expand(torch.Size(batch_shape) + self.mask.shape[-1:])
+        )
 
     def log_prob(self, value: Tensor) -> Tensor:
         m = self.mask.to(value.dtype)
-        y = ilr(value)
-        first = torch.zeros(y.shape[:-1], dtype=torch.bool, device=y.device)
-        first[..., 0] = True
-        v, b = whiten(y, y.roll(1, -2), first, self.correlation)
-        v, b = v * m.unsqueeze(-1), b * m
-        count, weight = m.sum(-1), (b * b).sum(-1)
-        mean_y = (b.unsqueeze(-1) * v).sum(-2) / weight.unsqueeze(-1)
-        scatter = v.transpose(-1, -2) @ v - weight[..., None, None] * mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)
+        y = ilr(value) * m.unsqueeze(-1)
+        count = m.sum(-1)
+        mean_y = y.sum(-2) / count.unsqueeze(-1)
+        scatter = y.transpose(-1, -2) @ y - count[..., None, None] * mean_y.unsqueeze(-1) * mean_y.unsqueeze(-2)
         basis, lam, logdet = look_basis(self.between, self.within)
         resid = (basis @ (mean_y - self.loc).unsqueeze(-1)).squeeze(-1)
-        look = look_log_marginal(weight, resid, lam, logdet)
-        trace = scatter_trace(torch.linalg.inv(self.within), scatter)
-        rest = within_log_prob(count, trace, logdet, self.loc.shape[-1], effective=weight)
+        look = look_log_marginal(count, resid, lam, logdet)
+        rest = within_log_prob(count, scatter_trace(torch.linalg.inv(self.within), scatter), logdet, self.loc.shape[-1])
         return look + rest + (ilr_log_jacobian(value) * m).sum(-1)
 
 
@@ -209,11 +171,9 @@ def sequence_model(
     labels: Tensor | None = None,
     class_prior: Tensor | None = None,
     hyperprior: HyperPrior = HyperPrior(),
-    frame_correlation: float = 0.0,
 ) -> None:
-    """Pyro model of ``K`` padded sequences ``obs (K, T, M)`` with ``mask (K, T)`` (True = a real frame, real
-    frames first) and optional per-sequence ``labels (K,)`` (-1 = unknown, enumerated in parallel); frames
-    scatter about their look with the AR(1) ``frame_correlation``.
+    """Pyro model of ``K`` padded sequences ``obs (K, T, M)`` with ``mask (K, T)`` (True = a real frame)
+    and optional per-sequence ``labels (K,)`` (-1 = unknown, enumerated in parallel).
 
     ``max_plate_nesting=1``. Padding must be on the simplex. The looks are integrated out.
     """
@@ -251,11 +211,7 @@ def sequence_model(
                 c = pyro.sample("c_labelled", dist.Categorical(p), obs=labels[rows])
             else:
                 c = pyro.sample("c", dist.Categorical(p), infer={"enumerate": "parallel"})
-            pyro.sample(
-                f"o_{name}",
-                TwoLevelSequence(loc[c], between[c], within, mask[rows], frame_correlation),
-                obs=obs[rows],
-            )
+            pyro.sample(f"o_{name}", TwoLevelSequence(loc[c], between[c], within, mask[rows]), obs=obs[rows])
 
 
 def sequence_prior_log_prob(params: dict[str, Tensor], hyperprior: HyperPrior) -> Tensor:
@@ -287,15 +243,13 @@ def sequence_log_lik(stats: SequenceStats, params: dict[str, Tensor], class_prio
     within = params["within"].unsqueeze(-3)
     basis, lam, logdet = look_basis(params["between"], within)
     look = look_log_marginal(
-        stats.weight[..., None],
+        stats.count[..., None],
         look_residuals(basis, stats.mean_y, params["loc"]),
         lam.unsqueeze(-3),
         logdet.unsqueeze(-2),
     )
     trace = scatter_trace(torch.linalg.inv(within).unsqueeze(-4), stats.scatter.unsqueeze(-3))
-    rest = within_log_prob(
-        stats.count[..., None], trace, logdet.unsqueeze(-2), within.shape[-1], effective=stats.weight[..., None]
-    )
+    rest = within_log_prob(stats.count[..., None], trace, logdet.unsqueeze(-2), within.shape[-1])
     return look + rest + class_prior.log()
 
 

@@ -9,7 +9,7 @@ counter-based streams (:func:`normals`, one stream per chain), a fifth of the co
 products compile with ``fastmath`` (sums reassociated, so vectorised).
 
 Shapes: ``B`` chains (datasets x chains per dataset, flattened), ``K`` sequences, ``M`` classes, ``G``
-(class, frame weight) groups, ``d`` look dimensions.
+(class, frame count) groups, ``d`` look dimensions.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def class_sums(values: np.ndarray, c: np.ndarray, M: int) -> tuple[np.ndarray, n
 @njit(cache=True, nogil=True, fastmath=True)
 def offset_scatter(mean_y: np.ndarray, look: np.ndarray, count: np.ndarray) -> np.ndarray:
     """``(B, d, d)`` ``sum_k n_k (ybar_k - mu_k)(ybar_k - mu_k)^T`` of sequence means ``mean_y (B, K, d)``, looks
-    ``look (B, K, d)`` and frame weights ``count (B, K)`` (``n_eff``, see :mod:`hbni_pyro.frame_correlation`)."""
+    ``look (B, K, d)`` and frame counts ``count (B, K)``."""
     B, K, d = look.shape
     out = np.zeros((B, d, d))
     dev = np.empty(d)

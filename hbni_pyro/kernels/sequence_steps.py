@@ -29,7 +29,7 @@ from infra.counter_random import draw_seed
 LOOK_CHUNK = 4096
 """Sequences per block when their looks are drawn by gathering each one's factors."""
 GROUPED_LOOKS = 32
-"""Up to this many (class, frame weight) groups, every sequence's look is computed under every group's factors in
+"""Up to this many (class, frame count) groups, every sequence's look is computed under every group's factors in
 one batched product and the right one kept (no d x d factor gathered per sequence); beyond it, the factors are
 gathered per sequence in blocks of LOOK_CHUNK."""
 
@@ -66,7 +66,7 @@ def class_log_probs(stats: SequenceStats, state: SequenceState, log_prior: Tenso
     (the frames' scatter term is the same for every class and drops out)."""
     basis, lam, logdet = look_basis(state.between, state.within.unsqueeze(-3))
     look = look_log_marginal(
-        stats.weight[..., None], look_residuals(basis, stats.mean_y, state.loc), lam.unsqueeze(-3), logdet.unsqueeze(-2)
+        stats.count[..., None], look_residuals(basis, stats.mean_y, state.loc), lam.unsqueeze(-3), logdet.unsqueeze(-2)
     )
     return log_prior + look
 
@@ -86,11 +86,7 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
     if not free.numel():
         return labels.clone()
     sub = SequenceStats(
-        stats.count[..., free],
-        stats.weight[..., free],
-        stats.sum_y[..., free, :],
-        stats.sum_yy[..., free, :, :],
-        stats.labels[..., free],
+        stats.count[..., free], stats.sum_y[..., free, :], stats.sum_yy[..., free, :, :], stats.labels[..., free]
     )
     cdf = torch.softmax(class_log_probs(sub, state, log_prior), -1).cumsum(-1)
     drawn = (u[..., free, :] * cdf[..., -1:] > cdf).sum(-1).clamp_max(cdf.shape[-1] - 1)
@@ -111,8 +107,8 @@ def _chains_flat(t: Tensor, batch: torch.Size, trailing: int) -> np.ndarray:
 
 
 class LookFactors(NamedTuple):
-    """What every look's conditional needs: per (class, frame weight) group ``g = c * U + u`` (``U`` distinct frame
-    weights ``n_eff``) the covariance ``cov (..., G, d, d)`` and its lower Cholesky factor ``tril``; per class
+    """What every look's conditional needs: per (class, frame count) group ``g = c * U + u`` (``U`` distinct frame
+    counts) the covariance ``cov (..., G, d, d)`` and its lower Cholesky factor ``tril``; per class
     ``pb_loc = B_c^-1 m_c (..., M, d)``; per sequence ``wy = W^-1 sum y (..., K, d)`` and its ``group (..., K)``."""
 
     cov: Tensor
@@ -123,19 +119,19 @@ class LookFactors(NamedTuple):
 
 
 def look_factors(state: SequenceState, stats: SequenceStats, c: Tensor) -> LookFactors:
-    """The :class:`LookFactors` of the looks' conditional given the classes ``c (..., K)``: ``P = B_c^-1 + n_eff W^-1``
-    depends only on the class and the frames' weight, so it is factored once per group."""
-    weights, which = torch.unique(stats.weight, return_inverse=True)
+    """The :class:`LookFactors` of the looks' conditional given the classes ``c (..., K)``: ``P = B_c^-1 + n W^-1``
+    depends only on the class and the frame count, so it is factored once per group."""
+    counts, which = torch.unique(stats.count, return_inverse=True)
     prec_between = torch.linalg.inv(state.between)  # (..., M, d, d)
     prec_within = torch.linalg.inv(state.within)  # (..., d, d)
-    prec = prec_between.unsqueeze(-3) + weights[:, None, None] * prec_within[..., None, None, :, :]  # (..., M, U, d, d)
+    prec = prec_between.unsqueeze(-3) + counts[:, None, None] * prec_within[..., None, None, :, :]  # (..., M, U, d, d)
     cov = torch.linalg.inv(prec)
     return LookFactors(
         cov.flatten(-4, -3),
         torch.linalg.cholesky(cov).flatten(-4, -3),
         (prec_between @ state.loc.unsqueeze(-1)).squeeze(-1),
         stats.sum_y @ prec_within.transpose(-1, -2),
-        c * weights.shape[0] + which.expand(c.shape),
+        c * counts.shape[0] + which.expand(c.shape),
     )
 
 
@@ -250,25 +246,21 @@ def between_data(state: SequenceState, compiled: bool | None = None) -> tuple[Te
 
 
 def within_data(state: SequenceState, stats: SequenceStats, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
-    """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``,
-    ``sum_k sum_t (v_t - b_t mu_k)(v_t - b_t mu_k)^T`` in whitened coordinates: in a compiled loop (``compiled``,
-    default: on the CPU), each sequence's scatter about its mean plus ``n_eff (ybar - mu)(ybar - mu)^T``
-    (:func:`hbni_pyro.kernels.sequence_numba.offset_scatter`); else ``sum_k [sum_t v v^T - s mu^T - mu s^T +
-    n_eff mu mu^T]`` by matrix products over the sequences."""
+    """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``: in a compiled
+    loop (``compiled``, default: on the CPU), each sequence's scatter about its mean plus
+    ``n (ybar - mu)(ybar - mu)^T`` (:func:`hbni_pyro.kernels.sequence_numba.offset_scatter`); else
+    ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]`` by matrix products over the sequences."""
     mu = state.look
     if _compiled(compiled, mu):
         batch = state.c.shape[:-1]
         offsets = sequence_numba.offset_scatter(
-            _chains_flat(stats.mean_y, batch, 2), _chains_flat(mu, batch, 2), _chains_flat(stats.weight, batch, 1)
+            _chains_flat(stats.mean_y, batch, 2), _chains_flat(mu, batch, 2), _chains_flat(stats.count, batch, 1)
         )
         scatter = stats.scatter.sum(-3) + torch.from_numpy(offsets).view(batch + mu.shape[-1:] * 2)
         return stats.count.sum(-1), scatter
     cross = stats.sum_y.transpose(-1, -2) @ mu  # sum_k s_k mu_k^T
     scatter = (
-        stats.sum_yy.sum(-3)
-        - cross
-        - cross.transpose(-1, -2)
-        + (mu * stats.weight.unsqueeze(-1)).transpose(-1, -2) @ mu
+        stats.sum_yy.sum(-3) - cross - cross.transpose(-1, -2) + (mu * stats.count.unsqueeze(-1)).transpose(-1, -2) @ mu
     )
     return stats.count.sum(-1), scatter
 

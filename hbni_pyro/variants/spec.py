@@ -47,9 +47,8 @@ class NoiseModel:
             streams, one per draw of ``draws`` (site -> ``(n, ...)``).
         sequences: fits take sequence ids, and a sequence's frames share a latent look.
         correlated_frames: ``sample_streams`` and ``evidence`` also take ``correlation``, the AR(1) lag-1
-            correlation of a stream's frames about its look, and ``pyro_model`` takes it as ``frame_correlation``;
-            fits estimate it from their sequences first, then fit the model with it: the kernel gets statistics
-            of the whitened frames (:mod:`hbni_pyro.frame_correlation`; a sequence model only).
+            correlation of a stream's frames about its look, and fits estimate it from their sequences
+            (:mod:`hbni_pyro.frame_correlation`; a sequence model only).
         max_plate_nesting: the Pyro program's plate depth (for NUTS).
         filter_draws: the filter's default number of draws (``None``: all).
         point_estimate: the filter's plug-in draw from pooled draws.
