@@ -142,8 +142,8 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
     Args:
         args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
             horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
-            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int32 (K, A, Nn),
-            ``next_node`` int32 (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
+            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
+            ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
             or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
             instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
     """
@@ -189,9 +189,12 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
         start(si, sf, params, tables, perception, agents, act, 0.0, end, rng)
         value, t_prev = 0.0, 0.0
         while True:
-            t = end[0]
-            for a in range(1, a_count):
-                t = min(t, end[a])
+            if a_count == 2:  # the next completion without a loop over agents (a tenth of package delivery's time)
+                t = min(end[0], end[1])
+            else:
+                t = end[0]
+                for a in range(1, a_count):
+                    t = min(t, end[a])
             if t > horizon:
                 break
             if not t > t_prev:

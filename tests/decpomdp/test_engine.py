@@ -27,6 +27,7 @@ from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.engine import OutcomeTable, outcome_table, run
+from decpomdp.engine.simulate import table_dtype
 from decpomdp.perception import PerfectPerception
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from hbni_pyro.generative import sample_outputs
@@ -370,3 +371,18 @@ def test_the_documented_domain_runs(tmp_path):
     assert 0.5 < float(module["returns"].mean()) < 5.0
     _, counters = rollout_counters(module["Foraging"](), module["always_forage"], 2000, g())
     assert float(counters["found"].double().mean()) == pytest.approx(2 * 0.3 * 20 / 1.5, rel=0.1)
+
+
+def test_controllers_too_large_for_int16_tables_run_on_int32(tmp_path):
+    assert table_dtype(32768, 13) is np.int16 and table_dtype(12, 32768) is np.int16
+    assert table_dtype(32769, 13) is np.int32 and table_dtype(2, 40000) is np.int32
+    module = load_docs_domain(tmp_path, "wide_foraging_domain", lambda text: text.split("always_forage =")[0])
+    # every node forages and steps to the next whatever it sees: the same rollouts as one foraging node
+    nodes = 32769
+    cycle = torch.arange(1, nodes + 1) % nodes
+    wide = JointController(
+        torch.zeros(1, 2, nodes, dtype=torch.long), cycle.view(1, 1, nodes, 1).expand(1, 2, nodes, 2).contiguous()
+    )
+    one = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
+    env = module["Foraging"]()
+    assert torch.equal(run(env, wide, 500, 5).returns, run(env, one, 500, 5).returns)
