@@ -7,7 +7,7 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from infra.counter_random import accepts, normal, uniform
+from infra.counter_random import _ZIG_X, _layer_point, _normal_edge, accepts, next_u64, normal, uniform
 from infra.counter_random import stream_key as _stream_key
 
 
@@ -43,6 +43,22 @@ def test_uniform_and_normal_follow_their_laws():
     z = _draws(stream_key(1, 2, 4), 200_000, 1)
     assert stats.kstest(z, "norm").pvalue > 1e-4
     assert abs(z.mean()) < 5 / math.sqrt(z.size)
+
+
+@njit(cache=False)
+def _normals_from_layer_points(key: np.uint64, n: int) -> np.ndarray:
+    """The ziggurat spelled out: (layer, sign, position) from :func:`_layer_point`, then the sign applied."""
+    rng = np.full(1, key, dtype=np.uint64)
+    out = np.empty(n)
+    for i in range(n):
+        layer, sign, x = _layer_point(next_u64(rng))
+        out[i] = sign * x if x < _ZIG_X[layer + 1] else _normal_edge(rng, layer, sign, x)
+    return out
+
+
+def test_normal_draws_the_signed_point_of_its_layer_exactly():
+    key = stream_key(3, 1, 4)
+    np.testing.assert_array_equal(_draws(key, 300_000, 1), _normals_from_layer_points(key, 300_000))
 
 
 def test_streams_depend_on_their_key_only():
