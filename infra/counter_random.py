@@ -75,20 +75,19 @@ def _ziggurat(layers: int = 256, r: float = 3.6541528853610088, v: float = 0.004
 
 
 _ZIG_X, _ZIG_F, _ZIG_R = _ziggurat()
-_LOW8, _S8, _LOW9 = np.uint64(255), np.uint64(8), np.uint64(511)
-#: layer ``j & 255``'s width scaled by 2**-53, negative where bit 8 of ``j`` is set: one product of it and the 53
-#: position bits is ``sign * unit(bits) * _ZIG_X[i]`` of :func:`_layer_point` exactly (the factors differ by powers
-#: of two), two multiplications fewer on the way to a draw
+_LOW9 = np.uint64(511)
+#: layer ``j & 255``'s width scaled by 2**-53, negative where bit 8 of ``j`` is set (see :func:`_signed_point`)
 _ZIG_SIGNED_WIDTH = np.concatenate([_ZIG_X[:256], -_ZIG_X[:256]]) / 9007199254740992.0
 
 
 @njit(inline="always")
-def _layer_point(bits: np.uint64) -> tuple[np.int64, float, float]:
-    """64 random bits as a ziggurat (layer, sign, position): the low 8 bits pick the layer, bit 8 the sign (no
-    branch: the bit is a coin flip) and the top 53 bits the position within the layer's width."""
-    i = np.int64(bits & _LOW8)
-    sign = 1.0 - 2.0 * float(np.int64((bits >> _S8) & np.uint64(1)))
-    return i, sign, unit(bits) * _ZIG_X[i]
+def _signed_point(bits: np.uint64) -> tuple[np.int64, float]:
+    """64 random bits as a ziggurat (layer, signed point): the low 8 bits pick the layer, bit 8 the sign (no
+    branch: the bit is a coin flip) and the top 53 bits the position within the layer's width. One product of the
+    position bits and ``_ZIG_SIGNED_WIDTH`` gives ``sign * unit(bits) * _ZIG_X[layer]`` exactly (the factors differ
+    by powers of two), two multiplications fewer on the way to a draw (package delivery's loop 2 % faster)."""
+    layer_and_sign = np.int64(bits & _LOW9)
+    return layer_and_sign & 255, float(np.int64(bits >> _S11)) * _ZIG_SIGNED_WIDTH[layer_and_sign]
 
 
 @njit(inline="always")
@@ -97,15 +96,11 @@ def normal(rng: np.ndarray) -> float:
 
     A point inside its layer's inner rectangle is returned at once; the rest (about 1 %) goes to
     :func:`_normal_edge`, compiled apart so that the inlined fast path stays small (package delivery's event
-    loop runs 7 % faster). The point comes signed from one product (``_ZIG_SIGNED_WIDTH``; 2 % faster). In a
-    function compiled with numba's reference counting the call's mere presence costs about 9 ns a draw (1.8 ns
-    without it), so loops that draw many normals compile without it (``_nrt=False``), as the engine's chunk
-    functions and the sequence model's look draws do.
+    loop runs 7 % faster). In a function compiled with numba's reference counting the call's mere presence costs
+    about 9 ns a draw (1.8 ns without it), so loops that draw many normals compile without it
+    (``_nrt=False``), as the engine's chunk functions and the sequence model's look draws do.
     """
-    bits = next_u64(rng)
-    layer_and_sign = np.int64(bits & _LOW9)
-    y = float(np.int64(bits >> _S11)) * _ZIG_SIGNED_WIDTH[layer_and_sign]  # the signed point of _layer_point
-    i = layer_and_sign & 255
+    i, y = _signed_point(next_u64(rng))
     if abs(y) < _ZIG_X[i + 1]:
         return y
     return _normal_edge(rng, i, math.copysign(1.0, y), abs(y))
@@ -125,9 +120,10 @@ def _normal_edge(rng: np.ndarray, i: np.int64, sign: float, x: float) -> float:
                     return sign * (_ZIG_R + tx)
         if _ZIG_F[i] + uniform(rng) * (_ZIG_F[i + 1] - _ZIG_F[i]) < math.exp(-0.5 * x * x):
             return sign * x
-        i, sign, x = _layer_point(next_u64(rng))
+        i, y = _signed_point(next_u64(rng))
+        sign, x = math.copysign(1.0, y), abs(y)
         if x < _ZIG_X[i + 1]:
-            return sign * x
+            return y
 
 
 @njit(inline="always")
