@@ -51,9 +51,9 @@ BOTH = (True, True)  # the flags of an event where both of two agents complete
 
 
 class Outputs(NamedTuple):
-    """What a run writes, one row per rollout (``B = K * R``): ``returns`` float64 (B,), ``counters`` int64
-    (B, C), ``visits`` float64 (chunks, A, Nn, O) (per chunk: summed afterwards; (chunks, 1, 1, 1) when not
-    counted), final states int64 (B or 0, num_int) and float64 (B or 0, num_float), and ``status`` int64
+    """What a run writes, one entry per rollout (``B = K * R``): ``returns`` float64 (B,), ``counters`` int64
+    (C, B) (a row per counter, handed out without a copy), ``visits`` float64 (chunks, A, Nn, O) (per chunk:
+    summed afterwards; (chunks, 1, 1, 1) when not counted), final states int64 (B or 0, num_int) and float64 (B or 0, num_float), and ``status`` int64
     (chunks,) error flags (0: none)."""
 
     returns: np.ndarray
@@ -222,7 +222,7 @@ def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
             t_prev = t
         out.returns[b] = value
         for j in range(counter_slots.shape[0]):
-            out.counters[b, j] = si[counter_slots[j]]
+            out.counters[j, b] = si[counter_slots[j]]
         if keep_state:
             for i in range(si.shape[0]):
                 out.final_int[b, i] = si[i]

@@ -64,6 +64,21 @@ def table_dtype(num_nodes: int, num_actions: int) -> type:
     return np.int16 if max(num_nodes, num_actions) <= np.iinfo(np.int16).max + 1 else np.int32
 
 
+def _narrow(table: Tensor, dtype: type, threads: int) -> np.ndarray:
+    """A contiguous copy of the long ``table`` (K, ...) in ``dtype``, its rows split among ``threads`` threads of
+    the pool (numpy's copy releases the GIL): package delivery's 8000 controllers take about 1 ms to convert, 5 %
+    of a call at two threads."""
+    source = table.numpy()
+    if threads == 1 or source.shape[0] < 2 * threads:
+        return np.ascontiguousarray(source, dtype=dtype)
+    copy = np.empty(source.shape, dtype)
+    rows = [i * source.shape[0] // threads for i in range(threads + 1)]
+    parts = [slice(lo, hi) for lo, hi in zip(rows, rows[1:])]
+    for future in [_executor(threads).submit(np.copyto, copy[p], source[p], casting="unsafe") for p in parts]:
+        future.result()
+    return copy
+
+
 def _initial(
     initial_state: dict[str, float] | None, int_names: tuple[str, ...], float_names: tuple[str, ...]
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -79,6 +94,19 @@ def _initial(
         np.array([int(initial_state.get(n, 0)) for n in int_names], dtype=np.int64),
         np.array([float(initial_state.get(n, 0.0)) for n in float_names], dtype=np.float64),
     )
+
+
+def chunk_bounds(batch: int, threads: int) -> list[int]:
+    """Bounds of the chunks of ``batch`` rollouts handed to ``threads`` threads, largest first (guided scheduling):
+    each chunk takes ``1 / (2 * threads)`` of the rollouts left (at least ``_MIN_CHUNK``), so that the threads,
+    taking chunks as they finish, end within one small chunk of each other (equal chunks of 1/32 of the call left
+    one thread idle for about 6 % of the call)."""
+    bounds = [0]
+    while True:  # at least one chunk, empty for an empty batch
+        left = batch - bounds[-1]
+        bounds.append(bounds[-1] + min(left, max(_MIN_CHUNK, left // (2 * threads))))
+        if bounds[-1] == batch:
+            return bounds
 
 
 def _scratch(num_int: int, num_float: int, num_agents: int) -> loop.Scratch:
@@ -146,9 +174,9 @@ def run(
     int_names, float_names = domain.layout.int_names(a_count), domain.layout.float_names(a_count)
     init_int, init_float = _initial(initial_state, int_names, float_names)
     slots = np.array([int_names.index(c) for c in domain.counters], dtype=np.int64)
+    threads = worker_threads()
     dtype = table_dtype(controller.num_nodes, env.num_actions)
-    action = np.ascontiguousarray(controller.action.numpy(), dtype=dtype)
-    next_node = np.ascontiguousarray(controller.next_node.numpy(), dtype=dtype)
+    action, next_node = _narrow(controller.action, dtype, threads), _narrow(controller.next_node, dtype, threads)
     args = (
         model.params,
         model.tables,
@@ -168,13 +196,13 @@ def run(
         keep_state,
     )
     batch = controller.num_controllers * rollouts
-    threads = worker_threads()
-    chunks = max(1, min(16 * threads, batch // _MIN_CHUNK))  # many small chunks balance uneven rollouts
+    bounds = chunk_bounds(batch, threads)
+    chunks = len(bounds) - 1
     kept = batch if keep_state else 0
     seen_shape = (chunks, a_count, controller.num_nodes, controller.num_obs) if visits else (chunks, 1, 1, 1)
     out = loop.Outputs(
         np.zeros(batch),
-        np.zeros((batch, len(slots)), dtype=np.int64),
+        np.zeros((len(slots), batch), dtype=np.int64),
         np.zeros(seen_shape),
         np.zeros((kept, len(int_names)), dtype=np.int64),
         np.zeros((kept, len(float_names))),
@@ -187,8 +215,8 @@ def run(
             out,
             _scratch(len(int_names), len(float_names), a_count),
             c,
-            c * batch // chunks,
-            (c + 1) * batch // chunks,
+            bounds[c],
+            bounds[c + 1],
         )
         for c in range(chunks)
     ]
@@ -201,7 +229,7 @@ def run(
     if int(out.status.max()) == loop.ZERO_DURATION:
         raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
     shape = (controller.num_controllers, rollouts)
-    counters = {name: torch.from_numpy(out.counters[:, j].copy()).view(shape) for j, name in enumerate(domain.counters)}
+    counters = {name: torch.from_numpy(out.counters[j]).view(shape) for j, name in enumerate(domain.counters)}
     final: dict[str, Tensor] = {}
     if keep_state:
         final.update({n: torch.from_numpy(out.final_int[:, j].copy()).view(shape) for j, n in enumerate(int_names)})

@@ -27,7 +27,7 @@ from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.engine import OutcomeTable, outcome_table, run
-from decpomdp.engine.simulate import table_dtype
+from decpomdp.engine.simulate import chunk_bounds, table_dtype
 from decpomdp.perception import PerfectPerception
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from hbni_pyro.generative import sample_outputs
@@ -267,6 +267,18 @@ def test_a_seed_gives_the_same_returns_on_any_thread_count_and_chunking():
         fewer = run(env, ctrl, 300, 11).returns
     assert torch.equal(one, two) and torch.equal(one, halves) and torch.equal(one[:, :300], fewer)
     assert not torch.equal(one, run(env, ctrl, 700, 12).returns)
+
+
+@pytest.mark.parametrize("batch,threads_", [(0, 1), (1, 2), (255, 2), (5000, 1), (64000, 2), (32000, 16)])
+def test_chunks_cover_the_batch_largest_first(batch, threads_):
+    bounds = chunk_bounds(batch, threads_)
+    sizes = [hi - lo for lo, hi in zip(bounds, bounds[1:])]
+    assert bounds[0] == 0 and bounds[-1] == batch and len(sizes) >= 1
+    assert all(s > 0 for s in sizes) or batch == 0
+    assert sizes == sorted(sizes, reverse=True)  # the small chunks come last, to even out the threads' ends
+    assert all(s >= 256 for s in sizes[:-1])
+    if batch >= 4096 * threads_:
+        assert sizes[0] == batch // (2 * threads_) and len(sizes) < 40
 
 
 def test_simulate_is_seeded_by_its_generator():
