@@ -54,6 +54,7 @@ def lag_one_ratio(rho: float, lengths: Tensor) -> float:
 
 _ROWS = 1 << 16
 """Outputs per chunk of the estimator's passes (a few MB each: a fit's data is not copied whole)."""
+_NO_SCATTER = 1e-24  # residuals whose squares sum below this fraction of the frames' squares: none (rounding)
 
 
 def _chunked_ilr(x: Tensor, start: int) -> Tensor:
@@ -81,20 +82,22 @@ def estimate_frame_correlation(obs: Tensor, sequence_ids: Tensor) -> float:
     for start in range(0, n, _ROWS):  # pass 1: each sequence's mean look
         sums.index_add_(0, ids[start : start + _ROWS], _chunked_ilr(obs, start))
     means = sums / counts.clamp_min(1).unsqueeze(1)
-    num = den = 0.0
+    num = den = size = 0.0
     previous: tuple[Tensor, Tensor] | None = None  # the last residual of the chunk before, and its id
     for start in range(0, n, _ROWS):  # pass 2: residuals, their squares and lag-1 products within sequences
         part = ids[start : start + _ROWS]
-        e = _chunked_ilr(obs, start) - means[part]
+        x = _chunked_ilr(obs, start)
+        e = x - means[part]
         used = counts[part] >= 3
         den += float((e[used] ** 2).sum())
+        size += float((x[used] ** 2).sum())
         if previous is not None:
             e, part = torch.cat([previous[0], e]), torch.cat([previous[1], part])
             used = torch.cat([used.new_zeros(1), used])  # (the first flag is never read)
         same = (part[1:] == part[:-1]) & used[1:]
         num += float((e[1:] * e[:-1]).sum(1)[same].sum())
         previous = e[-1:], part[-1:]
-    if den == 0.0 or not bool((counts >= 3).any()):
+    if den <= _NO_SCATTER * size or not bool((counts >= 3).any()):  # (rounding in the means leaves ~1e-32 of size)
         return 0.0
     observed = num / den
     lengths = counts[counts >= 3]
