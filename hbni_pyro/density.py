@@ -250,7 +250,21 @@ def look_basis(between: Tensor, within: Tensor) -> tuple[Tensor, Tensor, Tensor]
     return q.transpose(-1, -2) @ tril_inv, lam, 2 * tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
 
 
-def look_log_marginal(count: Tensor | float, resid: Tensor, lam: Tensor, logdet_within: Tensor) -> Tensor:
+def look_variance(count: Tensor | float, lam: Tensor) -> tuple[Tensor, Tensor]:
+    """The variances ``lam + 1/n`` of a look's mean in the basis of :func:`look_basis`, ``(..., d)``, and the sum of
+    their logs ``(...)`` (``count`` broadcasts against ``lam``'s batch shape)."""
+    count = torch.as_tensor(count, dtype=lam.dtype)
+    var = lam + 1 / (count.unsqueeze(-1) if count.dim() else count)
+    return var, var.log().sum(-1)
+
+
+def look_log_marginal(
+    count: Tensor | float,
+    resid: Tensor,
+    lam: Tensor,
+    logdet_within: Tensor,
+    variance: tuple[Tensor, Tensor] | None = None,
+) -> Tensor:
     """``log N(ybar; loc, between + within / n)``: how a sequence's mean look tells classes apart.
 
     In the two-level model a sequence's look ``mu ~ N(loc_c, between_c)`` and its frames
@@ -261,14 +275,14 @@ def look_log_marginal(count: Tensor | float, resid: Tensor, lam: Tensor, logdet_
         count: frames ``n`` (broadcasts against the result).
         resid: ``A (ybar - loc)`` in the basis of :func:`look_basis`, ``(..., d)``.
         lam, logdet_within: from :func:`look_basis`, ``(..., d)`` and ``(...)``.
+        variance: :func:`look_variance` of ``count`` and ``lam``, when the caller keeps it (the same values).
 
     Returns:
         ``(...)`` log density.
     """
-    count = torch.as_tensor(count, dtype=resid.dtype)
-    var = lam + 1 / (count.unsqueeze(-1) if count.dim() else count)
+    var, log_var = look_variance(count, lam) if variance is None else variance
     d = resid.shape[-1]
-    return -0.5 * ((resid * resid / var).sum(-1) + var.log().sum(-1) + logdet_within + d * math.log(2 * math.pi))
+    return -0.5 * ((resid * resid / var).sum(-1) + log_var + logdet_within + d * math.log(2 * math.pi))
 
 
 def within_log_prob(count: Tensor | float, trace: Tensor, logdet_within: Tensor, dim: int) -> Tensor:

@@ -2,6 +2,7 @@
 the estimator's recovery within its sampling error, and the posterior carrying it (fit, save/load, streams)."""
 
 import math
+import pickle
 
 import pytest
 import torch
@@ -89,6 +90,29 @@ def test_estimate_uses_time_order_within_interleaved_sequences_and_skips_short_o
     assert estimate_frame_correlation(same, torch.zeros(5, dtype=torch.long)) == 0.0
     smooth = torch.softmax(torch.linspace(0, 1, 40, dtype=D).view(-1, 1) * torch.tensor([[1.0, -1.0, 0.0]]), -1)
     assert estimate_frame_correlation(smooth, torch.zeros(40, dtype=torch.long)) == LIMIT
+
+
+def test_evidence_kept_per_count_gives_the_same_bits_as_computed_afresh():
+    """Look variances are kept per frame count: a warm evidence, a fresh one, rows of one count and rows of mixed
+    counts (computed without the kept variances) give identical values."""
+    from hbni_pyro.evidence import SequenceEvidence
+
+    g = torch.Generator().manual_seed(5)
+    obs = torch.softmax(2 * torch.randn(12, 6, 3, generator=g, dtype=D), -1)
+    warm = SequenceEvidence(_two_draws(), correlation=0.4)
+    feats = warm.features(obs)
+    for n in range(1, 7):
+        warm.log_evidence(feats[:, :n].sum(1), torch.full((12,), float(n), dtype=D))
+    counts = torch.tensor([2.0] * 6 + [5.0] * 6, dtype=D)
+    stats = torch.cat([feats[:6, :2].sum(1), feats[6:, :5].sum(1)])
+    mixed = SequenceEvidence(_two_draws(), correlation=0.4).log_evidence(stats, counts)
+    for rows, n in ((slice(0, 6), 2.0), (slice(6, 12), 5.0)):
+        alone = torch.full((6,), n, dtype=D)
+        fresh = SequenceEvidence(_two_draws(), correlation=0.4).log_evidence(stats[rows], alone)
+        assert torch.equal(warm.log_evidence(stats[rows], alone), fresh)
+        assert torch.equal(mixed[rows], fresh)
+    copy = pickle.loads(pickle.dumps(warm))
+    assert copy._variances == {} and torch.equal(copy.log_evidence(stats, counts), mixed)
 
 
 def test_correlated_sequences_keep_the_scatter_and_correlate_neighbours():
