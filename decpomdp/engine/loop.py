@@ -53,8 +53,8 @@ BOTH = (True, True)  # the flags of an event where both of two agents complete
 class Outputs(NamedTuple):
     """What a run writes, one entry per rollout (``B = K * R``): ``returns`` float64 (B,), ``counters`` int64
     (C, B) (a row per counter, handed out without a copy), ``visits`` float64 (chunks, A, Nn, O) (per chunk:
-    summed afterwards; (chunks, 1, 1, 1) when not counted), final states int64 (B or 0, num_int) and float64 (B or 0, num_float), and ``status`` int64
-    (chunks,) error flags (0: none)."""
+    summed afterwards; (chunks, 1, 1, 1) when not counted), final states int64 (B or 0, num_int) and float64
+    (B or 0, num_float), and ``status`` int64 (chunks,) error flags (0: none)."""
 
     returns: np.ndarray
     counters: np.ndarray
