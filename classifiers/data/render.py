@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from classifiers.data import pixels
 from classifiers.data.conditions import Conditions, get_conditions
 from classifiers.data.sprites import SPRITE_SIZE, SPRITES, draw_sprite
 from infra.files import atomic_write_bytes
@@ -36,6 +37,7 @@ __all__ = [
 #: the object kinds the renderer can draw; a caller says which of them make up its classes
 OBJECTS = tuple(SPRITES)
 FRAME_SHAPE = (240, 320)  # (H, W) pixels
+_NO_NOISE = np.zeros((0, 0, 3))
 
 
 @dataclass(frozen=True)
@@ -178,18 +180,17 @@ def render_frame(name: str, pose: Pose, look: Look, background: np.ndarray, rng:
     h, w = shape
     sprite, alpha = draw_sprite(name)
     hmat = _homography(pose, shape)
-    obj = cv2.warpPerspective(sprite, hmat, (w, h), flags=cv2.INTER_LINEAR).astype(np.float32)
-    a = cv2.warpPerspective(alpha, hmat, (w, h), flags=cv2.INTER_LINEAR)[..., None]
-    img = obj * a + background * (1 - a)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    ramp = (np.cos(look.shade_dir) * (xx / w - 0.5) + np.sin(look.shade_dir) * (yy / h - 0.5)) * 2
-    light = look.gain * (1 + look.shading * ramp)[..., None] * np.asarray(look.cast, np.float32)
-    img = img * light
+    obj = cv2.warpPerspective(sprite, hmat, (w, h), flags=cv2.INTER_LINEAR)
+    a = cv2.warpPerspective(alpha, hmat, (w, h), flags=cv2.INTER_LINEAR)
+    xs = np.arange(w, dtype=np.float32) / w - 0.5
+    ys = np.arange(h, dtype=np.float32) / h - 0.5
+    cast = np.asarray(look.cast, np.float32)
+    cos, sin = float(np.cos(look.shade_dir)), float(np.sin(look.shade_dir))
+    img = pixels.lit(obj, a, background, xs, ys, cos, sin, float(look.shading), float(look.gain), cast)
     if look.blur >= 1.5:
         img = cv2.filter2D(img, -1, _motion_kernel(look.blur, look.blur_angle), borderType=cv2.BORDER_REFLECT)
-    if look.noise > 0:
-        img = img + rng.normal(0, look.noise, size=img.shape).astype(np.float32)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    noise = rng.normal(0, look.noise, size=img.shape) if look.noise > 0 else _NO_NOISE
+    return pixels.quantized(img, noise)
 
 
 def render_images(
