@@ -1,4 +1,5 @@
-"""Thread control: torch's intra-op threads (with NumPy's BLAS threads), and the worker threads of compiled loops.
+"""Thread control: torch's intra-op threads (with NumPy's BLAS and OpenCV's threads), and the worker threads of
+compiled loops.
 
 The samplers, filters, SVM solver and simulators work on small tensors; on a shared or loaded
 machine the hand-offs between torch's intra-op threads cost more than the parallelism saves.
@@ -12,6 +13,7 @@ import contextlib
 import os
 from collections.abc import Iterator
 
+import cv2
 import torch
 from threadpoolctl import ThreadpoolController
 
@@ -33,17 +35,20 @@ def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
 
 @contextlib.contextmanager
 def torch_threads(threads: int | None) -> Iterator[None]:
-    """Run torch on ``threads`` intra-op threads, and NumPy's BLAS on as many, inside the block (``None``:
-    unchanged), then restore both."""
+    """Run torch on ``threads`` intra-op threads, and NumPy's BLAS and OpenCV on as many, inside the block
+    (``None``: unchanged), then restore them (OpenCV's setting is the process's: on one thread, the renderer's
+    frames cost a sixth less CPU time than on two, and are the same)."""
     _check(threads)
-    before = torch.get_num_threads()
+    before, before_cv = torch.get_num_threads(), cv2.getNumThreads()
     if threads is not None:
         torch.set_num_threads(threads)
+        cv2.setNumThreads(threads)
     try:
         with _blas_threads(threads):
             yield
     finally:
         torch.set_num_threads(before)
+        cv2.setNumThreads(before_cv)
 
 
 def single_thread() -> contextlib.AbstractContextManager[None]:
@@ -64,11 +69,12 @@ def worker_threads() -> int:
 
 
 def set_threads(count: int) -> None:
-    """Use ``count`` threads for torch's intra-op work, NumPy's BLAS and compiled loops from now on (a whole run's
-    setting)."""
+    """Use ``count`` threads for torch's intra-op work, NumPy's BLAS, OpenCV and compiled loops from now on (a whole
+    run's setting)."""
     global _workers
     _check(count)
     torch.set_num_threads(count)
+    cv2.setNumThreads(count)
     _blas_threads(count)  # a limit applies when made; it is never lifted
     _workers = count
 

@@ -3,7 +3,8 @@ sensor noise and quantise it.
 
 Each kernel computes what the numpy expression in its docstring computes, in the same precisions and order
 (float32 compositing, float64 light), so a frame has the same bytes as with those expressions; the kernels only
-skip the temporaries (numpy wrote ten full-frame arrays a frame, half the renderer's time).
+skip the temporaries (numpy wrote ten full-frame arrays a frame, half the renderer's time). :func:`lit_numpy` and
+:func:`quantized_numpy` are those expressions, the oracle of the tests and of ``benchmarks/bench_render.py``.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ use_cache_dir()  # before any cached function is decorated
 
 from numba import njit  # noqa: E402
 
-__all__ = ["lit", "quantized"]
+__all__ = ["lit", "lit_numpy", "quantized", "quantized_numpy"]
 
 
 @njit(cache=True)
@@ -70,3 +71,29 @@ def quantized(img: np.ndarray, noise: np.ndarray) -> np.ndarray:
                     v = v + np.float64(np.float32(noise[y, x, k]))
                 out[y, x, k] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
     return out
+
+
+def lit_numpy(
+    obj: np.ndarray,
+    alpha: np.ndarray,
+    background: np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    cos: float,
+    sin: float,
+    shading: float,
+    gain: float,
+    cast: np.ndarray,
+) -> np.ndarray:
+    """:func:`lit` in numpy expressions (the oracle)."""
+    a = alpha[..., None]
+    img = obj.astype(np.float32) * a + background * (1 - a)
+    ramp = (np.float64(cos) * xs[None, :] + np.float64(sin) * ys[:, None]) * 2
+    return img * (gain * (1 + shading * ramp)[..., None] * cast)
+
+
+def quantized_numpy(img: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """:func:`quantized` in numpy expressions (the oracle)."""
+    if noise.size:
+        img = img + noise.astype(np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)

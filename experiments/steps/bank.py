@@ -44,6 +44,7 @@ from classifiers.data import FRAME_SHAPE, Conditions, render_sequence
 from infra.cache import FileLock, entry_path, load_entry, source_identity, store_entry, wait_for_entry
 from infra.fingerprint import digest
 from infra.streams import stream_seed
+from infra.threads import set_threads
 
 _KIND = "experiments.OutputBank"
 _VERSION = 3
@@ -141,13 +142,13 @@ _WORKER: dict[str, Any] = {}
 
 
 def _load_worker(classifier_path: str) -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # the pool's processes are the parallelism
     _WORKER["clf"] = FrameClassifier.load(classifier_path)
 
 
 def worker_pool(classifier_path: str | os.PathLike, workers: int) -> ProcessPoolExecutor:
-    """``workers`` spawned processes, each with one torch thread and the classifier saved at ``classifier_path``;
-    they run :func:`_classify_in_worker` and :func:`classify_blocks_in_worker`."""
+    """``workers`` spawned processes, each on one thread (torch, BLAS, OpenCV) with the classifier saved at
+    ``classifier_path``; they run :func:`_classify_in_worker` and :func:`classify_blocks_in_worker`."""
     if multiprocessing.get_start_method(allow_none=True) not in (None, *multiprocessing.get_all_start_methods()):
         # a job of a joblib sweep runs in a loky worker, whose start method a spawned child cannot look up
         multiprocessing.set_start_method("spawn", force=True)

@@ -1,8 +1,9 @@
-"""Thread control restores torch's and NumPy BLAS's settings, also after an exception, rejects bad counts, and one
+"""Thread control restores torch's, NumPy BLAS's and OpenCV's settings, also after an exception, rejects bad counts, and one
 setting covers a whole run."""
 
 import importlib
 
+import cv2
 import pytest
 import torch
 from threadpoolctl import ThreadpoolController, threadpool_info
@@ -15,16 +16,16 @@ def _blas_threads() -> list[int]:
 
 
 def test_threads_are_restored():
-    before, blas = torch.get_num_threads(), _blas_threads()
+    before, blas, cv = torch.get_num_threads(), _blas_threads(), cv2.getNumThreads()
     assert blas  # NumPy's BLAS is found
     with single_thread():
-        assert torch.get_num_threads() == 1 and set(_blas_threads()) == {1}
-    assert torch.get_num_threads() == before and _blas_threads() == blas
+        assert torch.get_num_threads() == 1 and set(_blas_threads()) == {1} and cv2.getNumThreads() == 1
+    assert torch.get_num_threads() == before and _blas_threads() == blas and cv2.getNumThreads() == cv
     with torch_threads(None):
-        assert torch.get_num_threads() == before
+        assert torch.get_num_threads() == before and cv2.getNumThreads() == cv
     with pytest.raises(RuntimeError), torch_threads(1):
         raise RuntimeError("boom")
-    assert torch.get_num_threads() == before
+    assert torch.get_num_threads() == before and cv2.getNumThreads() == cv
 
 
 @pytest.mark.parametrize(
@@ -36,12 +37,14 @@ def test_bad_thread_counts(bad, error):
             pass
 
 
-def test_a_whole_runs_setting_covers_torch_blas_and_compiled_loops(monkeypatch):
-    before, blas = torch.get_num_threads(), _blas_threads()
+def test_a_whole_runs_setting_covers_torch_blas_opencv_and_compiled_loops(monkeypatch):
+    before, blas, cv = torch.get_num_threads(), _blas_threads(), cv2.getNumThreads()
     monkeypatch.setattr(importlib.import_module("infra.threads"), "_workers", None)  # the module, not infra.threads()
     with ThreadpoolController().limit(limits=blas[0], user_api="blas"):  # restores NumPy's BLAS afterwards
         try:
             set_threads(1)
             assert torch.get_num_threads() == 1 and set(_blas_threads()) == {1} and worker_threads() == 1
+            assert cv2.getNumThreads() == 1
         finally:
             torch.set_num_threads(before)
+            cv2.setNumThreads(cv)
