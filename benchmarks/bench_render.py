@@ -4,7 +4,7 @@ expressions, in this process.
 The renderer's compositing, light, noise and quantisation (:mod:`classifiers.data.pixels`) and the backbone's input
 normalisation (:func:`classifiers.preprocess.normalize`) each run as one compiled pass; the reference runs the numpy
 expressions they replace (:func:`~classifiers.data.pixels.lit_numpy`, :func:`~classifiers.data.pixels.quantized_numpy`
-and the expression in ``normalize``'s docstring). Both render the same 30-frame mission sequences of the six
+and :func:`~classifiers.preprocess.normalized_numpy`). Both render the same 30-frame mission sequences of the six
 disaster-relief classes on one thread (torch, BLAS and OpenCV, as the mission's workers run), and the bytes are
 compared.
 
@@ -27,15 +27,15 @@ from classifiers.backbone import load_backbone
 from classifiers.data import render as render_module
 from classifiers.data import render_sequence
 from classifiers.data.pixels import lit_numpy, quantized_numpy
-from classifiers.preprocess import center_crop, normalize
+from classifiers.preprocess import center_crop, normalize, normalized_numpy
 from decpomdp.domains.disaster_relief import CLASSES
 from infra.threads import single_thread
 
 
 def _normalize_numpy(crops: np.ndarray, mean, std) -> torch.Tensor:
-    """``normalize`` as numpy expressions (the reference)."""
-    x = (crops[..., ::-1].astype(np.float32) - np.asarray(mean, np.float32)) * (1.0 / np.asarray(std, np.float32))
-    return torch.from_numpy(np.ascontiguousarray(x)).permute(0, 3, 1, 2)
+    """``normalize`` on :func:`~classifiers.preprocess.normalized_numpy` (the reference)."""
+    x = normalized_numpy(crops, np.asarray(mean, np.float32), 1.0 / np.asarray(std, np.float32))
+    return torch.from_numpy(x).permute(0, 3, 1, 2)
 
 
 def _render(sequences: int) -> np.ndarray:

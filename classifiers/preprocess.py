@@ -22,7 +22,7 @@ use_cache_dir()  # before any cached function is decorated
 
 from numba import njit  # noqa: E402
 
-__all__ = ["as_image_batch", "augment", "center_crop", "crop_box", "normalize"]
+__all__ = ["as_image_batch", "augment", "center_crop", "crop_box", "normalize", "normalized_numpy"]
 
 Box = tuple[float, float, float, float]  # x0, y0, x1, y1 in pixels
 
@@ -122,7 +122,7 @@ def normalize(crops: np.ndarray | Sequence[np.ndarray], mean: Sequence[float], s
     """uint8 BGR crops ``(B, S, S, 3)`` -> float32 RGB ``(B, 3, S, S)``, ``(x - mean) / std`` per channel.
 
     The result is a channels-last view (the memory layout the backbone runs in), computed in one compiled pass
-    as ``(x[..., ::-1].astype(float32) - mean) * (1 / std)`` in float32.
+    with the bytes of :func:`normalized_numpy`.
     """
     arr = np.ascontiguousarray(crops if isinstance(crops, np.ndarray) else np.stack(list(crops)))
     m = np.asarray(mean, np.float32)
@@ -141,3 +141,8 @@ def _normalized(arr: np.ndarray, mean: np.ndarray, inv: np.ndarray) -> np.ndarra
                 for k in range(3):
                     out[i, y, x, k] = (np.float32(arr[i, y, x, 2 - k]) - mean[k]) * inv[k]
     return out
+
+
+def normalized_numpy(arr: np.ndarray, mean: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """:func:`_normalized` in numpy expressions (the oracle of the tests and of ``benchmarks/bench_render.py``)."""
+    return (arr[..., ::-1].astype(np.float32) - mean) * inv

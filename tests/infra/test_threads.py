@@ -1,5 +1,5 @@
-"""Thread control restores torch's, NumPy BLAS's and OpenCV's settings, also after an exception, rejects bad counts, and one
-setting covers a whole run."""
+"""Thread control restores torch's, NumPy BLAS's and OpenCV's settings, also after an exception, rejects bad counts,
+and one setting covers a whole run."""
 
 import importlib
 
