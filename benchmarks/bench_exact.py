@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 from decpomdp import JointController
 from decpomdp.dpomdp import (

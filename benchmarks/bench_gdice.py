@@ -30,7 +30,7 @@ from decpomdp import evaluate, random_controllers
 from decpomdp.domains import PackageDelivery, shared
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
-from infra.streams import torch_stream
+from hbni_infra.streams import torch_stream
 
 PAPER_ROLLOUTS = 100 * 100 * 80
 

@@ -21,7 +21,7 @@ import torch
 import hbni_pyro
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.sbc import run_sbc
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 SBC_CASES = {
     "paper": dict(labelled=False, size=15),

@@ -23,7 +23,7 @@ import torch
 import hbni_pyro
 from classifiers import FrameClassifier, OneVsOneSVC
 from classifiers.data import render_images, render_sequence
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 VEHICLES = ("irobot", "quadrotor", "racecar")  # the classes of the paper's hardware study
 

@@ -38,8 +38,8 @@ from hydra.utils import instantiate
 from decpomdp.domains import DisasterRelief, PackageDelivery, rollout_counters, shared
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from experiments.schemas import register
-from infra.files import atomic_write_text
-from infra.streams import torch_stream
+from hbni_infra.files import atomic_write_text
+from hbni_infra.streams import torch_stream
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 

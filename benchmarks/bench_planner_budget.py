@@ -20,8 +20,8 @@ import time
 from decpomdp import evaluate
 from decpomdp.domains import DisasterRelief, PackageDelivery, shared
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
-from infra.threads import threads
-from infra.streams import torch_stream
+from hbni_infra.threads import threads
+from hbni_infra.streams import torch_stream
 
 FLOORS = {"package delivery": 14.4, "disaster relief, perfect perception": 6.0}
 

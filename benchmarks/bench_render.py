@@ -29,7 +29,7 @@ from classifiers.data import render_sequence
 from classifiers.data.pixels import lit_numpy, quantized_numpy
 from classifiers.preprocess import center_crop, normalize, normalized_numpy
 from decpomdp.domains.disaster_relief import CLASSES
-from infra.threads import single_thread
+from hbni_infra.threads import single_thread
 
 
 def _normalize_numpy(crops: np.ndarray, mean, std) -> torch.Tensor:

@@ -31,7 +31,7 @@ from decpomdp.domains import DisasterRelief, PackageDelivery
 from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from hbni_pyro.model import HyperPrior
-from infra.threads import threads
+from hbni_infra.threads import threads
 
 
 def mutants(controller: JointController, count: int, mutations: int, seed: int, num_actions: int) -> JointController:

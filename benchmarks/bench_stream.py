@@ -33,7 +33,7 @@ from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.stream import Models, Settings, stream_frames
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 FLOOR_FPS = 20.0
 

@@ -28,8 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from infra.checks import as_device
-from infra.threads import torch_threads
+from hbni_infra.checks import as_device
+from hbni_infra.threads import torch_threads
 
 __all__ = ["HALF_TOLERANCE", "Backbone", "EfficientNetLite0", "default_weights_path", "fuse_batchnorm", "load_backbone"]
 

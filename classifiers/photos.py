@@ -19,7 +19,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 #: the classes: scikit-image's bundled colour photographs, by their ``skimage.data`` name
 PHOTOS = ("astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "immunohistochemistry")

@@ -29,8 +29,8 @@ from tqdm.auto import tqdm
 from classifiers.backbone import Backbone, load_backbone
 from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
 from classifiers.svm import OneVsOneSVC
-from infra.tensorfile import load_tensors, save_tensors
-from infra.threads import torch_threads
+from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.threads import torch_threads
 
 __all__ = ["FrameClassifier"]
 

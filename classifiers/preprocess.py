@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from infra.numba_cache import use_cache_dir
+from hbni_infra.numba_cache import use_cache_dir
 
 use_cache_dir()  # before any cached function is decorated
 

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from classifiers.data.image_folder import ImageFolder
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 __all__ = ["Camera", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
 

@@ -14,7 +14,7 @@ import numpy as np
 from torch import Tensor
 
 from classifiers.pipeline import FrameClassifier
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 
 def class_columns(clf: FrameClassifier, classes: Sequence[str]) -> list[int]:

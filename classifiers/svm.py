@@ -26,8 +26,8 @@ from torch import Tensor
 
 from classifiers.coupling import pairwise_coupling
 from classifiers.platt import fit_platt, platt_predict
-from infra.tensorfile import load_tensors, save_tensors
-from infra.threads import single_thread
+from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.threads import single_thread
 
 __all__ = ["OneVsOneSVC", "bias_scale", "objective", "train_squared_hinge"]
 

@@ -9,7 +9,7 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 
 def random_controllers(

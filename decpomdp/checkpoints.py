@@ -1,7 +1,7 @@
 """Fingerprinted checkpoints: tensors + JSON state that refuse to resume any run but the one that wrote them.
 
 A checkpoint file holds named tensors and a JSON header with its format ``version``, the writing run's
-``fingerprint`` (:mod:`infra.fingerprint`; its ``problem`` entry from :mod:`decpomdp.identity`) and the
+``fingerprint`` (:mod:`hbni_infra.fingerprint`; its ``problem`` entry from :mod:`decpomdp.identity`) and the
 run's counters and histories. Loading checks, in this order, that the file is a ``kind`` checkpoint of
 this ``version``, that its fingerprint equals this run's (else a ``ValueError`` names the first field
 that differs), and then reads counters and histories
@@ -18,8 +18,8 @@ from typing import Any
 
 from torch import Tensor
 
-from infra.tensorfile import load_tensors, save_tensors
-from infra.fingerprint import check_fingerprint
+from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.fingerprint import check_fingerprint
 
 
 def save_checkpoint(

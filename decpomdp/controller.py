@@ -10,8 +10,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from infra.checks import as_names
-from infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.checks import as_names
+from hbni_infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "decpomdp.JointController"
 _VERSION = 1

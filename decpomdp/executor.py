@@ -24,8 +24,8 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
-from infra.checks import first_difference
-from infra.fingerprint import check_fingerprint, digest
+from hbni_infra.checks import first_difference
+from hbni_infra.fingerprint import check_fingerprint, digest
 
 _STATE_KIND = "decpomdp.ControllerExecutor"
 

@@ -1,10 +1,10 @@
-"""The identity of an evaluator or a problem, for checkpoint fingerprints (:mod:`infra.fingerprint`).
+"""The identity of an evaluator or a problem, for checkpoint fingerprints (:mod:`hbni_infra.fingerprint`).
 
 A checkpoint records its run's fingerprint, whose ``problem`` entry is :func:`describe` of the
 evaluator: a flat, JSON-able ``{dotted name: value}`` dict. An object with a ``fingerprint()`` method
 describes itself (its entries are described in turn); any other object is described by its class
 and its public attributes, recursively (numbers, strings, flags and plain lists as they are, tensors
-and arrays by :func:`infra.fingerprint.digest`, functions by their qualified name), so two Monte
+and arrays by :func:`hbni_infra.fingerprint.digest`, functions by their qualified name), so two Monte
 Carlo evaluators of Dec-Tiger at horizons 3 and 4 differ in ``env.horizon``.
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from infra.fingerprint import digest
+from hbni_infra.fingerprint import digest
 
 _MAX_DEPTH = 4
 

@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 
 @runtime_checkable

@@ -26,7 +26,7 @@ from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.engine import draw_seed, engine_model
 from decpomdp.engine import run as run_engine
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 BACKENDS = ("engine", "torch")
 #: The backend a call without one uses: ``None`` (or ``"engine"``) is the engine wherever the domain is written

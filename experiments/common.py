@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from infra.files import atomic_write_bytes  # noqa: E402
+from hbni_infra.files import atomic_write_bytes  # noqa: E402
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -27,7 +27,7 @@ from experiments.common import beats, save_figure
 from experiments.report import write_report
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning_figures import bar_figure, comparison_table
-from infra.threads import set_threads
+from hbni_infra.threads import set_threads
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 

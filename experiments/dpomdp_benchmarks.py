@@ -40,9 +40,9 @@ from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search.cross_entropy import layered_mask, sample_controllers
 from experiments.common import save_figure
-from infra.files import atomic_write_text
-from infra.threads import set_threads
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.files import atomic_write_text
+from hbni_infra.threads import set_threads
+from hbni_infra.streams import stream_seed, torch_stream
 
 _EVALUATORS = ("exact", "monte_carlo")
 _ROW_KEYS = {"problem", "gamma", "horizon", "optimum", "source", "evaluator", "rollouts", "restarts", "gdice"}

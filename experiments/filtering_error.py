@@ -31,7 +31,7 @@ from experiments.common import save_figure
 from hbni_pyro.filters import decide, make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 BASELINES = ("voting", "max_of_mean", "ssbf")
 METHODS = (*BASELINES, "hbni", "hbni_oracle")

@@ -22,7 +22,7 @@ from hbni_pyro.density import gamma_log_prob
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.model import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:

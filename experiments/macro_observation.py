@@ -25,7 +25,7 @@ from hbni_pyro.filters import make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
 from hbni_pyro.validation import DTYPE
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 COLORS = {"hbni": "tab:blue", "ssbf": "tab:green"}
 

@@ -70,8 +70,8 @@ from experiments.steps.on_demand import OnDemandStreams
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
-from infra.streams import stream_seed
-from infra.threads import threads
+from hbni_infra.streams import stream_seed
+from hbni_infra.threads import threads
 
 
 class StageClock:

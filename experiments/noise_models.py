@@ -46,14 +46,14 @@ from experiments import noise_models_report as report
 from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from experiments.report import write_report
-from infra.cache import cached, source_identity
+from hbni_infra.cache import cached, source_identity
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import noise_model
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 BASELINES = ("ssbf", "max_of_mean")
 

@@ -37,8 +37,8 @@ from experiments.report import write_report
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning import paper_comparison, run_planner
 from experiments.steps.planning_figures import bar_figure, comparison_table
-from infra.threads import set_threads
-from infra.streams import stream_seed
+from hbni_infra.threads import set_threads
+from hbni_infra.streams import stream_seed
 
 PAPER = {"gdice_best_sampled": 14.44, "mmcs": 4.53, "monte_carlo_search": 2.07}
 

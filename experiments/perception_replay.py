@@ -35,7 +35,7 @@ from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 
 def _frames_to_reach(post: torch.Tensor, true: int, threshold: float) -> torch.Tensor:

@@ -22,7 +22,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.status import read_status
-from infra.files import atomic_write_text
+from hbni_infra.files import atomic_write_text
 
 
 def write_report(path: str | os.PathLike, text: str) -> Path:

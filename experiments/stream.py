@@ -32,7 +32,7 @@ from classifiers.sources import FrameSource, open_source
 from experiments.artifacts import latest_run, load_run
 from experiments.common import save_figure
 from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
-from infra.files import atomic_write_text
+from hbni_infra.files import atomic_write_text
 
 
 class Settings(NamedTuple):

@@ -49,8 +49,8 @@ from hbni_pyro.filters import HBNIFilter, StreamingFilter
 from hbni_pyro.generative import seeded_generator
 from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
-from infra.checks import as_int, as_probability
-from infra.files import atomic_write_bytes
+from hbni_infra.checks import as_int, as_probability
+from hbni_infra.files import atomic_write_bytes
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -40,8 +40,8 @@ from torch import Tensor
 
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, has_values
 from hbni_pyro.variants import noise_model
-from infra.checks import as_device, as_float, as_int
-from infra.threads import single_thread
+from hbni_infra.checks import as_device, as_float, as_int
+from hbni_infra.threads import single_thread
 
 
 def decide(probs: Tensor) -> Tensor:

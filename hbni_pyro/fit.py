@@ -37,8 +37,8 @@ from hbni_pyro.validation import (
     as_sequence_ids,
 )
 from hbni_pyro.variants import NoiseModel, noise_model
-from infra.checks import as_device, as_int, as_names
-from infra.threads import single_thread
+from hbni_infra.checks import as_device, as_int, as_names
+from hbni_infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
 DEFAULT_CHAINS = {"mh": 16, "nuts": 2}

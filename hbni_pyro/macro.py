@@ -28,8 +28,8 @@ from tqdm.auto import tqdm
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs, seeded_generator
 from hbni_pyro.validation import DTYPE, has_values
-from infra.checks import as_int, as_names, as_probability
-from infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.checks import as_int, as_names, as_probability
+from hbni_infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.MacroObservationModel"
 

@@ -16,8 +16,8 @@ from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
-from infra.checks import as_device, as_float, as_int, as_names
-from infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.checks import as_device, as_float, as_int, as_names
+from hbni_infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "hbni_pyro.HBNIPosterior"
 _VERSION = 2  # format version of saved posteriors

@@ -18,7 +18,7 @@ from hbni_pyro.fit import fit_many
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, noise_model
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 
 class SBCResult(NamedTuple):

@@ -12,7 +12,7 @@ import torch
 from hbni_pyro.calibration import binomial_stderr, threshold_checks
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.macro import MacroObservationProcess
-from infra.checks import as_float, as_probability
+from hbni_infra.checks import as_float, as_probability
 
 if TYPE_CHECKING:
     from hbni_pyro.posterior import HBNIPosterior

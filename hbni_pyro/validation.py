@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from infra.checks import first_difference
+from hbni_infra.checks import first_difference
 
 OUTPUT_FLOOR: float = 1e-6
 """Smallest probability an output entry may take after clamping (before renormalising)."""

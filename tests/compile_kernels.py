@@ -1,4 +1,4 @@
-"""Compile the project's numba kernels into their on-disk cache (``infra.numba_cache``), one part per process.
+"""Compile the project's numba kernels into their on-disk cache (``hbni_infra.numba_cache``), one part per process.
 
 ``tests/conftest.py`` runs both parts side by side before the suite's workers start. On a fresh machine each
 worker would otherwise compile every kernel it meets, several workers the same kernel at once (package

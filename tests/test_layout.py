@@ -2,9 +2,9 @@
 
 Checked statically on every module's imports (including imports inside functions):
 
-* ``infra`` imports nothing of the project;
-* ``classifiers`` and ``hbni_pyro`` never import each other, and import only ``infra`` of the rest;
-* ``decpomdp`` imports only ``infra``: it sees perception through its perception protocol;
+* ``hbni_infra`` imports nothing of the project;
+* ``classifiers`` and ``hbni_pyro`` never import each other, and import only ``hbni_infra`` of the rest;
+* ``decpomdp`` imports only ``hbni_infra``: it sees perception through its perception protocol;
 * no experiment entry point (the ``entry`` of a ``conf/experiment/*.yaml``) imports another.
 """
 
@@ -17,13 +17,13 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("infra", "hbni_pyro", "classifiers", "decpomdp", "experiments")
+PACKAGES = ("hbni_infra", "hbni_pyro", "classifiers", "decpomdp", "experiments")
 ALLOWED = {
-    "infra": set(),
-    "hbni_pyro": {"infra"},
-    "classifiers": {"infra"},
-    "decpomdp": {"infra"},
-    "experiments": {"infra", "hbni_pyro", "classifiers", "decpomdp"},
+    "hbni_infra": set(),
+    "hbni_pyro": {"hbni_infra"},
+    "classifiers": {"hbni_infra"},
+    "decpomdp": {"hbni_infra"},
+    "experiments": {"hbni_infra", "hbni_pyro", "classifiers", "decpomdp"},
 }
 
 

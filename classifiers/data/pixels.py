@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from infra.numba_cache import use_cache_dir
+from hbni_infra.numba_cache import use_cache_dir
 
 use_cache_dir()  # before any cached function is decorated
 

@@ -21,7 +21,7 @@ import numpy as np
 from classifiers.data import pixels
 from classifiers.data.conditions import Conditions, get_conditions
 from classifiers.data.sprites import SPRITE_SIZE, SPRITES, draw_sprite
-from infra.files import atomic_write_bytes
+from hbni_infra.files import atomic_write_bytes
 
 __all__ = [
     "FRAME_SHAPE",

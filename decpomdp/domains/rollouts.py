@@ -10,7 +10,7 @@ from decpomdp.core import DecPOSMDP
 from decpomdp.engine import draw_seed, engine_model
 from decpomdp.engine import run as run_engine
 from decpomdp.simulate import check, resolve_backend, simulate
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 _ROW = "_rollout_row"
 

@@ -30,7 +30,7 @@ from decpomdp.controller import JointController
 from decpomdp.dpomdp.backup import Columns, JointNodes, TransitionOperator, link, operator_for
 from decpomdp.dpomdp.krylov import gmres
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-from infra.threads import torch_threads
+from hbni_infra.threads import torch_threads
 
 DEFAULT_EVAL_BUDGET = 512 * 1024**2
 """Default working memory of :func:`exact_value`, bytes (512 MiB)."""

@@ -23,9 +23,9 @@ from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem, problem_names
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-from infra.checks import as_float, as_int
-from infra.streams import stream_seed, torch_stream
-from infra.threads import torch_threads
+from hbni_infra.checks import as_float, as_int
+from hbni_infra.streams import stream_seed, torch_stream
+from hbni_infra.threads import torch_threads
 
 MAX_FINITE_NODES = 32
 """Largest default controller for a finite horizon (``min(max(8, 3 h), 32)`` nodes)."""

@@ -18,7 +18,7 @@ import numpy as np
 
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.model import DPOMDPModel
-from infra.files import atomic_write_bytes
+from hbni_infra.files import atomic_write_bytes
 
 
 def _names(names: list[str]) -> str:

@@ -6,7 +6,7 @@ its controller, and their ``start`` rule begins the next MA. Rollouts are split 
 threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
 each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)`` (with
 common random numbers, ``(seed, first_controller, r)`` for every controller ``k``)
-(:mod:`infra.counter_random`), so the returns do not depend on the thread count or the chunking.
+(:mod:`hbni_infra.counter_random`), so the returns do not depend on the thread count or the chunking.
 
 A domain's rules are three compiled scalar functions on one rollout's state, an int64 vector ``si``
 and a float64 vector ``sf`` (see :class:`decpomdp.engine.EngineDomain`), marked
@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 from numba.core.compiler import Compiler
 
-from infra.counter_random import stream_key
+from hbni_infra.counter_random import stream_key
 
 ZERO_DURATION = 1  # error flag: a rule returned an end time not after the event that started it
 ONLY_0, ONLY_1 = (True, False), (False, True)  # the flags of an event where one of two agents completes alone

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from infra.counter_random import uniform
+from hbni_infra.counter_random import uniform
 
 
 class OutcomeTable(NamedTuple):

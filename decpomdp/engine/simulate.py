@@ -13,7 +13,7 @@ from torch import Tensor
 from decpomdp.controller import JointController
 from decpomdp.engine import loop
 from decpomdp.engine.domain import EngineModel
-from infra.threads import worker_threads
+from hbni_infra.threads import worker_threads
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 _EMPTY_FLOAT = np.zeros(0)
@@ -153,7 +153,7 @@ def run(
     keep_state: bool = False,
 ) -> EngineRun:
     """Simulate ``rollouts`` rollouts of each of the K controllers on the engine, on
-    :func:`infra.threads.worker_threads` threads.
+    :func:`hbni_infra.threads.worker_threads` threads.
 
     Args:
         env: a domain whose ``engine_model()`` is not ``None`` (sizes already checked by the caller).

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from infra.checks import as_float, as_int
+from hbni_infra.checks import as_float, as_int
 
 PHASES = ("ce", "ls")
 RESULTS = ("duel", "best_sampled")

@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.rollouts import shared

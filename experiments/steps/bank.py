@@ -8,7 +8,7 @@ crop setting and backbone weights), the code that draws and classifies frames, t
 the imaging conditions, the seed, the number of sequences per class, the frames per sequence, the
 frame shape and the torch and OpenCV versions.
 
-The bank is an entry of the project's one cache (:mod:`infra.cache`): the file name is a digest of
+The bank is an entry of the project's one cache (:mod:`hbni_infra.cache`): the file name is a digest of
 that fingerprint, a run whose inputs differ in any field builds its own bank next to the old one,
 and a file recording another fingerprint is refused, naming the first field that differs.
 
@@ -41,10 +41,10 @@ from tqdm.auto import tqdm
 
 from classifiers import FrameClassifier, class_columns
 from classifiers.data import FRAME_SHAPE, Conditions, render_sequence
-from infra.cache import FileLock, entry_path, load_entry, source_identity, store_entry, wait_for_entry
-from infra.fingerprint import digest
-from infra.streams import stream_seed
-from infra.threads import set_threads
+from hbni_infra.cache import FileLock, entry_path, load_entry, source_identity, store_entry, wait_for_entry
+from hbni_infra.fingerprint import digest
+from hbni_infra.streams import stream_seed
+from hbni_infra.threads import set_threads
 
 _KIND = "experiments.OutputBank"
 _VERSION = 3

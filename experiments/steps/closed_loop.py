@@ -42,7 +42,7 @@ from experiments.common import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps import honesty
 from experiments.steps.planning import delivery_rates, score
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 
 class Bootstrap(NamedTuple):

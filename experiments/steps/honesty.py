@@ -29,7 +29,7 @@ import torch
 import hbni_pyro
 from experiments import figures
 from hbni_pyro.calibration import stream_reliability
-from infra.streams import torch_stream
+from hbni_infra.streams import torch_stream
 
 ALPHA = 0.05
 """Family-wise level of the distribution check (split over its classes and its two statistics)."""

@@ -13,8 +13,8 @@ from tqdm.auto import tqdm
 
 from classifiers import FrameClassifier, class_columns
 from classifiers.data import render_images, render_sequence
-from infra.checks import as_int
-from infra.threads import single_thread, worker_threads
+from hbni_infra.checks import as_int
+from hbni_infra.threads import single_thread, worker_threads
 
 
 def train_classifier(
@@ -49,7 +49,7 @@ def sequence_outputs(
 
     Row ``c`` holds sequences of ``classes[c]``; output columns follow ``classes`` too (the
     classifier's own column order is alphabetical, ``clf.classes_``). ``workers`` threads (``None``:
-    :func:`infra.threads.worker_threads`, or one for a classifier set to several torch threads) render and
+    :func:`hbni_infra.threads.worker_threads`, or one for a classifier set to several torch threads) render and
     classify sequences side by side, each on one torch thread (rendering and the backbone release the
     GIL), so the outputs are the same for any ``workers``.
     """

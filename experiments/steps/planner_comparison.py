@@ -22,7 +22,7 @@ from decpomdp.search import PlannerConfig
 from experiments.common import save_figure
 from experiments.steps.planning import run_baselines, run_planner, run_seeded, score
 from experiments.steps.planning_figures import history_figure, planner_figure
-from infra.streams import stream_seed
+from hbni_infra.streams import stream_seed
 
 
 class Comparison(NamedTuple):

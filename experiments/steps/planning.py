@@ -18,7 +18,7 @@ from decpomdp import JointController, monte_carlo_search, random_controllers
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains import rollout_counters
 from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, mean_stderr, plan
-from infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_stream
 
 
 def score(

@@ -22,7 +22,7 @@ from torch import Tensor
 
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 
 def rm_rate(t: int) -> float:

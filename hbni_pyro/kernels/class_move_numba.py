@@ -14,7 +14,7 @@ third of them); :func:`accept` decides those by the Hastings ratio (about one in
 coin flip cost three times as much, the flip and the acceptance being branches the processor
 cannot predict.
 
-Random numbers are counter-based (SplitMix64, :mod:`infra.counter_random`), one stream per
+Random numbers are counter-based (SplitMix64, :mod:`hbni_infra.counter_random`), one stream per
 (iteration, chain, block), and the statistics are summed block by block in a fixed order, so a seed
 gives the same draws whatever the thread count. Classes are stored outputs-major, ``(D, N, Cp)``:
 an output's chains are adjacent, as every pass reads them.
@@ -27,7 +27,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from infra.counter_random import accepts, stream_key, uniform  # sets numba's cache directory (infra.numba_cache) first
+from hbni_infra.counter_random import (
+    accepts,
+    stream_key,
+    uniform,
+)  # sets numba's cache directory (hbni_infra.numba_cache) first
 
 ROWS = 512
 """Outputs per block (one random stream and one partial sum per chain and block)."""

@@ -43,7 +43,7 @@ from hbni_pyro.kernels.mh_steps import (
 )
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
-from infra.checks import as_float
+from hbni_infra.checks import as_float
 
 
 class ConfusionMetropolis(BatchedKernel):

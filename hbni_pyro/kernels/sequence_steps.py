@@ -24,7 +24,7 @@ from hbni_pyro.density import look_basis, look_log_marginal, normal_log_prob
 from hbni_pyro.kernels import sequence_numba
 from hbni_pyro.sequence_model import SequenceStats, look_residuals
 from hbni_pyro.wishart import logdet_spd, sample_wishart
-from infra.counter_random import draw_seed
+from hbni_infra.counter_random import draw_seed
 
 LOOK_CHUNK = 4096
 """Sequences per block when their looks are drawn by gathering each one's factors."""

@@ -97,7 +97,7 @@ def test_error_paths(tmp_path, standardized_features):
         OneVsOneSVC.load(bad)
     with pytest.raises(FileNotFoundError):
         OneVsOneSVC.load(tmp_path / "missing.safetensors")
-    from infra.tensorfile import save_tensors
+    from hbni_infra.tensorfile import save_tensors
 
     save_tensors(tmp_path / "other.safetensors", "something.else", {"a": torch.zeros(1)}, {})
     with pytest.raises(ValueError, match="holds something.else, expected a saved classifiers.OneVsOneSVC"):

@@ -12,7 +12,7 @@ from decpomdp.engine import run
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from decpomdp.search.moves import grow
 from decpomdp.search.racing import duel, race
-from infra.threads import threads
+from hbni_infra.threads import threads
 
 
 def _alike(controller: JointController) -> JointController:

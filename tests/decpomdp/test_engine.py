@@ -31,7 +31,7 @@ from decpomdp.engine.simulate import chunk_bounds, table_dtype
 from decpomdp.perception import PerfectPerception
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from hbni_pyro.generative import sample_outputs
-from infra.threads import threads
+from hbni_infra.threads import threads
 
 ROOT = Path(__file__).resolve().parents[2]
 N = 3000

@@ -11,8 +11,8 @@ from decpomdp.domains import DisasterRelief
 from decpomdp.domains.disaster_relief.rules import ACTION_NAMES
 from decpomdp.dpomdp import exact_value
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, lookahead
-from infra.streams import torch_stream
-from infra.threads import threads
+from hbni_infra.streams import torch_stream
+from hbni_infra.threads import threads
 
 from tiny_problems import dec_tiger
 

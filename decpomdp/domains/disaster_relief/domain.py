@@ -46,7 +46,7 @@ from decpomdp.domains.disaster_relief.rules import (
 )
 from decpomdp.engine import EngineModel, outcome_table
 from decpomdp.perception import PerceptionModel, PerfectPerception
-from infra.checks import as_float, as_int, as_probability
+from hbni_infra.checks import as_float, as_int, as_probability
 
 _DESTINATION = torch.as_tensor(rules.DESTINATION)
 _TRAVEL = torch.as_tensor(rules.TRAVEL)

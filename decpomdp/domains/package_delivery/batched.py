@@ -17,7 +17,7 @@ from torch import Tensor
 from decpomdp.batched import any_true, as_u8, equal_u8, lookup, pair, select
 from decpomdp.core import DecPOSMDP
 from decpomdp.engine import EngineModel, no_perception
-from infra.checks import as_float
+from hbni_infra.checks import as_float
 from decpomdp.domains.package_delivery import rules
 from decpomdp.domains.package_delivery.rules import (
     ACTION_NAMES,

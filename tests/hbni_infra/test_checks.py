@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from infra.checks import as_device, as_float, as_int, as_names, as_probability, first_difference
+from hbni_infra.checks import as_device, as_float, as_int, as_names, as_probability, first_difference
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), np.int32(3), torch.tensor(3)])

@@ -19,7 +19,7 @@ from pathlib import Path
 import numba
 
 
-INLINED = ("infra/counter_random.py", "decpomdp/engine/*.py")
+INLINED = ("hbni_infra/counter_random.py", "decpomdp/engine/*.py")
 """Sources (globs relative to the directory holding the project's packages) inlined into compiled code."""
 
 

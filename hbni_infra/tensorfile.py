@@ -5,7 +5,7 @@ header, then raw little-endian tensor bytes. Loading parses JSON and copies byte
 unpickled, so a foreign file cannot run code. The header's metadata holds ``kind`` (what the file
 holds, e.g. ``"decpomdp.JointController"``) and ``metadata`` (JSON), whose ``version`` is the format
 version of that kind: a loader names the version it reads and refuses any other, telling a file
-from a newer release of the package apart. Writes are atomic (:func:`infra.files.atomic_write_bytes`).
+from a newer release of the package apart. Writes are atomic (:func:`hbni_infra.files.atomic_write_bytes`).
 
 Files written before this module existed kept the kind under ``"<package>.kind"`` (and the
 metadata under ``"<package>.metadata"``); they still load.
@@ -23,7 +23,7 @@ from safetensors.torch import load as _st_load
 from safetensors.torch import save as _st_save
 from torch import Tensor
 
-from infra.files import atomic_write_bytes
+from hbni_infra.files import atomic_write_bytes
 
 _KIND_KEY = "kind"
 _META_KEY = "metadata"

@@ -10,7 +10,7 @@ import time
 import pytest
 import torch
 
-from infra.cache import FileLock, cached, entry_path, source_identity, store_entry
+from hbni_infra.cache import FileLock, cached, entry_path, source_identity, store_entry
 
 
 def test_cache_refuses_a_file_written_for_other_inputs(tmp_path):

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from infra.numba_cache import use_cache_dir
+from hbni_infra.numba_cache import use_cache_dir
 
 use_cache_dir()  # before this module's cached function is decorated, and any that inline it
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 from threadpoolctl import ThreadpoolController, threadpool_info
 
-from infra.threads import set_threads, single_thread, torch_threads, worker_threads
+from hbni_infra.threads import set_threads, single_thread, torch_threads, worker_threads
 
 
 def _blas_threads() -> list[int]:
@@ -39,7 +39,9 @@ def test_bad_thread_counts(bad, error):
 
 def test_a_whole_runs_setting_covers_torch_blas_opencv_and_compiled_loops(monkeypatch):
     before, blas, cv = torch.get_num_threads(), _blas_threads(), cv2.getNumThreads()
-    monkeypatch.setattr(importlib.import_module("infra.threads"), "_workers", None)  # the module, not infra.threads()
+    monkeypatch.setattr(
+        importlib.import_module("hbni_infra.threads"), "_workers", None
+    )  # the module, not hbni_infra.threads()
     with ThreadpoolController().limit(limits=blas[0], user_api="blas"):  # restores NumPy's BLAS afterwards
         try:
             set_threads(1)

@@ -17,7 +17,7 @@ import cv2
 import torch
 from threadpoolctl import ThreadpoolController
 
-from infra.checks import as_int
+from hbni_infra.checks import as_int
 
 _workers: int | None = None  # None: every core this process may run on
 _pools: ThreadpoolController | None = None  # the thread pools of loaded native libraries, found once

@@ -2,13 +2,13 @@
 
 import numba
 
-from infra import numba_cache
+from hbni_infra import numba_cache
 
 
 def _tree(root, random_source: str, loop_source: str):
-    (root / "infra").mkdir(parents=True, exist_ok=True)
+    (root / "hbni_infra").mkdir(parents=True, exist_ok=True)
     (root / "decpomdp" / "engine").mkdir(parents=True, exist_ok=True)
-    (root / "infra" / "counter_random.py").write_text(random_source)
+    (root / "hbni_infra" / "counter_random.py").write_text(random_source)
     (root / "decpomdp" / "engine" / "loop.py").write_text(loop_source)
     return root
 

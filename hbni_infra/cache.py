@@ -25,10 +25,10 @@ from typing import Any
 
 from torch import Tensor
 
-from infra.fingerprint import check_fingerprint, digest
-from infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.fingerprint import check_fingerprint, digest
+from hbni_infra.tensorfile import load_tensors, save_tensors
 
-KIND = "infra.CacheEntry"
+KIND = "hbni_infra.CacheEntry"
 _POLL_SECONDS = 1.0
 
 

@@ -7,8 +7,8 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from infra.counter_random import _ZIG_F, _ZIG_R, _ZIG_X, accepts, next_u64, normal, unit, uniform
-from infra.counter_random import stream_key as _stream_key
+from hbni_infra.counter_random import _ZIG_F, _ZIG_R, _ZIG_X, accepts, next_u64, normal, unit, uniform
+from hbni_infra.counter_random import stream_key as _stream_key
 
 
 def stream_key(seed: int, controller: int, rollout: int) -> np.uint64:

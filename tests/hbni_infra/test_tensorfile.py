@@ -6,7 +6,7 @@ import pytest
 import torch
 from safetensors.torch import save as st_save
 
-from infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.tensorfile import load_tensors, save_tensors
 
 
 def test_round_trip_is_exact_and_copies(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from infra.fingerprint import check_fingerprint, digest
+from hbni_infra.fingerprint import check_fingerprint, digest
 
 
 def test_digest_is_stable_and_sensitive():

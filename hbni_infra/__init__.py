@@ -1,0 +1,31 @@
+"""Infrastructure shared by ``hbni_pyro``, ``classifiers``, ``decpomdp`` and ``experiments``.
+
+A leaf package: it imports nothing of the project and holds no domain code.
+
+* :mod:`hbni_infra.files`: atomic, fsynced file writes that respect the umask.
+* :mod:`hbni_infra.tensorfile`: one-file storage of named tensors plus JSON metadata (safetensors, no pickle).
+* :mod:`hbni_infra.fingerprint`: what produced a checkpoint or cache, and a check that names the field that differs.
+* :mod:`hbni_infra.counter_random`: counter-based SplitMix64 random streams for compiled (numba) loops.
+* :mod:`hbni_infra.threads`: one thread setting for torch's intra-op threads and compiled loops' worker threads.
+
+See ``docs/architecture.md`` for where this sits in the project.
+"""
+
+from hbni_infra.files import atomic_write_bytes, atomic_write_text
+from hbni_infra.fingerprint import check_fingerprint, digest
+from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.threads import set_threads, single_thread, threads, torch_threads, worker_threads
+
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_fingerprint",
+    "digest",
+    "load_tensors",
+    "save_tensors",
+    "set_threads",
+    "single_thread",
+    "threads",
+    "torch_threads",
+    "worker_threads",
+]
