@@ -64,7 +64,7 @@ class Settings(NamedTuple):
     bag: bool
     controller: Path | None
     agent: int
-    observations: dict[str, str] | None
+    observations: dict[str, str]
     progress: bool
 
 
@@ -129,7 +129,7 @@ def read_settings(cfg: DictConfig) -> Settings:
         is_bag(source) if st.bag is None and not isinstance(source, int) else bool(st.bag),
         _path(st.controller),
         int(st.agent),
-        None if st.observations is None else {str(k): str(v) for k, v in st.observations.items()},
+        {str(k): str(v) for k, v in (st.observations or {}).items()},
         bool(cfg.progress),
     )
 

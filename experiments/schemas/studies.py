@@ -447,7 +447,7 @@ class StreamBlock:
     bag: Optional[bool] = MISSING  # write the ROS output bag (None: when the source is a bag)
     controller: Optional[str] = MISSING  # a saved JointController
     agent: int = MISSING
-    observations: Optional[dict[str, str]] = MISSING  # class name -> controller observation name
+    observations: Any = MISSING  # class name -> controller observation name (null: the class names)
 
     def check(self, path: str) -> None:
         from pathlib import Path
@@ -506,7 +506,14 @@ class StreamBlock:
                 "(null: only for a bag source)"
             )
         positive_int("agent", self.agent, minimum=0)
-        if self.observations is not None and self.controller is None:
+        if self.observations is not None and not (
+            isinstance(self.observations, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in self.observations.items())
+        ):
+            raise ValueError(
+                f"observations: expected a mapping of class names to observation names, got {self.observations!r}"
+            )
+        if self.observations and self.controller is None:
             raise ValueError("observations: maps classes to a controller's observations; give stream.controller")
 
 
