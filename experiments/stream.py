@@ -49,8 +49,6 @@ class Settings(NamedTuple):
     """The stream's validated settings."""
 
     source: str | int
-    topic: str | None
-    window: tuple[float, float | None] | None
     max_input_frames: int | None
     run: Path | None
     classifier: Path | None
@@ -61,11 +59,13 @@ class Settings(NamedTuple):
     max_frames: int
     batch: int
     annotate: tuple[str, ...]
-    bag: bool
-    controller: Path | None
-    agent: int
-    observations: dict[str, str]
     progress: bool
+    topic: str | None = None  # a bag source's image topic and time window
+    window: tuple[float, float | None] | None = None
+    bag: bool = False  # write the ROS output bag
+    controller: Path | None = None  # a saved JointController, its robot and the class -> observation names
+    agent: int = 0
+    observations: dict[str, str] | None = None
 
 
 class Models(NamedTuple):
@@ -114,8 +114,6 @@ def read_settings(cfg: DictConfig) -> Settings:
             raise FileNotFoundError(f"stream.run: {str(exc).removeprefix('name: ')}") from None
     return Settings(
         source,
-        st.topic,
-        None if st.window is None else (float(st.window[0]), None if st.window[1] is None else float(st.window[1])),
         st.max_input_frames,
         _path(run),
         _path(st.classifier),
@@ -126,11 +124,13 @@ def read_settings(cfg: DictConfig) -> Settings:
         int(st.max_frames),
         int(st.batch),
         tuple(st.annotate),
-        is_bag(source) if st.bag is None and not isinstance(source, int) else bool(st.bag),
-        _path(st.controller),
-        int(st.agent),
-        {str(k): str(v) for k, v in (st.observations or {}).items()},
         bool(cfg.progress),
+        topic=st.topic,
+        window=None if st.window is None else tuple(None if t is None else float(t) for t in st.window),
+        bag=is_bag(source) if st.bag is None and not isinstance(source, int) else bool(st.bag),
+        controller=_path(st.controller),
+        agent=int(st.agent),
+        observations=None if st.observations is None else {str(k): str(v) for k, v in st.observations.items()},
     )
 
 

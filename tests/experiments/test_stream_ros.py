@@ -3,8 +3,10 @@ in a lossless image folder, the source's stamps, the controller's decisions, and
 rosbags and with the mcap library's ROS 2 decoder."""
 
 import json
+import os
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -197,3 +199,31 @@ def test_bad_ros_settings_are_clear_errors(saved, recorded, extra, message):  # 
     cfg = _compose(saved, extra)
     with pytest.raises(ValueError, match=re.escape(message)):
         check_config(cfg)
+
+
+def test_the_ros_page_runs_as_written(tmp_path, saved, repo_root):  # noqa: F811
+    """docs/ros.md: its Python blocks run as a reader pastes them (the second after experiment=stream on the bag
+    the first writes), and the message definitions it shows are the registered ones."""
+    from hbni_pyro.ros import DEFINITIONS
+
+    page = (repo_root / "docs" / "ros.md").read_text()
+    for name, text in DEFINITIONS:
+        if name.startswith("hbni_msgs/"):
+            assert text in page, name
+    write_bag, read_output = re.findall(r"```python\n(.*?)```", page, re.S)
+    env = {**os.environ, "PYTHONPATH": str(repo_root), "HBNI_PYRO_ROOT": str(tmp_path)}
+    first = subprocess.run([sys.executable, "-c", write_bag], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert first.stdout.splitlines()[0] == "/camera/image_raw sensor_msgs/msg/Image 40 10.0 fps"
+    assert first.stdout.splitlines()[2] == "15"
+    run_dir = tmp_path / "outputs" / "stream" / "2026-01-01_00-00-00"
+    subprocess.run(
+        _args(saved, run_dir, "stream.source=flight"), cwd=tmp_path, env=env, check=True, capture_output=True
+    )
+    second = subprocess.run([sys.executable, "-c", read_output], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert second.returncode == 0, second.stderr[-2000:]
+    records = _records(run_dir)
+    lines = second.stdout.splitlines()
+    assert len(lines) == 2 * len(records) and lines[0].startswith(
+        f"{records[0]['label']} {records[0]['confidence']:.2f}"
+    )
