@@ -2,17 +2,14 @@
 
 Each :class:`~hbni_pyro.live.LiveMacroObservation` becomes, on topics under a namespace (``/hbni`` by default):
 
-================================  ===================================  ==============================================
-topic                             type                                 content
-================================  ===================================  ==============================================
-``<ns>/classification``           ``vision_msgs/msg/Classification``   one ``ObjectHypothesis`` per class, in the
-                                                                       posterior's order: ``class_id`` the class name,
-                                                                       ``score`` its posterior probability
-``<ns>/macro_observation``        ``hbni_msgs/msg/MacroObservation``   label, confidence, frames used, first and last
-                                                                       stamps, timed out (:data:`MACRO_OBSERVATION`)
-``<ns>/decision``                 ``hbni_msgs/msg/MacroActionDecision`` the controller's next MA (with a controller)
-``<ns>/annotated``                ``sensor_msgs/msg/Image``            annotated frames, ``bgr8`` (when asked)
-================================  ===================================  ==============================================
+* ``<ns>/classification``, ``vision_msgs/msg/Classification``: one ``ObjectHypothesis`` per class, in the
+  posterior's order, ``class_id`` the class name and ``score`` its posterior probability;
+* ``<ns>/macro_observation``, ``hbni_msgs/msg/MacroObservation`` (:data:`MACRO_OBSERVATION`): label,
+  confidence, frames used, first and last stamps, timed out;
+* ``<ns>/decision``, ``hbni_msgs/msg/MacroActionDecision`` (:data:`MACRO_ACTION_DECISION`): the controller's
+  next macro-action, when it made one;
+
+and annotated frames go to ``<ns>/annotated`` as ``sensor_msgs/msg/Image`` (``bgr8``) when asked.
 
 Every header carries the stamp of the last frame the macro-observation used and that frame's ``frame_id``; in a
 bag, its messages are logged at that frame's receive time, so the output bag lines up with the input bag.
