@@ -5,6 +5,16 @@ Never imports ``hbni_pyro``: the two packages meet on a plain ``(N, M)`` probabi
 See ``docs/architecture.md`` for where this sits between the camera and the noise model.
 """
 
+try:
+    import cv2  # noqa: F401
+except ImportError as exc:  # OpenCV is the user's choice (pyproject.toml's `opencv` extra)
+    raise ImportError(
+        "classifiers needs OpenCV: install the machine's own build (opencv-python, a ROS build) or "
+        "`pip install hbni-pyro[opencv]` (opencv-python-headless)"
+    ) from exc
+
+from hbni_infra.version import __version__
+
 from classifiers.backbone import Backbone, EfficientNetLite0, default_weights_path, load_backbone
 from classifiers.coupling import pairwise_coupling
 from classifiers.pipeline import FrameClassifier
@@ -14,6 +24,7 @@ from classifiers.stream import class_columns, classify_frames
 from classifiers.svm import OneVsOneSVC
 
 __all__ = [
+    "__version__",
     "Backbone",
     "EfficientNetLite0",
     "FrameClassifier",

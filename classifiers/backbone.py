@@ -212,7 +212,9 @@ def _build(name: str, weights_path: Path) -> nn.Module:
         try:
             import torchvision
         except Exception as exc:
-            raise ImportError("name='alexnet' needs a working torchvision install") from exc
+            raise ImportError(
+                "name='alexnet' needs a working torchvision: pip install 'hbni-pyro[torchvision]'"
+            ) from exc
         net = torchvision.models.alexnet(weights=None)
     try:
         net.load_state_dict(state, strict=True)

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from hbni_infra.checks import as_int
+from hbni_infra.optional import require
 
 #: the classes: scikit-image's bundled colour photographs, by their ``skimage.data`` name
 PHOTOS = ("astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "immunohistochemistry")
@@ -81,9 +82,8 @@ def photo(name: str) -> np.ndarray:
     """The photograph ``name`` of :data:`PHOTOS` as a float32 BGR array ``(H, W, 3)`` in grey levels."""
     if name not in PHOTOS:
         raise ValueError(f"name: expected one of {list(PHOTOS)}, got {name!r}")
-    import skimage.data
-
-    rgb = getattr(skimage.data, name)()[..., :3]
+    data = require("skimage.data", "experiments", "the sample photographs")
+    rgb = getattr(data, name)()[..., :3]
     return np.ascontiguousarray(rgb[..., ::-1], dtype=np.float32)
 
 

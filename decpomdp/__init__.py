@@ -8,6 +8,8 @@ Perception enters only through :class:`PerceptionModel`; this package never impo
 See ``docs/architecture.md`` for the layout and the data's path from pixels to policy.
 """
 
+from hbni_infra.version import __version__
+
 from decpomdp.baselines import SearchResult, monte_carlo_search, random_controllers
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
@@ -19,6 +21,7 @@ from decpomdp.search import ExactScorer, PlannerConfig, PlannerResult, RolloutSc
 from decpomdp.simulate import simulate
 
 __all__ = [
+    "__version__",
     "ControllerExecutor",
     "DecPOSMDP",
     "DisasterRelief",

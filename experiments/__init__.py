@@ -1,9 +1,26 @@
-"""Hydra entry points. ``python -m experiments.run experiment=<name>`` runs one study;
+"""Hydra entry points. ``hbni-pyro experiment=<name>`` (or ``python -m experiments.run``) runs one study;
 ``experiments.load_run(run_dir)`` loads a finished run's config, metrics and fitted objects.
 
-See ``docs/architecture.md`` for the layout and the shared steps.
+The package's configs ship inside it (``experiments/conf``, the repository's ``conf/``). Importing the
+package imports nothing heavy: Hydra and OmegaConf load when a name below is first used. See
+``docs/architecture.md`` for the layout and the shared steps.
 """
 
-from experiments.artifacts import Run, latest_run, load_run
+from __future__ import annotations
 
-__all__ = ["Run", "latest_run", "load_run"]
+from typing import TYPE_CHECKING, Any
+
+from hbni_infra.version import __version__
+
+if TYPE_CHECKING:
+    from experiments.artifacts import Run, latest_run, load_run
+
+__all__ = ["Run", "__version__", "latest_run", "load_run"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("Run", "latest_run", "load_run"):
+        from experiments import artifacts
+
+        return getattr(artifacts, name)
+    raise AttributeError(f"module 'experiments' has no attribute {name!r}")

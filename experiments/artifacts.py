@@ -171,8 +171,7 @@ def latest_run(name: str, root: str | os.PathLike | None = None) -> Path:
     )
     if not runs:
         raise FileNotFoundError(
-            f"name: no completed {name!r} run under {str(Path(root) / name)!r}; "
-            f"run `python -m experiments.run experiment={name}` first"
+            f"name: no completed {name!r} run under {str(Path(root) / name)!r}; run `hbni-pyro experiment={name}` first"
         )
     return runs[-1]
 

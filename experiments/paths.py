@@ -1,8 +1,9 @@
-"""Where runs, sweeps and caches live: one root, the same from any working directory.
+"""Where runs, sweeps and caches live: under one root, never inside the installed package.
 
-The root is the environment variable ``HBNI_PYRO_ROOT`` when set, else the project folder (the one that holds
-``conf/`` and ``experiments/``). The config reads it as ``${paths.root}`` (``conf/config.yaml``), and
-:func:`experiments.latest_run` and ``stream.run=latest`` look under ``<root>/outputs``.
+The root is the environment variable ``HBNI_PYRO_ROOT`` when set, else the current working directory (as
+with any command-line tool: run from a checkout's root, the runs land in its ``outputs/``). The config reads
+it as ``${paths.root}`` (``conf/config.yaml``), and :func:`experiments.latest_run` and ``stream.run=latest``
+look under ``<root>/outputs``.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ ROOT_VARIABLE = "HBNI_PYRO_ROOT"
 
 
 def project_root() -> Path:
-    """The root every default path is relative to (absolute)."""
+    """The root every default path is relative to (absolute): ``HBNI_PYRO_ROOT``, else the working directory."""
     override = os.environ.get(ROOT_VARIABLE)
-    return Path(override).expanduser().resolve() if override else Path(__file__).resolve().parents[1]
+    return Path(override).expanduser().resolve() if override else Path.cwd().resolve()
 
 
 def outputs_root() -> Path:

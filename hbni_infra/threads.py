@@ -12,8 +12,8 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
+from types import ModuleType
 
-import cv2
 import torch
 from threadpoolctl import ThreadpoolController
 
@@ -39,16 +39,29 @@ def torch_threads(threads: int | None) -> Iterator[None]:
     (``None``: unchanged), then restore them (OpenCV's setting is the process's: on one thread, the renderer's
     frames cost about 14 % less CPU time than on two, and are the same)."""
     _check(threads)
-    before, before_cv = torch.get_num_threads(), cv2.getNumThreads()
+    cv2 = _opencv()
+    before = torch.get_num_threads()
+    before_cv = cv2.getNumThreads() if cv2 is not None else None
     if threads is not None:
         torch.set_num_threads(threads)
-        cv2.setNumThreads(threads)
+        if cv2 is not None:
+            cv2.setNumThreads(threads)
     try:
         with _blas_threads(threads):
             yield
     finally:
         torch.set_num_threads(before)
-        cv2.setNumThreads(before_cv)
+        if cv2 is not None:
+            cv2.setNumThreads(before_cv)
+
+
+def _opencv() -> ModuleType | None:
+    """OpenCV's module where one is installed (``classifiers`` needs it; ``hbni_pyro`` and ``decpomdp`` do not)."""
+    try:
+        import cv2
+    except ImportError:
+        return None
+    return cv2
 
 
 def single_thread() -> contextlib.AbstractContextManager[None]:
@@ -74,7 +87,9 @@ def set_threads(count: int) -> None:
     global _workers
     _check(count)
     torch.set_num_threads(count)
-    cv2.setNumThreads(count)
+    cv2 = _opencv()
+    if cv2 is not None:
+        cv2.setNumThreads(count)
     _blas_threads(count)  # a limit applies when made; it is never lifted
     _workers = count
 

@@ -15,6 +15,8 @@ macro-observations (:func:`macro_observations`, :class:`Segment`).
 See ``docs/architecture.md`` for the model, the layout and the conventions.
 """
 
+from hbni_infra.version import __version__
+
 from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
@@ -46,6 +48,7 @@ from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 from hbni_pyro.variants import NOISE_MODELS, NoiseModel, noise_model, register
 
 __all__ = [
+    "__version__",
     "FILTERS",
     "NOISE_MODELS",
     "OUTPUT_FLOOR",

@@ -51,6 +51,7 @@ from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
 from hbni_infra.checks import as_int, as_probability
 from hbni_infra.files import atomic_write_bytes
+from hbni_infra.optional import require
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -134,10 +135,9 @@ class CheckResult:
 
     def figure(self) -> "Figure":
         """A matplotlib Figure: the reliability diagram (labelled only) and frames-to-threshold histograms,
-        observed against predicted."""
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(10 if self.labelled else 5, 4), layout="constrained")
+        observed against predicted (needs matplotlib: the ``analysis`` extra)."""
+        figure = require("matplotlib.figure", "analysis", "CheckResult.figure()")
+        fig = figure.Figure(figsize=(10 if self.labelled else 5, 4), layout="constrained")
         axes = fig.subplots(1, 2 if self.labelled else 1, squeeze=False)[0]
         if self.labelled and self.observed is not None and self.predicted is not None:
             ax = axes[0]

@@ -18,6 +18,7 @@ from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from hbni_infra.checks import as_device, as_float, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.optional import require
 
 _KIND = "hbni_pyro.HBNIPosterior"
 _VERSION = 2  # format version of saved posteriors
@@ -281,11 +282,8 @@ class HBNIPosterior:
             raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
 
     def to_arviz(self) -> Any:
-        """An ``arviz.InferenceData`` with the draws (needs the optional ``arviz`` package)."""
-        try:
-            import arviz
-        except ImportError as exc:
-            raise ImportError("to_arviz() needs arviz: pip install arviz") from exc
+        """An ``arviz.InferenceData`` with the draws (needs ArviZ: the ``analysis`` extra)."""
+        arviz = require("arviz", "analysis", "HBNIPosterior.to_arviz()")
         return arviz.from_dict(
             posterior={k: v.numpy() for k, v in self.samples.items()},
             dims=self.noise_model.arviz_dims,

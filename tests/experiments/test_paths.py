@@ -1,4 +1,4 @@
-"""One root for runs, sweeps and caches: the project folder (or HBNI_PYRO_ROOT), whatever the working directory."""
+"""One root for runs, sweeps and caches: the working directory (or HBNI_PYRO_ROOT), never the installed package."""
 
 import json
 import os
@@ -19,16 +19,17 @@ def _compose(*overrides):
         return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
 
 
-def test_defaults_resolve_against_the_project_from_any_directory(tmp_path, monkeypatch):
+def test_defaults_resolve_against_the_working_directory(tmp_path, monkeypatch):
     monkeypatch.delenv("HBNI_PYRO_ROOT", raising=False)
     monkeypatch.chdir(tmp_path)
-    assert project_root() == ROOT
+    here = tmp_path.resolve()
+    assert project_root() == here
     cfg = _compose("experiment=mission")
     check_config(cfg)
-    assert cfg.paths.root == str(ROOT) and cfg.mission.bank.cache_dir == str(ROOT / ".cache" / "banks")
-    assert cfg.hydra.run.dir.startswith(str(ROOT / "outputs" / "mission"))
-    assert cfg.hydra.sweep.dir.startswith(str(ROOT / "multirun" / "mission"))
-    assert _compose("experiment=noise_models").study.cache_dir == str(ROOT / ".cache" / "noise_models")
+    assert cfg.paths.root == str(here) and cfg.mission.bank.cache_dir == str(here / ".cache" / "banks")
+    assert cfg.hydra.run.dir.startswith(str(here / "outputs" / "mission"))
+    assert cfg.hydra.sweep.dir.startswith(str(here / "multirun" / "mission"))
+    assert _compose("experiment=noise_models").study.cache_dir == str(here / ".cache" / "noise_models")
 
 
 def test_the_root_can_be_moved_and_latest_run_finds_its_runs_from_anywhere(tmp_path, monkeypatch):
