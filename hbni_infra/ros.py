@@ -1,8 +1,8 @@
 """ROS plumbing shared by the bag reader (:mod:`classifiers.bags`) and the bag writer (:mod:`hbni_pyro.ros`).
 
 * The ``ros`` extra's packages (``rosbags``, ``rosbags-image``, ``mcap``, ``mcap-ros2-support``) are imported
-  on first use by :func:`require`, which says what to install when one is missing: the libraries import
-  without them.
+  on first use by :func:`require` (:func:`hbni_infra.optional.require`), which says what to install when one is
+  missing: the libraries import without them, and this module without OpenCV too.
 * ROS times (``builtin_interfaces/msg/Time``, ROS 1 ``time``: seconds and nanoseconds) travel through the
   project as integer nanoseconds since the epoch (:func:`nanoseconds`, :func:`time_fields`).
 * Camera images: :func:`image_message` writes a uint8 BGR frame as a ``sensor_msgs/msg/Image`` (``bgr8``,
@@ -15,25 +15,22 @@
 from __future__ import annotations
 
 import functools
-import importlib
 from types import ModuleType
 from typing import Any
 
-import cv2
 import numpy as np
 
-INSTALL = "pip install 'hbni-pyro[ros]'"
-"""How to install the ``ros`` extra."""
+from hbni_infra.optional import require as _optional
 
 NS_PER_S = 1_000_000_000
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 RAW_ENCODINGS = {
     "bgr8": None,
-    "rgb8": cv2.COLOR_BGR2RGB,
-    "mono8": cv2.COLOR_BGR2GRAY,
-    "bgra8": cv2.COLOR_BGR2BGRA,
-    "rgba8": cv2.COLOR_BGR2RGBA,
+    "rgb8": "COLOR_BGR2RGB",
+    "mono8": "COLOR_BGR2GRAY",
+    "bgra8": "COLOR_BGR2BGRA",
+    "rgba8": "COLOR_BGR2RGBA",
 }
 """Encodings :func:`image_message` writes as ``sensor_msgs/msg/Image``, with the OpenCV conversion from BGR."""
 COMPRESSED_FORMATS = {"jpeg": ".jpg", "png": ".png"}
@@ -41,14 +38,12 @@ COMPRESSED_FORMATS = {"jpeg": ".jpg", "png": ".png"}
 
 
 def require(module: str) -> ModuleType:
-    """Import ``module`` (one of the ``ros`` extra's), or raise an ImportError that says what to install."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise ImportError(
-            f"{module} is needed to read and write ROS bags; install the ros extra: {INSTALL} "
-            "(rosbags, rosbags-image, mcap, mcap-ros2-support; no ROS installation is needed)"
-        ) from exc
+    """``module`` of the ``ros`` extra, or an ImportError that says to install it (no ROS installation needed)."""
+    return _optional(module, "ros", "Reading and writing ROS bags")
+
+
+def _cv2() -> ModuleType:
+    return _optional("cv2", "opencv", "Converting camera images to and from ROS messages")
 
 
 def nanoseconds(stamp: Any) -> int:
@@ -95,6 +90,7 @@ def image_message(store: Any, image: np.ndarray, stamp: int, frame_id: str = "",
     """
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image: expected a uint8 BGR array (H, W, 3), got {_describe(image)}")
+    cv2 = _cv2()
     head = header(store, stamp, frame_id)
     if encoding in COMPRESSED_FORMATS:
         ok, buffer = cv2.imencode(COMPRESSED_FORMATS[encoding], image)
@@ -104,7 +100,7 @@ def image_message(store: Any, image: np.ndarray, stamp: int, frame_id: str = "",
     if encoding not in RAW_ENCODINGS:
         raise ValueError(f"encoding: expected one of {[*RAW_ENCODINGS, *COMPRESSED_FORMATS]}, got {encoding!r}")
     code = RAW_ENCODINGS[encoding]
-    pixels = np.ascontiguousarray(image if code is None else cv2.cvtColor(image, code))
+    pixels = np.ascontiguousarray(image if code is None else cv2.cvtColor(image, getattr(cv2, code)))
     h, w = pixels.shape[:2]
     return store.types[IMAGE](
         header=head,
@@ -127,6 +123,7 @@ def image_from_message(msg: Any) -> np.ndarray:
     Raises:
         ValueError: an unknown encoding, data shorter than its header says, or bytes that do not decode.
     """
+    cv2 = _cv2()
     data = np.frombuffer(msg.data, np.uint8)
     if hasattr(msg, "format"):  # a CompressedImage
         frame = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None

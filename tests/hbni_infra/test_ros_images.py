@@ -102,7 +102,10 @@ def test_bad_images_are_clear_errors(bgr):
 
 
 def test_a_missing_extra_says_what_to_install():
-    with pytest.raises(ImportError, match=r"no_such_ros_module is needed .* pip install 'hbni-pyro\[ros\]'"):
+    with pytest.raises(
+        ImportError,
+        match=r"Reading and writing ROS bags needs the package 'no_such_ros_module': pip install 'hbni-pyro\[ros\]'",
+    ):
         ros.require("no_such_ros_module")
 
 
