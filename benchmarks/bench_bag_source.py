@@ -15,7 +15,7 @@ is kept (CPU time: what this process spent, whatever else runs on the machine). 
 and the frame rate it allows, and the ratio of each source's throughput to the folder's (1.00: the same;
 the acceptance is a bag within 10 % of the folder end to end, ratio >= 0.90).
 
-Usage: ``python benchmarks/bench_bag_source.py [--frames 180] [--repeats 3] [--seed 0]``
+Usage: ``python -m benchmarks.bench_bag_source [--frames 180] [--repeats 3] [--seed 0]``
 """
 
 from __future__ import annotations
