@@ -102,8 +102,10 @@ class BagSource(FrameSource):
     ) -> None:
         self.max_frames = _frame_limit(max_frames)
         self.window = _window(window)
-        if topic is not None and (not isinstance(topic, str) or not topic):
-            raise TypeError(f"topic: expected a topic name (str) or None, got {topic!r}")
+        if topic is not None and not isinstance(topic, str):
+            raise TypeError(f"topic: expected a topic name (str) or None, got {type(topic).__name__}")
+        if topic == "":
+            raise ValueError("topic: expected a topic name or None, got ''")
         self.path = Path(path)
         if not self.path.exists():
             raise FileNotFoundError(f"source: no such bag {str(self.path)!r}")

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import array
 import collections
+import functools
 import importlib
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -153,6 +154,7 @@ def to_rclpy(msg: Any, resolve: Callable[[str], type]) -> Any:
     return resolve(msg.__msgtype__)(**fields)
 
 
+@functools.cache
 def rclpy_class(msgtype: str) -> type:
     """The ``rclpy`` class of ``pkg/msg/Name`` (its Python package must be importable)."""
     package, _, name = msgtype.split("/")
@@ -172,11 +174,10 @@ def run_node(args: argparse.Namespace) -> None:  # the rclpy glue: not exercised
         raise ImportError(f"rclpy is not importable ({exc}); {ROS2_MISSING}") from exc
     pipeline = load_pipeline(args)
     names = topic_names(args.namespace)
-    classes = {msgtype: rclpy_class(msgtype) for _, msgtype in TOPICS.values()}
     image_type = rclpy_class(ros.COMPRESSED_IMAGE if args.compressed else ros.IMAGE)
     rclpy.init()
     node = rclpy.create_node(args.name)
-    publishers = {role: node.create_publisher(classes[t], names[role], 10) for role, (_, t) in TOPICS.items()}
+    publishers = {role: node.create_publisher(rclpy_class(t), names[role], 10) for role, (_, t) in TOPICS.items()}
     frames = FrameQueue(args.queue)
     counter = iter(range(1 << 62))
 
@@ -184,7 +185,7 @@ def run_node(args: argparse.Namespace) -> None:  # the rclpy glue: not exercised
         frames.put(stamped_frame(msg, next(counter), node.get_clock().now().nanoseconds))
 
     def publish(role: str, message: Any) -> None:
-        publishers[role].publish(to_rclpy(message, classes.__getitem__))
+        publishers[role].publish(to_rclpy(message, rclpy_class))
 
     def work() -> None:
         try:

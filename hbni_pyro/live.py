@@ -119,6 +119,11 @@ def live_macro_observations(
     names = None if controller is None else observation_names(classes, controller.obs_names, observations)
     for segment in macro_observations(items, process, classes, keep_frames=True):
         first, last = segment.frames[0], segment.frames[-1]
+        if not all(hasattr(first, name) for name in ("stamp", "received", "frame_id")):
+            raise TypeError(
+                "items: expected frames with stamp, received and frame_id attributes (a stamped source's "
+                f"frames, classifiers.stamped.StampedFrame), got {type(first).__name__}"
+            )
         running = process.filter.run(segment.outputs.unsqueeze(0))[0].cpu()
         decision = None
         if names is not None and not segment.stream_ended:

@@ -177,7 +177,7 @@ def _compose(saved, extra):  # noqa: F811
     register()
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        return compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + extra)
+        return compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["progress=false", *extra])
 
 
 @pytest.mark.parametrize(

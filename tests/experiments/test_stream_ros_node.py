@@ -6,6 +6,7 @@ import array
 import subprocess
 import sys
 import threading
+import types
 from types import SimpleNamespace
 
 import numpy as np
@@ -20,19 +21,28 @@ from test_stream import CLASSES, saved  # noqa: F401 (saved is a fixture)
 from test_stream_ros import _compose, recorded  # noqa: F401 (recorded is a fixture)
 
 
-def _rclpy_like(store):
-    """Stand-ins for rclpy message classes: keyword construction, and only the fields the message type has."""
+@pytest.fixture
+def rclpy_messages(monkeypatch):
+    """Stand-ins for the ROS 2 message packages (std_msgs.msg, vision_msgs.msg, hbni_msgs.msg, ...) as rclpy
+    generates them: a class per type, built with keywords, which refuses a field its type does not have."""
+    store = typestore()
+    modules = {}
+    for msgtype, (_, fields) in store.fielddefs.items():
+        package, _, name = msgtype.split("/")
+        names = [field for field, _ in fields]
 
-    def resolve(msgtype):
-        fields = [name for name, _ in store.fielddefs[msgtype][1]]
-
-        def init(self, **kw):
-            assert sorted(kw) == sorted(fields), (msgtype, sorted(kw))
+        def init(self, _names=names, _type=msgtype, **kw):
+            assert set(kw) <= set(_names), (_type, sorted(set(kw) - set(_names)))
             self.__dict__.update(kw)
 
-        return type(msgtype.rsplit("/", 1)[1], (), {"__init__": init, "msgtype": msgtype})
-
-    return resolve
+        module = modules.setdefault(package, types.ModuleType(f"{package}.msg"))
+        setattr(module, name, type(name, (), {"__init__": init, "msgtype": msgtype}))
+    for package, module in modules.items():
+        monkeypatch.setitem(sys.modules, f"{package}.msg", module)
+        monkeypatch.setitem(sys.modules, package, types.ModuleType(package))
+    ros_node.rclpy_class.cache_clear()
+    yield
+    ros_node.rclpy_class.cache_clear()
 
 
 def _as_rclpy_image(msg):
@@ -49,7 +59,7 @@ def _as_rclpy_image(msg):
     )
 
 
-def test_the_node_publishes_what_the_stream_writes_to_its_bag(tmp_path, saved, recorded):  # noqa: F811
+def test_the_node_publishes_what_the_stream_writes_to_its_bag(tmp_path, saved, recorded, rclpy_messages):  # noqa: F811
     from rosbags.highlevel import AnyReader
 
     mapping = ",".join(f"{c}:saw_{c}" for c in CLASSES)
@@ -88,20 +98,20 @@ def test_the_node_publishes_what_the_stream_writes_to_its_bag(tmp_path, saved, r
         )
     )
     published = []
-    resolve = _rclpy_like(typestore())
     producer.start()
     ros_node.process_frames(
-        queue, pipeline, lambda role, msg: published.append((role, ros_node.to_rclpy(msg, resolve)))
+        queue, pipeline, lambda role, msg: published.append((role, ros_node.to_rclpy(msg, ros_node.rclpy_class)))
     )
     producer.join()
     assert queue.dropped == 0
     assert [role for role, _ in published] == [role for role, _ in written]  # log-time order = publication order
     assert sum(role == "decision" for role, _ in published) >= 2
     for (role, ours), (_, theirs) in zip(published, written):
-        assert ours.msgtype == theirs.__msgtype__
+        assert ours.msgtype == theirs.__msgtype__ and ours.header.stamp.msgtype == "builtin_interfaces/msg/Time"
         assert ros.nanoseconds(ours.header.stamp) == ros.nanoseconds(theirs.header.stamp)
         if role == "classification":
             assert [(h.class_id, h.score) for h in ours.results] == [(h.class_id, h.score) for h in theirs.results]
+            assert {h.msgtype for h in ours.results} == {"vision_msgs/msg/ObjectHypothesis"}
         elif role == "macro_observation":
             assert (ours.label, ours.frames_used, ours.timed_out) == (
                 theirs.label,

@@ -100,3 +100,6 @@ def test_observation_names_are_checked_against_the_controller():
     executor = ControllerExecutor(_controller(), 0, _controller().action_names, _controller().obs_names)
     with pytest.raises(ValueError, match="but it has no observation"):
         next(live_macro_observations(_items(), _process(), NAMES, executor))
+    plain = [(None, output) for _, output in _items()]
+    with pytest.raises(TypeError, match="items: expected frames with stamp, received and frame_id attributes"):
+        next(live_macro_observations(plain, _process(), NAMES))
