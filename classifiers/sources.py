@@ -1,16 +1,20 @@
-"""Frame sources: a video file, a folder of frames or a camera, read through OpenCV.
+"""Frame sources: a video file, a folder of frames or a camera, read through OpenCV, and ROS bags.
 
 Every source iterates over uint8 BGR frames ``(H, W, 3)``, the layout
 :meth:`classifiers.FrameClassifier.predict_proba` takes, and is a context manager that releases
-its file or device. :func:`open_source` picks the kind from what it is given:
+its file or device. :meth:`FrameSource.stamped` gives the same frames as
+:class:`~classifiers.stamped.StampedFrame` s, with their header stamp and receive time.
+:func:`open_source` picks the kind from what it is given:
 
+* a ROS bag (a rosbag2 directory, or a ``.mcap``, ``.db3`` or ``.bag`` file):
+  :class:`~classifiers.bags.BagSource`, one image topic (the ``ros`` extra);
 * an existing directory: :class:`FrameFolder`, a flat folder of images read in name order
   (numbers compared as numbers, so ``frame_2.png`` comes before ``frame_10.png``) by
   :class:`classifiers.data.ImageFolder`;
 * an existing file: :class:`VideoFile`, any container and codec the OpenCV build decodes;
 * an int (or a string of digits that is not a path): :class:`Camera`, a device index.
 
-A video file or folder can be iterated more than once (each pass starts at its first frame); a
+A bag, video file or folder can be iterated more than once (each pass starts at its first frame); a
 camera is one live stream.
 """
 
@@ -18,7 +22,8 @@ from __future__ import annotations
 
 import abc
 import os
-from collections.abc import Iterator
+import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +31,9 @@ import cv2
 import numpy as np
 
 from classifiers.data.image_folder import ImageFolder
+from classifiers.stamped import StampedFrame
 from hbni_infra.checks import as_int
+from hbni_infra.ros import NS_PER_S
 
 __all__ = ["Camera", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
 
@@ -44,6 +51,14 @@ class FrameSource(abc.ABC):
 
     @abc.abstractmethod
     def __iter__(self) -> Iterator[np.ndarray]: ...
+
+    def stamped(self) -> Iterator[StampedFrame]:
+        """The frames with their times (ns): a file's or folder's frame ``i`` is stamped ``i / fps`` on its own
+        timeline when the source has a frame rate, else when it is read; it is received when it is read."""
+        for index, image in enumerate(self):
+            now = time.time_ns()
+            stamp = now if self.fps is None else round(index * NS_PER_S / self.fps)
+            yield StampedFrame(image, stamp, now, "", index)
 
     def close(self) -> None:
         """Release the file or device (iteration after closing is an error for a camera only)."""
@@ -182,6 +197,12 @@ class Camera(FrameSource):
             raise ValueError(f"source: camera {self.index} is closed")
         yield from _read_all(self._capture, self.max_frames)
 
+    def stamped(self) -> Iterator[StampedFrame]:
+        """The frames, stamped and received when they are read (ns since the epoch)."""
+        for index, image in enumerate(self):
+            now = time.time_ns()
+            yield StampedFrame(image, now, now, "", index)
+
     def close(self) -> None:
         self._capture.release()
 
@@ -189,25 +210,40 @@ class Camera(FrameSource):
         return f"Camera({self.index}, max_frames={self.max_frames})"
 
 
-def open_source(source: str | int | os.PathLike, max_frames: int | None = None) -> FrameSource:
-    """A :class:`FrameSource` for a video file, a folder of frames or a camera index.
+def open_source(
+    source: str | int | os.PathLike,
+    max_frames: int | None = None,
+    topic: str | None = None,
+    window: Sequence[float | None] | None = None,
+) -> FrameSource:
+    """A :class:`FrameSource` for a ROS bag, a video file, a folder of frames or a camera index.
 
     Args:
-        source: an existing file (video) or directory (frames), or a camera index (an int, or a
-            string of digits that names no existing path).
+        source: a ROS bag (:func:`classifiers.bags.is_bag`), an existing file (video) or directory (frames), or
+            a camera index (an int, or a string of digits that names no existing path).
         max_frames: stop after this many frames, whatever the source (``None``: a file's or folder's every
             frame, a camera until a read fails).
+        topic: a bag's image topic (``None``: its only one); bags only.
+        window: ``(start, stop)`` seconds from a bag's first message (receive times); bags only.
 
     Raises:
         TypeError: ``source`` is neither a path nor an int, or ``max_frames`` not an int.
-        ValueError: ``max_frames < 1``.
+        ValueError: ``max_frames < 1``, or ``topic`` or ``window`` for a source that is not a bag.
         FileNotFoundError: a path that does not exist.
     """
     max_frames = _frame_limit(max_frames)
     if isinstance(source, bool) or not isinstance(source, (str, int, os.PathLike)):
         raise TypeError(
-            f"source: expected a video file, a folder of frames or a camera index, got {type(source).__name__}"
+            "source: expected a video file, a folder of frames or a camera index, or a ROS bag, "
+            f"got {type(source).__name__}"
         )
+    from classifiers.bags import BagSource, is_bag  # bags builds on this module
+
+    if not isinstance(source, int) and is_bag(source):
+        return BagSource(source, topic, max_frames, window)
+    for name, value in (("topic", topic), ("window", window)):
+        if value is not None:
+            raise ValueError(f"{name}: only a ROS bag source has topics and receive times, got source {source!r}")
     if isinstance(source, int):
         return Camera(source, max_frames)
     path = Path(source)
@@ -217,4 +253,6 @@ def open_source(source: str | int | os.PathLike, max_frames: int | None = None) 
         return VideoFile(path, max_frames)
     if isinstance(source, str) and source.isdigit():
         return Camera(int(source), max_frames)
-    raise FileNotFoundError(f"source: no such video file or folder {str(path)!r} (a camera is given by its index)")
+    raise FileNotFoundError(
+        f"source: no such video file or folder {str(path)!r}, nor a ROS bag (a camera is given by its index)"
+    )

@@ -1,4 +1,4 @@
-"""Live macro-observations: frames from a video file, a folder or a camera, classified and filtered.
+"""Live macro-observations: frames from a ROS bag, a video file, a folder or a camera, classified and filtered.
 
 :func:`run` reads as its stages:
 
@@ -7,11 +7,16 @@
 2. :func:`load_models`: the saved :class:`~classifiers.FrameClassifier` and
    :class:`~hbni_pyro.HBNIPosterior` (from a finished mission run, ``stream.run``, or from files),
    the posterior's class order and the HBNI temper; the macro-observation process built on them.
-3. :func:`stream_frames`: every frame through the classifier (batches of ``stream.batch``) and the
-   process, which restarts after each macro-observation; the annotated video is written as frames go.
+   :func:`load_controller`: a saved controller's executor, when ``stream.controller`` is given.
+3. :func:`stream_frames`: every stamped frame through the classifier (batches of ``stream.batch``) and
+   the process, which restarts after each macro-observation (:func:`hbni_pyro.live.live_macro_observations`,
+   the per-frame code of the ROS 2 node too); each complete one is the observation that completes the
+   controller's current macro-action. The annotated video and the ROS output bag
+   (:class:`hbni_pyro.ros.MacroObservationBag`: a bag source's default) are written as frames go.
 4. :func:`write_outputs`: ``macro_observations.jsonl`` (one record per macro-observation: frame
-   range, label, confidence, frames used, timed out, stream ended), ``strip.png`` and the metrics
-   (frames, macro-observations, frames per second end to end).
+   range, label, confidence, frames used, timed out, stream ended, first and last stamps, the
+   controller's decision), ``strip.png`` and the metrics (frames, macro-observations, frames per
+   second end to end).
 """
 
 from __future__ import annotations
@@ -26,12 +31,17 @@ from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
+from hbni_pyro.live import live_macro_observations
+from hbni_pyro.ros import MacroObservationBag
 from hbni_pyro.variants import noise_model
-from classifiers import FrameClassifier, classify_frames
+from classifiers import FrameClassifier
+from classifiers.bags import is_bag
 from classifiers.sources import FrameSource, open_source
+from classifiers.stamped import classify_stamped
+from decpomdp import ControllerExecutor, JointController
 from experiments.artifacts import latest_run, load_run
 from experiments.common import save_figure
-from experiments.steps.annotate import AnnotatedVideo, max_confidence, running_posterior, strip_figure, thumbnail
+from experiments.steps.annotate import AnnotatedVideo, FrameAnnotator, max_confidence, strip_figure, thumbnail
 from hbni_infra.files import atomic_write_text
 
 
@@ -50,6 +60,12 @@ class Settings(NamedTuple):
     batch: int
     annotate: tuple[str, ...]
     progress: bool
+    topic: str | None = None  # a bag source's image topic and time window
+    window: tuple[float, float | None] | None = None
+    bag: bool = False  # write the ROS output bag
+    controller: Path | None = None  # a saved JointController, its robot and the class -> observation names
+    agent: int = 0
+    observations: dict[str, str] | None = None
 
 
 class Models(NamedTuple):
@@ -63,18 +79,21 @@ class Streamed(NamedTuple):
     """What :func:`stream_frames` saw: segments, their running confidences and deciding frames, timing."""
 
     segments: list[hbni_pyro.Segment]
+    records: list[dict]
     beliefs: list[Any]
     thumbs: list[np.ndarray]
     frames: int
     seconds: float
     cpu_seconds: float
     video: Path | None
+    bag: MacroObservationBag | None
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     settings = read_settings(cfg)
     models = load_models(settings, cfg)
-    streamed = stream_frames(settings, models, run_dir)
+    controller = load_controller(settings)
+    streamed = stream_frames(settings, models, run_dir, controller)
     return write_outputs(settings, models, streamed, run_dir)
 
 
@@ -106,6 +125,12 @@ def read_settings(cfg: DictConfig) -> Settings:
         int(st.batch),
         tuple(st.annotate),
         bool(cfg.progress),
+        topic=st.topic,
+        window=None if st.window is None else tuple(None if t is None else float(t) for t in st.window),
+        bag=is_bag(source) if st.bag is None and not isinstance(source, int) else bool(st.bag),
+        controller=_path(st.controller),
+        agent=int(st.agent),
+        observations=None if st.observations is None else {str(k): str(v) for k, v in st.observations.items()},
     )
 
 
@@ -141,27 +166,52 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
     return Models(clf, process, classes, temper)
 
 
-def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed:
-    """Classify and filter every frame of the source; write the annotated video as segments complete."""
-    source: FrameSource = open_source(settings.source, max_frames=settings.max_input_frames)  # the source stops there
+def load_controller(settings: Settings) -> ControllerExecutor | None:
+    """The executor of robot ``stream.agent``'s controller in ``stream.controller`` (``None`` without one), named
+    after the domain the controller was planned for."""
+    if settings.controller is None:
+        return None
+    controller = JointController.load(settings.controller)
+    return ControllerExecutor(controller, settings.agent, controller.action_names, controller.obs_names)
+
+
+def stream_frames(
+    settings: Settings, models: Models, run_dir: Path, controller: ControllerExecutor | None = None
+) -> Streamed:
+    """Classify and filter every frame of the source, tell the controller each macro-observation; write the
+    annotated video and the ROS output bag as macro-observations complete."""
+    source: FrameSource = open_source(  # the source stops at max_input_frames
+        settings.source, max_frames=settings.max_input_frames, topic=settings.topic, window=settings.window
+    )
     total = source.num_frames if source.num_frames is not None else settings.max_input_frames  # a camera: the limit
-    video = None
-    if "video" in settings.annotate:
-        video = AnnotatedVideo(
-            run_dir / "annotated.mp4", source.fps or 30.0, models.classes, settings.threshold, settings.max_frames
-        )
-    items = classify_frames(source, models.classifier, models.classes, settings.batch)
-    segments, beliefs, thumbs = [], [], []
+    annotator = None
+    if {"video", "bag"} & set(settings.annotate):
+        annotator = FrameAnnotator(models.classes, settings.threshold, settings.max_frames)
+    video = AnnotatedVideo(run_dir / "annotated.mp4", source.fps or 30.0) if "video" in settings.annotate else None
+    bag = MacroObservationBag(run_dir / "macro_observations", models.classes) if settings.bag else None
+    items = classify_stamped(source.stamped(), models.classifier, models.classes, settings.batch)
+    live = live_macro_observations(
+        items, models.process, models.classes, controller, settings.observations, keep_frames=True
+    )
+    segments, records, beliefs, thumbs = [], [], [], []
     bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
     tic, cpu = time.perf_counter(), time.process_time()
     try:
-        for seg in hbni_pyro.macro_observations(items, models.process, models.classes, keep_frames=True):
-            running = running_posterior(models.process, seg.outputs)
-            if video is not None:
-                video.write(seg, running)
+        for obs in live:
+            seg = obs.segment
+            images = [frame.image for frame in seg.frames]
+            if annotator is not None:
+                for frame, img in zip(seg.frames, annotator.draw(seg, obs.running, images)):
+                    if video is not None:
+                        video.write(img)
+                    if bag is not None and "bag" in settings.annotate:
+                        bag.write_frame(img, frame.stamp, frame.received, frame.frame_id)
+            if bag is not None:
+                bag.write(obs)
             segments.append(seg._replace(frames=[]))
-            beliefs.append(max_confidence(running))
-            thumbs.append(thumbnail(seg.frames[-1]))
+            records.append(obs.record())
+            beliefs.append(max_confidence(obs.running))
+            thumbs.append(thumbnail(images[-1]))
             bar.update(seg.frames_used)
             bar.set_postfix(macro=len(segments), label=seg.name)
     except KeyboardInterrupt:  # a camera runs until stopped: keep what was seen
@@ -171,10 +221,12 @@ def stream_frames(settings: Settings, models: Models, run_dir: Path) -> Streamed
         bar.close()
         source.close()
         written = video.close() if video is not None else None
+        if bag is not None:
+            bag.close()
     count = sum(s.frames_used for s in segments)
     if not count:
         raise ValueError(f"stream.source: {settings.source!r} gave no frames")
-    return Streamed(segments, beliefs, thumbs, count, seconds, cpu_seconds, written)
+    return Streamed(segments, records, beliefs, thumbs, count, seconds, cpu_seconds, written, bag)
 
 
 def _model_label(models: Models) -> str:
@@ -185,7 +237,7 @@ def _model_label(models: Models) -> str:
 
 def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_dir: Path) -> dict:
     """``macro_observations.jsonl``, ``strip.png``; prints where they are and returns the metrics."""
-    records = [s.record() for s in streamed.segments]
+    records = streamed.records
     jsonl = atomic_write_text(run_dir / "macro_observations.jsonl", "".join(json.dumps(r) + "\n" for r in records))
     written = {"records": str(jsonl)}
     if "strip" in settings.annotate:
@@ -200,6 +252,8 @@ def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_di
         written["strip"] = str(save_figure(fig, run_dir / "strip.png"))
     if streamed.video is not None:
         written["video"] = str(streamed.video)
+    if streamed.bag is not None:
+        written["bag"] = str(streamed.bag.path)
     labels = [s.name for s in streamed.segments]
     metrics = {
         "source": str(settings.source),
@@ -208,6 +262,7 @@ def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_di
         "labels": {name: labels.count(name) for name in models.classes},
         "mean_frames_used": streamed.frames / len(records),
         "timed_out": sum(s.timed_out for s in streamed.segments),
+        "decisions": sum("decision" in r for r in records),
         "seconds": streamed.seconds,
         "cpu_seconds": streamed.cpu_seconds,
         "fps": streamed.frames / max(streamed.seconds, 1e-9),
@@ -215,6 +270,10 @@ def write_outputs(settings: Settings, models: Models, streamed: Streamed, run_di
         "classes": models.classes,
         "outputs": written,
     }
+    if streamed.bag is not None:
+        metrics["bag_topics"] = {
+            streamed.bag.topics[role]: count for role, count in streamed.bag.counts.items() if count
+        }
     print(
         f"[stream] {streamed.frames} frames -> {len(records)} macro-observations at {metrics['fps']:.1f} fps; "
         f"wrote {', '.join(written.values())}"

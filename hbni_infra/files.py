@@ -4,12 +4,16 @@ A crash never leaves half a file: readers see the old file or the new one. The t
 created with mode ``0o666`` so the process umask applies exactly as it does to ``open(path, "w")``
 (``0o644`` under umask 022), and the directory is fsynced after the rename so the new name is
 durable too.
+:func:`atomic_path` does the same for a writer that creates its own file or directory (a ROS bag).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
+import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -55,3 +59,37 @@ def _fsync_directory(directory: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A fresh path with ``path``'s name, for a writer that creates its own file or directory; moved to ``path``
+    on success.
+
+    For writers that must create the target themselves (a ROS bag is a directory a library makes, and names
+    its files after it): the caller writes to the yielded path, which lies in a hidden staging directory
+    beside ``path``; when the block ends without an error, every file under it is fsynced and it is renamed
+    to ``path``; on an error it is removed and ``path`` is untouched.
+
+    Raises:
+        FileExistsError: ``path`` exists (an output is never overwritten).
+    """
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"path: {str(path)!r} exists already")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.with_name(f".{path.name}.{secrets.token_hex(6)}.partial")
+    staging.mkdir()
+    try:
+        yield staging / path.name
+        written = staging / path.name
+        for item in [written, *written.rglob("*")]:
+            if item.is_file():
+                with open(item, "rb+") as fh:
+                    os.fsync(fh.fileno())
+            elif item.is_dir():
+                _fsync_directory(item)
+        os.rename(written, path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    _fsync_directory(path.parent)

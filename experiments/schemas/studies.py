@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -423,14 +424,16 @@ class Mission(Root):
             )
 
 
-ANNOTATIONS = ("video", "strip")
+ANNOTATIONS = ("video", "strip", "bag")
 
 
 @dataclass
 class StreamBlock:
     """``stream``: where frames come from, the saved models, the macro-observation process, the pictures."""
 
-    source: Any = MISSING  # a video file, a folder of frames or a camera index
+    source: Any = MISSING  # a ROS bag, a video file, a folder of frames or a camera index
+    topic: Optional[str] = MISSING  # a bag's image topic (None: its only one)
+    window: Optional[list[Optional[float]]] = MISSING  # [start, stop] seconds from a bag's start
     max_input_frames: Optional[int] = MISSING
     run: Optional[str] = MISSING  # a mission run directory; latest: the newest completed one under outputs/mission
     classifier: Optional[str] = MISSING
@@ -441,9 +444,15 @@ class StreamBlock:
     max_frames: int = MISSING
     batch: int = MISSING
     annotate: list[str] = MISSING
+    bag: Optional[bool] = MISSING  # write the ROS output bag (None: when the source is a bag)
+    controller: Optional[str] = MISSING  # a saved JointController
+    agent: int = MISSING
+    observations: Any = MISSING  # class name -> controller observation name (null: the class names)
 
     def check(self, path: str) -> None:
         from pathlib import Path
+
+        from classifiers.bags import is_bag
 
         source = self.source
         if (
@@ -451,10 +460,29 @@ class StreamBlock:
             or not isinstance(source, (str, int))
             or (isinstance(source, str) and not source.strip())
         ):
-            raise ValueError(f"source: expected a video file, a folder of frames or a camera index, got {source!r}")
+            raise ValueError(
+                f"source: expected a video file, a folder of frames or a camera index, or a ROS bag, got {source!r}"
+            )
         if isinstance(source, str) and not source.isdigit() and not Path(source).exists():
-            raise ValueError(f"source: no such video file or folder {source!r}")
-        for name in ("run", "classifier", "posterior"):
+            raise ValueError(f"source: no such video file or folder {source!r}, nor a ROS bag")
+        bag = isinstance(source, str) and is_bag(source)
+        for name in ("topic", "window"):
+            if getattr(self, name) is not None and not bag:
+                raise ValueError(f"{name}: only a ROS bag source has topics and receive times, got source {source!r}")
+        if self.topic is not None and not self.topic.strip():
+            raise ValueError(f"topic: expected a topic name or null, got {self.topic!r}")
+        window = None if self.window is None else list(self.window)
+        if window is not None:
+            if not (
+                len(window) == 2
+                and window[0] is not None
+                and 0 <= window[0] < (math.inf if window[1] is None else window[1])
+            ):
+                raise ValueError(
+                    f"window: expected [start, stop] seconds from the bag's start, 0 <= start < stop (stop null: "
+                    f"to the end), got {list(self.window)}"
+                )
+        for name in ("run", "classifier", "posterior", "controller"):
             value = getattr(self, name)
             if value is not None and not (name == "run" and value == "latest") and not Path(value).exists():
                 raise ValueError(f"{name}: no such file or directory {value!r}")
@@ -472,6 +500,21 @@ class StreamBlock:
         unknown = [a for a in self.annotate if a not in ANNOTATIONS]
         if unknown:
             raise ValueError(f"annotate: expected a subset of {list(ANNOTATIONS)}, got {list(self.annotate)}")
+        if "bag" in self.annotate and not (bag if self.bag is None else self.bag):
+            raise ValueError(
+                "annotate: 'bag' puts the annotated frames into the output bag, which stream.bag does not write "
+                "(null: only for a bag source)"
+            )
+        positive_int("agent", self.agent, minimum=0)
+        if self.observations is not None and not (
+            isinstance(self.observations, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in self.observations.items())
+        ):
+            raise ValueError(
+                f"observations: expected a mapping of class names to observation names, got {self.observations!r}"
+            )
+        if self.observations and self.controller is None:
+            raise ValueError("observations: maps classes to a controller's observations; give stream.controller")
 
 
 @dataclass

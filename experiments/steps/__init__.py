@@ -7,7 +7,8 @@
 * :mod:`experiments.steps.planner_comparison`: the planners side by side (package delivery, disaster relief).
 * :mod:`experiments.steps.bank`: the held-out output bank of the closed loop, built once and cached.
 * :mod:`experiments.steps.closed_loop`: planned against executed values, stream standard errors, report.
-* :mod:`experiments.steps.annotate`: the annotated video and PNG strip of a macro-observation stream.
+* :mod:`experiments.steps.annotate`: the annotated frames (video, output bag) and PNG strip of a macro-observation
+  stream.
 
 Entry points (``conf/experiment/*.yaml`` ``entry``) import these, never each other.
 """

@@ -1,7 +1,8 @@
-"""Pictures of a macro-observation stream: an annotated video and a PNG strip.
+"""Pictures of a macro-observation stream: annotated frames (a video, or a ROS bag's image topic) and a PNG strip.
 
-:class:`AnnotatedVideo` writes every frame with the classifier's top class, the filter's running
-belief against the threshold, and the latest macro-observation drawn on it (OpenCV, ``mp4v``).
+:class:`FrameAnnotator` draws on every frame the classifier's top class, the filter's running belief
+against the threshold, and the latest macro-observation; :class:`AnnotatedVideo` writes frames as an
+``mp4v`` video (OpenCV).
 :func:`strip_figure` is one picture of a whole stream: the deciding frame of some macro-observations
 above a timeline of the filter's confidence, with each macro-observation's label marked where it
 was emitted.
@@ -10,7 +11,7 @@ was emitted.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import cv2
@@ -20,48 +21,33 @@ import torch
 from torch import Tensor
 
 from experiments import figures
-import hbni_pyro
 from hbni_pyro import Segment
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def running_posterior(process: hbni_pyro.MacroObservationProcess, outputs: Tensor) -> Tensor:
-    """The filter's class posterior after each frame of a segment, ``(n, M)`` (what its updates gave)."""
-    return process.filter.run(outputs.unsqueeze(0))[0]
-
-
-class AnnotatedVideo:
-    """An ``mp4v`` video of annotated frames, written segment by segment.
+class FrameAnnotator:
+    """Draws on each frame the classifier's top class, the filter's running belief against the threshold, and the
+    latest macro-observation.
 
     Args:
-        path: the video file to write (its directory is created).
-        fps: frame rate of the written video.
         classes: class names in the process's order.
         threshold: the process's confidence threshold (drawn on the belief bar).
         max_frames: the process's frame budget.
-
-    The video is written to a temporary name and renamed into place by :meth:`close`.
     """
 
-    def __init__(
-        self, path: str | os.PathLike, fps: float, classes: Sequence[str], threshold: float, max_frames: int
-    ) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
-        self.fps, self.classes, self.threshold, self.max_frames = float(fps), list(classes), threshold, max_frames
-        self._writer: cv2.VideoWriter | None = None
+    def __init__(self, classes: Sequence[str], threshold: float, max_frames: int) -> None:
+        self.classes, self.threshold, self.max_frames = list(classes), threshold, max_frames
         self._size: tuple[int, int] | None = None
         self._latest = "macro-observation: none yet"
-        self.frames_written = 0
 
-    def write(self, segment: Segment, running: Tensor) -> None:
-        """Annotate and write ``segment.frames`` (kept frames) given the filter's ``running`` posterior ``(n, M)``."""
+    def draw(self, segment: Segment, running: Tensor, images: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
+        """The annotated copies of a segment's frames ``images`` (uint8 BGR, all at the first frame's size),
+        given the filter's ``running`` posterior ``(n, M)``."""
         top = segment.outputs.max(-1)
         belief = running.max(-1)
-        for k, frame in enumerate(segment.frames):
-            if k == len(segment.frames) - 1:
+        for k, frame in enumerate(images):
+            if k == len(images) - 1:
                 flag = " (timed out)" if segment.timed_out else ""
                 self._latest = (
                     f"macro-obs #{segment.index}: {segment.name} {segment.confidence:.2f} "
@@ -72,7 +58,7 @@ class AnnotatedVideo:
                 f"filter: {self.classes[int(belief.indices[k])]} {float(belief.values[k]):.2f}  "
                 f"({k + 1}/{self.max_frames} frames)",
             )
-            self._emit(self._draw(frame, lines, float(belief.values[k])))
+            yield self._draw(frame, lines, float(belief.values[k]))
 
     def _draw(self, frame: np.ndarray, lines: tuple[str, str], confidence: float) -> np.ndarray:
         if self._size is None:
@@ -95,9 +81,30 @@ class AnnotatedVideo:
         cv2.putText(img, self._latest, (6, h - 8), _FONT, scale, (120, 255, 255), 1, cv2.LINE_AA)
         return img
 
-    def _emit(self, img: np.ndarray) -> None:
+
+class AnnotatedVideo:
+    """An ``mp4v`` video of (annotated) frames, written frame by frame.
+
+    Args:
+        path: the video file to write (its directory is created).
+        fps: frame rate of the written video.
+
+    The video is written to a temporary name and renamed into place by :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
+        self.fps = float(fps)
+        self._writer: cv2.VideoWriter | None = None
+        self.frames_written = 0
+
+    def write(self, img: np.ndarray) -> None:
+        """Append a uint8 BGR frame (the first frame sets the video's size)."""
         if self._writer is None:
-            self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size)
+            size = (img.shape[1], img.shape[0])
+            self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, size)
             if not self._writer.isOpened():
                 raise OSError(f"could not open {str(self._tmp)!r} for writing an mp4v video")
         self._writer.write(img)
