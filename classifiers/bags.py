@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from classifiers.sources import FrameSource, _frame_limit
+from classifiers.frame_source import FrameSource, frame_limit
 from classifiers.stamped import StampedFrame
 from hbni_infra import ros
 from hbni_infra.files import atomic_path
@@ -100,7 +100,7 @@ class BagSource(FrameSource):
         max_frames: int | None = None,
         window: Sequence[float | None] | None = None,
     ) -> None:
-        self.max_frames = _frame_limit(max_frames)
+        self.max_frames = frame_limit(max_frames)
         self.window = _window(window)
         if topic is not None and not isinstance(topic, str):
             raise TypeError(f"topic: expected a topic name (str) or None, got {type(topic).__name__}")

@@ -20,54 +20,20 @@ camera is one live stream.
 
 from __future__ import annotations
 
-import abc
 import os
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
+from classifiers.bags import BagSource, is_bag
 from classifiers.data.image_folder import ImageFolder
+from classifiers.frame_source import FrameSource, frame_limit
 from classifiers.stamped import StampedFrame
-from hbni_infra.checks import as_int
-from hbni_infra.ros import NS_PER_S
 
 __all__ = ["Camera", "FrameFolder", "FrameSource", "VideoFile", "open_source"]
-
-
-class FrameSource(abc.ABC):
-    """An iterable of uint8 BGR frames ``(H, W, 3)``.
-
-    Attributes:
-        fps: the source's nominal frame rate (``None`` when unknown).
-        num_frames: frames in the source when known in advance (``None`` for a camera).
-    """
-
-    fps: float | None = None
-    num_frames: int | None = None
-
-    @abc.abstractmethod
-    def __iter__(self) -> Iterator[np.ndarray]: ...
-
-    def stamped(self) -> Iterator[StampedFrame]:
-        """The frames with their times (ns): a file's or folder's frame ``i`` is stamped ``i / fps`` on its own
-        timeline when the source has a frame rate, else when it is read; it is received when it is read."""
-        for index, image in enumerate(self):
-            now = time.time_ns()
-            stamp = now if self.fps is None else round(index * NS_PER_S / self.fps)
-            yield StampedFrame(image, stamp, now, "", index)
-
-    def close(self) -> None:
-        """Release the file or device (iteration after closing is an error for a camera only)."""
-
-    def __enter__(self) -> FrameSource:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _bgr(frame: np.ndarray) -> np.ndarray:
@@ -77,11 +43,6 @@ def _bgr(frame: np.ndarray) -> np.ndarray:
     if frame.shape[2] == 4:
         return cv2.cvtColor(frame, cv2.COLOR_BGRA2BGR)
     return np.ascontiguousarray(frame)
-
-
-def _frame_limit(max_frames: Any) -> int | None:
-    """``max_frames`` checked: ``None`` (every frame) or an int >= 1."""
-    return None if max_frames is None else as_int("max_frames", max_frames, 1)
 
 
 def _read_all(capture: cv2.VideoCapture, limit: int | None) -> Iterator[np.ndarray]:
@@ -103,7 +64,7 @@ class VideoFile(FrameSource):
     """
 
     def __init__(self, path: str | os.PathLike, max_frames: int | None = None) -> None:
-        self.max_frames = _frame_limit(max_frames)
+        self.max_frames = frame_limit(max_frames)
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"source: no such video file {str(self.path)!r}")
@@ -150,7 +111,7 @@ class FrameFolder(FrameSource):
     """
 
     def __init__(self, path: str | os.PathLike, fps: float | None = None, max_frames: int | None = None) -> None:
-        self.max_frames = _frame_limit(max_frames)
+        self.max_frames = frame_limit(max_frames)
         self.path = Path(path)
         if not self.path.is_dir():
             raise FileNotFoundError(f"source: no such folder {str(self.path)!r}")
@@ -184,7 +145,7 @@ class Camera(FrameSource):
     def __init__(self, index: int, max_frames: int | None = None) -> None:
         if isinstance(index, bool) or not isinstance(index, int) or index < 0:
             raise ValueError(f"source: expected a camera index >= 0, got {index!r}")
-        self.index, self.max_frames = index, _frame_limit(max_frames)
+        self.index, self.max_frames = index, frame_limit(max_frames)
         self._capture = cv2.VideoCapture(index)
         if not self._capture.isOpened():
             self._capture.release()
@@ -231,14 +192,12 @@ def open_source(
         ValueError: ``max_frames < 1``, or ``topic`` or ``window`` for a source that is not a bag.
         FileNotFoundError: a path that does not exist.
     """
-    max_frames = _frame_limit(max_frames)
+    max_frames = frame_limit(max_frames)
     if isinstance(source, bool) or not isinstance(source, (str, int, os.PathLike)):
         raise TypeError(
             "source: expected a video file, a folder of frames or a camera index, or a ROS bag, "
             f"got {type(source).__name__}"
         )
-    from classifiers.bags import BagSource, is_bag  # bags builds on this module
-
     if not isinstance(source, int) and is_bag(source):
         return BagSource(source, topic, max_frames, window)
     for name, value in (("topic", topic), ("window", window)):

@@ -1,6 +1,6 @@
 """Posterior predictive checks of a fitted noise model on a user's held-out classifier outputs.
 
-:func:`check` (also :meth:`hbni_pyro.HBNIPosterior.check`) runs the macro-observation process (a filter
+:func:`check` runs the macro-observation process (a filter
 on the posterior, stopped at ``threshold`` or at the frame budget) on every held-out stream, and the same
 process on streams simulated from the posterior (:meth:`~hbni_pyro.HBNIPosterior.sample_streams`), as many
 per held-out stream as ``simulations`` says, each of the same class and length. It then compares, per class:

@@ -205,34 +205,6 @@ class HBNIPosterior:
             return self.noise_model.sample_streams(chosen, true_class, num_frames, g, self.frame_correlation)
         return self.noise_model.sample_streams(chosen, true_class, num_frames, g)
 
-    def check(
-        self,
-        outputs: Any,
-        labels: Any = None,
-        sequence_ids: Any = None,
-        *,
-        threshold: float = 0.95,
-        max_frames: int | None = None,
-        seed: int = 0,
-        simulations: int = 20,
-        filter: Any = None,
-    ) -> Any:
-        """Posterior predictive checks on held-out outputs ``(N, M)``: a :class:`hbni_pyro.checks.CheckResult`
-        (see :func:`hbni_pyro.checks.check`)."""
-        from hbni_pyro.checks import check
-
-        return check(
-            self,
-            outputs,
-            labels,
-            sequence_ids,
-            threshold=threshold,
-            max_frames=max_frames,
-            seed=seed,
-            simulations=simulations,
-            filter=filter,
-        )
-
     def _check_class(self, true_class: int) -> int:
         if not 0 <= as_int("true_class", true_class) < self.num_classes:
             raise ValueError(f"true_class: expected an int in [0, {self.num_classes}), got {true_class!r}")

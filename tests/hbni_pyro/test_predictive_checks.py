@@ -102,15 +102,15 @@ def test_one_frame_units_without_sequence_ids(paper):
 
 def test_the_check_is_seeded(paper):
     outputs, labels, ids = held_out(predictive(paper), 2)
-    a, b = paper.check(outputs, labels, ids, seed=5), hbni_pyro.check(paper, outputs, labels, ids, seed=5)
+    a, b = hbni_pyro.check(paper, outputs, labels, ids, seed=5), hbni_pyro.check(paper, outputs, labels, ids, seed=5)
     assert a.p_values == b.p_values and isinstance(a, CheckResult)
-    assert paper.check(outputs, labels, ids, seed=6).p_values != a.p_values
+    assert hbni_pyro.check(paper, outputs, labels, ids, seed=6).p_values != a.p_values
 
 
 def test_figure_is_written(paper, tmp_path):
     outputs, labels, ids = held_out(predictive(paper), 3)
     for labelled in (labels, None):
-        result = paper.check(outputs, labelled, ids, max_frames=4)
+        result = hbni_pyro.check(paper, outputs, labelled, ids, max_frames=4)
         fig = result.figure()
         assert len(fig.axes) == (2 if labelled is not None else 1)
         path = result.save_figure(tmp_path / f"check_{labelled is None}.png")
@@ -140,15 +140,18 @@ def test_argument_errors_name_the_argument(paper):
     for kwargs, error, match in cases:
         args = dict(outputs=outputs, labels=labels, sequence_ids=ids) | kwargs
         with pytest.raises(error, match=match):
-            paper.check(args.pop("outputs"), args.pop("labels"), args.pop("sequence_ids"), **args)
+            hbni_pyro.check(paper, args.pop("outputs"), args.pop("labels"), args.pop("sequence_ids"), **args)
     with pytest.raises(ValueError, match="alpha"):
-        paper.check(outputs, labels, ids).passed(0.0)
+        hbni_pyro.check(paper, outputs, labels, ids).passed(0.0)
 
 
 def test_false_alarms_at_most_alpha_over_seeds(paper):
     """12 held-out sets from the posterior at alpha 0.1: Bonferroni bounds each false alarm's probability by 0.1,
     so 5 or more of 12 has probability < 0.005."""
-    alarms = sum(not paper.check(*held_out(predictive(paper), 100 + seed), seed=seed).passed(0.1) for seed in range(12))
+    alarms = sum(
+        not hbni_pyro.check(paper, *held_out(predictive(paper), 100 + seed), seed=seed).passed(0.1)
+        for seed in range(12)
+    )
     assert alarms <= 4
 
 
@@ -193,4 +196,4 @@ def test_sequences_of_different_lengths_in_any_order(paper):
     assert [(row["class"], row["streams"]) for row in result.table] == [("0", 20), ("2", 20)]
     assert result.frames["observed"].max() <= 5 and len(result.frames["predicted"]) == 40 * 20
     named = hbni_pyro.HBNIPosterior(paper.samples, paper.class_prior, class_names=("cat", "dog", "owl"))
-    assert [row["class"] for row in named.check(outputs, labels, ids).table] == ["cat", "owl"]
+    assert [row["class"] for row in hbni_pyro.check(named, outputs, labels, ids).table] == ["cat", "owl"]
