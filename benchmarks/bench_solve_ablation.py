@@ -1,4 +1,4 @@
-"""What each part of ``decpomdp.dpomdp.solve`` contributes on exact scores: solve with one part removed at a time.
+"""What each part of ``decpomdp.solve`` contributes on exact scores: solve with one part removed at a time.
 
 Variants, each on every row with the same seed (one thread):
 
@@ -24,7 +24,7 @@ import json
 import time
 from pathlib import Path
 
-from decpomdp.dpomdp import solve
+from decpomdp import solve
 
 OPTIMA = {  # (problem, horizon) -> optimum: MADP toolbox optimalValueDatabase; dectiger h8: masplan.org
     ("dectiger", 4): 4.802755,

@@ -19,6 +19,7 @@ from decpomdp.executor import ControllerExecutor, MacroAction
 from decpomdp.perception import PerceptionModel, PerfectPerception
 from decpomdp.search import ExactScorer, PlannerConfig, PlannerResult, RolloutScorer, Scorer, gdice_config, plan
 from decpomdp.simulate import simulate
+from decpomdp.solver import Solution, solve
 
 __all__ = [
     "__version__",
@@ -36,6 +37,7 @@ __all__ = [
     "RolloutScorer",
     "Scorer",
     "SearchResult",
+    "Solution",
     "evaluate",
     "gdice_config",
     "monte_carlo_search",
@@ -44,4 +46,5 @@ __all__ = [
     "rollout_counters",
     "shared",
     "simulate",
+    "solve",
 ]

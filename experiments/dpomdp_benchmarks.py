@@ -14,7 +14,7 @@ random-controller mean to the optimum that G-DICE closed, and, at horizon 2, the
 exhaustive search over every deterministic joint policy (a check that a published number belongs to
 the shipped file; where nothing is published it is the row's optimum, labelled as computed here).
 
-Every row also runs :func:`decpomdp.dpomdp.solve` with the one setting ``study.solve`` (no row tunes it):
+Every row also runs :func:`decpomdp.solve` with the one setting ``study.solve`` (no row tunes it):
 its exact value, fraction of the optimum, upper bound, certified gap ``(bound - value) / |bound|``,
 seconds and controller size; a row *meets* 99 % when that fraction is at least 0.99.
 
@@ -35,7 +35,8 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names, solve
+from decpomdp import solve
+from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search.cross_entropy import layered_mask, sample_controllers

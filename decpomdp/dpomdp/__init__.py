@@ -1,5 +1,5 @@
 """Tabular Dec-POMDPs in the MADP ``.dpomdp`` format: parser and writer, shipped problems, unit-duration
-Dec-POSMDP, exact evaluation, upper bounds, and :func:`solve` (a policy, its value and a certified gap)."""
+Dec-POSMDP, exact evaluation and upper bounds (:func:`decpomdp.solve` plans on them)."""
 
 from decpomdp.dpomdp.exact import DEFAULT_EVAL_BUDGET, exact_value
 from decpomdp.dpomdp.model import DPOMDPModel, SparseTransitions
@@ -8,7 +8,6 @@ from decpomdp.dpomdp.problems import PROBLEM_DIR, load_problem, problem_names, p
 from decpomdp.dpomdp.syntax import DEFAULT_MEMORY_BUDGET, DPOMDPSyntaxError
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 from decpomdp.dpomdp.bounds import Bounds, upper_bounds
-from decpomdp.dpomdp.solve import Solution, solve
 from decpomdp.dpomdp.writer import controller_text, dpomdp_text, save_dpomdp
 
 __all__ = [
@@ -18,7 +17,6 @@ __all__ = [
     "PROBLEM_DIR",
     "DPOMDPModel",
     "DPOMDPSyntaxError",
-    "Solution",
     "SparseTransitions",
     "TabularDecPOSMDP",
     "controller_text",
@@ -30,6 +28,5 @@ __all__ = [
     "problem_names",
     "problem_path",
     "save_dpomdp",
-    "solve",
     "upper_bounds",
 ]

@@ -275,7 +275,7 @@ class BenchmarkStudy:
     random_controllers: int = MISSING
     paper_budget: PaperBudget = field(default_factory=PaperBudget)
     caps: Caps = field(default_factory=Caps)
-    solve: dict[str, Any] = MISSING  # keyword arguments of decpomdp.dpomdp.solve, the same for every row
+    solve: dict[str, Any] = MISSING  # keyword arguments of decpomdp.solve, the same for every row
     only: Optional[list[str]] = MISSING  # run these rows alone (None: every row)
     rows: dict[str, BenchmarkRow] = MISSING
 
@@ -283,7 +283,7 @@ class BenchmarkStudy:
         import dataclasses
         import inspect
 
-        from decpomdp.dpomdp import solve
+        from decpomdp import solve
         from decpomdp.search import PlannerConfig
 
         known = {n for n, p in inspect.signature(solve).parameters.items() if p.kind is p.KEYWORD_ONLY}
@@ -291,7 +291,7 @@ class BenchmarkStudy:
         unknown = sorted(set(self.solve) - known - {"seed", "threads"})
         if unknown:
             raise ValueError(
-                f"solve: unknown settings {unknown}; expected keywords of decpomdp.dpomdp.solve or "
+                f"solve: unknown settings {unknown}; expected keywords of decpomdp.solve or "
                 "PlannerConfig fields (seed and threads come from the study)"
             )
         positive_int("threads", self.threads)

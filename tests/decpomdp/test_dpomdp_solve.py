@@ -1,4 +1,4 @@
-"""``decpomdp.dpomdp.solve`` and its parts: upper bounds against exhaustive optima and independent
+"""``decpomdp.solve`` and its parts: upper bounds against exhaustive optima and independent
 recursions, exact best responses against exhaustive search, solutions at published optima, the
 writer's round trip, and errors."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from decpomdp import random_controllers
+from decpomdp import random_controllers, solve
 from decpomdp.dpomdp import (
     TabularDecPOSMDP,
     controller_text,
@@ -19,7 +19,6 @@ from decpomdp.dpomdp import (
     parse_dpomdp,
     problem_names,
     save_dpomdp,
-    solve,
     upper_bounds,
 )
 from decpomdp.dpomdp.best_response import _distinct_beliefs, best_response, jesp
@@ -354,7 +353,7 @@ def test_controller_text_lists_every_node():
 
 def test_infinite_horizon_node_budget_keeps_the_joint_system_small():
     """The default infinite-horizon budget: the most nodes from 4 to 8 with ``nodes ** agents * states <= 256``."""
-    from decpomdp.dpomdp.solve import infinite_nodes
+    from decpomdp.solver import infinite_nodes
 
     cases = {(2, 2): 8, (2, 4): 8, (2, 5): 7, (2, 16): 4, (2, 2025): 4, (3, 2): 5, (1, 3): 8}
     for (agents, states), nodes in cases.items():

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from decpomdp.baselines import random_controllers
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.best_response import jesp
 from decpomdp.dpomdp.bounds import Bounds, upper_bounds
@@ -26,6 +27,7 @@ from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 from hbni_infra.checks import as_float, as_int
 from hbni_infra.streams import stream_seed, torch_stream
 from hbni_infra.threads import torch_threads
+from decpomdp.search import ExactScorer, PlannerConfig, plan
 
 MAX_FINITE_NODES = 32
 """Largest default controller for a finite horizon (``min(max(8, 3 h), 32)`` nodes)."""
@@ -148,9 +150,6 @@ def solve(
     Returns:
         A :class:`Solution`.
     """
-    from decpomdp.baselines import random_controllers  # decpomdp.search and baselines import this package
-    from decpomdp.search import ExactScorer, PlannerConfig, plan
-
     model = _problem(problem)
     env = TabularDecPOSMDP(model, gamma, horizon=horizon)
     restarts = as_int("restarts", restarts, minimum=1)
