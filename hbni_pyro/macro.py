@@ -266,7 +266,9 @@ class MacroObservationModel:
         try:
             return cls(tensors["joint"], tensors["timed_out"], meta.get("info", {}), meta.get("class_names"))
         except KeyError as exc:
-            raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
+            raise ValueError(f"path: {str(path)!r} is an incomplete saved {_KIND} (missing {exc})") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
     def __repr__(self) -> str:
         acc = ", ".join(f"{float(a):.3f}" for a in self.accuracy)
