@@ -250,6 +250,21 @@ class MacroObservationModel:
         cells = torch.arange(self.num_classes * self.max_frames).expand(self.num_classes, -1)
         return self._flat.to("cpu", copy=True), cells // self.max_frames, cells % self.max_frames + 1
 
+    def reordered(self, class_names: Any) -> "MacroObservationModel":
+        """The same law with classes (true and reported) in the order of ``class_names``, a reordering of its own.
+
+        Raises:
+            ValueError: the table has no names, or ``class_names`` is not a reordering of them (both lists named).
+        """
+        names = as_names("class_names", class_names, self.num_classes)
+        if self.class_names is None or names is None or sorted(names) != sorted(self.class_names):
+            raise ValueError(
+                f"class_names: expected a reordering of the table's classes {self.class_names}, got "
+                f"{None if names is None else list(names)}"
+            )
+        order = torch.tensor([self.class_names.index(n) for n in names], device=self.joint.device)
+        return MacroObservationModel(self.joint[order][:, order], self.timed_out[order], self.info, names)
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically (from any device; read back onto the CPU)."""
         return save_tensors(

@@ -88,15 +88,30 @@ class HBNIPosterior:
             raise TypeError("class_names: expected a sequence of names, got NoneType")
         return dataclasses.replace(self, info=dict(self.info), class_names=class_names)
 
-    def require_names(self, what: str) -> tuple[str, ...]:
-        """The class names; ``ValueError`` saying how to add them when the posterior has none (``what`` needs
-        them: names the junction in the message)."""
-        if self.class_names is None:
+    def match_names(self, class_names: Any, what: str) -> "HBNIPosterior":
+        """This posterior with its class names, checked against ``class_names`` given where it meets other named
+        objects (``what`` names that argument in messages).
+
+        A named posterior needs no ``class_names`` (``None``) and refuses other ones, or its own in another order;
+        an unnamed one takes ``class_names`` (a copy named so), and without them is refused with how to name it.
+
+        Raises:
+            ValueError: the names differ from the posterior's (both lists named), or neither side has any.
+        """
+        if self.class_names is not None:
+            if class_names is not None and tuple(class_names) != self.class_names:
+                raise ValueError(
+                    f"{what}: expected the posterior's classes in its column order {list(self.class_names)}, "
+                    f"got {list(class_names) if not isinstance(class_names, str) else class_names!r}"
+                )
+            return self
+        if class_names is None:
             raise ValueError(
-                f"{what}: the posterior has no class names, so its columns cannot be matched to other names; fit "
-                "it with class_names=[...], or name it in its column order: posterior.named([...]).save(path)"
+                f"{what}: the posterior has no class names, so nothing says which of its columns is which class; "
+                "give the names in its column order here, fit it with class_names=[...], or name its file: "
+                "HBNIPosterior.load(path).named([...]).save(path)"
             )
-        return self.class_names
+        return self.named(as_names(what, class_names, self.num_classes))
 
     @property
     def noise_model(self) -> NoiseModel:
