@@ -312,3 +312,16 @@ def test_an_executor_takes_a_named_controllers_names_and_refuses_others():
         ControllerExecutor(controller, 0, others)
     with pytest.raises(ValueError, match=words("controller", "obs_names")):
         ControllerExecutor(controller, 0, None, env.obs_names[::-1])
+
+
+# ---- a process and the posterior its table is simulated from -------------------------------------------------------
+
+
+def test_characterize_refuses_a_generative_posterior_named_otherwise():
+    with pytest.raises(ValueError, match=words("generative", str(DOMAIN_ORDER), str(ALPHABETICAL))):
+        hbni_pyro.characterize(process(DOMAIN_ORDER), posterior(ALPHABETICAL), 2, seed=0)
+
+
+def test_a_baseline_table_takes_the_generative_posteriors_names():
+    baseline = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.9, 2)
+    assert hbni_pyro.characterize(baseline, posterior(DOMAIN_ORDER), 2, seed=0).class_names == tuple(DOMAIN_ORDER)

@@ -212,7 +212,7 @@ def test_streaming_steps_reject_bad_input(saved):
     with pytest.raises(ValueError, match="batch: expected an int >= 1, got 0"):
         next(classify_frames([], clf, CLASSES, batch=0))
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.95, 6)
-    with pytest.raises(ValueError, match="classes: expected 3 names"):
+    with pytest.raises(ValueError, match="classes: expected 3 distinct names"):
         next(macro_observations([], process, CLASSES[:2]))
     assert list(macro_observations([], process, CLASSES)) == []
 
