@@ -329,3 +329,13 @@ def test_a_save_under_a_file_names_the_parent_that_is_a_file(tmp_path, fitted_cl
 def test_a_save_onto_a_directory_names_it(tmp_path):
     with pytest.raises(IsADirectoryError, match=refused(tmp_path, "is a directory")):
         posterior().save(tmp_path)
+
+
+def test_scalars_empty_and_boolean_tensors_round_trip_under_their_digest(tmp_path):
+    tensors = {"scalar": torch.tensor(1.5), "empty": torch.zeros(0, 3), "mask": torch.tensor([True, False])}
+    path = save_tensors(tmp_path / "odd.safetensors", "pkg.Thing", tensors, {})
+    back, _ = load_tensors(path, "pkg.Thing")
+    assert all(torch.equal(back[k], v) for k, v in tensors.items())
+    edit(path, tensors=lambda t: t["scalar"].fill_(2.5))
+    with pytest.raises(ValueError, match=refused(path, "does not match its digest")):
+        load_tensors(path, "pkg.Thing")
