@@ -1,7 +1,9 @@
-"""Shared pytest setup: the repository root and a single-threaded torch for small tensor programs."""
+"""Shared pytest setup: the repository root, a single-threaded torch for small tensor programs, and the ``slow``
+marker on every test that starts an experiment process."""
 
 from __future__ import annotations
 
+import inspect
 import subprocess
 import sys
 from pathlib import Path
@@ -25,6 +27,35 @@ def pytest_configure(config: pytest.Config) -> None:
     for part, job in zip(parts, jobs, strict=True):
         if job.wait():
             print(f"tests/compile_kernels.py {part}: exit status {job.returncode}", file=sys.stderr)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark ``slow`` every test that runs ``experiments.run`` (in its body, a module-level helper it calls or a
+    fixture it uses): ``pytest -m "not slow"`` then skips the whole-experiment runs."""
+    for item in items:
+        if _starts_an_experiment(item):
+            item.add_marker(pytest.mark.slow)
+
+
+def _starts_an_experiment(item: pytest.Item) -> bool:
+    function = getattr(item, "function", None)
+    if function is None:
+        return False
+    module = inspect.getmodule(function)
+    parts = [function, *(getattr(module, name, None) for name in function.__code__.co_names)]
+    info = getattr(item, "_fixtureinfo", None)
+    for defs in info.name2fixturedefs.values() if info else ():
+        for fixture in defs:
+            parts += [fixture.func, *(getattr(module, n, None) for n in fixture.func.__code__.co_names)]
+    for part in parts:
+        if inspect.isfunction(part):
+            try:
+                source = inspect.getsource(part)
+            except OSError:
+                continue
+            if "experiments.run" in source and "sys.executable" in source:
+                return True
+    return False
 
 
 @pytest.fixture(scope="session")

@@ -79,7 +79,9 @@ def test_readme_has_python_blocks():
     assert len(DOC_SCRIPTS) >= 4
 
 
-@pytest.mark.parametrize("index", range(len(SCRIPTS)))
+@pytest.mark.parametrize(
+    "index", [pytest.param(i, marks=[pytest.mark.slow] if "latest_run(" in s else []) for i, s in enumerate(SCRIPTS)]
+)
 def test_readme_python_blocks_run_as_written(index, tmp_path, request):
     script = SCRIPTS[index]
     root = request.getfixturevalue("finished_run") if "latest_run(" in script else tmp_path
