@@ -10,7 +10,7 @@ from conftest import REPO_ROOT
 
 def collected(*args: str) -> list[str]:
     proc = subprocess.run(
-        [sys.executable, "-m", "pytest", "-n", "0", "--collect-only", "-q", *args],
+        [sys.executable, "-m", "pytest", "-n", "0", "--collect-only", *args],
         cwd=REPO_ROOT,
         capture_output=True,
         text=True,
