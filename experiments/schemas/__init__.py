@@ -5,6 +5,11 @@ types every key while it composes, so a wrong type (``seed=abc``) or an unknown 
 naming the key. :func:`check_config` then merges the composed config into the schema once more
 (which also rejects keys added with ``+``) and checks every range (``mission.threshold=1.5``),
 naming the key; :mod:`experiments.run` calls it before the experiment does anything.
+
+A key the chosen experiment never reads (:func:`unread_settings`: ``hbni.model`` in ``hbni_toy``, a planner
+setting its planner ignores) is refused when it is set (:func:`check_overrides`), naming the key and the
+experiment: ``experiments.run`` checks a run's overrides before it starts, and a ``-m`` sweep checks every job's
+before it launches any (:mod:`experiments.sweep`).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from experiments.schemas.studies import SCHEMAS
 from experiments.schemas.targets import join_key
 from experiments.paths import register_resolver
 
-__all__ = ["SCHEMAS", "check_config", "register"]
+__all__ = ["SCHEMAS", "check_config", "check_overrides", "register", "unread_settings"]
 
 
 def register() -> None:
@@ -53,26 +58,66 @@ def check_config(cfg: DictConfig) -> None:
     _check(obj, "")
 
 
-def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
-    """Raise ``ValueError`` naming the key if an override (``key=value``, as on the command line) sets a planner
-    setting that the chosen planner ignores (see :meth:`decpomdp.search.PlannerConfig.ignored`): a sweep over
-    it would run the same job again and again."""
+PLANNER = "decpomdp.search.PlannerConfig"
+
+
+def unread_settings(cfg: DictConfig) -> dict[str, str]:
+    """Key -> why the experiment of the composed config ``cfg`` never reads it.
+
+    Each experiment's schema names its own (``unread``: a block it has no use for, such as ``hbni`` in a planning
+    study, or a key its other settings make irrelevant, such as ``warm_planner`` without ``warm_start``); every
+    planner block it reads adds the settings its planner ignores (:meth:`decpomdp.search.PlannerConfig.ignored`).
+    """
     from hydra.utils import instantiate
 
+    out = dict(SCHEMAS[cfg.name].unread(cfg)) if cfg.get("name") in SCHEMAS else {}
+    for path, block in _planner_blocks(cfg, ""):
+        if any(path == key or path.startswith(f"{key}.") for key in out):
+            continue
+        try:
+            planner = instantiate(block)
+        except Exception:  # an invalid planner fails its own check, naming the key
+            continue
+        for setting in sorted(planner.ignored()):
+            out[f"{path}.{setting}"] = (
+                f"the planner {path} (phases {list(planner.phases)}, ce_result {planner.ce_result!r}) ignores {setting}"
+            )
+    return out
+
+
+def _planner_blocks(node: Any, path: str) -> list[tuple[str, DictConfig]]:
+    """(key, block) of every planner block (``_target_`` :class:`decpomdp.search.PlannerConfig`) in ``node``."""
+    if not isinstance(node, DictConfig):
+        return []
+    if node.get("_target_") == PLANNER:
+        return [(path, node)]
+    return [
+        item
+        for key in node
+        if key != "hydra"
+        for item in _planner_blocks(node._get_node(key), f"{path}.{key}" if path else str(key))
+    ]
+
+
+def override_key(override: str) -> str:
+    """The config key an override (``key=value``, ``+key=value``, ``group@package=option``) sets."""
+    key = override.split("=", 1)[0].lstrip("+~")
+    return key.split("@", 1)[1] if "@" in key else key.replace("/", ".")
+
+
+def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
+    """Raise ``ValueError`` naming the key and the experiment if an override (``key=value``, as on the command
+    line) sets a key the experiment never reads (:func:`unread_settings`): the job would run as if it were not
+    set, and a sweep over it would run the same job again and again."""
+    unread = unread_settings(cfg)
     for override in overrides:
-        key = override.split("=", 1)[0].lstrip("+~")
-        parts = key.split(".")
-        for cut in range(len(parts) - 1, 0, -1):
-            block = OmegaConf.select(cfg, ".".join(parts[:cut]))
-            if isinstance(block, DictConfig) and block.get("_target_") == "decpomdp.search.PlannerConfig":
-                setting = ".".join(parts[cut:])
-                planner = instantiate(block)
-                if setting in planner.ignored():
-                    raise ValueError(
-                        f"{key}: the planner {'.'.join(parts[:cut])} (phases {list(planner.phases)}, "
-                        f"ce_result {planner.ce_result!r}) ignores {setting}; set a key it reads"
-                    )
-                break
+        key = override_key(override)
+        if key.startswith("hydra.") or key == "hydra":
+            continue
+        for prefix, why in unread.items():
+            if key == prefix or key.startswith(f"{prefix}."):
+                what = "it" if key == prefix else prefix
+                raise ValueError(f"{key}: experiment {cfg.name} never reads {what}: {why}; remove the setting")
 
 
 def _check(obj: Any, path: str) -> None:

@@ -11,7 +11,7 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
-from mission_tiny import TINY_MISSION, TINY_MISSION_GDICE
+from mission_tiny import TINY_MISSION, TINY_MISSION_FROM_SCRATCH, TINY_MISSION_GDICE
 
 BANKS = f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"
 TINY = [*TINY_MISSION, BANKS]
@@ -221,7 +221,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            planning,
+            tiny=[*TINY_MISSION_FROM_SCRATCH, BANKS],
         )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
