@@ -59,6 +59,7 @@ def check_config(cfg: DictConfig) -> None:
 
 
 PLANNER = "decpomdp.search.PlannerConfig"
+HYPERPRIOR = "hbni_pyro.HyperPrior"
 
 
 def unread_settings(cfg: DictConfig) -> dict[str, str]:
@@ -66,12 +67,27 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
 
     Each experiment's schema names its own (``unread``: a block it has no use for, such as ``hbni`` in a planning
     study, or a key its other settings make irrelevant, such as ``warm_planner`` without ``warm_start``); every
-    planner block it reads adds the settings its planner ignores (:meth:`decpomdp.search.PlannerConfig.ignored`).
+    hyperprior block adds the fields no noise model it fits reads (``noise_models``,
+    :attr:`hbni_pyro.variants.NoiseModel.hyperprior_fields`), and every planner block the settings its planner
+    ignores (:meth:`decpomdp.search.PlannerConfig.ignored`).
     """
     from hydra.utils import instantiate
 
-    out = dict(SCHEMAS[cfg.name].unread(cfg)) if cfg.get("name") in SCHEMAS else {}
-    for path, block in _planner_blocks(cfg, ""):
+    if cfg.get("name") not in SCHEMAS:
+        return {}
+    schema = SCHEMAS[cfg.name]
+    out = dict(schema.unread(cfg))
+    models = schema.noise_models(cfg)
+    if models:
+        from hbni_pyro.variants import model_names, noise_model
+
+        if all(m in model_names() for m in models):  # else the model fails its own check, naming the key
+            fields = {f for m in models for f in noise_model(m).hyperprior_fields}
+            for path, block in _blocks(cfg, HYPERPRIOR, ""):
+                for name in block:
+                    if name != "_target_" and name not in fields:
+                        out[f"{path}.{name}"] = f"the {' and '.join(map(repr, models))} noise model reads no {name}"
+    for path, block in _blocks(cfg, PLANNER, ""):
         if any(path == key or path.startswith(f"{key}.") for key in out):
             continue
         try:
@@ -85,17 +101,17 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
     return out
 
 
-def _planner_blocks(node: Any, path: str) -> list[tuple[str, DictConfig]]:
-    """(key, block) of every planner block (``_target_`` :class:`decpomdp.search.PlannerConfig`) in ``node``."""
+def _blocks(node: Any, target: str, path: str) -> list[tuple[str, DictConfig]]:
+    """(key, block) of every block of ``node`` whose ``_target_`` is ``target``."""
     if not isinstance(node, DictConfig):
         return []
-    if node.get("_target_") == PLANNER:
+    if node.get("_target_") == target:
         return [(path, node)]
     return [
         item
         for key in node
         if key != "hydra"
-        for item in _planner_blocks(node._get_node(key), f"{path}.{key}" if path else str(key))
+        for item in _blocks(node._get_node(key), target, f"{path}.{key}" if path else str(key))
     ]
 
 

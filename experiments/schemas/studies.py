@@ -54,6 +54,11 @@ class Root:
         :func:`experiments.schemas.check_overrides`). The settings a planner ignores are added there."""
         return {}
 
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        """The noise models the experiment fits (their hyperprior fields are the ones it reads)."""
+        return (cfg.hbni.model,)
+
 
 NO_NOISE_MODEL = "it fits no noise model"
 
@@ -92,6 +97,10 @@ class HBNIToy(Root):
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
         return {"hbni.model": "the toy fits the paper's model", "hbni.filter": "the toy filters no stream"}
 
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
+
 
 @dataclass
 class FilteringStudy:
@@ -121,6 +130,10 @@ class FilteringError(Root):
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
         return {"hbni.model": "the study fits the paper's model"}
 
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
+
 
 @dataclass
 class MacroStudy:
@@ -145,6 +158,10 @@ class MacroObservation(Root):
     @classmethod
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
         return {"hbni.model": "the study fits the paper's model"}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
 
 
 @dataclass
@@ -212,6 +229,10 @@ class PlanningExperiment(Root):
     @classmethod
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
         return {"hbni": NO_NOISE_MODEL}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
 
 
 @dataclass
@@ -341,6 +362,10 @@ class DPOMDPBenchmarks(Root):
     @classmethod
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
         return {"hbni": NO_NOISE_MODEL}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
 
 
 PLANNING_MODELS = ("empirical", "generative")
@@ -575,6 +600,10 @@ class Stream(Root):
             out["stream.agent"] = "stream.controller is null: no robot's controller runs"
         return out
 
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
+
 
 @dataclass
 class NoiseToyBlock:
@@ -666,6 +695,10 @@ class NoiseModels(Root):
         if cfg.study.images is None:
             out["study.images_calibration"] = "study.images is null: no image folder to split"
         return out
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return tuple(cfg.study.models)
 
 
 #: schema of each experiment, by its ``name``
