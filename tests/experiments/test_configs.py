@@ -79,7 +79,7 @@ RANGE_ERRORS = [
     ("hbni_toy", "toy.theta=[1.0,-2.0]", "toy.theta: expected at least 2 noise levels > 0"),
     ("hbni_toy", "hbni.fit.method=hmc", "hbni.fit.method: expected one of ['mh', 'nuts']"),
     ("hbni_toy", "hbni.fit.warmup_steps=-1", "hbni.fit.warmup_steps: expected an int >= 0"),
-    ("hbni_toy", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
+    ("macro_observation", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
     ("hbni_toy", "hbni.hyperprior.beta=-1", "hbni.hyperprior: HyperPrior.beta: expected a positive finite number"),
     ("hbni_toy", "toy.near_perfect_hyperprior.eta=0", "toy.near_perfect_hyperprior: HyperPrior.eta"),
     ("filtering_error", "study.targets=[0.5,1.5]", "study.targets: expected a probability in (0, 1]"),

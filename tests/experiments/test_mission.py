@@ -10,7 +10,7 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
-from mission_tiny import TINY_BANKS, TINY_MISSION, TINY_MISSION_GDICE
+from mission_tiny import TINY_BANKS, TINY_MISSION, TINY_MISSION_FROM_SCRATCH, TINY_MISSION_GDICE
 
 TINY = [*TINY_MISSION, TINY_BANKS]
 
@@ -217,7 +217,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            planning,
+            tiny=[*TINY_MISSION_FROM_SCRATCH, TINY_BANKS],
         )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
