@@ -29,6 +29,7 @@ from tqdm.auto import tqdm
 from classifiers.backbone import Backbone, load_backbone
 from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
 from classifiers.svm import OneVsOneSVC
+from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import torch_threads
 
@@ -214,22 +215,38 @@ class FrameClassifier:
         tensors, meta = load_tensors(path, _KIND)
         try:
             head_meta = meta["head"]
-            model = cls(
-                backbone=meta["backbone"],
-                weights_path=weights_path or meta["weights_path"],
-                C=head_meta["C"],
-                cv=head_meta["cv"],
-                padding=meta["padding"],
-                seed=meta["seed"],
-                batch_size=meta["batch_size"],
-                threads=meta["threads"],
-                device=device,
-                dtype=dtype,
+            settings = _settings(meta, weights_path)
+            model = cls(**settings, C=1.0, device=device, dtype=dtype)
+            model.head = OneVsOneSVC.from_state(
+                {k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta
             )
             model.mean_, model.scale_ = tensors["mean"].double(), tensors["scale"].double()
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"path: {str(path)!r} is missing entry {exc}") from exc
-        model.head = OneVsOneSVC.from_state({k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta)
+        except KeyError as exc:
+            raise ValueError(f"path: {str(path)!r} is missing entry {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
         if model.mean_.shape != (model.backbone.num_features,) or model.head.coef_.shape[1] != model.mean_.shape[0]:
             raise ValueError(f"path: {str(path)!r} has inconsistent feature sizes")
+        if not bool(torch.isfinite(model.mean_).all()) or not bool((model.scale_ > 0).all()):
+            raise ValueError(
+                f"path: {str(path)!r} holds an invalid {_KIND} (mean and scale: expected finite, scale > 0)"
+            )
         return model
+
+
+def _settings(meta: dict[str, Any], weights_path: str | os.PathLike | None) -> dict[str, Any]:
+    """The constructor settings a saved classifier records, checked as :class:`FrameClassifier` checks them."""
+    backbone, recorded = meta["backbone"], meta["weights_path"]
+    if not isinstance(backbone, str):
+        raise TypeError(f"backbone: expected a name, got {backbone!r}")
+    if recorded is not None and not isinstance(recorded, str):
+        raise TypeError(f"weights_path: expected a path or null, got {recorded!r}")
+    threads = meta["threads"]
+    return {
+        "backbone": backbone,
+        "weights_path": weights_path or recorded,
+        "padding": as_float("padding", meta["padding"], 0.0),
+        "seed": as_int("seed", meta["seed"]),
+        "batch_size": as_int("batch_size", meta["batch_size"], minimum=1),
+        "threads": None if threads is None else as_int("threads", threads, minimum=1),
+    }

@@ -30,11 +30,13 @@ from hbni_infra.tensorfile import load_tensors, save_tensors
 
 KIND = "hbni_infra.CacheEntry"
 _POLL_SECONDS = 1.0
+_LAYOUT = "digested files"  # part of every entry's name: files of another layout are never looked up
 
 
 def entry_path(cache_dir: str | os.PathLike, name: str, key: dict[str, Any]) -> Path:
-    """Where the entry ``name`` with ``key`` lives in ``cache_dir``."""
-    return Path(cache_dir) / f"{name}-{digest(key)[:24]}.safetensors"
+    """Where the entry ``name`` with ``key`` lives in ``cache_dir`` (entries written before file digests have other
+    names: they are built again beside the old files, never refused)."""
+    return Path(cache_dir) / f"{name}-{digest(_LAYOUT, key)[:24]}.safetensors"
 
 
 def load_entry(path: str | os.PathLike, key: dict[str, Any], what: str = "cache entry") -> dict[str, Tensor]:
