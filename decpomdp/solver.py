@@ -24,7 +24,7 @@ from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem, problem_names
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-from hbni_infra.checks import as_float, as_int
+from hbni_infra.checks import as_float, as_int, as_seed
 from hbni_infra.streams import stream_seed, torch_stream
 from hbni_infra.threads import torch_threads
 from decpomdp.search import ExactScorer, PlannerConfig, plan
@@ -154,7 +154,7 @@ def solve(
     env = TabularDecPOSMDP(model, gamma, horizon=horizon)
     restarts = as_int("restarts", restarts, minimum=1)
     layered_restarts = as_int("layered_restarts", layered_restarts, minimum=0)
-    seed = as_int("seed", seed)
+    seed = as_seed("seed", seed)
     budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
     finite = math.isfinite(env.horizon)
     if num_nodes is None:

@@ -24,6 +24,7 @@ from torch import Tensor
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.macro import MacroObservationProcess
 from hbni_pyro.validation import DTYPE
+from hbni_infra.checks import as_float, as_int, as_probability
 
 
 class Reliability(NamedTuple):
@@ -48,6 +49,8 @@ def reliability(confidence: Tensor, correct: Tensor, num_bins: int = 10, low: fl
 
     The diagram's tensors are on ``confidence``'s device.
     """
+    num_bins = as_int("num_bins", num_bins, minimum=1)
+    low = as_float("low", low, 0.0, 1.0, high_open=True)
     confidence = confidence.reshape(-1).to(DTYPE)
     correct = correct.reshape(-1).to(confidence.device, DTYPE)
     if confidence.shape != correct.shape or confidence.numel() == 0:
@@ -93,10 +96,12 @@ def threshold_checks(
     whole budget) and its standard error ``frames_stderr`` (sample sd over ``sqrt(B)``), and
     ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
+    thresholds = [as_probability(f"thresholds[{i}]", t, allow_zero=False) for i, t in enumerate(thresholds)]
+    max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
     truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
     for t in thresholds:
-        process = MacroObservationProcess(filter, threshold=float(t), max_frames=max_frames or streams.shape[1])
+        process = MacroObservationProcess(filter, threshold=t, max_frames=max_frames)
         batch = process.run_batch(streams)
         emitted = ~batch.timed_out
         right = batch.label == truth
