@@ -19,6 +19,7 @@ from decpomdp.baselines import random_controllers
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.best_response import jesp
 from decpomdp.dpomdp.bounds import Bounds, upper_bounds
+from decpomdp.dpomdp.cyclic import ascend, count_controllers, loop_back
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
@@ -97,7 +98,13 @@ def _problem(problem: Any) -> DPOMDPModel:
     if isinstance(problem, str) and problem in problem_names():
         return load_problem(problem)
     if isinstance(problem, (str, os.PathLike)):
-        return load_dpomdp(Path(problem))
+        path = Path(problem)
+        if not path.exists():
+            raise FileNotFoundError(
+                f"problem: no such file {str(problem)!r} and no shipped problem of that name; "
+                f"the shipped problems are {', '.join(problem_names())}"
+            )
+        return load_dpomdp(path)
     raise TypeError(
         f"problem: expected a shipped problem's name, a .dpomdp path, a DPOMDPModel or a TabularDecPOSMDP, "
         f"got {type(problem).__name__}"
