@@ -121,10 +121,24 @@ class Outputs(NamedTuple):
 
 
 class Noise(NamedTuple):
-    """The fitted noise model and its temper (``{"value", "fitted", ...}``)."""
+    """The fitted noise model and its temper (``{"value", "fitted", ...}``), and the calibrated peer's frame
+    calibration and evidence weight (``None`` when it is not among the variants)."""
 
     posterior: hbni_pyro.HBNIPosterior
     temper: dict[str, Any]
+    peer: Peer | None = None
+
+
+class Peer(NamedTuple):
+    """The calibrated peer fitted on the calibration sequences: the per-frame map and its filter's temper."""
+
+    calibration: hbni_pyro.FrameCalibration
+    temper: float
+    log_score: list[float]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-serialisable: the map's kind and fit, the temper."""
+        return {"kind": self.calibration.kind, **self.calibration.info, "temper": self.temper}
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -240,17 +254,33 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
         calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress, class_names=list(CLASSES)
     )
     save_artifact(run_dir, "posterior", posterior)
+    peer = fit_peer(calib, cfg, settings, run_dir) if "calibrated" in settings.variants else None
     if settings.temper is not None:
-        return Noise(posterior, {"value": settings.temper, "fitted": False})
+        return Noise(posterior, {"value": settings.temper, "fitted": False}, peer)
     if posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
-        return Noise(posterior, {"value": 1.0, "fitted": False, "needed": False})
+        return Noise(posterior, {"value": 1.0, "fitted": False, "needed": False}, peer)
     M, frames = len(CLASSES), settings.frames
     truth = torch.arange(M).repeat_interleave(calib.shape[1])
     fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), truth, cfg.hbni.filter.mode)
     return Noise(
         posterior,
         {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(), "log_score": fitted.log_score.tolist()},
+        peer,
     )
+
+
+def fit_peer(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Peer:
+    """The calibrated peer on the same labelled calibration outputs ``(C, S, F, C)`` HBNI gets: the per-frame map
+    ``mission.calibration`` (saved as ``calibration``), then SSBF's evidence weight for correlated frames fitted on
+    the calibration sequences as a frame-level HBNI model's temper is (:func:`hbni_pyro.fit_temper`)."""
+    M, frames = len(CLASSES), settings.frames
+    labels = torch.arange(M).view(-1, 1, 1).expand(calib.shape[:3])
+    calibration = hbni_pyro.fit_frame_calibration(calib, labels, str(cfg.mission.calibration), class_names=CLASSES)
+    save_artifact(run_dir, "calibration", calibration)
+    truth = torch.arange(M).repeat_interleave(calib.shape[1])
+    peer = hbni_pyro.make_filter("calibrated", calibration=calibration)
+    fitted = hbni_pyro.fit_temper(peer, calib.reshape(-1, frames, M), truth)
+    return Peer(calibration, fitted.temper, fitted.log_score.tolist())
 
 
 def characterize_processes(
@@ -270,7 +300,9 @@ def characterize_processes(
 
 def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
     """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
-    options = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
+    options: dict[str, dict[str, Any]] = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
+    if noise.peer is not None:
+        options["calibrated"] = {"calibration": noise.peer.calibration, "temper": noise.peer.temper}
     return {
         name: hbni_pyro.MacroObservationProcess(
             hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
@@ -590,6 +622,7 @@ def write_outputs(
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
+        "calibrated_peer": None if noise.peer is None else noise.peer.summary(),
         "hbni_frame_correlation": noise.posterior.frame_correlation,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
         "planner": dataclasses.asdict(planner),
@@ -636,7 +669,7 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
         return out
     h = results["hbni"]
     out["hbni_over_perfect"] = ratio(h["value"], results["perfect"]["value"])
-    for other in ("ssbf", "max_of_mean"):
+    for other in ("calibrated", "ssbf", "max_of_mean"):
         if other in results:
             o = results[other]
             out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)

@@ -4,7 +4,7 @@ Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: `
 ``"confusion"`` or ``"sequence"``, each a :class:`NoiseModel` in :mod:`hbni_pyro.variants`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`StaticStateBayesFilter`, :class:`VotingFilter`,
-:class:`MaxOfMeanFilter`), the frame-correlation temper of the frame-level models (:func:`fit_temper`; the
+:class:`MaxOfMeanFilter`; the calibrated peer: SSBF on frames calibrated by :func:`fit_frame_calibration`), the frame-correlation temper of the frame-level models (:func:`fit_temper`; the
 sequence model estimates an AR(1) correlation of its frames instead, :mod:`hbni_pyro.frame_correlation`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
@@ -31,6 +31,7 @@ from hbni_pyro.filters import (
     make_filter,
 )
 from hbni_pyro.fit import fit, fit_many
+from hbni_pyro.frame_calibration import CALIBRATIONS, FrameCalibration, fit_frame_calibration
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import (
     MacroObservationModel,
@@ -49,7 +50,9 @@ from hbni_pyro.variants import NOISE_MODELS, NoiseModel, noise_model, register
 
 __all__ = [
     "__version__",
+    "CALIBRATIONS",
     "FILTERS",
+    "FrameCalibration",
     "NOISE_MODELS",
     "OUTPUT_FLOOR",
     "StaticStateBayesFilter",
@@ -79,6 +82,7 @@ __all__ = [
     "register",
     "fit",
     "fit_many",
+    "fit_frame_calibration",
     "fit_temper",
     "gamma_log_prob",
     "hbni_model",

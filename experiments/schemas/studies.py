@@ -315,7 +315,7 @@ class DPOMDPBenchmarks(Root):
 
 
 PLANNING_MODELS = ("empirical", "generative")
-MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
+MISSION_VARIANTS = ("hbni", "calibrated", "ssbf", "max_of_mean")
 
 
 @dataclass
@@ -378,6 +378,7 @@ class MissionBlock:
     frames: int = MISSING
     threshold: float = MISSING
     temper: Any = MISSING
+    calibration: str = MISSING
     conditions: Optional[dict[str, Any]] = MISSING
     planning_model: str = MISSING
     compare_planning_models: bool = MISSING
@@ -389,6 +390,9 @@ class MissionBlock:
         for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
             positive_int(name, getattr(self, name))
         one_of("planning_model", self.planning_model, PLANNING_MODELS)
+        from hbni_pyro.frame_calibration import CALIBRATIONS
+
+        one_of("calibration", self.calibration, CALIBRATIONS)
         positive_int("augment", self.augment, 0)
         probability("threshold", self.threshold)
         t = self.temper

@@ -203,7 +203,8 @@ def summarise(
 
 
 def acceptance(results: dict[str, dict]) -> dict[str, Any]:
-    """The closed-loop checks on executed values: HBNI against perfect perception, SSBF and max-of-mean."""
+    """The closed-loop checks on executed values: HBNI against perfect perception, the calibrated peer, SSBF and
+    max-of-mean."""
     if "hbni" not in results or "executed" not in results["hbni"]:
         return {}
     h = results["hbni"]["executed"]
@@ -213,7 +214,9 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     }
     if "distribution_check" in h:
         out["hbni_distribution_check_passed"] = h["distribution_check"]["passed"]
-    for other in ("ssbf", "max_of_mean"):
+    if "calibrated" in results:
+        out["hbni_executed_over_calibrated"] = ratio(h["value"], results["calibrated"]["executed"]["value"])
+    for other in ("calibrated", "ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]
             out[f"hbni_executed_beats_{other}_outside_stderr"] = beats(h, o)
