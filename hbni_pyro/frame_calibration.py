@@ -72,7 +72,9 @@ class FrameCalibration:
         self.info = dict(info or {})
 
     def to(self, device: str | torch.device) -> FrameCalibration:
-        """This map with its tensors on ``device``."""
+        """This map with its tensors on ``device`` (itself when they are there already)."""
+        if self.weight.device == torch.device(device):
+            return self
         return FrameCalibration(self.weight.to(device), self.bias.to(device), self.kind, self.class_names, self.info)
 
     def log_probs(self, obs: Any) -> Tensor:
