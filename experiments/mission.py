@@ -71,6 +71,7 @@ from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
+from hbni_pyro.calibration import binomial_stderr
 from hbni_infra.threads import threads
 
 
@@ -127,6 +128,7 @@ class Noise(NamedTuple):
     posterior: hbni_pyro.HBNIPosterior
     temper: dict[str, Any]
     peer: Peer | None = None
+    stop: dict[str, Any] | None = None  # HBNI's stopping confidence: {"value", "fitted", ...}; None: the threshold
 
 
 class Peer(NamedTuple):
@@ -255,18 +257,29 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
     )
     save_artifact(run_dir, "posterior", posterior)
     peer = fit_peer(calib, cfg, settings, run_dir) if "calibrated" in settings.variants else None
-    if settings.temper is not None:
-        return Noise(posterior, {"value": settings.temper, "fitted": False}, peer)
-    if posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
-        return Noise(posterior, {"value": 1.0, "fitted": False, "needed": False}, peer)
     M, frames = len(CLASSES), settings.frames
     truth = torch.arange(M).repeat_interleave(calib.shape[1])
-    fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), truth, cfg.hbni.filter.mode)
-    return Noise(
-        posterior,
-        {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(), "log_score": fitted.log_score.tolist()},
-        peer,
-    )
+    streams = calib.reshape(-1, frames, M)
+    if settings.temper is not None:
+        temper = {"value": settings.temper, "fitted": False}
+    elif posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
+        temper = {"value": 1.0, "fitted": False, "needed": False}
+    else:
+        fitted = hbni_pyro.fit_temper(posterior, streams, truth, cfg.hbni.filter.mode)
+        temper = {
+            "value": fitted.temper,
+            "fitted": True,
+            "grid": fitted.grid.tolist(),
+            "log_score": fitted.log_score.tolist(),
+        }
+    threshold = float(cfg.mission.threshold)
+    stop: dict[str, Any] = {"value": threshold, "fitted": False}
+    if cfg.mission.hbni_stop == "calibrated":
+        hbni = hbni_pyro.make_filter("hbni", posterior, mode=cfg.hbni.filter.mode, temper=temper["value"])
+        fitted_stop = hbni_pyro.fit_stop_threshold(hbni, streams, truth, threshold, frames)
+        stop = {"fitted": True, **fitted_stop._asdict(), "value": fitted_stop.stop}
+        del stop["stop"]
+    return Noise(posterior, temper, peer, stop)
 
 
 def fit_peer(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Peer:
@@ -299,14 +312,18 @@ def characterize_processes(
 
 
 def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
-    """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
+    """Each variant's macro-observation process: its filter, ``mission.threshold`` (HBNI: the stopping confidence
+    that keeps that promise on the calibration sequences, with ``mission.hbni_stop=calibrated``) and the frame
+    budget."""
+    threshold = float(cfg.mission.threshold)
+    stops = {"hbni": noise.stop["value"] if noise.stop else threshold}
     options: dict[str, dict[str, Any]] = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
     if noise.peer is not None:
         options["calibrated"] = {"calibration": noise.peer.calibration, "temper": noise.peer.temper}
     return {
         name: hbni_pyro.MacroObservationProcess(
             hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
-            threshold=float(cfg.mission.threshold),
+            threshold=stops.get(name, threshold),
             max_frames=settings.frames,
         )
         for name in settings.variants
@@ -476,6 +493,8 @@ def execute_closed_loop(
         if name in settings.loop.powered.entries:
             entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
+    for name, replay in on_pool.items():
+        results[name]["held_out_process"] = held_out_checks(replay, float(cfg.mission.threshold))
     return (
         honesty.reliability_figure(
             processes, *closed_loop.as_streams(bank), mission_report.LABELS, float(cfg.mission.threshold)
@@ -483,6 +502,27 @@ def execute_closed_loop(
         if processes
         else None
     )
+
+
+def held_out_checks(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
+    """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
+    and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
+    emitted labels that are right with its binomial s.e., its mean frames (a timeout counting the budget) with
+    their s.e., and its timeout rate."""
+    r = replay.results
+    emitted, right = ~r.timed_out, r.label == replay.true_class
+    n, frames = int(emitted.sum()), r.frames_used.double()
+    accuracy = float(right[emitted].double().mean()) if n else float("nan")
+    return {
+        "threshold": threshold,
+        "stop": replay.process.threshold,
+        "streams": len(right),
+        "emitted_accuracy": accuracy,
+        "emitted_stderr": binomial_stderr(accuracy, n),
+        "mean_frames": float(frames.mean()),
+        "frames_stderr": float(frames.std() / math.sqrt(len(frames))),
+        "timeout_rate": float(r.timed_out.double().mean()),
+    }
 
 
 class _Loop(NamedTuple):
@@ -622,6 +662,7 @@ def write_outputs(
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
+        "hbni_stop": noise.stop,
         "calibrated_peer": None if noise.peer is None else noise.peer.summary(),
         "hbni_frame_correlation": noise.posterior.frame_correlation,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},

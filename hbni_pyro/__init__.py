@@ -8,7 +8,8 @@ the streaming filters (:class:`HBNIFilter`, :class:`StaticStateBayesFilter`, :cl
 sequence model estimates an AR(1) correlation of its frames instead, :mod:`hbni_pyro.frame_correlation`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
-(:func:`threshold_checks`, :func:`stream_reliability`), closed-loop perception replaying recorded
+(:func:`threshold_checks`, :func:`stream_reliability`, the stopping confidence that keeps a promised accuracy:
+:func:`fit_stop_threshold`), closed-loop perception replaying recorded
 streams through a process (:class:`StreamReplay`), and a live classified stream cut into consecutive
 macro-observations (:func:`macro_observations`, :class:`Segment`).
 
@@ -17,7 +18,7 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 
 from hbni_infra.version import __version__
 
-from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
+from hbni_pyro.calibration import StopFit, fit_stop_threshold, reliability, stream_reliability, threshold_checks
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
@@ -68,6 +69,7 @@ __all__ = [
     "NoiseModel",
     "Segment",
     "SequenceMetropolis",
+    "StopFit",
     "StreamReplay",
     "TemperFit",
     "VotingFilter",
@@ -83,6 +85,7 @@ __all__ = [
     "fit",
     "fit_many",
     "fit_frame_calibration",
+    "fit_stop_threshold",
     "fit_temper",
     "gamma_log_prob",
     "hbni_model",

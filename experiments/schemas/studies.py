@@ -378,6 +378,7 @@ class MissionBlock:
     frames: int = MISSING
     threshold: float = MISSING
     temper: Any = MISSING
+    hbni_stop: str = MISSING
     calibration: str = MISSING
     conditions: Optional[dict[str, Any]] = MISSING
     planning_model: str = MISSING
@@ -393,6 +394,7 @@ class MissionBlock:
         from hbni_pyro.frame_calibration import CALIBRATIONS
 
         one_of("calibration", self.calibration, CALIBRATIONS)
+        one_of("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
         positive_int("augment", self.augment, 0)
         probability("threshold", self.threshold)
         t = self.temper

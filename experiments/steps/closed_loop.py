@@ -215,7 +215,16 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     if "distribution_check" in h:
         out["hbni_distribution_check_passed"] = h["distribution_check"]["passed"]
     if "calibrated" in results:
-        out["hbni_executed_over_calibrated"] = ratio(h["value"], results["calibrated"]["executed"]["value"])
+        peer = results["calibrated"]
+        out["hbni_executed_over_calibrated"] = ratio(h["value"], peer["executed"]["value"])
+        out["hbni_executed_at_least_calibrated"] = h["value"] >= peer["executed"]["value"]
+        if "held_out_process" in results["hbni"] and "held_out_process" in peer:
+            a, b = results["hbni"]["held_out_process"], peer["held_out_process"]
+            out["hbni_honest_on_held_out"] = a["emitted_accuracy"] + a["emitted_stderr"] >= a["threshold"]
+            out["hbni_frames_over_calibrated"] = ratio(a["mean_frames"], b["mean_frames"])
+            out["hbni_frames_at_most_1.5x_calibrated"] = a["mean_frames"] <= 1.5 * b["mean_frames"]
+            out["hbni_timeouts_at_most_0.1"] = a["timeout_rate"] <= 0.10
+    out["hbni_executed_at_least_98pct_perfect"] = h["value"] >= 0.98 * results["perfect"]["executed"]["value"]
     for other in ("calibrated", "ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]
