@@ -171,7 +171,7 @@ def fit_stop_threshold(
     frames) is right more often than it says; stopping once its confidence reaches ``stop < target`` then keeps
     the promise ``target`` in fewer frames. ``stop`` is the lowest candidate of ``grid`` (``None``:
     :data:`DEFAULT_STOPS` above ``1 / M``) whose emitted labels' Wilson lower bound at ``z`` standard errors is at
-    least ``target``; when none is, the highest candidate.
+    least ``target``; when none is (too few sequences to show it), ``target`` itself.
     """
     target = as_probability("target", target, allow_zero=False)
     low = 1.0 / filter.num_classes
@@ -183,7 +183,7 @@ def fit_stop_threshold(
     lower = [
         wilson_lower(round(r["emitted_accuracy"] * r["emitted"]) if r["emitted"] else 0, r["emitted"], z) for r in rows
     ]
-    stop = next((t for t, bound in zip(grid, lower) if bound >= target), grid[-1])
+    stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
     return StopFit(
         stop,
         target,

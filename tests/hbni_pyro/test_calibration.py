@@ -100,8 +100,8 @@ def test_stop_threshold_is_the_lowest_that_keeps_the_promise():
     checks = threshold_checks(f, streams, truth, [0.9], stops={0.9: fit.stop})["0.9"]
     assert checks["stop"] == fit.stop and checks["emitted_accuracy"] >= 0.9
     assert checks["mean_frames"] <= threshold_checks(f, streams, truth, [0.9])["0.9"]["mean_frames"]
-    # a promise no candidate keeps: the highest candidate
-    assert fit_stop_threshold(StaticStateBayesFilter(3), streams, truth, 1.0, grid=[0.5, 0.6]).stop == 0.6
+    # a promise no candidate keeps: the promise itself
+    assert fit_stop_threshold(StaticStateBayesFilter(3), streams, truth, 0.99, grid=[0.5, 0.6]).stop == 0.99
     with pytest.raises(ValueError, match="grid"):
         fit_stop_threshold(f, streams, truth, 0.9, grid=[0.1, 0.2])
     with pytest.raises(ValueError, match="target"):
