@@ -26,7 +26,7 @@ from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.engine import draw_seed, engine_model
 from decpomdp.engine import run as run_engine
-from hbni_infra.checks import as_int
+from hbni_infra.checks import as_generator, as_int
 
 BACKENDS = ("engine", "torch")
 #: The backend a call without one uses: ``None`` (or ``"engine"``) is the engine wherever the domain is written
@@ -104,7 +104,8 @@ def simulate(
         env: the Dec-POSMDP.
         controller: K joint controllers.
         rollouts_per_controller: R >= 1.
-        generator: the only source of randomness (the engine draws one seed from it per call); the torch
+        generator: the only source of randomness, a ``torch.Generator`` (``None`` or a seed is a ``TypeError``: no
+            call draws from torch's global stream); the engine draws one seed from it per call, the torch
             simulator runs on its device (a CUDA generator needs ``backend="torch"`` and a domain whose torch
             methods support it, e.g. :class:`~decpomdp.dpomdp.TabularDecPOSMDP`).
         backend: ``"engine"``, ``"torch"`` or ``None`` (the engine where ``env`` is written for it).
@@ -115,6 +116,7 @@ def simulate(
     """
     check(env, controller)
     rollouts_per_controller = as_int("rollouts_per_controller", rollouts_per_controller, minimum=1)
+    generator = as_generator("generator", generator)
     if resolve_backend(env, backend) == "engine":
         return run_engine(env, controller, rollouts_per_controller, draw_seed(generator)).returns
     return simulate_torch(env, controller, rollouts_per_controller, generator)

@@ -23,7 +23,7 @@ from hbni_pyro.generative import sample_dirichlet
 from hbni_pyro.kernels import ConfusionMetropolis
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants.paper import concentration_prior, concentration_statistics
+from hbni_pyro.variants.paper import PAPER_HYPERPRIOR, concentration_prior, concentration_statistics
 from hbni_pyro.variants.spec import Draws, NoiseModel
 
 SCALARS = ("kappa", "gamma", "beta_loc", "beta_scale")
@@ -89,4 +89,5 @@ NOISE_MODEL = NoiseModel(
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
+    hyperprior_fields=(*PAPER_HYPERPRIOR, "offdiag_loc_sd", "offdiag_scale_sd"),
 )

@@ -53,6 +53,9 @@ def simulate(params: Draws, classes: Tensor, num_frames: int, generator: torch.G
     return sample_outputs(params["theta"], classes, generator)
 
 
+#: the hyperprior fields of the paper's model (kappa's and gamma's Gamma priors)
+PAPER_HYPERPRIOR = ("beta", "eta", "nu", "omega")
+
 NOISE_MODEL = NoiseModel(
     name="paper",
     summary="o | c ~ Dir(theta_c e_c + 1), the paper's model",
@@ -67,4 +70,5 @@ NOISE_MODEL = NoiseModel(
     draw_prior=concentration_prior,
     simulate=simulate,
     rank_statistics=concentration_statistics,
+    hyperprior_fields=PAPER_HYPERPRIOR,
 )

@@ -110,4 +110,14 @@ NOISE_MODEL = NoiseModel(
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
+    hyperprior_fields=(
+        "look_vertex",
+        "look_sd",
+        "between_scale",
+        "between_df",
+        "between_pooling_median",
+        "between_pooling_sd",
+        "within_scale",
+        "within_df",
+    ),
 )

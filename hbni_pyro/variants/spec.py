@@ -59,6 +59,7 @@ class NoiseModel:
         draw_prior: ``(hyperprior, M, n, generator) -> draws (n, ...)`` from the prior, for SBC (``None``: no SBC).
         simulate: ``(params, classes, num_frames, generator) -> (N, M)`` outputs of one dataset, for SBC.
         rank_statistics: draws ``(n, ...)`` -> name -> ``(n,)``, the scalars whose ranks SBC checks.
+        hyperprior_fields: the :class:`~hbni_pyro.HyperPrior` fields the model reads (it ignores the others).
     """
 
     name: str
@@ -80,6 +81,7 @@ class NoiseModel:
     draw_prior: Callable | None = None
     simulate: Callable | None = None
     rank_statistics: Callable[[Draws], dict[str, Tensor]] | None = None
+    hyperprior_fields: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.correlated_frames and not self.sequences:
