@@ -38,6 +38,7 @@ from hbni_infra.tensorfile import load_tensors, save_tensors
 
 KIND = "hbni_infra.CacheEntry"
 _POLL_SECONDS = 1.0
+_LAYOUT = "digested files"  # part of every entry's name: files of another layout are never looked up
 HEARTBEAT_SECONDS = 30.0
 """How often the holder of a lock touches it (a daemon thread, while it holds it)."""
 STALE_SECONDS = 300.0
@@ -47,8 +48,9 @@ WAIT_SECONDS = 6 * 3600.0
 
 
 def entry_path(cache_dir: str | os.PathLike, name: str, key: dict[str, Any]) -> Path:
-    """Where the entry ``name`` with ``key`` lives in ``cache_dir``."""
-    return Path(cache_dir) / f"{name}-{digest(key)[:24]}.safetensors"
+    """Where the entry ``name`` with ``key`` lives in ``cache_dir`` (entries written before file digests have other
+    names: they are built again beside the old files, never refused)."""
+    return Path(cache_dir) / f"{name}-{digest(_LAYOUT, key)[:24]}.safetensors"
 
 
 def load_entry(path: str | os.PathLike, key: dict[str, Any], what: str = "cache entry") -> dict[str, Tensor]:

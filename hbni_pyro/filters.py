@@ -374,9 +374,9 @@ def make_filter(
     """The streaming filter called ``name`` (one of :data:`FILTERS`).
 
     ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
-    ``class_prior``, ``frame_correlation``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
-    (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``. ``device``: where the filter runs (``None``:
-    the posterior's device, else the CPU).
+    ``class_prior``, ``frame_correlation``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only
+    ``num_classes`` (default: the posterior's; given a posterior, they take its class names), and ``"ssbf"`` takes a
+    ``class_prior``. ``device``: where the filter runs (``None``: the posterior's device, else the CPU).
     """
     if name not in FILTERS:
         raise ValueError(f"name: expected one of {FILTERS}, got {name!r}")
@@ -394,6 +394,10 @@ def make_filter(
         raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
     if device is None:
         device = getattr(posterior, "device", "cpu")
-    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
+    baseline = {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
         num_classes, device=device, **options
     )
+    names = getattr(posterior, "class_names", None)
+    if names is not None and len(names) == baseline.num_classes:
+        baseline.class_names = tuple(names)
+    return baseline
