@@ -27,7 +27,7 @@ def mission_run(tiny_mission_run):
 
 def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     metrics = json.loads((mission_run / "metrics.json").read_text())
-    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean", "hbni_empirical"}
+    assert set(metrics["variants"]) == {"perfect", "hbni", "calibrated", "ssbf", "max_of_mean", "hbni_empirical"}
     for entry in metrics["variants"].values():
         assert {"value", "stderr", "delivered_per_rollout", "wrong_per_rollout", "mean_inference_frames"} <= set(entry)
         assert {"value", "stderr", "gap_in_stderr", "wrong_per_rollout"} <= set(entry["executed"])
@@ -36,6 +36,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert loop["planning"] == {
         "perfect": "exact",
         "hbni": "generative",
+        "calibrated": "generative",
         "ssbf": "generative",
         "max_of_mean": "generative",
         "hbni_empirical": "empirical",
@@ -50,7 +51,21 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
             fresh = 2 + extra if loop["planning"][name] == "empirical" else 2 + held + extra
             assert entry["executed"]["sequences_per_class"] == fresh
             assert ("on_demand" in entry["executed"]) == (name == "hbni")  # mission.bank.powered.entries
-    assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
+    assert set(loop["acceptance"]) >= {
+        "hbni_executed_over_perfect",
+        "hbni_executed_beats_ssbf_outside_stderr",
+        "hbni_executed_at_least_calibrated",
+        "hbni_executed_at_least_98pct_perfect",
+        "hbni_honest_on_held_out",
+        "hbni_frames_at_most_1.5x_calibrated",
+        "hbni_timeouts_at_most_0.1",
+    }
+    for name in ("hbni", "calibrated", "ssbf", "max_of_mean"):  # each process on the held-out streams it ran on
+        checks = metrics["variants"][name]["held_out_process"]
+        assert checks["threshold"] == 0.95 and 0 <= checks["timeout_rate"] <= 1
+    assert metrics["variants"]["hbni"]["held_out_process"]["stop"] == metrics["hbni_stop"]["value"]
+    assert metrics["hbni_stop"]["fitted"] and metrics["calibrated_peer"]["kind"] == "matrix"
+    assert metrics["calibrated_peer"]["loss"] <= metrics["calibrated_peer"]["raw_loss"]
     report = (mission_run / "report.md").read_text()
     assert "## Closed loop: planned against executed" in report and "The **generative** planning model is" in report
     for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png", "closed_loop.png"):
@@ -75,6 +90,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert started == {
         "perfect": "scratch",
         "hbni": "perfect",
+        "calibrated": "perfect",
         "ssbf": "perfect",
         "max_of_mean": "perfect",
         "hbni_empirical": "perfect",
@@ -98,7 +114,11 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert set(manifest) == {
         "classifier",
         "posterior",
+        "calibration",
         "macro_hbni",
+        "macro_calibrated",
+        "macro_calibrated_generative",
+        "controller_calibrated",
         "macro_ssbf",
         "macro_max_of_mean",
         "macro_hbni_generative",
@@ -147,6 +167,7 @@ def test_generative_planning_model(tmp_path, repo_root, model, source):
     assert metrics["closed_loop"]["planning"] == {
         "perfect": "exact",
         "hbni": "generative",
+        "calibrated": "generative",
         "ssbf": "generative",
         "hbni_empirical": "empirical",
     }
