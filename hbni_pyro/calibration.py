@@ -27,7 +27,7 @@ from torch import Tensor
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.macro import MacroObservationProcess
 from hbni_pyro.validation import DTYPE
-from hbni_infra.checks import as_probability
+from hbni_infra.checks import as_float, as_int, as_probability
 
 
 class Reliability(NamedTuple):
@@ -52,6 +52,8 @@ def reliability(confidence: Tensor, correct: Tensor, num_bins: int = 10, low: fl
 
     The diagram's tensors are on ``confidence``'s device.
     """
+    num_bins = as_int("num_bins", num_bins, minimum=1)
+    low = as_float("low", low, 0.0, 1.0, high_open=True)
     confidence = confidence.reshape(-1).to(DTYPE)
     correct = correct.reshape(-1).to(confidence.device, DTYPE)
     if confidence.shape != correct.shape or confidence.numel() == 0:
@@ -102,6 +104,8 @@ def threshold_checks(
     whole budget) and its standard error ``frames_stderr`` (sample sd over ``sqrt(B)``), and
     ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
+    thresholds = [as_probability(f"thresholds[{i}]", t, allow_zero=False) for i, t in enumerate(thresholds)]
+    max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
     truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
     for t in thresholds:

@@ -437,7 +437,8 @@ def make_filter(
     ``class_prior``, ``frame_correlation``); ``"calibrated"``, the calibrated peer, is :class:`StaticStateBayesFilter`
     on calibrated frames (options ``calibration``, a :class:`~hbni_pyro.frame_calibration.FrameCalibration`, required,
     ``temper`` and ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only
-    ``num_classes`` (default: the posterior's, or the calibration's), and ``"ssbf"`` takes a ``class_prior``.
+    ``num_classes`` (default: the posterior's, or the calibration's; given a posterior, they take its class
+    names), and ``"ssbf"`` takes a ``class_prior``.
     ``device``: where the filter runs (``None``: the posterior's device, else the CPU).
     """
     if name not in FILTERS:
@@ -463,7 +464,12 @@ def make_filter(
     if device is None:
         device = getattr(posterior, "device", "cpu")
     if name == "calibrated":
-        return StaticStateBayesFilter(num_classes, device=device, **options)
-    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
-        num_classes, device=device, **options
-    )
+        baseline = StaticStateBayesFilter(num_classes, device=device, **options)
+    else:
+        baseline = {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
+            num_classes, device=device, **options
+        )
+    names = getattr(posterior, "class_names", None)
+    if names is not None and len(names) == baseline.num_classes:
+        baseline.class_names = tuple(names)
+    return baseline

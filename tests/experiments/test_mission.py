@@ -3,7 +3,6 @@
 import json
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -11,10 +10,9 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
-from mission_tiny import TINY_MISSION, TINY_MISSION_GDICE
+from mission_tiny import TINY_BANKS, TINY_MISSION, TINY_MISSION_FROM_SCRATCH, TINY_MISSION_GDICE
 
-BANKS = f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"
-TINY = [*TINY_MISSION, BANKS]
+TINY = [*TINY_MISSION, TINY_BANKS]
 
 
 def _run(repo_root, *args, multirun=False, tiny=TINY):
@@ -23,10 +21,8 @@ def _run(repo_root, *args, multirun=False, tiny=TINY):
 
 
 @pytest.fixture(scope="module")
-def mission_run(tmp_path_factory, repo_root):
-    run_dir = tmp_path_factory.mktemp("mission")
-    _run(repo_root, f"hydra.run.dir={run_dir}", "mission.bank.workers=1")  # the bank built in the background
-    return run_dir
+def mission_run(tiny_mission_run):
+    return tiny_mission_run
 
 
 def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
@@ -232,7 +228,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            tiny=[*TINY_MISSION_GDICE, BANKS],
+            tiny=[*TINY_MISSION_GDICE, TINY_BANKS],
         )
     else:
         _run(
@@ -242,7 +238,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            planning,
+            tiny=[*TINY_MISSION_FROM_SCRATCH, TINY_BANKS],
         )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
