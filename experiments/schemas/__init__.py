@@ -22,10 +22,13 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from experiments.schemas.studies import SCHEMAS
-from experiments.schemas.targets import join_key
+from decpomdp.search import gdice_config
+from experiments.schemas.targets import join_key, preset
 from experiments.paths import register_resolver
 
-__all__ = ["SCHEMAS", "check_config", "check_overrides", "register", "unread_settings"]
+__all__ = ["SCHEMAS", "check_config", "check_overrides", "gdice_node", "register", "unread_settings"]
+
+PLANNER = "decpomdp.search.PlannerConfig"
 
 
 def register() -> None:
@@ -34,6 +37,13 @@ def register() -> None:
     store = ConfigStore.instance()
     for name, schema in SCHEMAS.items():
         store.store(group="schema", name=name, node=schema, package="_global_")
+    store.store(group="planner", name="gdice", node=gdice_node())
+
+
+def gdice_node() -> dict[str, Any]:
+    """``planner=gdice``: :func:`decpomdp.search.gdice_config` as a config node (what differs from the planner's
+    defaults), its graph starting with all its ``num_nodes`` nodes whatever ``num_nodes`` is set to."""
+    return preset(PLANNER, gdice_config(), start_nodes="${.num_nodes}")
 
 
 def check_config(cfg: DictConfig) -> None:

@@ -64,8 +64,8 @@ NO_NOISE_MODEL = "it fits no noise model"
 
 
 def _check_theta(name: str, theta: list[float]) -> None:
-    if len(theta) < 2 or any(not t > 0 for t in theta):
-        raise ValueError(f"{name}: expected at least 2 noise levels > 0, got {list(theta)}")
+    if len(theta) < 2 or any(not (math.isfinite(t) and t > 0) for t in theta):
+        raise ValueError(f"{name}: expected at least 2 finite noise levels > 0, got {list(theta)}")
 
 
 def _check_conditions(name: str, overrides: dict[str, Any] | None) -> None:
@@ -369,7 +369,7 @@ class DPOMDPBenchmarks(Root):
 
 
 PLANNING_MODELS = ("empirical", "generative")
-MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
+MISSION_VARIANTS = ("hbni", "calibrated", "ssbf", "max_of_mean")
 
 
 @dataclass
@@ -432,6 +432,8 @@ class MissionBlock:
     frames: int = MISSING
     threshold: float = MISSING
     temper: Any = MISSING
+    hbni_stop: str = MISSING
+    calibration: str = MISSING
     conditions: Optional[dict[str, Any]] = MISSING
     planning_model: str = MISSING
     compare_planning_models: bool = MISSING
@@ -443,6 +445,10 @@ class MissionBlock:
         for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
             positive_int(name, getattr(self, name))
         one_of("planning_model", self.planning_model, PLANNING_MODELS)
+        from hbni_pyro.frame_calibration import CALIBRATIONS
+
+        one_of("calibration", self.calibration, CALIBRATIONS)
+        one_of("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
         positive_int("augment", self.augment, 0)
         probability("threshold", self.threshold)
         t = self.temper

@@ -84,6 +84,7 @@ NOISE_MODEL = NoiseModel(
     sample_streams=sample_streams,
     max_plate_nesting=2,
     free_entry=lambda site, index: site != "beta" or index[0] != index[1],
+    positive_sites=("theta", "beta", "kappa", "gamma", "beta_scale"),
     arviz_dims={"theta": ["class"], "beta": ["class", "class_to"]},
     draw_prior=draw_prior,
     simulate=simulate,

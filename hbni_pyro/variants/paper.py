@@ -65,6 +65,7 @@ NOISE_MODEL = NoiseModel(
     site_shapes=site_shapes,
     nuts_sites=lambda raw: {k: raw[k] for k in SITES},
     sample_streams=sample_streams,
+    positive_sites=SITES,
     arviz_dims={"theta": ["class"]},
     draw_prior=concentration_prior,
     simulate=simulate,
