@@ -123,8 +123,8 @@ class FilteringStudy:
 
 
 @dataclass
-class FilteringError(Root):
-    study: FilteringStudy = field(default_factory=FilteringStudy)
+class PaperStudy(Root):
+    """A study of the paper's own noise model: ``hbni.model`` is not read."""
 
     @classmethod
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
@@ -133,6 +133,11 @@ class FilteringError(Root):
     @classmethod
     def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
         return ("paper",)
+
+
+@dataclass
+class FilteringError(PaperStudy):
+    study: FilteringStudy = field(default_factory=FilteringStudy)
 
 
 @dataclass
@@ -152,16 +157,8 @@ class MacroStudy:
 
 
 @dataclass
-class MacroObservation(Root):
+class MacroObservation(PaperStudy):
     study: MacroStudy = field(default_factory=MacroStudy)
-
-    @classmethod
-    def unread(cls, cfg: DictConfig) -> dict[str, str]:
-        return {"hbni.model": "the study fits the paper's model"}
-
-    @classmethod
-    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
-        return ("paper",)
 
 
 @dataclass
