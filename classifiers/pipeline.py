@@ -32,6 +32,7 @@ from classifiers.svm import OneVsOneSVC
 from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import torch_threads
+from hbni_infra.streams import numpy_generator
 
 __all__ = ["FrameClassifier"]
 
@@ -242,7 +243,7 @@ class FrameClassifier:
         """
         if copies < 0:
             raise ValueError(f"copies: expected >= 0, got {copies}")
-        rng = np.random.default_rng(self.seed)
+        rng = numpy_generator(self.seed)
         size = self.backbone_.input_size
         crops = []
         for im in as_image_batch(images):

@@ -10,6 +10,7 @@ from torch import Tensor
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer
 from hbni_infra.checks import as_int
+from hbni_infra.streams import torch_generator
 
 
 def random_controllers(
@@ -56,7 +57,7 @@ def monte_carlo_search(
     With ``budget = iterations * samples`` it sees as many controllers as a G-DICE run.
     """
     budget, batch, rollouts = as_int("budget", budget, 1), as_int("batch", batch, 1), as_int("rollouts", rollouts, 2)
-    generator = torch.Generator().manual_seed(as_int("seed", seed, 0))
+    generator = torch_generator(as_int("seed", seed, 0))
     best, best_value, all_values = None, -float("inf"), []
     for start in range(0, budget, batch):
         ctrl = random_controllers(

@@ -46,12 +46,12 @@ from torch import Tensor
 
 from hbni_pyro.calibration import Reliability, reliability
 from hbni_pyro.filters import HBNIFilter, StreamingFilter
-from hbni_pyro.generative import seeded_generator
 from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
 from hbni_infra.checks import as_int, as_probability
 from hbni_infra.files import atomic_write_bytes
 from hbni_infra.optional import require
+from hbni_infra.streams import torch_generator
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -225,7 +225,7 @@ def check(
     ids = torch.arange(n) if sequence_ids is None else as_sequence_ids(sequence_ids, n)
     streams = list(torch.argsort(ids, stable=True).split(torch.bincount(ids).tolist()))  # frames in the order given
     truth = None if labels is None else _stream_labels(as_labels(labels, n, num_classes), streams)
-    g = seeded_generator(posterior.device, seed)
+    g = torch_generator(seed, posterior.device)
     if truth is None:
         truth_sim = torch.multinomial(posterior.class_prior.to(DTYPE), len(streams) * simulations, True, generator=g)
         truth_sim = truth_sim.cpu()

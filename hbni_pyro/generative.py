@@ -4,7 +4,7 @@
 ``x_m ~ Ga(theta_m + 1, 1)`` and ``x_j ~ Ga(1, 1) = Exp(1)`` for ``j != m``. Gamma draws
 with shape >= 1 use Marsaglia and Tsang's squeeze method, vectorised over all entries,
 so every draw is reproducible from the generator alone. Draws are made on the device of the
-parameters, with a generator of that device (:func:`seeded_generator`). On ``meta`` parameters
+parameters, with a generator of that device (:func:`hbni_infra.streams.torch_generator`). On ``meta`` parameters
 (shapes only) there is no generator (``None``) and the draws are shapes without values.
 """
 
@@ -16,11 +16,6 @@ from torch import Tensor
 from hbni_pyro.density import helmert_basis
 from hbni_pyro.frame_correlation import ar1_normals
 from hbni_pyro.validation import DTYPE, has_values
-
-
-def seeded_generator(device: torch.device, seed: int) -> torch.Generator | None:
-    """A ``torch.Generator`` on ``device`` seeded with ``seed``; ``None`` on ``meta``, where nothing is drawn."""
-    return torch.Generator(device).manual_seed(seed) if device.type != "meta" else None
 
 
 def sample_gamma(shape: Tensor, generator: torch.Generator | None) -> Tensor:

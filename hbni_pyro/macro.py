@@ -26,10 +26,11 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
-from hbni_pyro.generative import sample_outputs, seeded_generator
+from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE, has_values
 from hbni_infra.checks import as_int, as_names, as_probability
 from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.streams import torch_generator
 
 _KIND = "hbni_pyro.MacroObservationModel"
 
@@ -302,7 +303,7 @@ def characterize(
     num_streams = _positive_int(num_streams, "num_streams")
     streams, source, device = _stream_sampler(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
-    g = seeded_generator(device, seed)
+    g = torch_generator(seed, device)
     results = []
     for c in tqdm(range(M), desc="characterize", disable=not progress):
         results.append(process.run_batch(streams(c, num_streams, T, g)))

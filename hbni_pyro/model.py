@@ -30,6 +30,7 @@ from hbni_pyro.density import (
 )
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
+from hbni_infra.streams import torch_generator
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,7 @@ def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int =
     Returns:
         ``(K,)`` log density.
     """
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     h = hyperprior
     kappa = gamma_variates(torch.full((num_mc,), h.beta), h.eta, g)
     gamma = gamma_variates(torch.full((num_mc,), h.nu), h.omega, g)

@@ -12,13 +12,13 @@ import torch
 from pyro.ops.stats import effective_sample_size, split_gelman_rubin
 from torch import Tensor
 
-from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from hbni_infra.checks import as_device, as_float, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.optional import require
+from hbni_infra.streams import torch_generator
 
 _KIND = "hbni_pyro.HBNIPosterior"
 _VERSION = 2  # format version of saved posteriors
@@ -196,7 +196,7 @@ class HBNIPosterior:
         )
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
-        g = generator if generator is not None else seeded_generator(self.device, seed)
+        g = generator if generator is not None else torch_generator(seed, self.device)
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g, device=self.device)
