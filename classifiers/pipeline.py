@@ -348,4 +348,8 @@ class FrameClassifier:
         model.head_ = OneVsOneSVC.from_state({k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta)
         if model.mean_.shape != (model.backbone_.num_features,) or model.head_.coef_.shape[1] != model.mean_.shape[0]:
             raise ValueError(f"path: {str(path)!r} has inconsistent feature sizes")
+        if not bool(torch.isfinite(model.mean_).all()) or not bool((model.scale_ > 0).all()):
+            raise ValueError(
+                f"path: {str(path)!r} holds an invalid {_KIND} (mean and scale: expected finite, scale > 0)"
+            )
         return model

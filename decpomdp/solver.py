@@ -19,12 +19,13 @@ from decpomdp.baselines import random_controllers
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.best_response import jesp
 from decpomdp.dpomdp.bounds import Bounds, upper_bounds
+from decpomdp.dpomdp.cyclic import ascend, count_controllers, loop_back
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem, problem_names
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-from hbni_infra.checks import as_float, as_int
+from hbni_infra.checks import as_float, as_int, as_seed
 from hbni_infra.streams import stream_seed, torch_stream
 from hbni_infra.threads import torch_threads
 from decpomdp.search import ExactScorer, PlannerConfig, plan
@@ -46,6 +47,16 @@ def infinite_nodes(num_agents: int, num_states: int) -> int:
     return n
 
 
+PROVEN_TOLERANCE = 1e-6
+"""A solution is proven optimal when ``bound - value <= PROVEN_TOLERANCE * |value|``."""
+LOOP_HORIZONS = (2, 3, 4, 5, 6, 7, 8)
+"""Finite horizons whose solutions :func:`solve` loops back into infinite-horizon controllers."""
+ASCENT_ROUNDS = 5
+"""Most rounds of single changes :func:`solve` makes on an infinite-horizon controller (each round evaluates every
+single change of every agent's controller exactly)."""
+MAX_ENUMERATED = 20_000
+"""Most controllers of one agent coordinate ascent enumerates (3 nodes with 3 actions and 2 observations: 19,683)."""
+
 EXACT_DEFAULTS = {"ls_candidates": 500, "ls_lookahead": 0}
 """Planner settings :func:`solve` changes from the cold-start defaults: with exact scores, a local-search
 step needs no tens of thousands of candidates to see past noise (each costs an exact evaluation), and the
@@ -66,7 +77,10 @@ class Solution:
         bounds: the relaxations behind ``bound`` (:class:`~decpomdp.dpomdp.bounds.Bounds`).
         restarts: planner rounds made (round ``r`` plans a free graph while ``r < restarts`` and, at a finite
             horizon, a layered one while ``r < layered_restarts``); ``values`` the exact value every start reached
-            (planner runs in order, then JESP's random starts).
+            (planner runs in order, then JESP's random starts; at an infinite horizon: planner runs, loop-backs,
+            then coordinate ascent's random starts).
+        cpu_seconds: CPU time of the search and the bounds (this process, every thread).
+        proven: whether optimality is certified: ``bound - value <= 1e-6 |value|``.
     """
 
     controller: JointController
@@ -79,13 +93,18 @@ class Solution:
     bounds: Bounds
     restarts: int
     values: list[float] = field(default_factory=list)
+    cpu_seconds: float = 0.0
+
+    @property
+    def proven(self) -> bool:
+        return self.bound - self.value <= PROVEN_TOLERANCE * abs(self.value)
 
     def __repr__(self) -> str:
         h = "inf" if math.isinf(self.horizon) else f"{self.horizon:g}"
         return (
             f"Solution(value={self.value:.6g}, bound={self.bound:.6g}, gap={self.gap:.3%}, horizon={h}, "
             f"gamma={self.gamma:g}, nodes={self.controller.num_nodes}, restarts={self.restarts}, "
-            f"seconds={self.seconds:.1f})"
+            f"proven={self.proven}, seconds={self.seconds:.1f})"
         )
 
 
@@ -97,11 +116,125 @@ def _problem(problem: Any) -> DPOMDPModel:
     if isinstance(problem, str) and problem in problem_names():
         return load_problem(problem)
     if isinstance(problem, (str, os.PathLike)):
-        return load_dpomdp(Path(problem))
+        path = Path(problem)
+        if not path.exists():
+            raise FileNotFoundError(
+                f"problem: no such file {str(problem)!r} and no shipped problem of that name; "
+                f"the shipped problems are {', '.join(problem_names())}"
+            )
+        return load_dpomdp(path)
     raise TypeError(
         f"problem: expected a shipped problem's name, a .dpomdp path, a DPOMDPModel or a TabularDecPOSMDP, "
         f"got {type(problem).__name__}"
     )
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """The search settings of :func:`solve` (checked there)."""
+
+    restarts: int
+    layered_restarts: int
+    layer_width: int
+    max_layered_horizon: int
+    jesp_restarts: int
+    best_responses: bool
+    num_nodes: int | None
+    planner: dict
+
+
+def _finite_search(
+    env: TabularDecPOSMDP, settings: _Settings, seed: int, budget: float | None, start: float
+) -> tuple[JointController, float, list[float], int]:
+    """(controller, value, every start's value, rounds) of the planner runs and JESP at ``env``'s finite horizon."""
+    h = int(env.horizon)
+    num_nodes = min(max(8, 3 * h), MAX_FINITE_NODES) if settings.num_nodes is None else settings.num_nodes
+    config = PlannerConfig(num_nodes=num_nodes, **{**EXACT_DEFAULTS, **settings.planner})
+    respond = settings.best_responses
+    scorer = ExactScorer(env, threads=None)
+    best, values = None, []
+
+    def keep(controller: JointController) -> None:
+        nonlocal best
+        value = float(exact_value(env, controller)[0])
+        if respond:
+            controller, value, _ = jesp(env, controller, value)
+        values.append(value)
+        if best is None or value > best[1]:
+            best = (controller, value)
+
+    layered, width = None, settings.layer_width
+    if width and 1 < h <= settings.max_layered_horizon:
+        size = 1 + width * (h - 1)
+        layered = config.replace(num_nodes=size, start_nodes=size, layer_width=width, phases=("ce",), ce_reactive=False)
+    restarts, layered_restarts = max(1, settings.restarts), settings.layered_restarts
+    rounds = max(restarts, layered_restarts if layered is not None else 0)
+    runs = 0
+    while runs < rounds or (budget is not None and time.perf_counter() - start < budget):
+        if runs < restarts or runs >= rounds:
+            keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
+        if layered is not None and (runs < layered_restarts or runs >= rounds):
+            keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
+        runs += 1
+    for k in range(settings.jesp_restarts if respond else 0):
+        keep(
+            random_controllers(
+                1,
+                num_agents=env.num_agents,
+                num_nodes=3,
+                num_actions=env.num_actions,
+                num_obs=env.num_obs,
+                generator=torch_stream(seed, "solve", "jesp", k),
+            )
+        )
+    return best[0], best[1], values, runs
+
+
+def _cyclic_search(
+    env: TabularDecPOSMDP,
+    settings: _Settings,
+    seed: int,
+    loop_horizons: tuple[int, ...],
+    ascent_nodes: int,
+    ascent_starts: int,
+) -> tuple[JointController, float, list[float], int]:
+    """(controller, value, every start's value, planner runs) at ``env``'s infinite horizon: planner runs on a free
+    graph, loop-backs of finite-horizon solutions and coordinate ascent from random small controllers, each
+    the best of the first two improved by single changes (:func:`~decpomdp.dpomdp.cyclic.ascend`)."""
+    starts = []
+    if settings.restarts:
+        num_nodes = settings.num_nodes or infinite_nodes(env.num_agents, env.num_states)
+        config = PlannerConfig(num_nodes=num_nodes, **{**EXACT_DEFAULTS, **settings.planner})
+        scorer = ExactScorer(env, threads=None)
+        starts += [plan(scorer, config, seed=stream_seed(seed, "solve", r)).best for r in range(settings.restarts)]
+    for h in loop_horizons:
+        finite = TabularDecPOSMDP(env.model, env.gamma, horizon=h)
+        starts.append(loop_back(_finite_search(finite, settings, stream_seed(seed, "loop", h), None, 0.0)[0]))
+    best, values = None, []
+    for controller in starts:
+        value = float(exact_value(env, controller)[0])
+        values.append(value)
+        if best is None or value > best[1]:
+            best = (controller, value)
+    if best is not None:
+        best = ascend(env, *best, max_rounds=ASCENT_ROUNDS)[:2]
+    enumerable = count_controllers(ascent_nodes, env.num_actions, env.num_obs) <= MAX_ENUMERATED
+    for k in range(ascent_starts if enumerable else 0):
+        controller = random_controllers(
+            1,
+            num_agents=env.num_agents,
+            num_nodes=ascent_nodes,
+            num_actions=env.num_actions,
+            num_obs=env.num_obs,
+            generator=torch_stream(seed, "solve", "ascent", k),
+        )
+        controller, value, _ = ascend(env, controller, float(exact_value(env, controller)[0]), ascent_nodes)
+        values.append(value)
+        if best is None or value > best[1]:
+            best = (controller, value)
+    if best is None:
+        raise ValueError("loop_horizons/ascent_starts/restarts: an infinite horizon needs at least one start")
+    return best[0], best[1], values, settings.restarts
 
 
 def solve(
@@ -110,12 +243,15 @@ def solve(
     gamma: float | None = None,
     *,
     seed: int = 0,
-    restarts: int = 1,
+    restarts: int | None = None,
     layered_restarts: int = 1,
     layer_width: int = 3,
     max_layered_horizon: int = 20,
     jesp_restarts: int = 20,
     best_responses: bool = True,
+    loop_horizons: tuple[int, ...] = LOOP_HORIZONS,
+    ascent_nodes: int = 3,
+    ascent_starts: int = 8,
     time_budget: float | None = None,
     num_nodes: int | None = None,
     threads: int | None = 1,
@@ -131,7 +267,8 @@ def solve(
         seed: restart ``r`` plans on the stream ``(seed, "solve", r)``: the same seed, the same solution.
         restarts: planner runs on a free graph of ``num_nodes`` nodes, each from scratch on its own stream; the best
             of all runs is kept. At a finite horizon each result is then improved by exact best responses
-            (:func:`~decpomdp.dpomdp.best_response.jesp`).
+            (:func:`~decpomdp.dpomdp.best_response.jesp`). ``None``: 1 at a finite horizon, 0 at an infinite one
+            (where loop-backs and coordinate ascent do better, see below).
         layered_restarts: at a finite horizon, planner runs on a layered controller (node 0, then ``h - 1``
             layers of ``layer_width`` nodes: it knows the step, so it can act differently near the end), by
             cross-entropy, up to ``max_layered_horizon`` steps (its graph grows with the horizon).
@@ -140,10 +277,18 @@ def solve(
             streams ``(seed, "solve", "jesp", k)``); a best response whose beliefs would not fit is skipped.
         best_responses: ``False`` turns exact best responses off (no JESP after each run, no JESP restarts): the
             planner's results alone, as in an ablation.
+        loop_horizons: at an infinite horizon, the finite horizons ``h`` whose solutions (searched at the same
+            discount, with the settings above) become cyclic controllers that restart every ``h`` steps
+            (:func:`~decpomdp.dpomdp.cyclic.loop_back`); the best is then improved by single changes
+            (:func:`~decpomdp.dpomdp.cyclic.ascend`).
+        ascent_nodes, ascent_starts: at an infinite horizon, coordinate ascent over every ``ascent_nodes``-node
+            controller of one agent at a time (an exact best response among them), from ``ascent_starts`` random
+            joint controllers (streams ``(seed, "solve", "ascent", k)``); skipped where one agent has more than
+            :data:`MAX_ENUMERATED` such controllers.
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
-        num_nodes: controller nodes per agent (``None``: ``min(max(8, 3 h), 32)``, or :func:`infinite_nodes` for an
-            infinite horizon).
+        num_nodes: controller nodes per agent of the planner's free graph (``None``: ``min(max(8, 3 h), 32)``, or
+            :func:`infinite_nodes` for an infinite horizon).
         threads: torch's and NumPy BLAS's threads for the whole search (``None``: their current settings).
         **planner: other :class:`~decpomdp.search.PlannerConfig` settings (over :data:`EXACT_DEFAULTS`).
 
@@ -152,65 +297,33 @@ def solve(
     """
     model = _problem(problem)
     env = TabularDecPOSMDP(model, gamma, horizon=horizon)
-    restarts = as_int("restarts", restarts, minimum=1)
-    layered_restarts = as_int("layered_restarts", layered_restarts, minimum=0)
-    seed = as_int("seed", seed)
-    budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
     finite = math.isfinite(env.horizon)
-    if num_nodes is None:
-        num_nodes = (
-            min(max(8, 3 * int(env.horizon)), MAX_FINITE_NODES)
-            if finite
-            else infinite_nodes(env.num_agents, env.num_states)
-        )
-    config = PlannerConfig(num_nodes=as_int("num_nodes", num_nodes, minimum=1), **{**EXACT_DEFAULTS, **planner})
-    start = time.perf_counter()
+    restarts = (1 if finite else 0) if restarts is None else as_int("restarts", restarts, minimum=1)
+    layered_restarts = as_int("layered_restarts", layered_restarts, minimum=0)
+    seed = as_seed("seed", seed)
+    budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
     jesp_restarts = as_int("jesp_restarts", jesp_restarts, minimum=0)
     if not isinstance(best_responses, bool):
         raise TypeError(f"best_responses: expected True or False, got {best_responses!r}")
-    respond = finite and best_responses
-    scorer = ExactScorer(env, threads=threads)
-    best, values = None, []
-
-    def keep(controller: JointController) -> None:
-        nonlocal best
-        value = float(exact_value(env, controller)[0])
-        if respond:
-            controller, value, _ = jesp(env, controller, value)
-        values.append(value)
-        if best is None or value > best[1]:
-            best = (controller, value)
-
+    loop_horizons = tuple(as_int("loop_horizons", h, minimum=1) for h in loop_horizons)
+    ascent_nodes = as_int("ascent_nodes", ascent_nodes, minimum=1)
+    ascent_starts = as_int("ascent_starts", ascent_starts, minimum=0)
     layer_width = as_int("layer_width", layer_width, minimum=0)
     max_layered_horizon = as_int("max_layered_horizon", max_layered_horizon, minimum=0)
-    layered = None
-    if finite and layer_width and 1 < env.horizon <= max_layered_horizon:
-        size = 1 + layer_width * (int(env.horizon) - 1)
-        layered = config.replace(
-            num_nodes=size, start_nodes=size, layer_width=layer_width, phases=("ce",), ce_reactive=False
-        )
+    if num_nodes is not None:
+        num_nodes = as_int("num_nodes", num_nodes, minimum=1)
+    settings = _Settings(
+        restarts, layered_restarts, layer_width, max_layered_horizon, jesp_restarts, best_responses, num_nodes, planner
+    )
+    start, cpu = time.perf_counter(), time.process_time()
     with torch_threads(threads):  # the whole search, not only its exact scores
-        rounds = max(restarts, layered_restarts if layered is not None else 0)
-        runs = 0
-        while runs < rounds or (budget is not None and time.perf_counter() - start < budget):
-            if runs < restarts or runs >= rounds:
-                keep(plan(scorer, config, seed=stream_seed(seed, "solve", runs)).best)
-            if layered is not None and (runs < layered_restarts or runs >= rounds):
-                keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
-            runs += 1
-        for k in range(jesp_restarts if respond else 0):
-            keep(
-                random_controllers(
-                    1,
-                    num_agents=env.num_agents,
-                    num_nodes=3,
-                    num_actions=env.num_actions,
-                    num_obs=env.num_obs,
-                    generator=torch_stream(seed, "solve", "jesp", k),
-                )
+        if finite:
+            controller, value, values, runs = _finite_search(env, settings, seed, budget, start)
+        else:
+            controller, value, values, runs = _cyclic_search(
+                env, settings, seed, loop_horizons, ascent_nodes, ascent_starts
             )
         bounds = upper_bounds(env)
-    controller, value = best
     bound = bounds.best
     if value > bound + 1e-9 * max(1.0, abs(bound)):
         raise RuntimeError(
@@ -228,4 +341,5 @@ def solve(
         bounds,
         runs,
         values,
+        time.process_time() - cpu,
     )

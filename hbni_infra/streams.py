@@ -19,14 +19,7 @@ import hashlib
 import numpy as np
 import torch
 
-
-_SEED_LIMIT = 2**64  # torch's manual_seed takes seeds below this
-
-
-def _seed(name: str, value: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < _SEED_LIMIT:
-        raise ValueError(f"{name}: expected an int in [0, 2**64), got {value!r}")
-    return int(value)
+from hbni_infra.checks import as_seed
 
 
 def _key(name: str | int) -> int:
@@ -54,18 +47,18 @@ def numpy_stream(seed: int, *names: str | int) -> np.random.Generator:
 
 
 def torch_generator(seed: int, device: str | torch.device = "cpu") -> torch.Generator | None:
-    """A ``torch.Generator`` on ``device`` seeded with ``seed`` itself (an int in ``[0, 2**64)``); ``None`` on
+    """A ``torch.Generator`` on ``device`` seeded with ``seed`` itself (an int in ``[0, 2**63)``); ``None`` on
     ``meta``, where tensors have shapes and no values and nothing is drawn."""
-    seed = _seed("seed", seed)
+    seed = as_seed("seed", seed)
     device = torch.device(device)
     return None if device.type == "meta" else torch.Generator(device).manual_seed(seed)
 
 
 def numpy_generator(*entropy: int) -> np.random.Generator:
-    """A ``numpy.random.Generator`` on the entropy words given (ints >= 0, such as a seed and an index):
+    """A ``numpy.random.Generator`` on the entropy words given (ints in ``[0, 2**63)``, such as a seed and an index):
     ``numpy_generator(s)`` draws as ``numpy.random.default_rng(s)``, ``numpy_generator(s, i)`` as
     ``numpy.random.default_rng([s, i])``."""
     if not entropy:
         raise ValueError("entropy: expected at least one int, got none")
-    words = [_seed("entropy", word) for word in entropy]
+    words = [as_seed("entropy", word) for word in entropy]
     return np.random.default_rng(np.random.SeedSequence(words))

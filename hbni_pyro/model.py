@@ -30,6 +30,7 @@ from hbni_pyro.density import (
 )
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
+from hbni_infra.checks import as_int
 from hbni_infra.streams import torch_generator
 
 
@@ -176,6 +177,7 @@ def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int =
     Returns:
         ``(K,)`` log density.
     """
+    num_mc = as_int("num_mc", num_mc, minimum=1)
     g = torch_generator(seed)
     h = hyperprior
     kappa = gamma_variates(torch.full((num_mc,), h.beta), h.eta, g)

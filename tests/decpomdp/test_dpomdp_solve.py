@@ -301,6 +301,8 @@ def test_solve_errors():
         solve(3, 2)
     with pytest.raises(FileNotFoundError, match="no such file"):
         solve("no_such_problem.dpomdp", 2)
+    with pytest.raises(FileNotFoundError, match="the shipped problems are .*dectiger"):
+        solve("dectigr", 3)  # a misspelt name lists the shipped ones
     with pytest.raises(ValueError, match="restarts: expected an int >= 1"):
         solve("dectiger", 2, restarts=0)
     with pytest.raises(ValueError, match="layered_restarts: expected an int >= 0"):

@@ -70,7 +70,7 @@ def test_generators_of_a_seed_as_given():
     assert torch.equal(
         torch.rand(8, generator=torch_generator(5)), torch.rand(8, generator=torch.Generator().manual_seed(5))
     )
-    big = 2**64 - 1
+    big = 2**63 - 1
     assert torch.equal(
         torch.rand(4, generator=torch_generator(big)), torch.rand(4, generator=torch.Generator().manual_seed(big))
     )
@@ -83,11 +83,11 @@ def test_generators_of_a_seed_as_given():
     ).all()
 
 
-@pytest.mark.parametrize("bad", [-1, 2**64, 1.5, "0", True, None])
+@pytest.mark.parametrize("bad", [-1, 2**63, 1.5, "0", True, None])
 def test_generators_refuse_bad_seeds(bad):
-    with pytest.raises(ValueError, match="seed"):
+    with pytest.raises((TypeError, ValueError), match="seed"):
         torch_generator(bad)
-    with pytest.raises(ValueError, match="entropy"):
+    with pytest.raises((TypeError, ValueError), match="entropy"):
         numpy_generator(0, bad)
     with pytest.raises(ValueError, match="entropy"):
         numpy_generator()
