@@ -28,6 +28,7 @@ import numpy as np
 
 from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, q_fib, tables
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from hbni_infra.streams import numpy_generator
 
 MAX_RULES = 4096
 """Most joint one-step decision rules ``beta`` a ``Q_BG`` backup enumerates."""
@@ -50,7 +51,7 @@ def joint_rules(env: TabularDecPOSMDP) -> np.ndarray:
 
 def belief_keys(beliefs: np.ndarray) -> np.ndarray:
     """``(n, 2)`` int64 keys of normalised beliefs ``(n, S)``: two fixed random projections on a grid."""
-    weights = np.random.default_rng(0).uniform(1.0, 2.0, (beliefs.shape[1], 2))
+    weights = numpy_generator(0).uniform(1.0, 2.0, (beliefs.shape[1], 2))
     return np.rint(beliefs @ weights / KEY_RESOLUTION).astype(np.int64)
 
 
