@@ -214,8 +214,16 @@ def test_solve_is_seeded_and_takes_files_models_and_the_infinite_horizon(tmp_pat
     assert torch.equal(a.controller.action, b.controller.action) and a.values == b.values
     path = save_dpomdp(load_problem("dectiger"), tmp_path / "tiger.dpomdp")
     assert solve(path, 2, seed=4, restarts=1, layered_restarts=1, jesp_restarts=2).value == a.value
-    inf = solve(
-        load_problem("dectiger"), math.inf, 0.9, seed=0, restarts=1, layered_restarts=1, num_nodes=2, ce_iterations=5
+    inf = solve(  # the planner alone: no loop-backs, no coordinate ascent
+        load_problem("dectiger"),
+        math.inf,
+        0.9,
+        seed=0,
+        restarts=1,
+        num_nodes=2,
+        ce_iterations=5,
+        loop_horizons=(),
+        ascent_starts=0,
     )
     assert inf.horizon == math.inf and inf.controller.num_nodes == 2 and inf.value <= inf.bound
 

@@ -145,3 +145,18 @@ def test_solve_proves_small_rows_and_its_infinite_horizon_is_seeded():
         and a.value <= upper_bounds(env("broadcastChannel", math.inf, 0.9)).best
     )
     assert not a.proven and a.value > 5.0
+
+
+def test_errors_name_the_argument():
+    with pytest.raises(ValueError, match="an infinite horizon needs at least one start"):
+        solve("dectiger", math.inf, 0.9, loop_horizons=(), ascent_starts=0)
+    with pytest.raises(ValueError, match="loop_horizons"):
+        solve("dectiger", math.inf, 0.9, loop_horizons=(0,))
+    with pytest.raises(ValueError, match="exact_seconds"):
+        solve("dectiger", 2, exact_seconds=-1.0)
+    with pytest.raises(ValueError, match="env: GMAA\\* needs a finite horizon"):
+        GMAA(TabularDecPOSMDP.from_problem("dectiger", gamma=0.9))
+    with pytest.raises(TypeError, match="env: expected a TabularDecPOSMDP"):
+        GMAA("dectiger")
+    with pytest.raises(ValueError, match="kind: expected 'bg' or 'pomdp'"):
+        Heuristic(env("dectiger", 2), "mdp")
