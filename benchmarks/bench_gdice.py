@@ -5,7 +5,7 @@ Three runs on package delivery, every robot running one shared controller (as in
 1. the paper's G-DICE (N_n = 13, N_k = 100, N_s = 100, N_b = 10, alpha = 0.1, 80 rollouts per sample:
    800,000 rollouts);
 2. the cold-start planner (:mod:`decpomdp.search`) held to the same 800,000 rollouts;
-3. the cold-start planner at its default budget (``conf/planner/cold.yaml``).
+3. the cold-start planner at its default settings (``PlannerConfig()``, what ``conf/planner/cold.yaml`` composes).
 
 Each best controller is re-evaluated on ``--reeval`` rollouts the search never saw. Times are process
 CPU time and wall time of this process; on a shared machine the wall time also counts other jobs, so
@@ -23,8 +23,6 @@ import dataclasses
 import time
 
 import torch
-from hydra import compose, initialize_config_dir
-from hydra.utils import instantiate
 
 from decpomdp import evaluate, random_controllers
 from decpomdp.domains import PackageDelivery, shared
@@ -33,16 +31,6 @@ from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from hbni_infra.streams import torch_stream
 
 PAPER_ROLLOUTS = 100 * 100 * 80
-
-
-def default_planner() -> PlannerConfig:
-    """The planner settings of ``conf/planner/cold.yaml``."""
-    from pathlib import Path
-
-    with initialize_config_dir(
-        config_dir=str(Path(__file__).resolve().parents[1] / "conf" / "planner"), version_base=None
-    ):
-        return instantiate(compose(config_name="cold"))
 
 
 def timed(fn):
@@ -75,7 +63,7 @@ def main() -> None:
     paper = gdice_config()
     res, cpu, wall = timed(lambda: plan(RolloutScorer(env, shared=True), paper, seed=args.seed, progress=True))
     rows.append(("paper G-DICE", PAPER_ROLLOUTS, cpu, wall, *reeval(res.best)))
-    default = default_planner()
+    default = PlannerConfig()  # conf/planner/cold.yaml: the planner's defaults
     runs = [("cold-start planner, paper budget", dataclasses.replace(default, budget=PAPER_ROLLOUTS))]
     if not args.skip_default:
         runs.append(("cold-start planner, default budget", default))

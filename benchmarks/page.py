@@ -114,9 +114,25 @@ def main() -> None:
         sys.exit(f"failed (their previous sections kept): {failed}")
 
 
+def pending(name: str) -> str:
+    """The section of a benchmark that has not run on this page yet."""
+    return "\n".join(
+        [
+            f"<!-- bench:{name} -->",
+            f"## {name}",
+            "",
+            description(name),
+            "",
+            f"Not run for this page yet: `python -m benchmarks.page {name}`.",
+            f"<!-- /bench:{name} -->",
+        ]
+    )
+
+
 def write(kept: dict[str, str]) -> None:
-    order = [n for n in benchmarks() if n in kept]
-    atomic_write_text(PAGE, HEADER + "\n" + "\n\n".join(kept[n] for n in order) + "\n")
+    """The page: every benchmark's section in name order, ``pending`` where it has none yet."""
+    body = "\n\n".join(kept.get(n) or pending(n) for n in benchmarks())
+    atomic_write_text(PAGE, HEADER + "\n" + body + "\n")
 
 
 if __name__ == "__main__":

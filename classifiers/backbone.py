@@ -190,6 +190,7 @@ _SPECS = {
     "efficientnet_lite0": _Spec(224, (127.0, 127.0, 127.0), (128.0, 128.0, 128.0)),
     "alexnet": _Spec(224, (123.675, 116.28, 103.53), (58.395, 57.12, 57.375)),
 }
+BACKBONES = tuple(_SPECS)  # the backbone names
 
 
 def _load_state_dict(path: Path) -> dict[str, Tensor]:

@@ -26,34 +26,92 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from classifiers.backbone import Backbone, load_backbone
+from classifiers.backbone import BACKBONES, Backbone, _device_and_dtype, load_backbone
 from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
 from classifiers.svm import OneVsOneSVC
+from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import torch_threads
 
 __all__ = ["FrameClassifier"]
 
 _KIND = "classifiers.FrameClassifier"
+_PARAMS = dict(  # every constructor argument and its default
+    backbone="efficientnet_lite0",
+    weights_path=None,
+    C=1.0,
+    cv=5,
+    padding=0.1,
+    seed=0,
+    batch_size=4,
+    threads=1,
+    device="cpu",
+    dtype=None,
+    half=False,
+)
+
+
+def _check_params(params: dict[str, Any]) -> None:
+    """Refuse a bad set of constructor arguments with an error naming the argument."""
+    if not isinstance(params["backbone"], str) or params["backbone"] not in BACKBONES:
+        raise ValueError(f"backbone: expected one of {list(BACKBONES)}, got {params['backbone']!r}")
+    path = params["weights_path"]
+    if path is not None:
+        if not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"weights_path: expected a path or None, got {type(path).__name__}")
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"weights_path: no such weights file {str(path)!r}")
+    elif params["backbone"] != "efficientnet_lite0":
+        raise ValueError(f"weights_path: required for backbone={params['backbone']!r}")
+    as_float("C", params["C"], 0.0, low_open=True)
+    as_int("cv", params["cv"], 2)
+    as_float("padding", params["padding"], 0.0)
+    as_int("seed", params["seed"], 0)
+    as_int("batch_size", params["batch_size"], 1)
+    if params["threads"] is not None:
+        as_int("threads", params["threads"], 1)
+    if not isinstance(params["half"], bool):
+        raise TypeError(f"half: expected a bool, got {params['half']!r}")
+    if params["dtype"] is not None and not isinstance(params["dtype"], torch.dtype):
+        raise TypeError(f"dtype: expected a torch.dtype or None, got {params['dtype']!r}")
+    _device_and_dtype(params["device"], params["dtype"], params["half"])
+
+
+def _same(value: Any, default: Any) -> bool:
+    return value is default or (type(value) is type(default) and value == default)
 
 
 class FrameClassifier:
-    """Images in, class probabilities out.
+    """Images in, class probabilities out: a scikit-learn classifier on uint8 BGR image batches.
+
+    The scikit-learn estimator contract holds without importing scikit-learn (an optional package here):
+    the constructor only checks and stores its arguments (:meth:`get_params` returns them as given),
+    :meth:`set_params` checks what it sets, so :func:`sklearn.base.clone`, ``is_classifier`` and
+    ``cross_val_score`` work; ``X`` is a batch of images (anything :func:`~classifiers.preprocess.as_image_batch`
+    reads), not a feature matrix. Unlike scikit-learn's own estimators, bad arguments are refused at once,
+    in ``__init__`` and :meth:`set_params`, not at ``fit``. The backbone is loaded at first use
+    (:attr:`backbone_`), shared through :func:`~classifiers.backbone.load_backbone`.
 
     Args:
         backbone: backbone name (``"efficientnet_lite0"`` or ``"alexnet"``).
         weights_path: local backbone weights; ``None`` = the packaged EfficientNet-Lite0 weights.
-        C: SVM penalty. cv: Platt cross-validation folds. padding: crop padding fraction.
-        seed: seed of the augmentation and of the Platt split.
-        batch_size: images per backbone call (4 keeps a CPU core's activations in its cache: a quarter faster
-            than 8; outputs are the same for any batch size).
-        threads: torch intra-op threads for feature extraction and prediction (``None``: torch's
+        C: SVM penalty (> 0). cv: Platt cross-validation folds (an int >= 2). padding: crop padding fraction
+            (finite, >= 0). seed: seed of the augmentation and of the Platt split (an int >= 0).
+        batch_size: images per backbone call, an int >= 1 (4 keeps a CPU core's activations in its cache: a
+            quarter faster than 8; outputs are the same for any batch size).
+        threads: torch intra-op threads for feature extraction and prediction (an int >= 1; ``None``: torch's
             global setting). One thread is the default: on a small shared machine it is as fast as
             two when idle and many times faster when other processes compete for the cores.
         device: where the backbone runs (CPU by default); see :meth:`to`.
         dtype, half: backbone precision, half only on CUDA (see :class:`~classifiers.backbone.Backbone`).
 
+    Attributes (after ``fit`` or :meth:`load`):
+        classes_: the sorted class labels (list; ``None`` before fitting).
+        head_: the fitted :class:`~classifiers.svm.OneVsOneSVC`.
+        mean_, scale_: ``(1000,)`` float64 feature standardisation.
+
     Raises:
+        TypeError, ValueError: an argument of the wrong type or out of range (the message names it).
         FileNotFoundError: ``weights_path`` does not exist.
     """
 
@@ -71,37 +129,92 @@ class FrameClassifier:
         dtype: torch.dtype | None = None,
         half: bool = False,
     ):
-        if padding < 0:
-            raise ValueError(f"padding: expected >= 0, got {padding}")
-        if batch_size < 1:
-            raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
-        self.backbone: Backbone = load_backbone(backbone, weights_path).to(device, torch.float16 if half else dtype)
-        self.weights_path = None if weights_path is None else str(weights_path)
-        self.padding = float(padding)
-        self.seed = int(seed)
-        self.batch_size = int(batch_size)
-        if threads is not None and threads < 1:
-            raise ValueError(f"threads: expected >= 1 or None, got {threads}")
+        _check_params(locals())
+        self.backbone = backbone
+        self.weights_path = weights_path
+        self.C = C
+        self.cv = cv
+        self.padding = padding
+        self.seed = seed
+        self.batch_size = batch_size
         self.threads = threads
-        self.head = OneVsOneSVC(C=C, cv=cv, seed=seed)
-        self.mean_: Tensor | None = None
-        self.scale_: Tensor | None = None
+        self.device = device
+        self.dtype = dtype
+        self.half = half
+
+    _estimator_type = "classifier"  # scikit-learn < 1.6 reads this; newer versions read __sklearn_tags__
+
+    # ---- the scikit-learn estimator contract ----------------------------------------------------
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The constructor's arguments as stored (``deep`` is accepted for scikit-learn; there are no sub-estimators)."""
+        return {name: getattr(self, name) for name in _PARAMS}
+
+    def set_params(self, **params: Any) -> FrameClassifier:
+        """Set constructor arguments, checked together as the constructor checks them; returns ``self``.
+
+        A new backbone, weights path or placement takes effect at the next use (the loaded backbone is dropped);
+        the fitted head is kept until the next ``fit``.
+
+        Raises:
+            ValueError: an unknown name; TypeError, ValueError, FileNotFoundError as the constructor.
+        """
+        unknown = sorted(set(params) - set(_PARAMS))
+        if unknown:
+            raise ValueError(f"set_params: unknown parameters {unknown}, expected names among {list(_PARAMS)}")
+        _check_params(self.get_params() | params)
+        for name, value in params.items():
+            setattr(self, name, value)
+        if set(params) & {"backbone", "weights_path", "device", "dtype", "half"}:
+            self.__dict__.pop("backbone_", None)
+        return self
+
+    def __repr__(self) -> str:
+        """``FrameClassifier(...)`` with the arguments that differ from the defaults."""
+        changed = [f"{k}={v!r}" for k, v in self.get_params().items() if not _same(v, _PARAMS[k])]
+        return f"{type(self).__name__}({', '.join(changed)})"
+
+    def __sklearn_tags__(self) -> Any:
+        """scikit-learn's tags (scikit-learn >= 1.6; imported here, only scikit-learn calls this): a classifier
+        whose input is a batch of images, not a 2-d feature array; fitted results depend on ``seed`` only."""
+        from sklearn.utils import ClassifierTags, InputTags, Tags, TargetTags
+
+        return Tags(
+            estimator_type="classifier",
+            target_tags=TargetTags(required=True),
+            classifier_tags=ClassifierTags(),
+            input_tags=InputTags(two_d_array=False, three_d_array=True),
+        )
+
+    def __sklearn_is_fitted__(self) -> bool:
+        return "head_" in self.__dict__
+
+    def score(self, X: Any, y: Sequence | np.ndarray | Tensor, sample_weight: Any = None) -> float:
+        """Mean accuracy of :meth:`predict` on images ``X`` against labels ``y`` (weighted by ``sample_weight``)."""
+        truth = np.asarray(y.tolist() if isinstance(y, Tensor) else y)
+        hits = np.asarray(self.predict(X)) == truth
+        return float(np.average(hits, weights=None if sample_weight is None else np.asarray(sample_weight)))
+
+    # ---- backbone and placement -----------------------------------------------------------------
+    @property
+    def backbone_(self) -> Backbone:
+        """The backbone network, loaded (shared, see :func:`~classifiers.backbone.load_backbone`) at first use."""
+        if "backbone_" not in self.__dict__:
+            loaded = load_backbone(self.backbone, self.weights_path)
+            self.__dict__["backbone_"] = loaded.to(self.device, torch.float16 if self.half else self.dtype)
+        return self.__dict__["backbone_"]
 
     @property
     def classes_(self) -> list | None:
-        return self.head.classes_
-
-    @property
-    def device(self) -> torch.device:
-        """Where the backbone runs."""
-        return self.backbone.device
+        head = self.__dict__.get("head_")
+        return None if head is None else head.classes_
 
     def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> FrameClassifier:
         """Run the backbone on ``device`` in ``dtype`` (default float32) from now on; returns ``self``.
 
-        The fitted head and standardisation stay on the CPU (outputs are CPU tensors on every device).
+        Sets the ``device``, ``dtype`` and ``half`` parameters; the fitted head and standardisation stay on
+        the CPU (outputs are CPU tensors on every device).
         """
-        self.backbone = self.backbone.to(device, dtype)
+        self.set_params(device=device, dtype=dtype, half=False)
         return self
 
     # ---- features -------------------------------------------------------------------------------
@@ -111,15 +224,15 @@ class FrameClassifier:
         with torch_threads(self.threads):
             for i in range(0, len(crops), self.batch_size):
                 chunk = crops[i : i + self.batch_size]
-                x = normalize(chunk, self.backbone.mean, self.backbone.std)
-                out.append(self.backbone(x, self.batch_size, threads=None))
+                x = normalize(chunk, self.backbone_.mean, self.backbone_.std)
+                out.append(self.backbone_(x, self.batch_size, threads=None))
                 bar.update(len(chunk))
         bar.close()
         return torch.cat(out)
 
     def features(self, images: Any, progress: bool = False) -> Tensor:
         """Backbone scores ``(B, 1000)`` float32 of the padded centre crops of ``images``."""
-        size = self.backbone.input_size
+        size = self.backbone_.input_size
         return self._embed([center_crop(im, size, self.padding) for im in as_image_batch(images)], progress)
 
     def augmented_features(self, images: Any, copies: int, progress: bool = False) -> Tensor:
@@ -130,7 +243,7 @@ class FrameClassifier:
         if copies < 0:
             raise ValueError(f"copies: expected >= 0, got {copies}")
         rng = np.random.default_rng(self.seed)
-        size = self.backbone.input_size
+        size = self.backbone_.input_size
         crops = []
         for im in as_image_batch(images):
             crops.append(center_crop(im, size, self.padding))
@@ -138,14 +251,18 @@ class FrameClassifier:
         return self._embed(crops, progress)
 
     # ---- training and prediction ----------------------------------------------------------------
+    def _check_fitted(self, what: str = "call fit() or load() first") -> None:
+        if not self.__sklearn_is_fitted__():
+            raise RuntimeError(f"FrameClassifier: {what}")
+
     def fit_features(self, X: Tensor, y: Sequence | np.ndarray | Tensor) -> FrameClassifier:
         """Fit the standardisation and the SVM head on backbone features ``X (N, 1000)`` and labels ``y``."""
-        if not isinstance(X, Tensor) or X.ndim != 2 or X.shape[1] != self.backbone.num_features:
-            raise ValueError(f"X: expected a (N, {self.backbone.num_features}) tensor, got {getattr(X, 'shape', X)}")
+        if not isinstance(X, Tensor) or X.ndim != 2 or X.shape[1] != self.backbone_.num_features:
+            raise ValueError(f"X: expected a (N, {self.backbone_.num_features}) tensor, got {getattr(X, 'shape', X)}")
         x = X.double()
-        self.mean_ = x.mean(0)
-        self.scale_ = x.std(0).clamp_min(1e-6)
-        self.head.fit((x - self.mean_) / self.scale_, y)
+        mean, scale = x.mean(0), x.std(0).clamp_min(1e-6)
+        self.head_ = OneVsOneSVC(C=self.C, cv=self.cv, seed=self.seed).fit((x - mean) / scale, y)
+        self.mean_, self.scale_ = mean, scale
         return self
 
     def fit(
@@ -165,34 +282,35 @@ class FrameClassifier:
 
     def proba_from_features(self, X: Tensor) -> Tensor:
         """Class probabilities ``(B, M)`` float32 from backbone features ``(B, 1000)``."""
-        if self.mean_ is None:
-            raise RuntimeError("FrameClassifier: call fit() or load() first")
+        self._check_fitted()
         with torch_threads(self.threads):
-            return self.head.predict_proba((X.double() - self.mean_) / self.scale_).float()
+            return self.head_.predict_proba((X.double() - self.mean_) / self.scale_).float()
 
     def predict_proba(self, images: Any) -> Tensor:
-        """Class probabilities ``(B, M)`` float32, columns in ``classes_`` order (rows sum to 1)."""
+        """Class probabilities ``(B, M)``, columns in ``classes_`` order (rows sum to 1), as a float32 CPU torch
+        tensor on every input and device: the type the noise models (``hbni_pyro``) read. scikit-learn's
+        probability scorers accept it; ``.numpy()`` gives the array without a copy."""
+        self._check_fitted()
         return self.proba_from_features(self.features(images))
 
     def predict(self, images: Any) -> list:
-        """The most probable class label per image."""
+        """The most probable class label per image (a list, labels as in ``classes_``)."""
         return [self.classes_[k] for k in self.predict_proba(images).argmax(-1).tolist()]
 
     # ---- storage --------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write the fitted classifier to one safetensors file (atomic; backbone weights referenced, not copied)."""
-        if self.mean_ is None:
-            raise RuntimeError("FrameClassifier: nothing to save, call fit() first")
-        tensors, head_meta = self.head.state()
+        self._check_fitted("nothing to save, call fit() first")
+        tensors, head_meta = self.head_.state()
         tensors = {f"head.{k}": v for k, v in tensors.items()} | {"mean": self.mean_, "scale": self.scale_}
         meta = {
             "head": head_meta,
-            "backbone": self.backbone.name,
-            "weights_path": self.weights_path,
-            "padding": self.padding,
-            "seed": self.seed,
-            "batch_size": self.batch_size,
-            "threads": self.threads,
+            "backbone": self.backbone,
+            "weights_path": None if self.weights_path is None else str(self.weights_path),
+            "padding": float(self.padding),
+            "seed": int(self.seed),
+            "batch_size": int(self.batch_size),
+            "threads": None if self.threads is None else int(self.threads),
         }
         return save_tensors(path, _KIND, tensors, meta)
 
@@ -209,27 +327,28 @@ class FrameClassifier:
 
         Raises:
             FileNotFoundError: ``path`` or the backbone weights do not exist.
-            ValueError: corrupt or foreign file.
+            ValueError: corrupt or foreign file, or a setting the constructor refuses.
         """
+        _device_and_dtype(device, dtype, False)
         tensors, meta = load_tensors(path, _KIND)
         try:
             head_meta = meta["head"]
-            model = cls(
-                backbone=meta["backbone"],
-                weights_path=weights_path or meta["weights_path"],
-                C=head_meta["C"],
-                cv=head_meta["cv"],
-                padding=meta["padding"],
-                seed=meta["seed"],
-                batch_size=meta["batch_size"],
-                threads=meta["threads"],
-                device=device,
-                dtype=dtype,
-            )
-            model.mean_, model.scale_ = tensors["mean"].double(), tensors["scale"].double()
+            params = {name: meta[name] for name in ("backbone", "weights_path", "padding", "seed", "batch_size")}
+            params |= {"C": head_meta["C"], "cv": head_meta["cv"], "threads": meta["threads"]}
+            mean, scale = tensors["mean"].double(), tensors["scale"].double()
         except (KeyError, TypeError) as exc:
             raise ValueError(f"path: {str(path)!r} is missing entry {exc}") from exc
-        model.head = OneVsOneSVC.from_state({k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta)
-        if model.mean_.shape != (model.backbone.num_features,) or model.head.coef_.shape[1] != model.mean_.shape[0]:
+        params["weights_path"] = weights_path or params["weights_path"]
+        try:
+            model = cls(**params, device=device, dtype=dtype)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid setting: {exc}") from exc
+        model.mean_, model.scale_ = mean, scale
+        model.head_ = OneVsOneSVC.from_state({k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta)
+        if model.mean_.shape != (model.backbone_.num_features,) or model.head_.coef_.shape[1] != model.mean_.shape[0]:
             raise ValueError(f"path: {str(path)!r} has inconsistent feature sizes")
+        if not bool(torch.isfinite(model.mean_).all()) or not bool((model.scale_ > 0).all()):
+            raise ValueError(
+                f"path: {str(path)!r} holds an invalid {_KIND} (mean and scale: expected finite, scale > 0)"
+            )
         return model

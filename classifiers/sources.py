@@ -189,7 +189,7 @@ def open_source(
 
     Raises:
         TypeError: ``source`` is neither a path nor an int, or ``max_frames`` not an int.
-        ValueError: ``max_frames < 1``, or ``topic`` or ``window`` for a source that is not a bag.
+        ValueError: an empty path, ``max_frames < 1``, or ``topic`` or ``window`` for a source that is not a bag.
         FileNotFoundError: a path that does not exist.
     """
     max_frames = frame_limit(max_frames)
@@ -197,6 +197,10 @@ def open_source(
         raise TypeError(
             "source: expected a video file, a folder of frames or a camera index, or a ROS bag, "
             f"got {type(source).__name__}"
+        )
+    if not isinstance(source, int) and not str(os.fspath(source)).strip():
+        raise ValueError(
+            f"source: expected a video file, a folder of frames, a camera index or a ROS bag, got an empty path {source!r}"
         )
     if not isinstance(source, int) and is_bag(source):
         return BagSource(source, topic, max_frames, window)

@@ -17,19 +17,29 @@ from classifiers.pipeline import FrameClassifier
 from hbni_infra.checks import as_int
 
 
-def class_columns(clf: FrameClassifier, classes: Sequence[str]) -> list[int]:
+def class_columns(clf: FrameClassifier, classes: Sequence[str], name: str = "classes") -> list[int]:
     """Indices of ``classes`` among the classifier's columns (``clf.classes_`` is alphabetical).
 
     Raises:
-        ValueError: ``classes`` is not a reordering of the classifier's classes.
+        TypeError: ``classes`` is a string or not a sequence (``name`` names it).
+        ValueError: ``classes`` is not a reordering of the classifier's classes (both lists named).
     """
     if clf.classes_ is None:
         raise ValueError("clf: the classifier is not fitted")
-    if sorted(classes) != sorted(clf.classes_) or len(set(classes)) != len(classes):
-        raise ValueError(
-            f"classes: expected a reordering of the classifier's classes {clf.classes_}, got {list(classes)}"
-        )
-    return [clf.classes_.index(name) for name in classes]
+    if isinstance(classes, str) or not hasattr(classes, "__iter__"):
+        raise TypeError(f"{name}: expected a sequence of class names, got {type(classes).__name__}")
+    classes = list(classes)
+    if not all(_hashable(c) for c in classes) or len(classes) != len(clf.classes_) or set(classes) != set(clf.classes_):
+        raise ValueError(f"{name}: expected a reordering of the classifier's classes {clf.classes_}, got {classes}")
+    return [clf.classes_.index(c) for c in classes]
+
+
+def _hashable(value: object) -> bool:
+    try:
+        hash(value)
+    except TypeError:
+        return False
+    return True
 
 
 def classify_frames(

@@ -26,6 +26,7 @@ from torch import Tensor
 
 from classifiers.coupling import pairwise_coupling
 from classifiers.platt import fit_platt, platt_predict
+from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import single_thread
 
@@ -241,14 +242,25 @@ class OneVsOneSVC:
 
     @classmethod
     def from_state(cls, tensors: dict[str, Tensor], meta: dict[str, Any]) -> OneVsOneSVC:
+        """The model :meth:`state` describes, checked as at construction (``ValueError`` naming the entry)."""
         try:
-            model = cls(C=meta["C"], cv=meta["cv"], seed=meta["seed"])
-            model.classes_ = list(meta["classes"])
+            model = cls(
+                C=as_float("state C", meta["C"], 0.0, low_open=True),
+                cv=as_int("state cv", meta["cv"], minimum=2),
+                seed=as_int("state seed", meta["seed"]),
+            )
+            model.classes_ = _class_list(meta["classes"])
             model.coef_, model.intercept_ = tensors["coef"].double(), tensors["intercept"].double()
             model.prob_a_, model.prob_b_ = tensors["prob_a"].double(), tensors["prob_b"].double()
             model.pairs_ = tensors["pairs"].long()
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"state: missing or malformed entry {exc}") from exc
+        except KeyError as exc:
+            raise ValueError(f"state: missing entry {exc}") from None
+        except TypeError as exc:
+            raise ValueError(f"state: malformed entry ({exc})") from None
+        if not all(
+            bool(torch.isfinite(t).all()) for t in (model.coef_, model.intercept_, model.prob_a_, model.prob_b_)
+        ):
+            raise ValueError("state: coef, intercept, prob_a and prob_b must be finite")
         m, p = len(model.classes_), model.coef_.shape[0]
         if p != m * (m - 1) // 2 or model.pairs_.shape != (p, 2) or model.prob_a_.shape != (p,):
             raise ValueError(f"state: inconsistent shapes for {m} classes")
@@ -261,4 +273,17 @@ class OneVsOneSVC:
     @classmethod
     def load(cls, path: str | os.PathLike) -> OneVsOneSVC:
         """Read a model written by :meth:`save`; ``ValueError`` for a corrupt or foreign file."""
-        return cls.from_state(*load_tensors(path, _KIND))
+        tensors, meta = load_tensors(path, _KIND)
+        try:
+            return cls.from_state(tensors, meta)
+        except ValueError as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
+
+
+def _class_list(classes: Any) -> list:
+    """A saved class list: distinct strings or ints, else ``ValueError``."""
+    if not isinstance(classes, list) or not all(isinstance(c, (str, int)) and not isinstance(c, bool) for c in classes):
+        raise ValueError(f"state classes: expected a list of class names, got {classes!r}")
+    if len(set(classes)) != len(classes):
+        raise ValueError(f"state classes: expected distinct names, got {classes!r}")
+    return classes

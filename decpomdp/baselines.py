@@ -9,7 +9,7 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer
-from hbni_infra.checks import as_int
+from hbni_infra.checks import as_generator, as_int, as_seed
 
 
 def random_controllers(
@@ -24,6 +24,7 @@ def random_controllers(
         ("num_obs", num_obs),
     ):
         as_int(name, value, 1)
+    generator = as_generator("generator", generator)
     action = torch.randint(0, num_actions, (count, num_agents, num_nodes), generator=generator)
     next_node = torch.randint(0, num_nodes, (count, num_agents, num_nodes, num_obs), generator=generator)
     return JointController(action, next_node)
@@ -56,7 +57,7 @@ def monte_carlo_search(
     With ``budget = iterations * samples`` it sees as many controllers as a G-DICE run.
     """
     budget, batch, rollouts = as_int("budget", budget, 1), as_int("batch", batch, 1), as_int("rollouts", rollouts, 2)
-    generator = torch.Generator().manual_seed(as_int("seed", seed, 0))
+    generator = torch.Generator().manual_seed(as_seed("seed", seed))
     best, best_value, all_values = None, -float("inf"), []
     for start in range(0, budget, batch):
         ctrl = random_controllers(

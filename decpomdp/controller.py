@@ -10,7 +10,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from hbni_infra.checks import as_names
+from hbni_infra.checks import as_names, first_difference
 from hbni_infra.tensorfile import load_tensors, save_tensors
 
 _KIND = "decpomdp.JointController"
@@ -59,6 +59,20 @@ class JointController:
     def named(self, action_names: Sequence[str] | None, obs_names: Sequence[str] | None) -> JointController:
         """The same controllers, named after a domain's MAs and observations."""
         return JointController(self.action, self.next_node, action_names, obs_names)
+
+    def check_names(self, action_names: Sequence[str], obs_names: Sequence[str], what: str = "env") -> None:
+        """Raise ``ValueError`` naming both lists unless the names the controller was planned with (when it has
+        them) are ``action_names`` and ``obs_names`` (a domain's, ``what``), in that order."""
+        for kind, planned, domain in (
+            ("action_names", self.action_names, action_names),
+            ("obs_names", self.obs_names, obs_names),
+        ):
+            if planned is not None and tuple(planned) != tuple(domain):
+                first = first_difference(planned, domain)
+                raise ValueError(
+                    f"controller: planned for other {kind} than {what}'s (first difference at index {first}): "
+                    f"{list(planned)} there, {list(domain)} in {what}"
+                )
 
     @property
     def num_controllers(self) -> int:

@@ -24,7 +24,6 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
-from hbni_infra.checks import first_difference
 from hbni_infra.fingerprint import check_fingerprint, digest
 
 _STATE_KIND = "decpomdp.ControllerExecutor"
@@ -70,8 +69,9 @@ class ControllerExecutor:
     Args:
         controller: a loaded joint controller with K = 1 (select one with ``controller[k]``).
         agent: which robot's controller, in ``[0, A)``.
-        action_names: MA names (``None``: ``"ma<i>"``); their number bounds the controller's actions.
-        obs_names: macro-observation names (``None``: ``"obs<i>"``, observations by index only).
+        action_names: MA names (``None``: the controller's, else ``"ma<i>"``); their number bounds the controller's
+            actions. A named controller refuses other names (both lists in the message).
+        obs_names: macro-observation names (``None``: the controller's, else ``"obs<i>"``: by index only).
 
     Use :meth:`for_domain` to take both name lists from a domain (and check the controller fits it).
 
@@ -95,6 +95,10 @@ class ControllerExecutor:
                 f"controller: expected one joint controller (K = 1), got K = {controller.num_controllers}; "
                 "select one with controller[k]"
             )
+        if action_names is None:
+            action_names = controller.action_names
+        if obs_names is None:
+            obs_names = controller.obs_names
         self.agent = _index(agent, "agent", controller.num_agents)
         self._action = controller.action[0, self.agent].clone()  # (Nn,)
         self._next = controller.next_node[0, self.agent].clone()  # (Nn, O)
@@ -107,6 +111,7 @@ class ControllerExecutor:
                 f"action_names: the controller uses MA {top - 1}, but only {len(self.action_names)} names are given"
             )
         self.obs_names = _names(obs_names, controller.num_obs, "obs_names", "obs")
+        controller.check_names(self.action_names, self.obs_names, "the names given")
         self._obs_index = {n: i for i, n in enumerate(self.obs_names)}
         self._fingerprint = {"controller": digest(self._action, self._next), "agent": self.agent}
         self.node = 0
@@ -124,17 +129,7 @@ class ControllerExecutor:
                 f"controller: has {controller.num_agents} agents and {controller.num_obs} observations, "
                 f"env has {env.num_agents} and {env.num_obs}"
             )
-        for kind, planned, domain in (
-            ("action_names", controller.action_names, env.action_names),
-            ("obs_names", controller.obs_names, env.obs_names),
-        ):
-            if planned is not None and tuple(planned) != tuple(domain):
-                first = first_difference(planned, domain)
-                raise ValueError(
-                    f"controller: planned for other {kind} than env's (first difference at index {first}: "
-                    f"{planned[first] if first < len(planned) else None!r} there, "
-                    f"{domain[first] if first < len(domain) else None!r} here)"
-                )
+        controller.check_names(env.action_names, env.obs_names)
         return cls(controller, agent, env.action_names, env.obs_names)
 
     @property

@@ -9,6 +9,7 @@ matching ``sample`` plugs in (a tabulated HBNI or SSBF characterisation, or
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -24,6 +25,9 @@ class PerceptionModel(Protocol):
 
     Attributes:
         num_classes: C, the number of object classes (labels lie in ``[0, C)``).
+
+    A model that knows its classes' names has ``class_names`` (C names in label order, or ``None``); a domain
+    compares them with its own (:func:`check_class_names`).
 
     A model that is a finite law of outcomes per class (every model this project ships) also has
     ``outcomes() -> (probs, label, frames)``, each (C, K): the compiled engine samples from that table
@@ -55,6 +59,26 @@ def check_true_class(true_class: Tensor, num_classes: int) -> None:
         raise ValueError(f"true_class: expected shape (B,), got {tuple(true_class.shape)}")
     if true_class.numel() and (int(true_class.min()) < 0 or int(true_class.max()) >= num_classes):
         raise ValueError(f"true_class: entries must lie in [0, {num_classes})")
+
+
+def check_class_names(perception: PerceptionModel, classes: Sequence[str]) -> None:
+    """Raise ``ValueError`` naming both lists unless a perception model with ``class_names`` (a table or a replay
+    of a named posterior) names the domain's ``classes`` in the domain's order; a model without names (or
+    ``None``) is taken as in the domain's order."""
+    names = getattr(perception, "class_names", None)
+    if names is None:
+        return
+    if isinstance(names, str) or tuple(names) != tuple(classes):
+        same = not isinstance(names, str) and sorted(names) == sorted(classes)
+        hint = ""
+        if same:
+            hint = "; the same classes in another order: reorder the model" + (
+                f", perception.reordered({list(classes)})" if hasattr(perception, "reordered") else ""
+            )
+        raise ValueError(
+            f"perception: its classes {list(names) if not isinstance(names, str) else names!r} are not the "
+            f"domain's classes {list(classes)} in that order{hint}"
+        )
 
 
 class PerfectPerception:

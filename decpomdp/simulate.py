@@ -26,7 +26,7 @@ from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.engine import draw_seed, engine_model
 from decpomdp.engine import run as run_engine
-from hbni_infra.checks import as_int
+from hbni_infra.checks import as_generator, as_int
 
 BACKENDS = ("engine", "torch")
 #: The backend a call without one uses: ``None`` (or ``"engine"``) is the engine wherever the domain is written
@@ -35,7 +35,8 @@ DEFAULT_BACKEND: str | None = None
 
 
 def check(env: DecPOSMDP, controller: JointController) -> None:
-    """Raise unless ``controller`` fits ``env`` (agents, observations, actions) and the horizon is finite."""
+    """Raise unless ``controller`` fits ``env`` (agents, observations, actions, and the names of a named
+    controller) and the horizon is finite."""
     if not isinstance(env, DecPOSMDP):
         raise TypeError(f"env: expected a DecPOSMDP, got {type(env).__name__}")
     if not isinstance(controller, JointController):
@@ -44,6 +45,7 @@ def check(env: DecPOSMDP, controller: JointController) -> None:
         raise ValueError(f"controller: has {controller.num_agents} agents, env has {env.num_agents}")
     if controller.num_obs != env.num_obs:
         raise ValueError(f"controller: has {controller.num_obs} observations, env has {env.num_obs}")
+    controller.check_names(env.action_names, env.obs_names)
     # on the CPU, NumPy's single-threaded reduction: torch's wakes its intra-op threads, which then spin for
     # milliseconds beside the engine's workers (a two-thread batch of 8000 controllers ran 10 % slower)
     action = controller.action
@@ -102,7 +104,8 @@ def simulate(
         env: the Dec-POSMDP.
         controller: K joint controllers.
         rollouts_per_controller: R >= 1.
-        generator: the only source of randomness (the engine draws one seed from it per call); the torch
+        generator: the only source of randomness, a ``torch.Generator`` (``None`` or a seed is a ``TypeError``: no
+            call draws from torch's global stream); the engine draws one seed from it per call, the torch
             simulator runs on its device (a CUDA generator needs ``backend="torch"`` and a domain whose torch
             methods support it, e.g. :class:`~decpomdp.dpomdp.TabularDecPOSMDP`).
         backend: ``"engine"``, ``"torch"`` or ``None`` (the engine where ``env`` is written for it).
@@ -113,6 +116,7 @@ def simulate(
     """
     check(env, controller)
     rollouts_per_controller = as_int("rollouts_per_controller", rollouts_per_controller, minimum=1)
+    generator = as_generator("generator", generator)
     if resolve_backend(env, backend) == "engine":
         return run_engine(env, controller, rollouts_per_controller, draw_seed(generator)).returns
     return simulate_torch(env, controller, rollouts_per_controller, generator)

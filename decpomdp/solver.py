@@ -26,7 +26,7 @@ from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem, problem_names
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-from hbni_infra.checks import as_float, as_int
+from hbni_infra.checks import as_float, as_int, as_seed
 from hbni_infra.streams import stream_seed, torch_stream
 from hbni_infra.threads import torch_threads
 from decpomdp.search import ExactScorer, PlannerConfig, plan
@@ -349,7 +349,7 @@ def solve(
     finite = math.isfinite(env.horizon)
     restarts = (1 if finite else 0) if restarts is None else as_int("restarts", restarts, minimum=1)
     layered_restarts = as_int("layered_restarts", layered_restarts, minimum=0)
-    seed = as_int("seed", seed)
+    seed = as_seed("seed", seed)
     budget = None if time_budget is None else as_float("time_budget", time_budget, 0.0, low_open=True)
     jesp_restarts = as_int("jesp_restarts", jesp_restarts, minimum=0)
     if not isinstance(best_responses, bool):

@@ -23,11 +23,15 @@ from experiments.status import read_status
 
 MANIFEST = "artifacts.json"
 
-KINDS = ("FrameClassifier", "HBNIPosterior", "JointController", "MacroObservationModel")
+KINDS = ("FrameCalibration", "FrameClassifier", "HBNIPosterior", "JointController", "MacroObservationModel")
 """Classes whose objects a run can save; each writes one ``.safetensors`` file."""
 
 
 def _loader(kind: str):
+    if kind == "FrameCalibration":
+        from hbni_pyro import FrameCalibration
+
+        return FrameCalibration.load
     if kind == "HBNIPosterior":
         from hbni_pyro import HBNIPosterior
 

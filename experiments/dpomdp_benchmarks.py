@@ -108,7 +108,8 @@ def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, Planne
             gdice=plain.get("gdice", {}),
         )
         # plain containers (schemas stay apart), unresolved: start_nodes follows a row's num_nodes
-        settings = {**OmegaConf.to_container(planner, resolve=False), **row.gdice}
+        defaults = {f.name: getattr(PlannerConfig(), f.name) for f in dataclasses.fields(PlannerConfig)}
+        settings = {**defaults, **OmegaConf.to_container(planner, resolve=False), **row.gdice}
         merged = OmegaConf.create(settings)
         paper = OmegaConf.create({**settings, **OmegaConf.to_container(study.paper_budget, resolve=True)})
         cfgs = []

@@ -12,6 +12,7 @@ import numpy as np
 LABELS = {
     "perfect": "perfect perception",
     "hbni": "HBNI",
+    "calibrated": "calibrated + SSBF",
     "ssbf": "SSBF",
     "max_of_mean": "max-of-mean",
     "hbni_generative": "HBNI (generative)",
@@ -20,6 +21,7 @@ LABELS = {
 COLORS = {
     "perfect": "tab:gray",
     "hbni": "tab:blue",
+    "calibrated": "tab:red",
     "ssbf": "tab:orange",
     "max_of_mean": "tab:green",
     "hbni_generative": "tab:purple",

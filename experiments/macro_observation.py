@@ -27,7 +27,9 @@ from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, char
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
 
-COLORS = {"hbni": "tab:blue", "ssbf": "tab:green"}
+COLORS = {"hbni": "tab:blue", "calibrated": "tab:red", "ssbf": "tab:green"}
+PEER_CALIBRATION = "temperature"
+"""The calibrated peer's per-frame map on the toy: 15 training outputs are too few for the matrix form."""
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -42,6 +44,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     posterior.save(run_dir / "posterior.safetensors")
     filters = {
         "hbni": make_filter("hbni", posterior, mode=str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
+        # the calibrated peer, given the training outputs' labels (HBNI is fitted without them); i.i.d. frames need
+        # no evidence weight
+        "calibrated": make_filter(
+            "calibrated", calibration=hbni_pyro.fit_frame_calibration(train, classes, PEER_CALIBRATION)
+        ),
         "ssbf": make_filter("ssbf", num_classes=M),
     }
     sources = {"true_theta": theta, "posterior_predictive": posterior}
@@ -91,7 +98,8 @@ def _describe(model: MacroObservationModel) -> dict[str, Any]:
 
 def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Tensor, s: DictConfig) -> plt.Figure:
     M, T = len(theta), int(s.max_frames)
-    fig, axes = plt.subplots(2, M, figsize=(4.3 * M, 7.2))
+    columns = max(M, len(models) + 1)
+    fig, axes = plt.subplots(2, columns, figsize=(4.3 * columns, 7.2))
     frames = np.arange(1, T + 1)
     for c in range(M):
         ax = axes[0, c]
@@ -122,10 +130,11 @@ def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Te
         ax.set_xlabel("macro-observation label")
         ax.set_ylabel("true class")
         ax.set_title(f"{name.upper()}: P(label | true class)")
-    for ax in axes[1, 3:]:
+    for ax in axes[0, M:]:
         ax.axis("off")
-    if M > 2:
-        _mean_frames_bars(axes[1, 2], models, M)
+    for ax in axes[1, len(models) + 1 :]:
+        ax.axis("off")
+    _mean_frames_bars(axes[1, len(models)], models, M)
     fig.suptitle(
         f"Macro-observations at threshold {float(s.threshold):g} (true θ = {theta.tolist()}, "
         f"{int(s.num_streams)} streams per class)",

@@ -71,6 +71,7 @@ from experiments.steps.noise import fit_labelled
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
+from hbni_pyro.calibration import binomial_stderr
 from hbni_infra.threads import threads
 
 
@@ -121,10 +122,25 @@ class Outputs(NamedTuple):
 
 
 class Noise(NamedTuple):
-    """The fitted noise model and its temper (``{"value", "fitted", ...}``)."""
+    """The fitted noise model and its temper (``{"value", "fitted", ...}``), and the calibrated peer's frame
+    calibration and evidence weight (``None`` when it is not among the variants)."""
 
     posterior: hbni_pyro.HBNIPosterior
     temper: dict[str, Any]
+    peer: Peer | None = None
+    stop: dict[str, Any] | None = None  # HBNI's stopping confidence: {"value", "fitted", ...}; None: the threshold
+
+
+class Peer(NamedTuple):
+    """The calibrated peer fitted on the calibration sequences: the per-frame map and its filter's temper."""
+
+    calibration: hbni_pyro.FrameCalibration
+    temper: float
+    log_score: list[float]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-serialisable: the map's kind and fit, the temper."""
+        return {"kind": self.calibration.kind, **self.calibration.info, "temper": self.temper}
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -240,17 +256,44 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
         calib, cfg.hbni, stream_seed(settings.seed, "fit"), settings.progress, class_names=list(CLASSES)
     )
     save_artifact(run_dir, "posterior", posterior)
-    if settings.temper is not None:
-        return Noise(posterior, {"value": settings.temper, "fitted": False})
-    if posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
-        return Noise(posterior, {"value": 1.0, "fitted": False, "needed": False})
+    peer = fit_peer(calib, cfg, settings, run_dir) if "calibrated" in settings.variants else None
     M, frames = len(CLASSES), settings.frames
     truth = torch.arange(M).repeat_interleave(calib.shape[1])
-    fitted = hbni_pyro.fit_temper(posterior, calib.reshape(-1, frames, M), truth, cfg.hbni.filter.mode)
-    return Noise(
-        posterior,
-        {"value": fitted.temper, "fitted": True, "grid": fitted.grid.tolist(), "log_score": fitted.log_score.tolist()},
-    )
+    streams = calib.reshape(-1, frames, M)
+    if settings.temper is not None:
+        temper = {"value": settings.temper, "fitted": False}
+    elif posterior.noise_model.sequences:  # the model integrates each sequence's look out: no temper to fit
+        temper = {"value": 1.0, "fitted": False, "needed": False}
+    else:
+        fitted = hbni_pyro.fit_temper(posterior, streams, truth, cfg.hbni.filter.mode)
+        temper = {
+            "value": fitted.temper,
+            "fitted": True,
+            "grid": fitted.grid.tolist(),
+            "log_score": fitted.log_score.tolist(),
+        }
+    threshold = float(cfg.mission.threshold)
+    stop: dict[str, Any] = {"value": threshold, "fitted": False}
+    if cfg.mission.hbni_stop == "calibrated":
+        hbni = hbni_pyro.make_filter("hbni", posterior, mode=cfg.hbni.filter.mode, temper=temper["value"])
+        fitted_stop = hbni_pyro.fit_stop_threshold(hbni, streams, truth, threshold, frames)
+        stop = {"fitted": True, **fitted_stop._asdict(), "value": fitted_stop.stop}
+        del stop["stop"]
+    return Noise(posterior, temper, peer, stop)
+
+
+def fit_peer(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir: Path) -> Peer:
+    """The calibrated peer on the same labelled calibration outputs ``(C, S, F, C)`` HBNI gets: the per-frame map
+    ``mission.calibration`` (saved as ``calibration``), then SSBF's evidence weight for correlated frames fitted on
+    the calibration sequences as a frame-level HBNI model's temper is (:func:`hbni_pyro.fit_temper`)."""
+    M, frames = len(CLASSES), settings.frames
+    labels = torch.arange(M).view(-1, 1, 1).expand(calib.shape[:3])
+    calibration = hbni_pyro.fit_frame_calibration(calib, labels, str(cfg.mission.calibration), class_names=CLASSES)
+    save_artifact(run_dir, "calibration", calibration)
+    truth = torch.arange(M).repeat_interleave(calib.shape[1])
+    peer = hbni_pyro.make_filter("calibrated", calibration=calibration)
+    fitted = hbni_pyro.fit_temper(peer, calib.reshape(-1, frames, M), truth)
+    return Peer(calibration, fitted.temper, fitted.log_score.tolist())
 
 
 def characterize_processes(
@@ -269,12 +312,18 @@ def characterize_processes(
 
 
 def build_processes(noise: Noise, cfg: DictConfig, settings: Settings) -> dict[str, hbni_pyro.MacroObservationProcess]:
-    """Each variant's macro-observation process: its filter, ``mission.threshold`` and the frame budget."""
-    options = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
+    """Each variant's macro-observation process: its filter, ``mission.threshold`` (HBNI: the stopping confidence
+    that keeps that promise on the calibration sequences, with ``mission.hbni_stop=calibrated``) and the frame
+    budget."""
+    threshold = float(cfg.mission.threshold)
+    stops = {"hbni": noise.stop["value"] if noise.stop else threshold}
+    options: dict[str, dict[str, Any]] = {"hbni": {"mode": cfg.hbni.filter.mode, "temper": noise.temper["value"]}}
+    if noise.peer is not None:
+        options["calibrated"] = {"calibration": noise.peer.calibration, "temper": noise.peer.temper}
     return {
         name: hbni_pyro.MacroObservationProcess(
             hbni_pyro.make_filter(name, noise.posterior, num_classes=len(CLASSES), **options.get(name, {})),
-            threshold=float(cfg.mission.threshold),
+            threshold=stops.get(name, threshold),
             max_frames=settings.frames,
         )
         for name in settings.variants
@@ -444,6 +493,8 @@ def execute_closed_loop(
         if name in settings.loop.powered.entries:
             entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
+    for name, replay in on_pool.items():
+        results[name]["held_out_process"] = held_out_checks(replay, float(cfg.mission.threshold))
     return (
         honesty.reliability_figure(
             processes, *closed_loop.as_streams(bank), mission_report.LABELS, float(cfg.mission.threshold)
@@ -451,6 +502,27 @@ def execute_closed_loop(
         if processes
         else None
     )
+
+
+def held_out_checks(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
+    """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
+    and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
+    emitted labels that are right with its binomial s.e., its mean frames (a timeout counting the budget) with
+    their s.e., and its timeout rate."""
+    r = replay.results
+    emitted, right = ~r.timed_out, r.label == replay.true_class
+    n, frames = int(emitted.sum()), r.frames_used.double()
+    accuracy = float(right[emitted].double().mean()) if n else float("nan")
+    return {
+        "threshold": threshold,
+        "stop": replay.process.threshold,
+        "streams": len(right),
+        "emitted_accuracy": accuracy,
+        "emitted_stderr": binomial_stderr(accuracy, n),
+        "mean_frames": float(frames.mean()),
+        "frames_stderr": float(frames.std() / math.sqrt(len(frames))),
+        "timeout_rate": float(r.timed_out.double().mean()),
+    }
 
 
 class _Loop(NamedTuple):
@@ -590,6 +662,8 @@ def write_outputs(
         "classifier_frame_accuracy": _frame_accuracy(held),
         "conditions": {"preset": "mission", "overrides": settings.overrides},
         "hbni_temper": noise.temper,
+        "hbni_stop": noise.stop,
+        "calibrated_peer": None if noise.peer is None else noise.peer.summary(),
         "hbni_frame_correlation": noise.posterior.frame_correlation,
         "theta_summary": {k: v for k, v in noise.posterior.summary().items() if k.startswith("theta")},
         "planner": dataclasses.asdict(planner),
@@ -636,7 +710,7 @@ def _acceptance(results: dict[str, dict]) -> dict[str, Any]:
         return out
     h = results["hbni"]
     out["hbni_over_perfect"] = ratio(h["value"], results["perfect"]["value"])
-    for other in ("ssbf", "max_of_mean"):
+    for other in ("calibrated", "ssbf", "max_of_mean"):
         if other in results:
             o = results[other]
             out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)

@@ -24,7 +24,7 @@ def _explanation(metrics: dict) -> list[str]:
     h = v["hbni"]
     acc_h, frames_h = float(np.mean(h["macro_accuracy"])), float(np.mean(h["macro_mean_frames"]))
     out = []
-    for other in ("ssbf", "max_of_mean"):
+    for other in ("calibrated", "ssbf", "max_of_mean"):
         if other not in v:
             continue
         o = v[other]

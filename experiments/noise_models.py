@@ -56,6 +56,9 @@ from hbni_pyro.variants import noise_model
 from hbni_infra.streams import stream_seed, torch_stream
 
 BASELINES = ("ssbf", "max_of_mean")
+DEFAULT_MODEL = "sequence"
+"""The default noise model wherever real frames are filtered; its row ``sequence_stopped`` stops as early as its
+promise allows (:func:`hbni_pyro.fit_stop_threshold` on the calibration sequences)."""
 
 
 class Settings(NamedTuple):
@@ -343,13 +346,22 @@ def evaluate_condition(
     C, _, F, M = calib.shape
     filters = fitted_filters(name, calib, cfg, s, run_dir)
     streams, truth = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
+    calib_streams, calib_truth = calib.reshape(-1, F, M), torch.arange(C).repeat_interleave(calib.shape[1])
+    stops: dict[str, dict[float, float]] = {}
+    if DEFAULT_MODEL in filters:  # the default: the sequence model stopping as early as its promise allows
+        filters[f"{DEFAULT_MODEL}_stopped"] = filters[DEFAULT_MODEL]
+        stops[f"{DEFAULT_MODEL}_stopped"] = {
+            t: hbni_pyro.fit_stop_threshold(filters[DEFAULT_MODEL], calib_streams, calib_truth, t).stop
+            for t in s.thresholds
+        }
     rows = {}
     for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not s.progress):
-        rows[fname] = score_filter(f, streams, truth, s)
+        rows[fname] = score_filter(f, streams, truth, s, stops.get(fname))
     frame_acc = float((held.argmax(-1) == torch.arange(C).view(-1, 1, 1)).to(DTYPE).mean())
     return {
         "filters": rows,
-        "temper": {k: f.temper for k, f in filters.items() if k.endswith("_tempered")},
+        "temper": {k: f.temper for k, f in filters.items() if k.endswith("_tempered") or k.startswith("calibrated")},
+        "stops": {k: {f"{t:g}": stop for t, stop in v.items()} for k, v in stops.items()},
         "sizes": {
             "calibration_sequences_per_class": calib.shape[1],
             "held_out_sequences": int(truth.numel()),
@@ -374,6 +386,11 @@ def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings,
         ).sequences:  # frame-level models also run with the temper fitted on the calibration sequences
             tau = hbni_pyro.fit_temper(post, calib_streams, calib_truth, mode).temper
             filters[f"{model}_tempered"] = hbni_pyro.make_filter("hbni", post, mode=mode, temper=tau)
+    labels = torch.arange(C).view(-1, 1, 1).expand(calib.shape[:3])
+    for kind, key in (("matrix", "calibrated"), ("temperature", "calibrated_temperature")):
+        # the calibrated peer: per-frame calibration on the same labelled frames, then SSBF with its evidence weight
+        peer = hbni_pyro.make_filter("calibrated", calibration=hbni_pyro.fit_frame_calibration(calib, labels, kind))
+        filters[key] = peer.tempered(hbni_pyro.fit_temper(peer, calib_streams, calib_truth).temper)
     for baseline in BASELINES:
         filters[baseline] = hbni_pyro.make_filter(baseline, num_classes=M)
     return filters
@@ -384,8 +401,11 @@ def _class_names(condition: str) -> list[str] | None:
     return {"images": None, "photos": list(PHOTOS)}.get(condition, list(CLASSES))
 
 
-def score_filter(f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings) -> dict[str, Any]:
-    """Held-out log score, final accuracy, reliability and the macro-observation checks of one filter."""
+def score_filter(
+    f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings, stops: dict[float, float] | None = None
+) -> dict[str, Any]:
+    """Held-out log score, final accuracy, reliability and the macro-observation checks of one filter (stopping at
+    ``stops[t]`` for threshold ``t`` where given)."""
     probs = f.run(streams)
     true_prob = probs.gather(-1, truth.view(-1, 1, 1).expand(-1, probs.shape[1], 1)).squeeze(-1)
     final = float((hbni_pyro.decide(probs[:, -1]) == truth).to(DTYPE).mean())
@@ -397,7 +417,7 @@ def score_filter(f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings
         "final_stderr": binomial_stderr(final, len(truth)),
         "ece": rel.ece,
         "reliability": {"confidence": rel.confidence, "accuracy": rel.accuracy, "count": rel.count},
-        "thresholds": threshold_checks(f, streams, truth, s.thresholds),
+        "thresholds": threshold_checks(f, streams, truth, s.thresholds, stops=stops),
         "curve": threshold_checks(f, streams, truth, s.curve),
     }
 
@@ -441,7 +461,33 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
             entry["beats_paper_outside_stderr"] = entry["final_accuracy_gain_over_paper"] > se
         if name == "photos" and "sequence" in rows:
             entry["sequence_target"] = _photo_target(rows["sequence"], ssbf)
+        if f"{DEFAULT_MODEL}_stopped" in rows and "calibrated" in rows:
+            entry["default_vs_calibrated"] = default_vs_peer(rows[f"{DEFAULT_MODEL}_stopped"], rows["calibrated"])
         out[name] = entry
+    return out
+
+
+def default_vs_peer(default: dict[str, Any], peer: dict[str, Any], threshold: str = "0.95") -> dict[str, Any]:
+    """The default (the sequence model, calibrated stop) against the calibrated peer at ``threshold``: its emitted
+    labels right at least ``threshold`` within one binomial s.e., mean frames at most 1.5 times the peer's,
+    timeouts at most 10 %."""
+    a, b = default["thresholds"].get(threshold), peer["thresholds"].get(threshold)
+    if a is None or b is None:
+        return {}
+    out = {
+        "emitted_accuracy": a["emitted_accuracy"],
+        "emitted_stderr": a["emitted_stderr"],
+        "mean_frames": a["mean_frames"],
+        "peer_mean_frames": b["mean_frames"],
+        "peer_emitted_accuracy": b["emitted_accuracy"],
+        "frames_over_peer": a["mean_frames"] / b["mean_frames"],
+        "timeout_rate": a["timeout_rate"],
+        "stop": a.get("stop"),
+    }
+    out["honest"] = a["emitted"] > 0 and a["emitted_accuracy"] + a["emitted_stderr"] >= float(threshold)
+    out["frames_at_most_1.5x_peer"] = out["frames_over_peer"] <= 1.5
+    out["timeouts_at_most_0.1"] = a["timeout_rate"] <= 0.10
+    out["met"] = out["honest"] and out["frames_at_most_1.5x_peer"] and out["timeouts_at_most_0.1"]
     return out
 
 

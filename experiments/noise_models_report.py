@@ -14,6 +14,9 @@ LABELS = {
     "confusion": "HBNI, confusion-aware",
     "confusion_tempered": "HBNI, confusion-aware + temper",
     "sequence": "HBNI, sequence-aware",
+    "sequence_stopped": "HBNI, sequence-aware, calibrated stop (the default)",
+    "calibrated": "calibrated (matrix) + SSBF",
+    "calibrated_temperature": "calibrated (temperature) + SSBF",
     "ssbf": "SSBF",
     "max_of_mean": "max of mean",
 }
@@ -23,6 +26,9 @@ STYLE = {
     "confusion": ("tab:purple", "-"),
     "confusion_tempered": ("tab:purple", "--"),
     "sequence": ("tab:red", "-"),
+    "sequence_stopped": ("tab:red", ":"),
+    "calibrated": ("tab:brown", "-"),
+    "calibrated_temperature": ("tab:brown", "--"),
     "ssbf": ("tab:green", "-"),
     "max_of_mean": ("tab:orange", "-"),
 }

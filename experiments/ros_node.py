@@ -35,7 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 import hbni_pyro
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns
 from classifiers.stamped import StampedFrame, classify_stamped
 from decpomdp import ControllerExecutor, JointController
 from hbni_infra import ros
@@ -63,7 +63,9 @@ def load_pipeline(args: argparse.Namespace) -> Pipeline:
     """The classifier, the HBNI process and the controller's executor from the files ``args`` names."""
     clf = FrameClassifier.load(args.classifier)
     posterior = hbni_pyro.HBNIPosterior.load(args.posterior)
-    classes = args.classes or (list(posterior.class_names) if posterior.class_names else list(clf.classes_))
+    posterior = posterior.match_names(args.classes or None, "--classes")
+    classes = list(posterior.class_names)
+    class_columns(clf, classes, "--classifier")  # its columns are read in the posterior's order
     filt = hbni_pyro.HBNIFilter(posterior, mode=args.mode, temper=args.temper)
     process = hbni_pyro.MacroObservationProcess(filt, threshold=args.threshold, max_frames=args.max_frames)
     controller, observations = None, dict(args.observation or [])
@@ -236,7 +238,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="CLASS=OBSERVATION",
         help="the controller's observation for a class (repeat; default: the class name)",
     )
-    parser.add_argument("--classes", type=lambda s: s.split(","), help="the posterior's class order, a,b,c")
+    parser.add_argument(
+        "--classes",
+        type=lambda s: s.split(","),
+        help="the posterior's classes in column order, a,b,c (for a posterior without names; else its names)",
+    )
     parser.add_argument("--topic", default="/camera/image_raw", help="the image topic (default /camera/image_raw)")
     parser.add_argument("--compressed", action="store_true", help="the topic carries CompressedImage messages")
     parser.add_argument("--namespace", default="/hbni", help="namespace of the published topics (default /hbni)")

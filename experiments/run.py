@@ -8,7 +8,10 @@ fails here, naming the key. The function writes its figures and models into ``ru
 "metrics.json"``. ``run_dir / "status.json"`` says whether the run is running, completed or
 failed (with the error); :func:`experiments.load_run` refuses a run that did not complete. SIGTERM and
 SIGHUP (``kill``, ``timeout``, Slurm's time limit, ``docker stop``, a closed terminal) stop a run as
-Ctrl-C does: it is marked failed and its background workers end.
+Ctrl-C does: it is marked failed and its background workers end. A job of a ``-m`` sweep that runs in a worker
+process (joblib, submitit) then ends that process by the same signal, so that it takes no further job; the
+sweep's parent stops the whole sweep on a signal (:mod:`experiments.sweep`). A key the experiment never reads
+is refused before the run starts, naming the key and the experiment (:func:`experiments.schemas.check_overrides`).
 
 A config that fails its check prints one line (``HYDRA_FULL_ERROR=1`` for the traceback) and leaves no
 run folder behind: the run never started. In a sweep (``-m``) such a job is marked failed instead, and the
@@ -35,6 +38,7 @@ from omegaconf import DictConfig
 from experiments.common import write_json
 from experiments.schemas import check_config, check_overrides, register
 from experiments.status import write_status
+from experiments.sweep import in_sweep_worker
 
 log = logging.getLogger("experiments")
 register()
@@ -43,9 +47,13 @@ register()
 class Stopped(BaseException):
     """The run was stopped by a signal (SIGTERM or SIGHUP); like ``KeyboardInterrupt``, not an ``Exception``."""
 
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+        self.signum = signum
+
 
 def _stop(signum: int, frame: object) -> None:
-    raise Stopped(f"stopped by {signal.Signals(signum).name}")
+    raise Stopped(signum)
 
 
 def _config_error(run_dir: Path, exc: Exception) -> None:
@@ -74,9 +82,10 @@ def main(cfg: DictConfig) -> dict:
         write_status(run_dir, "failed", error=f"{type(exc).__name__}: {exc}")  # a sweep's report lists the job
         log.error("experiment %s: config error: %s", cfg.name, exc)
         raise
+    previous = {}
     if threading.current_thread() is threading.main_thread():
         for name in ("SIGTERM", "SIGHUP"):
-            signal.signal(getattr(signal, name), _stop)
+            previous[getattr(signal, name)] = signal.signal(getattr(signal, name), _stop)
     try:
         log.info("experiment %s (seed %s): writing to %s", cfg.name, cfg.seed, run_dir)
         write_status(run_dir, "running")
@@ -87,7 +96,15 @@ def main(cfg: DictConfig) -> dict:
         log.error(
             "experiment %s failed after %.1f s: %s: %s", cfg.name, time.perf_counter() - tic, type(exc).__name__, exc
         )
+        signum = exc.signum if isinstance(exc, Stopped) else signal.SIGINT if isinstance(exc, KeyboardInterrupt) else 0
+        if signum and in_sweep_worker():  # a sweep's worker process ends with its job: it takes no further job
+            logging.shutdown()
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
         raise
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     write_status(run_dir, "completed")
     log.info("experiment %s done in %.1f s; outputs in %s", cfg.name, time.perf_counter() - tic, run_dir)
     return metrics

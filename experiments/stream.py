@@ -34,7 +34,7 @@ import hbni_pyro
 from hbni_pyro.live import live_macro_observations
 from hbni_pyro.ros import MacroObservationBag
 from hbni_pyro.variants import noise_model
-from classifiers import FrameClassifier
+from classifiers import FrameClassifier, class_columns
 from classifiers.bags import is_bag
 from classifiers.sources import FrameSource, open_source
 from classifiers.stamped import classify_stamped
@@ -151,13 +151,12 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
             )
     clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
-    classes = (
-        settings.classes
-        or (list(posterior.class_names) if posterior.class_names is not None else None)
-        or (list(finished.metrics["classes"]) if finished is not None else list(clf.classes_))
-    )
-    if len(classes) != posterior.num_classes:
-        raise ValueError(f"stream.classes: the posterior has {posterior.num_classes} classes, got {classes}")
+    given = settings.classes
+    if given is None and posterior.class_names is None and finished is not None and not settings.posterior:
+        given = list(finished.metrics["classes"])  # a run's posterior saved before posteriors kept their names
+    posterior = posterior.match_names(given, "stream.classes")
+    classes = list(posterior.class_names)
+    class_columns(clf, classes, "stream.classifier")  # its columns are read in the posterior's order
     temper = settings.temper
     if temper is None:
         temper = float(finished.metrics["hbni_temper"]["value"]) if finished is not None else 1.0

@@ -15,7 +15,7 @@ See ``docs/architecture.md`` for where this sits in the project.
 
 from hbni_infra.files import atomic_write_bytes, atomic_write_text
 from hbni_infra.fingerprint import check_fingerprint, digest
-from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.tensorfile import load_tensors, save_tensors, seal
 from hbni_infra.version import __version__
 from hbni_infra.threads import set_threads, single_thread, threads, torch_threads, worker_threads
 
@@ -27,6 +27,7 @@ __all__ = [
     "digest",
     "load_tensors",
     "save_tensors",
+    "seal",
     "set_threads",
     "single_thread",
     "threads",

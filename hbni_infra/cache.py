@@ -10,7 +10,12 @@ differs, never silently used or overwritten.
 
 Jobs of one sweep often need the same missing entry at once: the first takes a lock file beside
 the entry (``<entry>.lock``, holding its host and process id, :class:`FileLock`) and builds; the
-others wait for the entry's file. A lock whose process is gone (same host) is taken over.
+others wait for the entry's file. The holder touches its lock every :data:`HEARTBEAT_SECONDS`, so a
+lock tells whether someone still builds, on any host. A waiter breaks a lock, with a warning naming
+its path, when it is stale: its process is gone (same host), or it was not touched for
+:data:`STALE_SECONDS` (a dead process of another host, a lock left empty or unreadable by a crash).
+It waits on a live lock at most ``timeout`` seconds (:data:`WAIT_SECONDS` by default), then raises a
+``TimeoutError`` naming the lock, its holder and how to break it. No wait is silent or unbounded.
 """
 
 from __future__ import annotations
@@ -18,23 +23,34 @@ from __future__ import annotations
 import importlib
 import os
 import socket
+import threading
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from torch import Tensor
 
+from hbni_infra.checks import as_float
 from hbni_infra.fingerprint import check_fingerprint, digest
 from hbni_infra.tensorfile import load_tensors, save_tensors
 
 KIND = "hbni_infra.CacheEntry"
 _POLL_SECONDS = 1.0
+_LAYOUT = "digested files"  # part of every entry's name: files of another layout are never looked up
+HEARTBEAT_SECONDS = 30.0
+"""How often the holder of a lock touches it (a daemon thread, while it holds it)."""
+STALE_SECONDS = 300.0
+"""A lock untouched for this long is stale: its holder is gone (10 missed heartbeats)."""
+WAIT_SECONDS = 6 * 3600.0
+"""The longest a process waits for another's live lock by default (``timeout`` of :func:`cached`)."""
 
 
 def entry_path(cache_dir: str | os.PathLike, name: str, key: dict[str, Any]) -> Path:
-    """Where the entry ``name`` with ``key`` lives in ``cache_dir``."""
-    return Path(cache_dir) / f"{name}-{digest(key)[:24]}.safetensors"
+    """Where the entry ``name`` with ``key`` lives in ``cache_dir`` (entries written before file digests have other
+    names: they are built again beside the old files, never refused)."""
+    return Path(cache_dir) / f"{name}-{digest(_LAYOUT, key)[:24]}.safetensors"
 
 
 def load_entry(path: str | os.PathLike, key: dict[str, Any], what: str = "cache entry") -> dict[str, Tensor]:
@@ -63,15 +79,17 @@ def source_identity(*modules: str) -> str:
 
 
 class FileLock:
-    """A lock file beside a cache entry: :meth:`acquire` creates it (host and process id) or fails."""
+    """A lock file beside a cache entry: :meth:`acquire` creates it (host and process id) or fails; while held, a
+    daemon thread touches it every :data:`HEARTBEAT_SECONDS` (its mtime says that the holder lives)."""
 
     def __init__(self, entry: str | os.PathLike) -> None:
         entry = Path(entry)
         self.path = entry.with_name(entry.name + ".lock")
         self.held = False
+        self._stop = threading.Event()
 
     def acquire(self) -> bool:
-        """Take the lock; take over one whose process is gone. Returns whether this process holds it."""
+        """Take the lock; break a stale one (with a warning naming it). Returns whether this process holds it."""
         if self.held:
             return True
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -79,42 +97,81 @@ class FileLock:
             try:
                 fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             except FileExistsError:
-                if not self._stale():
+                reason = self.stale()
+                if reason is None:
                     return False
+                warnings.warn(f"{self.path}: breaking a stale cache lock ({reason})", RuntimeWarning, stacklevel=2)
                 self.path.unlink(missing_ok=True)
                 continue
             with os.fdopen(fd, "w") as fh:
                 fh.write(f"{socket.gethostname()} {os.getpid()}")
             self.held = True
+            self._stop = threading.Event()
+            threading.Thread(target=self._heartbeat, args=(self._stop,), daemon=True, name="cache-lock").start()
             return True
         return False
 
     def release(self) -> None:
         if self.held:
+            self._stop.set()
             self.path.unlink(missing_ok=True)
             self.held = False
 
-    def _stale(self) -> bool:
-        """Whether the lock was taken by a process of this host that no longer runs."""
+    def _heartbeat(self, stop: threading.Event) -> None:
+        while not stop.wait(HEARTBEAT_SECONDS):
+            try:
+                os.utime(self.path)
+            except OSError:
+                return
+
+    def holder(self) -> str:
+        """Who holds the lock, as its file says (``"unknown"`` for an empty or unreadable file)."""
         try:
             host, pid = self.path.read_text().split()
-            if host != socket.gethostname():
-                return False
-            os.kill(int(pid), 0)
-        except ProcessLookupError:
-            return True
+            return f"process {int(pid)} on host {host!r}"
         except (OSError, ValueError):
-            return False  # unreadable or being written: leave it
-        return False
+            return "unknown"
+
+    def stale(self) -> str | None:
+        """Why the lock (held by another) is stale, or ``None`` while its holder may live: a process of this
+        host that no longer runs, or a file untouched for :data:`STALE_SECONDS` (empty or not)."""
+        try:
+            age = time.time() - self.path.stat().st_mtime
+        except FileNotFoundError:
+            return None  # released meanwhile: the next try takes it
+        try:
+            host, pid = self.path.read_text().split()
+            if host == socket.gethostname():
+                os.kill(int(pid), 0)
+        except ProcessLookupError:
+            return f"process {pid} of this host no longer runs"
+        except (OSError, ValueError):
+            if age > STALE_SECONDS:
+                return f"empty or unreadable, untouched for {age:.0f} s"
+            return None  # being written: leave it
+        if age > STALE_SECONDS:
+            return f"held by {self.holder()}, untouched for {age:.0f} s (its holder touches it every {HEARTBEAT_SECONDS:g} s)"
+        return None
 
 
-def wait_for_entry(path: Path, key: dict[str, Any], lock: FileLock, what: str) -> dict[str, Tensor] | None:
+def wait_for_entry(
+    path: Path, key: dict[str, Any], lock: FileLock, what: str, timeout: float = WAIT_SECONDS
+) -> dict[str, Tensor] | None:
     """Wait while another process builds the entry: its tensors once written, or ``None`` once ``lock`` is
-    ours (the builder is gone, or there was none)."""
+    ours (the builder is gone, or there was none). A stale lock is broken with a warning; a live one is waited
+    on for at most ``timeout`` seconds, then ``TimeoutError`` names the lock and its holder."""
+    timeout = as_float("timeout", timeout, 0.0)
+    deadline = time.monotonic() + timeout
     while not lock.acquire():
         if path.is_file():
             return load_entry(path, key, what)
-        time.sleep(_POLL_SECONDS)
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError(
+                f"{lock.path}: waited {timeout:g} s for {what} {path.name}, built by {lock.holder()}; if no process "
+                f"builds it any more, delete the lock file (or wait: a lock untouched for {STALE_SECONDS:g} s is broken)"
+            )
+        time.sleep(min(_POLL_SECONDS, left))
     if path.is_file():  # written between our check and taking the lock
         lock.release()
         return load_entry(path, key, what)
@@ -122,21 +179,27 @@ def wait_for_entry(path: Path, key: dict[str, Any], lock: FileLock, what: str) -
 
 
 def cached(
-    cache_dir: str | os.PathLike | None, name: str, key: dict[str, Any], compute: Callable[[], dict[str, Tensor]]
+    cache_dir: str | os.PathLike | None,
+    name: str,
+    key: dict[str, Any],
+    compute: Callable[[], dict[str, Tensor]],
+    timeout: float = WAIT_SECONDS,
 ) -> tuple[dict[str, Tensor], Path | None, bool]:
     """Tensors for ``key``: from ``cache_dir`` when a run with the same key stored them, else from ``compute()``
-    (then stored; one process of a sweep computes, the others wait for it). ``cache_dir=None`` always computes.
+    (then stored; one process of a sweep computes, the others wait for it, at most ``timeout`` seconds, breaking
+    a stale lock: see the module doc). ``cache_dir=None`` always computes.
 
     Returns:
         the tensors, the entry's file (``None`` without a cache) and whether they came from it.
     """
+    timeout = as_float("timeout", timeout, 0.0)
     if cache_dir is None:
         return compute(), None, False
     path = entry_path(cache_dir, name, key)
     if path.is_file():
         return load_entry(path, key, name), path, True
     lock = FileLock(path)
-    found = wait_for_entry(path, key, lock, name)
+    found = wait_for_entry(path, key, lock, name, timeout)
     if found is not None:
         return found, path, True
     try:

@@ -59,6 +59,40 @@ def as_float(
     return value
 
 
+SEED_LIMIT = 2**63
+"""Seeds are ints in ``[0, SEED_LIMIT)``: every torch generator, numba kernel and :mod:`hbni_infra.streams` takes them."""
+
+
+def as_seed(name: str, value: Any, limit: int = SEED_LIMIT) -> int:
+    """``value`` as a seed, an ``int`` in ``[0, limit)``; ``TypeError``/``ValueError`` naming ``name`` otherwise
+    (a negative or huge int would be wrapped or refused deep inside torch or numpy)."""
+    value = as_int(name, value)
+    if not 0 <= value < limit:
+        raise ValueError(f"{name}: expected a seed, an int in [0, 2**{limit.bit_length() - 1}), got {value}")
+    return value
+
+
+def as_generator(name: str, value: Any, device: torch.device | str | None = None) -> torch.Generator | None:
+    """``value`` as a ``torch.Generator`` (on ``device`` when given); never ``None``, which would draw from torch's
+    global stream, except where ``device`` is ``meta`` (shapes only, nothing is drawn).
+
+    Raises:
+        TypeError: not a ``torch.Generator`` (``None``, a seed); the message says how to make one.
+        ValueError: a generator of another device than ``device``.
+    """
+    device = None if device is None else torch.device(device)
+    if value is None and device is not None and device.type == "meta":
+        return None
+    if not isinstance(value, torch.Generator):
+        raise TypeError(
+            f"{name}: expected a torch.Generator (e.g. hbni_infra.streams.torch_stream(seed, 'name')), "
+            f"got {value!r} ({type(value).__name__})"
+        )
+    if device is not None and value.device.type != device.type:
+        raise ValueError(f"{name}: expected a generator on {device.type!r}, got one on {value.device.type!r}")
+    return value
+
+
 def as_probability(name: str, value: Any, allow_zero: bool = True) -> float:
     """``value`` as a probability in ``[0, 1]`` (``(0, 1]`` when ``allow_zero`` is false)."""
     return as_float(name, value, 0.0, 1.0, low_open=not allow_zero)

@@ -152,7 +152,11 @@ def below(rng: np.ndarray, n: np.int64) -> np.int64:
 
 
 def draw_seed(generator) -> int:
-    """A 62-bit seed for these streams drawn from a ``torch.Generator`` (so a run seeded once stays reproducible)."""
+    """A 62-bit seed for these streams drawn from a ``torch.Generator`` of any device (so a run seeded once stays
+    reproducible); anything else (``None``, which would draw from torch's global stream) is a ``TypeError``."""
     import torch
 
-    return int(torch.randint(0, 2**62, (1,), generator=generator))
+    from hbni_infra.checks import as_generator
+
+    generator = as_generator("generator", generator)
+    return int(torch.randint(0, 2**62, (1,), generator=generator, device=generator.device))

@@ -22,11 +22,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
     Raises:
         IsADirectoryError: ``path`` is an existing directory.
+        NotADirectoryError: a parent of ``path`` is a file.
     """
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"path: {str(path)!r} is a directory, expected a file path")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_parents(path)
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
@@ -40,6 +41,20 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
         raise
     _fsync_directory(path.parent)
     return path
+
+
+def make_parents(path: str | os.PathLike) -> None:
+    """Create the missing directories above ``path``; ``NotADirectoryError`` naming both paths when one of its
+    parents is a file."""
+    path = Path(path)
+    for parent in path.parents:
+        if parent.exists() or parent.is_symlink():
+            if not parent.is_dir():
+                raise NotADirectoryError(
+                    f"path: cannot write {str(path)!r}: its parent {str(parent)!r} is a file, expected a directory"
+                )
+            break
+    path.parent.mkdir(parents=True, exist_ok=True)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
@@ -73,11 +88,12 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
     Raises:
         FileExistsError: ``path`` exists (an output is never overwritten).
+        NotADirectoryError: a parent of ``path`` is a file.
     """
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"path: {str(path)!r} exists already")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_parents(path)
     staging = path.with_name(f".{path.name}.{secrets.token_hex(6)}.partial")
     staging.mkdir()
     try:

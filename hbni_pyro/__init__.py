@@ -4,11 +4,12 @@ Main entry points: :func:`fit` / :func:`fit_many` (posterior of a noise model: `
 ``"confusion"`` or ``"sequence"``, each a :class:`NoiseModel` in :mod:`hbni_pyro.variants`),
 :class:`HBNIPosterior` (draws, summary, save/load, predictive), :class:`HyperPrior`,
 the streaming filters (:class:`HBNIFilter`, :class:`StaticStateBayesFilter`, :class:`VotingFilter`,
-:class:`MaxOfMeanFilter`), the frame-correlation temper of the frame-level models (:func:`fit_temper`; the
+:class:`MaxOfMeanFilter`; the calibrated peer: SSBF on frames calibrated by :func:`fit_frame_calibration`), the frame-correlation temper of the frame-level models (:func:`fit_temper`; the
 sequence model estimates an AR(1) correlation of its frames instead, :mod:`hbni_pyro.frame_correlation`) and
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
-(:func:`threshold_checks`, :func:`stream_reliability`), closed-loop perception replaying recorded
+(:func:`threshold_checks`, :func:`stream_reliability`, the stopping confidence that keeps a promised accuracy:
+:func:`fit_stop_threshold`), closed-loop perception replaying recorded
 streams through a process (:class:`StreamReplay`), and a live classified stream cut into consecutive
 macro-observations (:func:`macro_observations`, :class:`Segment`).
 
@@ -17,7 +18,7 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 
 from hbni_infra.version import __version__
 
-from hbni_pyro.calibration import reliability, stream_reliability, threshold_checks
+from hbni_pyro.calibration import StopFit, fit_stop_threshold, reliability, stream_reliability, threshold_checks
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
@@ -31,6 +32,7 @@ from hbni_pyro.filters import (
     make_filter,
 )
 from hbni_pyro.fit import fit, fit_many
+from hbni_pyro.frame_calibration import CALIBRATIONS, FrameCalibration, fit_frame_calibration
 from hbni_pyro.kernels import ConfusionMetropolis, HBNIMetropolis, SequenceMetropolis
 from hbni_pyro.macro import (
     MacroObservationModel,
@@ -49,7 +51,9 @@ from hbni_pyro.variants import NOISE_MODELS, NoiseModel, noise_model, register
 
 __all__ = [
     "__version__",
+    "CALIBRATIONS",
     "FILTERS",
+    "FrameCalibration",
     "NOISE_MODELS",
     "OUTPUT_FLOOR",
     "StaticStateBayesFilter",
@@ -65,6 +69,7 @@ __all__ = [
     "NoiseModel",
     "Segment",
     "SequenceMetropolis",
+    "StopFit",
     "StreamReplay",
     "TemperFit",
     "VotingFilter",
@@ -79,6 +84,8 @@ __all__ = [
     "register",
     "fit",
     "fit_many",
+    "fit_frame_calibration",
+    "fit_stop_threshold",
     "fit_temper",
     "gamma_log_prob",
     "hbni_model",

@@ -10,12 +10,15 @@ right a share q of the time. Two views, both on labelled held-out streams:
   only once its confidence reaches the threshold; a stream that runs out of frames first is a
   timeout, whose label is not emitted. Honest means the emitted labels are right at least
   ``threshold`` of the time; timid means it times out often or needs many frames.
+- :func:`fit_stop_threshold`: the lowest confidence at which to stop so that the emitted labels are still
+  right at least a target share of the time on labelled calibration sequences (a conservative filter stops
+  earlier, an overconfident one later).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import torch
@@ -24,6 +27,7 @@ from torch import Tensor
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.macro import MacroObservationProcess
 from hbni_pyro.validation import DTYPE
+from hbni_infra.checks import as_float, as_int, as_probability
 
 
 class Reliability(NamedTuple):
@@ -48,6 +52,8 @@ def reliability(confidence: Tensor, correct: Tensor, num_bins: int = 10, low: fl
 
     The diagram's tensors are on ``confidence``'s device.
     """
+    num_bins = as_int("num_bins", num_bins, minimum=1)
+    low = as_float("low", low, 0.0, 1.0, high_open=True)
     confidence = confidence.reshape(-1).to(DTYPE)
     correct = correct.reshape(-1).to(confidence.device, DTYPE)
     if confidence.shape != correct.shape or confidence.numel() == 0:
@@ -84,8 +90,13 @@ def threshold_checks(
     truth: Tensor,
     thresholds: Sequence[float] = (0.9, 0.95, 0.99),
     max_frames: int | None = None,
+    stops: Mapping[float, float] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run the macro-observation process at each threshold on labelled streams ``(B, N, M)``.
+
+    ``stops`` maps a threshold ``t`` (the accuracy the process promises) to the confidence at which it stops
+    (:func:`fit_stop_threshold`); a threshold it does not name is its own stop. Each entry then also says
+    ``stop``.
 
     Returns, per threshold (key ``f"{t:g}"``): ``emitted_accuracy`` (share of emitted labels
     that are right) and its binomial ``emitted_stderr``, ``emitted`` (count), ``timeout_rate``
@@ -93,10 +104,13 @@ def threshold_checks(
     whole budget) and its standard error ``frames_stderr`` (sample sd over ``sqrt(B)``), and
     ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
+    thresholds = [as_probability(f"thresholds[{i}]", t, allow_zero=False) for i, t in enumerate(thresholds)]
+    max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
     truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
     for t in thresholds:
-        process = MacroObservationProcess(filter, threshold=float(t), max_frames=max_frames or streams.shape[1])
+        stop = float((stops or {}).get(t, t))
+        process = MacroObservationProcess(filter, threshold=stop, max_frames=max_frames or streams.shape[1])
         batch = process.run_batch(streams)
         emitted = ~batch.timed_out
         right = batch.label == truth
@@ -113,4 +127,73 @@ def threshold_checks(
             "frames_stderr": float(frames.std() / math.sqrt(len(frames))) if len(frames) > 1 else float("nan"),
             "overall_accuracy": float(right.to(DTYPE).mean()),
         }
+        if stops is not None:
+            out[f"{t:g}"]["stop"] = stop
     return out
+
+
+def wilson_lower(right: int, n: int, z: float = 1.0) -> float:
+    """Wilson score lower bound of a proportion ``right / n`` at ``z`` standard errors (0 when ``n = 0``)."""
+    if n == 0:
+        return 0.0
+    p, zz = right / n, z * z
+    centre, half = p + zz / (2 * n), z * math.sqrt(p * (1 - p) / n + zz / (4 * n * n))
+    return (centre - half) / (1 + zz / n)
+
+
+DEFAULT_STOPS = (0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
+"""Candidate stopping confidences of :func:`fit_stop_threshold`."""
+
+
+class StopFit(NamedTuple):
+    """Result of :func:`fit_stop_threshold`: the chosen ``stop``, the ``target`` accuracy, and per candidate of
+    ``grid`` the emitted accuracy on the labelled streams, its Wilson ``lower`` bound, the mean frames and the
+    timeout rate."""
+
+    stop: float
+    target: float
+    grid: list[float]
+    emitted_accuracy: list[float]
+    lower: list[float]
+    mean_frames: list[float]
+    timeout_rate: list[float]
+
+
+def fit_stop_threshold(
+    filter: StreamingFilter,
+    streams: Tensor,
+    truth: Tensor,
+    target: float,
+    max_frames: int | None = None,
+    grid: Sequence[float] | None = None,
+    z: float = 1.0,
+) -> StopFit:
+    """The lowest stopping confidence at which a macro-observation process is right at least ``target`` of the
+    time on labelled streams ``(B, N, M)`` (calibration sequences).
+
+    A filter whose confidence is honest but conservative (the sequence model's marginal posterior on correlated
+    frames) is right more often than it says; stopping once its confidence reaches ``stop < target`` then keeps
+    the promise ``target`` in fewer frames. ``stop`` is the lowest candidate of ``grid`` (``None``:
+    :data:`DEFAULT_STOPS` above ``1 / M``) whose emitted labels' Wilson lower bound at ``z`` standard errors is at
+    least ``target``; when none is (too few sequences to show it), ``target`` itself.
+    """
+    target = as_probability("target", target, allow_zero=False)
+    low = 1.0 / filter.num_classes
+    grid = [float(t) for t in (DEFAULT_STOPS if grid is None else grid) if float(t) > low]
+    if not grid:
+        raise ValueError(f"grid: expected candidate stops in ({low:g}, 1], got none")
+    checks = threshold_checks(filter, streams, truth, grid, max_frames)
+    rows = [checks[f"{t:g}"] for t in grid]
+    lower = [
+        wilson_lower(round(r["emitted_accuracy"] * r["emitted"]) if r["emitted"] else 0, r["emitted"], z) for r in rows
+    ]
+    stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
+    return StopFit(
+        stop,
+        target,
+        grid,
+        [r["emitted_accuracy"] for r in rows],
+        lower,
+        [r["mean_frames"] for r in rows],
+        [r["timeout_rate"] for r in rows],
+    )

@@ -49,7 +49,7 @@ from hbni_pyro.filters import HBNIFilter, StreamingFilter
 from hbni_pyro.generative import seeded_generator
 from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
-from hbni_infra.checks import as_int, as_probability
+from hbni_infra.checks import as_int, as_probability, as_seed
 from hbni_infra.files import atomic_write_bytes
 from hbni_infra.optional import require
 
@@ -214,7 +214,7 @@ def check(
     n = outputs.shape[0]
     threshold = as_probability("threshold", threshold, allow_zero=False)
     max_frames = None if max_frames is None else as_int("max_frames", max_frames, minimum=1)
-    seed = as_int("seed", seed)
+    seed = as_seed("seed", seed)
     simulations = as_int("simulations", simulations, minimum=1)
     if filter is None:
         filter = HBNIFilter(posterior)

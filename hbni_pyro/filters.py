@@ -14,6 +14,10 @@ filter                           per-frame feature       posterior after N frame
                                  and its square)
 ===============================  ======================  ===============================================
 
+The calibrated peer (``make_filter("calibrated")``) is SSBF on calibrated frames ``q_i``
+(:mod:`hbni_pyro.frame_calibration`), its feature ``log q`` and every frame's evidence weighed by a
+temper ``tau``: ``∝ p_m * prod_i (q_i,m / p_m)^tau``.
+
 The streaming path (:meth:`StreamingFilter.update`) adds one feature to the running sum;
 the batched path (:meth:`StreamingFilter.run`) takes a cumulative sum over frames. Both
 then call the same posterior function, so they agree exactly (``torch.cumsum`` accumulates
@@ -33,6 +37,7 @@ and :meth:`~StreamingFilter.update` and :meth:`~StreamingFilter.run` return shap
 
 from __future__ import annotations
 
+import copy
 from typing import Any, Protocol
 
 import torch
@@ -186,10 +191,52 @@ class StaticStateBayesFilter(_LogLinearFilter):
 
     It treats each output as a (prior-divided) likelihood, so after N frames
     ``P_N(m) ∝ p_m * prod_i (o_i,m / p_m)``.
+
+    The calibrated peer (``make_filter("calibrated")``) is the same filter on calibrated frames: with a
+    :class:`~hbni_pyro.frame_calibration.FrameCalibration` ``calibration``, each output ``o_i`` is replaced by
+    ``q_i = calibration(o_i)`` (fitted on labelled calibration frames), and a ``temper`` ``tau`` in ``(0, 1]``
+    weighs every frame's evidence, ``P_N(m) ∝ p_m * prod_i (q_i,m / p_m)^tau``: ``N`` correlated frames of one
+    sequence count as ``tau * N`` independent ones (:func:`hbni_pyro.fit_temper` fits ``tau`` on labelled
+    sequences, as for HBNI's frame-level models).
     """
 
+    def __init__(
+        self,
+        num_classes: int,
+        class_prior: Any = None,
+        device: str | torch.device = "cpu",
+        *,
+        calibration: Any = None,
+        temper: float = 1.0,
+    ) -> None:
+        super().__init__(num_classes, class_prior, device)
+        self.temper = as_float("temper", temper, 0.0, 1.0, low_open=True)
+        if calibration is not None:
+            if not callable(getattr(calibration, "log_probs", None)):
+                raise TypeError(f"calibration: expected a FrameCalibration, got {type(calibration).__name__}")
+            if calibration.num_classes != self.num_classes:
+                raise ValueError(
+                    f"calibration: expected a map of {self.num_classes} classes, got {calibration.num_classes}"
+                )
+            calibration = calibration.to(self.device)
+            self.class_names = calibration.class_names
+        self.calibration = calibration
+
+    def features(self, obs: Tensor) -> Tensor:
+        return obs.log() if self.calibration is None else self.calibration.log_probs(obs)
+
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
-        return stats - counts.unsqueeze(-1) * self._log_prior
+        return self.temper * (stats - counts.unsqueeze(-1) * self._log_prior)
+
+    def tempered(self, temper: float) -> StaticStateBayesFilter:
+        """The same filter with evidence weight ``temper``."""
+        return StaticStateBayesFilter(
+            self.num_classes, self.class_prior, self.device, calibration=self.calibration, temper=temper
+        )
+
+    def __repr__(self) -> str:
+        kind = "none" if self.calibration is None else self.calibration.kind
+        return f"StaticStateBayesFilter(num_classes={self.num_classes}, calibration={kind}, temper={self.temper:g})"
 
 
 class _Posterior(Protocol):
@@ -294,6 +341,19 @@ class HBNIFilter(StreamingFilter):
         self._evidence = spec.evidence(draws, correlation=rho) if spec.correlated_frames else spec.evidence(draws)
         super().__init__(num_classes, device)
 
+    def tempered(self, temper: float) -> HBNIFilter:
+        """The same filter (its draws, mode and prior) with likelihood temper ``temper``."""
+        temper = as_float("temper", temper, 0.0, 1.0, low_open=True)
+        if self.frame_correlation != 0.0 and temper != 1.0:
+            raise ValueError(
+                f"temper: a filter with frame_correlation {self.frame_correlation:g} counts correlated frames "
+                f"itself; expected temper 1, got {temper:g}"
+            )
+        out = copy.copy(self)
+        out.temper = temper
+        out.reset()
+        return out
+
     @property
     def theta(self) -> Tensor:
         """``(S, M)`` noise parameters used by a frame-level model (``S = 1`` in plugin mode)."""
@@ -360,7 +420,7 @@ def _checked_draws(posterior: Any) -> dict[str, Tensor]:
     return draws
 
 
-FILTERS = ("hbni", "ssbf", "max_of_mean", "voting")
+FILTERS = ("hbni", "calibrated", "ssbf", "max_of_mean", "voting")
 
 
 def make_filter(
@@ -374,9 +434,12 @@ def make_filter(
     """The streaming filter called ``name`` (one of :data:`FILTERS`).
 
     ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
-    ``class_prior``, ``frame_correlation``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only ``num_classes``
-    (default: the posterior's), and ``"ssbf"`` takes a ``class_prior``. ``device``: where the filter runs (``None``:
-    the posterior's device, else the CPU).
+    ``class_prior``, ``frame_correlation``); ``"calibrated"``, the calibrated peer, is :class:`StaticStateBayesFilter`
+    on calibrated frames (options ``calibration``, a :class:`~hbni_pyro.frame_calibration.FrameCalibration`, required,
+    ``temper`` and ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only
+    ``num_classes`` (default: the posterior's, or the calibration's; given a posterior, they take its class
+    names), and ``"ssbf"`` takes a ``class_prior``.
+    ``device``: where the filter runs (``None``: the posterior's device, else the CPU).
     """
     if name not in FILTERS:
         raise ValueError(f"name: expected one of {FILTERS}, got {name!r}")
@@ -384,16 +447,29 @@ def make_filter(
         if posterior is None:
             raise ValueError("posterior: the 'hbni' filter needs a fitted posterior, got None")
         return HBNIFilter(posterior, device=device, **options)
+    if name == "calibrated":
+        calibration = options.get("calibration")
+        if calibration is None:
+            raise ValueError("calibration: the 'calibrated' filter needs a fitted FrameCalibration, got None")
+        if num_classes is None:
+            num_classes = getattr(calibration, "num_classes", None)
     if num_classes is None:
         if posterior is None:
             raise ValueError(f"num_classes: the {name!r} filter needs num_classes or a posterior")
         num_classes = posterior.num_classes
-    allowed = {"class_prior"} if name == "ssbf" else set()
+    allowed = {"ssbf": {"class_prior"}, "calibrated": {"class_prior", "calibration", "temper"}}.get(name, set())
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"options: the {name!r} filter takes {sorted(allowed) or 'no options'}, got {unknown}")
     if device is None:
         device = getattr(posterior, "device", "cpu")
-    return {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
-        num_classes, device=device, **options
-    )
+    if name == "calibrated":
+        baseline = StaticStateBayesFilter(num_classes, device=device, **options)
+    else:
+        baseline = {"ssbf": StaticStateBayesFilter, "max_of_mean": MaxOfMeanFilter, "voting": VotingFilter}[name](
+            num_classes, device=device, **options
+        )
+    names = getattr(posterior, "class_names", None)
+    if names is not None and len(names) == baseline.num_classes:
+        baseline.class_names = tuple(names)
+    return baseline

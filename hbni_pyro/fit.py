@@ -37,7 +37,7 @@ from hbni_pyro.validation import (
     as_sequence_ids,
 )
 from hbni_pyro.variants import NoiseModel, noise_model
-from hbni_infra.checks import as_device, as_int, as_names
+from hbni_infra.checks import SEED_LIMIT, as_device, as_int, as_names, as_seed
 from hbni_infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
@@ -46,6 +46,8 @@ DEFAULT_CHAINS = {"mh": 16, "nuts": 2}
 (sufficient statistics) they cost almost nothing extra; unknown classes cost a class move per output and
 chain (7-12 CPU s a chain for 200 000 x 10 unlabelled outputs here). NUTS chains run one after another on these
 CPUs."""
+NUTS_SEED_LIMIT = 2**32
+"""NUTS seeds Pyro's global streams, NumPy's among them, which take seeds below 2**32 only."""
 
 
 def fit(
@@ -81,7 +83,7 @@ def fit(
             the classes enumerated out, labels recovered by ``infer_discrete``).
         num_chains: chains (``None`` = ``DEFAULT_CHAINS[method]``).
         num_samples, warmup_steps: post-warm-up draws per chain and warm-up iterations.
-        seed: same seed, same draws.
+        seed: same seed, same draws: an int in ``[0, 2**63)`` (``[0, 2**32)`` for NUTS).
         progress: show Pyro's progress bar.
         hyperprior: a :class:`HyperPrior` (``None`` = defaults).
         class_prior: ``(M,)`` prior ``p`` over classes (``None`` = uniform).
@@ -217,7 +219,8 @@ def _check_settings(method, num_chains, num_samples, warmup_steps, seed, hyperpr
     hp = HyperPrior() if hyperprior is None else hyperprior
     if not isinstance(hp, HyperPrior):
         raise TypeError(f"hyperprior: expected a HyperPrior, got {type(hyperprior).__name__}")
-    return hp, as_class_prior(class_prior, num_classes), chains, *sizes, as_int("seed", seed)
+    seed = as_seed("seed", seed, NUTS_SEED_LIMIT if method == "nuts" else SEED_LIMIT)
+    return hp, as_class_prior(class_prior, num_classes), chains, *sizes, seed
 
 
 def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.generative import sample_outputs, seeded_generator
-from hbni_pyro.validation import DTYPE, has_values
+from hbni_pyro.validation import DTYPE, check_same_classes, has_values
 from hbni_infra.checks import as_int, as_names, as_probability
 from hbni_infra.tensorfile import load_tensors, save_tensors
 
@@ -250,6 +250,21 @@ class MacroObservationModel:
         cells = torch.arange(self.num_classes * self.max_frames).expand(self.num_classes, -1)
         return self._flat.to("cpu", copy=True), cells // self.max_frames, cells % self.max_frames + 1
 
+    def reordered(self, class_names: Any) -> "MacroObservationModel":
+        """The same law with classes (true and reported) in the order of ``class_names``, a reordering of its own.
+
+        Raises:
+            ValueError: the table has no names, or ``class_names`` is not a reordering of them (both lists named).
+        """
+        names = as_names("class_names", class_names, self.num_classes)
+        if self.class_names is None or names is None or sorted(names) != sorted(self.class_names):
+            raise ValueError(
+                f"class_names: expected a reordering of the table's classes {self.class_names}, got "
+                f"{None if names is None else list(names)}"
+            )
+        order = torch.tensor([self.class_names.index(n) for n in names], device=self.joint.device)
+        return MacroObservationModel(self.joint[order][:, order], self.timed_out[order], self.info, names)
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the tables and ``info`` to one safetensors file, atomically (from any device; read back onto the CPU)."""
         return save_tensors(
@@ -266,7 +281,9 @@ class MacroObservationModel:
         try:
             return cls(tensors["joint"], tensors["timed_out"], meta.get("info", {}), meta.get("class_names"))
         except KeyError as exc:
-            raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
+            raise ValueError(f"path: {str(path)!r} is an incomplete saved {_KIND} (missing {exc})") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
     def __repr__(self) -> str:
         acc = ", ".join(f"{float(a):.3f}" for a in self.accuracy)
@@ -286,7 +303,8 @@ def characterize(
 
     Args:
         process: the macro-observation process to characterise.
-        generative: where streams come from: an :class:`hbni_pyro.HBNIPosterior` of any noise
+        generative: where streams come from (a named one must name the process's classes in its order; the
+            table takes the names of either): an :class:`hbni_pyro.HBNIPosterior` of any noise
             model (its posterior predictive of a new object, :meth:`~hbni_pyro.HBNIPosterior.sample_streams`:
             each stream takes one posterior draw, then ``max_frames`` outputs given it, sharing one
             look under the sequence model, about which they scatter with its ``frame_correlation``), anything else with ``theta_draws() -> (S, M)`` (taken
@@ -300,6 +318,9 @@ def characterize(
     if not isinstance(process, MacroObservationProcess):
         raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
     num_streams = _positive_int(num_streams, "num_streams")
+    names = getattr(generative, "class_names", None)
+    if process.class_names is not None and names is not None:
+        check_same_classes(process.class_names, names, "the process's posterior", "generative")
     streams, source, device = _stream_sampler(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
     g = seeded_generator(device, seed)
@@ -309,7 +330,7 @@ def characterize(
     truth = torch.arange(M, device=results[0].label.device).repeat_interleave(num_streams)
     batch = MacroObservationBatch(*(torch.cat(parts) for parts in zip(*results)))
     info = {"num_streams": num_streams, "seed": seed, "generative": source}
-    return _table(process, batch, truth, info)
+    return _table(process, batch, truth, info, process.class_names or names)
 
 
 def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) -> MacroObservationModel:
@@ -344,9 +365,14 @@ def tabulate(process: MacroObservationProcess, streams: Any, true_class: Any) ->
 
 
 def _table(
-    process: MacroObservationProcess, batch: MacroObservationBatch, truth: Tensor, info: dict
+    process: MacroObservationProcess,
+    batch: MacroObservationBatch,
+    truth: Tensor,
+    info: dict,
+    class_names: tuple[str, ...] | None = None,
 ) -> MacroObservationModel:
-    """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class, on the batch's device."""
+    """Empirical ``(M, M, max_frames)`` joint table of ``(label, frames_used)`` per true class, on the batch's device,
+    named ``class_names`` (``None``: the process's names)."""
     M, T = process.num_classes, process.max_frames
     like = dict(dtype=DTYPE, device=truth.device)
     counts = torch.zeros(M, M * T, **like)
@@ -356,7 +382,8 @@ def _table(
     per_class = counts.sum(-1, keepdim=True)
     timed_out = torch.zeros(M, **like).index_add_(0, truth, batch.timed_out.to(DTYPE)) / per_class.squeeze(-1)
     info = {"threshold": process.threshold, "max_frames": T, "filter": repr(process.filter), **info}
-    return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info, process.class_names)
+    names = process.class_names if class_names is None else class_names
+    return MacroObservationModel((counts / per_class).reshape(M, M, T), timed_out, info, names)
 
 
 StreamSampler = Callable[[int, int, int, torch.Generator], Tensor]

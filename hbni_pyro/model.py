@@ -30,6 +30,7 @@ from hbni_pyro.density import (
 )
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
+from hbni_infra.checks import as_int, as_seed
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,8 @@ def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int =
     Returns:
         ``(K,)`` log density.
     """
-    g = torch.Generator().manual_seed(seed)
+    num_mc = as_int("num_mc", num_mc, minimum=1)
+    g = torch.Generator().manual_seed(as_seed("seed", seed))
     h = hyperprior
     kappa = gamma_variates(torch.full((num_mc,), h.beta), h.eta, g)
     gamma = gamma_variates(torch.full((num_mc,), h.nu), h.omega, g)

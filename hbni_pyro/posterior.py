@@ -14,7 +14,7 @@ from torch import Tensor
 
 from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.validation import DTYPE, as_class_prior, has_values
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from hbni_infra.checks import as_device, as_float, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
@@ -74,6 +74,44 @@ class HBNIPosterior:
                 raise ValueError(
                     f"samples[{k!r}]: expected shape {tuple(lead) + shape}, got {tuple(self.samples[k].shape)}"
                 )
+            x = self.samples[k]
+            if has_values(x) and not bool(torch.isfinite(x).all()):
+                raise ValueError(f"samples[{k!r}]: expected finite draws, got NaN or infinite ones")
+            if has_values(x) and k in self.noise_model.positive_sites and bool((x <= 0).any()):
+                raise ValueError(f"samples[{k!r}]: expected draws > 0, got {float(x.min()):g}")
+        as_class_prior(self.class_prior, self.num_classes)
+
+    def named(self, class_names: Any) -> "HBNIPosterior":
+        """A copy whose classes are called ``class_names`` (``M`` distinct names, in the outputs' column order):
+        how a posterior fitted without names gets them (``posterior.named([...]).save(path)``)."""
+        if class_names is None:
+            raise TypeError("class_names: expected a sequence of names, got NoneType")
+        return dataclasses.replace(self, info=dict(self.info), class_names=class_names)
+
+    def match_names(self, class_names: Any, what: str) -> "HBNIPosterior":
+        """This posterior with its class names, checked against ``class_names`` given where it meets other named
+        objects (``what`` names that argument in messages).
+
+        A named posterior needs no ``class_names`` (``None``) and refuses other ones, or its own in another order;
+        an unnamed one takes ``class_names`` (a copy named so), and without them is refused with how to name it.
+
+        Raises:
+            ValueError: the names differ from the posterior's (both lists named), or neither side has any.
+        """
+        if self.class_names is not None:
+            if class_names is not None and tuple(class_names) != self.class_names:
+                raise ValueError(
+                    f"{what}: expected the posterior's classes in its column order {list(self.class_names)}, "
+                    f"got {list(class_names) if not isinstance(class_names, str) else class_names!r}"
+                )
+            return self
+        if class_names is None:
+            raise ValueError(
+                f"{what}: the posterior has no class names, so nothing says which of its columns is which class; "
+                "give the names in its column order here, fit it with class_names=[...], or name its file: "
+                "HBNIPosterior.load(path).named([...]).save(path)"
+            )
+        return self.named(as_names(what, class_names, self.num_classes))
 
     @property
     def noise_model(self) -> NoiseModel:
@@ -235,8 +273,10 @@ class HBNIPosterior:
             return cls.load(path).to(device)
         tensors, meta = load_tensors(path, _KIND, version=_VERSION)
         model = meta.get("model", "paper")
-        if model not in model_names():
-            raise ValueError(f"{path}: unknown noise model {model!r} in saved {_KIND}, expected one of {model_names()}")
+        if not isinstance(model, str) or model not in model_names():
+            raise ValueError(
+                f"path: {str(path)!r} names an unknown noise model {model!r}, expected one of {model_names()}"
+            )
         spec = noise_model(model)
         try:
             num_classes = spec.num_classes(tensors)
@@ -250,8 +290,10 @@ class HBNIPosterior:
                 class_names=meta.get("class_names"),
                 frame_correlation=meta.get("frame_correlation", 0.0),
             )
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
+        except KeyError as exc:
+            raise ValueError(f"path: {str(path)!r} is an incomplete saved {_KIND} (missing {exc})") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
     def to_arviz(self) -> Any:
         """An ``arviz.InferenceData`` with the draws (needs ArviZ: the ``analysis`` extra)."""

@@ -70,6 +70,11 @@ class StreamReplay:
         self._pool = torch.argsort(truth, stable=True)  # streams grouped by class, bank order within a class
         self._offset = torch.cumsum(self._counts, 0) - self._counts  # first pool position of each class
 
+    @property
+    def class_names(self) -> tuple[str, ...] | None:
+        """The process's class names in label order (``None`` when its filter has none)."""
+        return self.process.class_names
+
     def subset(self, index: Any) -> StreamReplay:
         """A replay of the bank streams ``index`` (long ``(K,)``, repeats allowed): their results, not rerun.
 

@@ -19,6 +19,7 @@ from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, noise_model
 from hbni_infra.streams import stream_seed
+from hbni_infra.checks import as_int, as_seed
 
 
 class SBCResult(NamedTuple):
@@ -57,6 +58,9 @@ def run_sbc(
     that the check has power.
     """
     spec = noise_model(model)
+    num_datasets, num_classes = as_int("num_datasets", num_datasets, 1), as_int("num_classes", num_classes, 2)
+    size, num_frames = as_int("size", size, 1), as_int("num_frames", num_frames, 1)
+    thin, num_bins, seed = as_int("thin", thin, 1), as_int("num_bins", num_bins, 2), as_seed("seed", seed)
     if spec.draw_prior is None or spec.simulate is None or spec.rank_statistics is None:
         raise ValueError(
             f"model: the {spec.name!r} noise model has no draw_prior, simulate and rank_statistics for SBC"

@@ -15,8 +15,10 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
+from hbni_pyro.filters import HBNIFilter
 from hbni_pyro.macro import MacroObservationProcess
 from hbni_pyro.validation import check_same_classes
+from hbni_infra.checks import as_names
 
 
 class Segment(NamedTuple):
@@ -68,11 +70,20 @@ def macro_observations(
 
     Args:
         process: the macro-observation process (its filter, threshold and frame budget).
-        classes: class names in the process's class order.
+        classes: class names in the process's class order (its posterior's names when it has them; a process
+            on an HBNI posterior without names is refused: nothing says which column is which class).
         keep_frames: keep each segment's frames (for annotation); otherwise only outputs are kept.
     """
-    if len(classes) != process.num_classes:
-        raise ValueError(f"classes: expected {process.num_classes} names, got {len(classes)}")
+    if not isinstance(process, MacroObservationProcess):
+        raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
+    classes = as_names("classes", classes, process.num_classes)
+    if classes is None:
+        raise TypeError("classes: expected a sequence of names, got None")
+    if process.class_names is None and isinstance(process.filter, HBNIFilter):
+        raise ValueError(
+            f"process: its posterior has no class names, so its columns cannot be matched to classes {list(classes)}; "
+            "fit it with class_names=[...], or name it in its column order: posterior.named([...])"
+        )
     check_same_classes(process.class_names, classes, "the process's posterior")
     it = iter(items)
     start = 0

@@ -1,4 +1,4 @@
-"""Fit the HBNI filter's likelihood temper on labelled output streams.
+"""Fit a filter's likelihood temper (evidence weight) on labelled output streams: HBNI's or the calibrated peer's.
 
 HBNI models a class's outputs as i.i.d. The frames of one camera sequence share their view,
 light and background, so they are correlated and the i.i.d. filter grows overconfident: a
@@ -7,7 +7,8 @@ macro-observation process that stops at 95 % then stops too soon and is wrong mo
 ``temper``) counts ``N`` correlated frames as ``tau * N`` independent ones. :func:`fit_temper`
 picks ``tau`` on a grid by the mean log posterior of the true class over every prefix of every
 stream, a proper scoring rule, so the fitted filter's confidence matches its accuracy on the
-calibration streams.
+calibration streams. The calibrated peer (SSBF on calibrated frames) treats frames as independent too, and gets
+its evidence weight the same way.
 """
 
 from __future__ import annotations
@@ -49,18 +50,20 @@ def fit_temper(
     *,
     num_draws: int | None = None,
 ) -> TemperFit:
-    """Choose the :class:`~hbni_pyro.HBNIFilter` temper that best predicts the true class of labelled streams.
+    """Choose the temper (evidence weight) of a filter that best predicts the true class of labelled streams.
 
     Args:
-        posterior: a fitted :class:`~hbni_pyro.HBNIPosterior`.
+        posterior: a fitted :class:`~hbni_pyro.HBNIPosterior` (its :class:`~hbni_pyro.HBNIFilter` is tempered), or
+            a filter with a ``tempered(tau)`` method (:class:`~hbni_pyro.HBNIFilter`, or the calibrated peer
+            ``make_filter("calibrated", ...)``: SSBF on calibrated frames), whose own temper is ignored.
         streams: ``(B, N, M)`` classifier outputs, one labelled sequence per row.
         true_class: ``(B,)`` integer class of each stream, in ``[0, M)``.
-        mode, num_draws: as for :class:`~hbni_pyro.HBNIFilter`.
+        mode, num_draws: as for :class:`~hbni_pyro.HBNIFilter` (for a posterior only).
         grid: ``(G,)`` candidate tempers in ``(0, 1]``; ``None`` = :data:`DEFAULT_GRID`.
 
     Returns:
         a :class:`TemperFit`; its ``log_score`` is ``mean_{b, n} log P(c = true_b | o_b,1:n)``, on the
-        posterior's device (where the filters run).
+        filter's device.
 
     Raises:
         ValueError: the posterior's filter counts correlated frames itself (a nonzero ``frame_correlation``).
@@ -74,7 +77,11 @@ def fit_temper(
             f"posterior: its filter counts correlated frames itself (frame_correlation {rho:g}); a temper is for the "
             "frame-level models (or a posterior with frame_correlation 0)"
         )
-    base = HBNIFilter(posterior, mode, num_draws=num_draws)
+    base = (
+        posterior
+        if callable(getattr(posterior, "tempered", None))
+        else HBNIFilter(posterior, mode, num_draws=num_draws)
+    )
     stats, counts = base.statistics(streams)
     truth = torch.as_tensor(true_class)
     if truth.is_floating_point() or truth.dim() != 1 or truth.shape[0] != stats.shape[0]:
@@ -88,6 +95,6 @@ def fit_temper(
     counts = counts.expand(stats.shape[:-1])
     scores = torch.empty(grid.shape[0], dtype=DTYPE, device=stats.device)
     for g, tau in enumerate(grid.tolist()):
-        probs = HBNIFilter(posterior, mode, num_draws=num_draws, temper=tau).posterior(stats, counts)
+        probs = base.tempered(tau).posterior(stats, counts)
         scores[g] = probs.gather(-1, index).clamp_min(torch.finfo(DTYPE).tiny).log().mean()
     return TemperFit(float(grid[int(scores.argmax())]), grid, scores)

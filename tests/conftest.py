@@ -1,13 +1,19 @@
-"""Shared pytest setup: the repository root and a single-threaded torch for small tensor programs."""
+"""Shared pytest setup: the repository root, a single-threaded torch for small tensor programs, and the ``slow``
+marker on every test that starts an experiment process."""
 
 from __future__ import annotations
 
+import inspect
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
+from filelock import FileLock
+
+from mission_tiny import TINY_BANKS, TINY_MISSION
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,9 +33,67 @@ def pytest_configure(config: pytest.Config) -> None:
             print(f"tests/compile_kernels.py {part}: exit status {job.returncode}", file=sys.stderr)
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark ``slow`` every test that runs ``experiments.run`` (in its body, a module-level helper it calls or a
+    fixture it uses): ``pytest -m "not slow"`` then skips the whole-experiment runs."""
+    for item in items:
+        if _starts_an_experiment(item):
+            item.add_marker(pytest.mark.slow)
+
+
+def _starts_an_experiment(item: pytest.Item) -> bool:
+    function = getattr(item, "function", None)
+    if function is None:
+        return False
+    module = inspect.getmodule(function)
+    parts = [function, *(getattr(module, name, None) for name in function.__code__.co_names)]
+    info = getattr(item, "_fixtureinfo", None)
+    for defs in info.name2fixturedefs.values() if info else ():
+        for fixture in defs:
+            parts += [fixture.func, *(getattr(module, n, None) for n in fixture.func.__code__.co_names)]
+    for part in parts:
+        if inspect.isfunction(part):
+            try:
+                source = inspect.getsource(part)
+            except OSError:
+                continue
+            if "experiments.run" in source and "sys.executable" in source:
+                return True
+    return False
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One finished main-job run with the tiny settings, shared by every test (and xdist worker) that only reads
+    it: ``<root>/outputs/mission/2026-01-01_00-00-00``, made under ``HBNI_PYRO_ROOT=<root>``."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the workers' common folder
+    root = shared / "tiny-mission"
+    run_dir = root / "outputs" / "mission" / "2026-01-01_00-00-00"
+    with FileLock(str(shared / "tiny-mission.lock")):
+        if not (run_dir / "metrics.json").is_file():
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "experiments.run",
+                    "experiment=mission",
+                    *TINY_MISSION,
+                    TINY_BANKS,
+                    f"hydra.run.dir={run_dir}",
+                    "mission.bank.workers=1",
+                ],  # the bank built in the background
+                cwd=REPO_ROOT,
+                check=True,
+                capture_output=True,
+                env={**os.environ, "HBNI_PYRO_ROOT": str(root)},
+            )
+    return run_dir
 
 
 torch.set_num_threads(max(1, min(2, torch.get_num_threads())))

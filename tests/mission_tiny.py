@@ -2,8 +2,11 @@
 
 Each planner gets only settings it reads (a setting the chosen planner ignores is refused): the mission's planner
 both phases', the warm start (local search only) local search's, and G-DICE (``TINY_MISSION_GDICE``) its
-cross-entropy's.
+cross-entropy's; without warm starts (``TINY_MISSION_FROM_SCRATCH``, ``warm_start=false``) no warm_planner setting.
 """
+
+import tempfile
+from pathlib import Path
 
 _COMMON = ("patience=1", "num_nodes=6", "start_nodes=3")
 _CE = ("ce_iterations=2", "ce_samples=10", "ce_elites=2", "ce_memory=1", "ce_rollouts=4", "ce_screen_rollouts=2")
@@ -31,3 +34,7 @@ _BASE = [
 ]
 TINY_MISSION = [*_BASE, *(f"planner.{setting}" for setting in (*_COMMON, *_CE, *_LS))]
 TINY_MISSION_GDICE = ["planner=gdice", *_BASE, *(f"planner.{setting}" for setting in (*_COMMON, *_CE))]
+TINY_MISSION_FROM_SCRATCH = ["warm_start=false", *(s for s in TINY_MISSION if not s.startswith("warm_planner."))]
+
+TINY_BANKS = f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"
+"""The tiny runs' bank cache, shared across runs so that a second run with the same settings finds its bank."""

@@ -83,19 +83,19 @@ def fitted():
 def test_classifier_cpu_device_equals_default(fitted, tmp_path):
     images = _images(4, 2)
     expected = fitted.predict_proba(images)
-    assert fitted.device == torch.device("cpu") and expected.device == torch.device("cpu")
+    assert fitted.backbone_.device == torch.device("cpu") and expected.device == torch.device("cpu")
     path = fitted.save(tmp_path / "clf.safetensors")
     loaded = FrameClassifier.load(path, device="cpu")
-    assert loaded.device == torch.device("cpu")
+    assert loaded.backbone_.device == torch.device("cpu")
     assert torch.equal(loaded.predict_proba(images), expected)
     assert torch.equal(loaded.to("cpu").features(images), fitted.features(images))
 
 
 def test_classifier_to_meta_moves_only_the_backbone(fitted, tmp_path):
     loaded = FrameClassifier.load(fitted.save(tmp_path / "clf.safetensors"), device="meta")
-    assert loaded.device == torch.device("meta") and loaded.mean_.device == torch.device("cpu")
-    assert loaded.to("cpu") is loaded and loaded.device == torch.device("cpu")
-    assert fitted.device == torch.device("cpu")  # the shared backbone was not moved
+    assert loaded.backbone_.device == torch.device("meta") and loaded.mean_.device == torch.device("cpu")
+    assert loaded.to("cpu") is loaded and loaded.backbone_.device == torch.device("cpu")
+    assert fitted.backbone_.device == torch.device("cpu")  # the shared backbone was not moved
 
 
 # ---- exact evaluation ---------------------------------------------------------------------------------------

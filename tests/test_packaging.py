@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 PROJECT = PYPROJECT["project"]["name"]
 LIBRARIES = ("hbni_infra", "hbni_pyro", "classifiers", "decpomdp")
-OURS = {*LIBRARIES, "experiments"}
+OURS = {*LIBRARIES, "experiments", "benchmarks"}  # benchmarks: the checkout's own scripts, never installed
 EXPERIMENTS_ONLY = ("hydra", "omegaconf", "hydra_plugins", "submitit", "matplotlib", "skimage", "arviz", "sklearn")
 """Modules only the experiments (or optional library features) use: the libraries import without them."""
 MODULE_TO_DIST = {"torchvision": "torchvision", "rclpy": None}

@@ -13,7 +13,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from mission_tiny import TINY_MISSION
 
 ROOT = Path(__file__).resolve().parents[1]
 BLOCKS = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
@@ -52,25 +51,9 @@ def run_script(script: str, root: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def finished_run(tmp_path_factory) -> Path:
+def finished_run(tiny_mission_run) -> Path:
     """A scratch project root holding one finished main-job run (the mission tests' small settings)."""
-    root = tmp_path_factory.mktemp("project")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "experiments.run",
-            "experiment=mission",
-            f"hydra.run.dir={root / 'outputs' / 'mission' / '2026-01-01_00-00-00'}",
-            f"mission.bank.cache_dir={root / 'banks'}",
-            *TINY_MISSION,
-        ],
-        cwd=ROOT,
-        check=True,
-        capture_output=True,
-        env=project_env(root),
-    )
-    return root
+    return tiny_mission_run.parents[2]
 
 
 def test_readme_has_python_blocks():
@@ -79,7 +62,9 @@ def test_readme_has_python_blocks():
     assert len(DOC_SCRIPTS) >= 4
 
 
-@pytest.mark.parametrize("index", range(len(SCRIPTS)))
+@pytest.mark.parametrize(
+    "index", [pytest.param(i, marks=[pytest.mark.slow] if "latest_run(" in s else []) for i, s in enumerate(SCRIPTS)]
+)
 def test_readme_python_blocks_run_as_written(index, tmp_path, request):
     script = SCRIPTS[index]
     root = request.getfixturevalue("finished_run") if "latest_run(" in script else tmp_path

@@ -57,12 +57,12 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
     [
         (
             "warm_planner.ce_alpha=0.3",
-            r"warm_planner.ce_alpha: the planner warm_planner \(phases \['ls'\], "
+            r"warm_planner.ce_alpha: experiment mission never reads it: the planner warm_planner \(phases \['ls'\], "
             r"ce_result 'duel'\) ignores ce_alpha",
         ),
         (
             "planner.ce_injection_until=0.9",
-            "planner.ce_injection_until: the planner planner .* ignores ce_injection_until",
+            "planner.ce_injection_until: experiment mission never reads it: the planner planner .* ignores",
         ),
     ],
 )

@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from hbni_infra.checks import as_int
+from hbni_infra.checks import as_int, as_seed
 from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
 from decpomdp.identity import describe
@@ -371,7 +371,7 @@ def plan(
             then warm: cross-entropy starts from it with weight ``ce_init_weight``, local search edits it.
     """
     cfg = _check_arguments(scorer, PlannerConfig() if config is None else config, init)
-    seed, checkpoint_every = as_int("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
+    seed, checkpoint_every = as_seed("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
     generator = torch.Generator().manual_seed(seed)
     fingerprint = {
         "sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},

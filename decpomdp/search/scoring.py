@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from hbni_infra.checks import as_int
+from hbni_infra.checks import as_generator, as_int
 from decpomdp.controller import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains.rollouts import shared
@@ -142,7 +142,7 @@ class RolloutScorer:
         """float64 (K, rollouts) discounted returns; ``common``: every controller on the same streams (engine only)."""
         if not isinstance(controller, JointController):
             raise TypeError(f"controller: expected a JointController, got {type(controller).__name__}")
-        rollouts = as_int("rollouts", rollouts, 2)
+        rollouts, generator = as_int("rollouts", rollouts, 2), as_generator("generator", generator)
         if common and not self.common_streams:
             raise ValueError("common: common random numbers need the compiled engine (backend='engine')")
         if self.backend == "engine":
@@ -161,7 +161,7 @@ class RolloutScorer:
         return returns
 
     def visits(self, controller: JointController, rollouts: int, generator: torch.Generator) -> Tensor:
-        rollouts = as_int("rollouts", rollouts, 1)
+        rollouts, generator = as_int("rollouts", rollouts, 1), as_generator("generator", generator)
         team = self.team(controller[0])
         if self.backend == "engine":
             counts = run_engine(self.env, team, rollouts, draw_seed(generator), visits=True).visits / rollouts

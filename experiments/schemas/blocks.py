@@ -13,11 +13,13 @@ from typing import Any
 
 from omegaconf import MISSING
 
-from experiments.schemas.targets import target_schema
-from hbni_pyro import HBNIFilter
+from experiments.schemas.targets import signature_defaults, target_schema
+from hbni_pyro import HBNIFilter, fit
 from hbni_pyro.fit import METHODS
 
 HyperPriorBlock = target_schema("hbni_pyro.HyperPrior")
+_FIT = signature_defaults(fit)
+_FILTER = signature_defaults(HBNIFilter)
 
 
 def positive_int(name: str, value: int, minimum: int = 1) -> None:
@@ -39,12 +41,13 @@ def one_of(name: str, value: Any, choices: tuple) -> None:
 
 @dataclass
 class FitBlock:
-    """``hbni.fit``: the MCMC settings of :func:`hbni_pyro.fit`."""
+    """``hbni.fit``: the MCMC settings of :func:`hbni_pyro.fit`, defaulting to its own, except ``num_chains``, which
+    ``conf/hbni/default.yaml`` sets (the library's ``None`` is one chain per CPU core, which varies by machine)."""
 
-    method: str = MISSING
+    method: str = _FIT["method"]
     num_chains: int = MISSING
-    num_samples: int = MISSING
-    warmup_steps: int = MISSING
+    num_samples: int = _FIT["num_samples"]
+    warmup_steps: int = _FIT["warmup_steps"]
 
     def check(self, path: str) -> None:
         one_of("method", self.method, METHODS)
@@ -55,9 +58,9 @@ class FitBlock:
 
 @dataclass
 class FilterBlock:
-    """``hbni.filter``: how the HBNI filter uses the posterior."""
+    """``hbni.filter``: how the HBNI filter uses the posterior (:class:`hbni_pyro.HBNIFilter`'s default)."""
 
-    mode: str = MISSING
+    mode: str = _FILTER["mode"]
 
     def check(self, path: str) -> None:
         one_of("mode", self.mode, HBNIFilter.MODES)

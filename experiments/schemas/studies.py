@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from omegaconf import MISSING
+from omegaconf import MISSING, DictConfig
 
 from experiments.schemas.blocks import (
     BaselineStudy,
@@ -48,10 +48,24 @@ class Root:
     progress: bool = MISSING
     hbni: HBNIBlock = field(default_factory=HBNIBlock)
 
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        """Key -> why the experiment never reads it, for the composed config ``cfg`` (refused when set:
+        :func:`experiments.schemas.check_overrides`). The settings a planner ignores are added there."""
+        return {}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        """The noise models the experiment fits (their hyperprior fields are the ones it reads)."""
+        return (cfg.hbni.model,)
+
+
+NO_NOISE_MODEL = "it fits no noise model"
+
 
 def _check_theta(name: str, theta: list[float]) -> None:
-    if len(theta) < 2 or any(not t > 0 for t in theta):
-        raise ValueError(f"{name}: expected at least 2 noise levels > 0, got {list(theta)}")
+    if len(theta) < 2 or any(not (math.isfinite(t) and t > 0) for t in theta):
+        raise ValueError(f"{name}: expected at least 2 finite noise levels > 0, got {list(theta)}")
 
 
 def _check_conditions(name: str, overrides: dict[str, Any] | None) -> None:
@@ -79,6 +93,14 @@ class ToyBlock:
 class HBNIToy(Root):
     toy: ToyBlock = field(default_factory=ToyBlock)
 
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni.model": "the toy fits the paper's model", "hbni.filter": "the toy filters no stream"}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
+
 
 @dataclass
 class FilteringStudy:
@@ -104,6 +126,14 @@ class FilteringStudy:
 class FilteringError(Root):
     study: FilteringStudy = field(default_factory=FilteringStudy)
 
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni.model": "the study fits the paper's model"}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
+
 
 @dataclass
 class MacroStudy:
@@ -124,6 +154,14 @@ class MacroStudy:
 @dataclass
 class MacroObservation(Root):
     study: MacroStudy = field(default_factory=MacroStudy)
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni.model": "the study fits the paper's model"}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("paper",)
 
 
 @dataclass
@@ -187,6 +225,14 @@ class PlanningExperiment(Root):
 
     def check(self, path: str) -> None:
         check_seeded(self.planners.gdice, self.study.seeded)
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni": NO_NOISE_MODEL}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
 
 
 @dataclass
@@ -313,9 +359,17 @@ class DPOMDPBenchmarks(Root):
     planner: Any = field(default_factory=PlannerBlock)
     study: BenchmarkStudy = field(default_factory=BenchmarkStudy)
 
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni": NO_NOISE_MODEL}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
+
 
 PLANNING_MODELS = ("empirical", "generative")
-MISSION_VARIANTS = ("hbni", "ssbf", "max_of_mean")
+MISSION_VARIANTS = ("hbni", "calibrated", "ssbf", "max_of_mean")
 
 
 @dataclass
@@ -378,6 +432,8 @@ class MissionBlock:
     frames: int = MISSING
     threshold: float = MISSING
     temper: Any = MISSING
+    hbni_stop: str = MISSING
+    calibration: str = MISSING
     conditions: Optional[dict[str, Any]] = MISSING
     planning_model: str = MISSING
     compare_planning_models: bool = MISSING
@@ -389,6 +445,10 @@ class MissionBlock:
         for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
             positive_int(name, getattr(self, name))
         one_of("planning_model", self.planning_model, PLANNING_MODELS)
+        from hbni_pyro.frame_calibration import CALIBRATIONS
+
+        one_of("calibration", self.calibration, CALIBRATIONS)
+        one_of("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
         positive_int("augment", self.augment, 0)
         probability("threshold", self.threshold)
         t = self.temper
@@ -409,6 +469,20 @@ class Mission(Root):
     perception: Any = MISSING
     mission: MissionBlock = field(default_factory=MissionBlock)
     study: PlanningStudy = field(default_factory=PlanningStudy)
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        out = {"domain.perception": "the mission gives each policy's domain its perception"}
+        if not cfg.warm_start:
+            out["warm_planner"] = "warm_start is false: every policy is planned from scratch with planner"
+        chosen = [cfg.perception] if isinstance(cfg.perception, str) else list(cfg.perception)
+        m = cfg.mission
+        if m.planning_model != "generative" and not (m.compare_planning_models and "hbni" in chosen):
+            out["mission.generative_streams"] = (
+                f"no policy plans on the generative model (mission.planning_model={m.planning_model}, "
+                f"mission.compare_planning_models={m.compare_planning_models}, perception={chosen})"
+            )
+        return out
 
     def check(self, path: str) -> None:
         chosen = [self.perception] if isinstance(self.perception, str) else list(self.perception)
@@ -521,6 +595,21 @@ class StreamBlock:
 class Stream(Root):
     stream: StreamBlock = field(default_factory=StreamBlock)
 
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        loaded = "the stream loads a fitted posterior"
+        out = {"seed": "the stream draws no random numbers", "hbni.model": loaded, "hbni.fit": loaded}
+        out["hbni.hyperprior"] = loaded
+        if cfg.stream.classifier is not None and cfg.stream.posterior is not None:
+            out["stream.run"] = "stream.classifier and stream.posterior are both given"
+        if cfg.stream.controller is None:
+            out["stream.agent"] = "stream.controller is null: no robot's controller runs"
+        return out
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
+
 
 @dataclass
 class NoiseToyBlock:
@@ -605,6 +694,17 @@ class NoiseStudy:
 class NoiseModels(Root):
     classifier: Any = field(default_factory=ClassifierBlock)
     study: NoiseStudy = field(default_factory=NoiseStudy)
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        out = {"hbni.model": "study.models names the models compared"}
+        if cfg.study.images is None:
+            out["study.images_calibration"] = "study.images is null: no image folder to split"
+        return out
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return tuple(cfg.study.models)
 
 
 #: schema of each experiment, by its ``name``

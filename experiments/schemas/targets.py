@@ -61,6 +61,24 @@ def _as_lists(value: Any) -> Any:
     return [_as_lists(v) for v in value] if isinstance(value, (list, tuple)) else value
 
 
+def signature_defaults(obj: Any) -> dict[str, Any]:
+    """The default of every parameter of a function or a class's ``__init__`` that has one."""
+    init = obj.__init__ if inspect.isclass(obj) else obj
+    return {k: p.default for k, p in inspect.signature(init).parameters.items() if p.default is not p.empty}
+
+
+def preset(target: str, config: Any, **fields: Any) -> dict[str, Any]:
+    """A config node for a dataclass instance ``config`` of ``target``: ``_target_`` and the fields that differ
+    from the target's defaults (sequences as lists), then ``fields`` (e.g. interpolations) over them."""
+    defaults = signature_defaults(get_object(target))
+    node: dict[str, Any] = {"_target_": target}
+    for f in dataclasses.fields(config):
+        value = _as_lists(getattr(config, f.name))
+        if f.name not in defaults or _as_lists(defaults[f.name]) != value:
+            node[f.name] = value
+    return {**node, **fields}
+
+
 def target_schema(target: str, runtime: tuple[str, ...] = ()) -> type:
     """A dataclass schema for a ``_target_: <target>`` block (see the module docstring).
 

@@ -78,12 +78,18 @@ def class_seed(seed: int, name: str) -> int:
 
 def classifier_identity(clf: FrameClassifier) -> str:
     """Digest of everything that decides a classifier's outputs: head, standardisation, crop, backbone weights."""
-    if clf.mean_ is None:
+    if clf.classes_ is None:
         raise ValueError("clf: the classifier is not fitted")
-    tensors, meta = clf.head.state()
-    weights = Path(clf.backbone.weights_path).read_bytes()
+    tensors, meta = clf.head_.state()
+    weights = Path(clf.backbone_.weights_path).read_bytes()
     return digest(
-        meta, clf.backbone.name, clf.padding, clf.mean_, clf.scale_, *(tensors[k] for k in sorted(tensors)), weights
+        meta,
+        clf.backbone_.name,
+        float(clf.padding),
+        clf.mean_,
+        clf.scale_,
+        *(tensors[k] for k in sorted(tensors)),
+        weights,
     )
 
 

@@ -203,7 +203,8 @@ def summarise(
 
 
 def acceptance(results: dict[str, dict]) -> dict[str, Any]:
-    """The closed-loop checks on executed values: HBNI against perfect perception, SSBF and max-of-mean."""
+    """The closed-loop checks on executed values: HBNI against perfect perception, the calibrated peer, SSBF and
+    max-of-mean."""
     if "hbni" not in results or "executed" not in results["hbni"]:
         return {}
     h = results["hbni"]["executed"]
@@ -213,7 +214,18 @@ def acceptance(results: dict[str, dict]) -> dict[str, Any]:
     }
     if "distribution_check" in h:
         out["hbni_distribution_check_passed"] = h["distribution_check"]["passed"]
-    for other in ("ssbf", "max_of_mean"):
+    if "calibrated" in results:
+        peer = results["calibrated"]
+        out["hbni_executed_over_calibrated"] = ratio(h["value"], peer["executed"]["value"])
+        out["hbni_executed_at_least_calibrated"] = h["value"] >= peer["executed"]["value"]
+        if "held_out_process" in results["hbni"] and "held_out_process" in peer:
+            a, b = results["hbni"]["held_out_process"], peer["held_out_process"]
+            out["hbni_honest_on_held_out"] = a["emitted_accuracy"] + a["emitted_stderr"] >= a["threshold"]
+            out["hbni_frames_over_calibrated"] = ratio(a["mean_frames"], b["mean_frames"])
+            out["hbni_frames_at_most_1.5x_calibrated"] = a["mean_frames"] <= 1.5 * b["mean_frames"]
+            out["hbni_timeouts_at_most_0.1"] = a["timeout_rate"] <= 0.10
+    out["hbni_executed_at_least_98pct_perfect"] = h["value"] >= 0.98 * results["perfect"]["executed"]["value"]
+    for other in ("calibrated", "ssbf", "max_of_mean"):
         if other in results:
             o = results[other]["executed"]
             out[f"hbni_executed_beats_{other}_outside_stderr"] = beats(h, o)

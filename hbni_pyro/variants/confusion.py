@@ -23,7 +23,7 @@ from hbni_pyro.generative import sample_dirichlet
 from hbni_pyro.kernels import ConfusionMetropolis
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants.paper import concentration_prior, concentration_statistics
+from hbni_pyro.variants.paper import PAPER_HYPERPRIOR, concentration_prior, concentration_statistics
 from hbni_pyro.variants.spec import Draws, NoiseModel
 
 SCALARS = ("kappa", "gamma", "beta_loc", "beta_scale")
@@ -84,8 +84,10 @@ NOISE_MODEL = NoiseModel(
     sample_streams=sample_streams,
     max_plate_nesting=2,
     free_entry=lambda site, index: site != "beta" or index[0] != index[1],
+    positive_sites=("theta", "beta", "kappa", "gamma", "beta_scale"),
     arviz_dims={"theta": ["class"], "beta": ["class", "class_to"]},
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
+    hyperprior_fields=(*PAPER_HYPERPRIOR, "offdiag_loc_sd", "offdiag_scale_sd"),
 )

@@ -53,6 +53,9 @@ def simulate(params: Draws, classes: Tensor, num_frames: int, generator: torch.G
     return sample_outputs(params["theta"], classes, generator)
 
 
+#: the hyperprior fields of the paper's model (kappa's and gamma's Gamma priors)
+PAPER_HYPERPRIOR = ("beta", "eta", "nu", "omega")
+
 NOISE_MODEL = NoiseModel(
     name="paper",
     summary="o | c ~ Dir(theta_c e_c + 1), the paper's model",
@@ -62,8 +65,10 @@ NOISE_MODEL = NoiseModel(
     site_shapes=site_shapes,
     nuts_sites=lambda raw: {k: raw[k] for k in SITES},
     sample_streams=sample_streams,
+    positive_sites=SITES,
     arviz_dims={"theta": ["class"]},
     draw_prior=concentration_prior,
     simulate=simulate,
     rank_statistics=concentration_statistics,
+    hyperprior_fields=PAPER_HYPERPRIOR,
 )

@@ -105,8 +105,19 @@ NOISE_MODEL = NoiseModel(
     filter_draws=2000,  # a draw costs M - 1 times the paper's; 2000 keep a frame under 2 ms
     point_estimate=lambda draws: {k: v.mean(0, keepdim=True) for k, v in draws.items()},
     free_entry=lambda site, index: site not in COVARIANCES or index[-2] <= index[-1],
+    positive_sites=("between_pooling",),
     arviz_dims={"loc": ["class", "coord"]},
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
+    hyperprior_fields=(
+        "look_vertex",
+        "look_sd",
+        "between_scale",
+        "between_df",
+        "between_pooling_median",
+        "between_pooling_sd",
+        "within_scale",
+        "within_df",
+    ),
 )

@@ -53,10 +53,13 @@ class NoiseModel:
         filter_draws: the filter's default number of draws (``None``: all).
         point_estimate: the filter's plug-in draw from pooled draws.
         free_entry: ``(site, index) -> bool``, whether an entry is a free parameter (summaries skip the others).
+        positive_sites: the sites whose every entry is > 0 (concentrations, scales); a posterior refuses a draw
+            that is not, as it refuses a NaN or infinite one in any site.
         arviz_dims: site -> dimension names for :meth:`~hbni_pyro.HBNIPosterior.to_arviz`.
         draw_prior: ``(hyperprior, M, n, generator) -> draws (n, ...)`` from the prior, for SBC (``None``: no SBC).
         simulate: ``(params, classes, num_frames, generator) -> (N, M)`` outputs of one dataset, for SBC.
         rank_statistics: draws ``(n, ...)`` -> name -> ``(n,)``, the scalars whose ranks SBC checks.
+        hyperprior_fields: the :class:`~hbni_pyro.HyperPrior` fields the model reads (it ignores the others).
     """
 
     name: str
@@ -73,10 +76,12 @@ class NoiseModel:
     filter_draws: int | None = None
     point_estimate: Callable[[Draws], Draws] = median_point
     free_entry: Callable[[str, list[int]], bool] = every_entry_free
+    positive_sites: tuple[str, ...] = ()
     arviz_dims: dict[str, list[str]] = field(default_factory=dict)
     draw_prior: Callable | None = None
     simulate: Callable | None = None
     rank_statistics: Callable[[Draws], dict[str, Tensor]] | None = None
+    hyperprior_fields: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.correlated_frames and not self.sequences:

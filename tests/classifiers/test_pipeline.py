@@ -76,7 +76,7 @@ def test_error_paths(tmp_path, fitted_classifier, frames):
     corrupt.write_bytes(b"{not safetensors}")
     with pytest.raises(ValueError, match="is not a readable model file"):
         FrameClassifier.load(corrupt)
-    head_file = fitted_classifier.head.save(tmp_path / "head.safetensors")
+    head_file = fitted_classifier.head_.save(tmp_path / "head.safetensors")
     with pytest.raises(ValueError, match="FrameClassifier"):
         FrameClassifier.load(head_file)
     with pytest.raises(FileNotFoundError):

@@ -79,7 +79,7 @@ RANGE_ERRORS = [
     ("hbni_toy", "toy.theta=[1.0,-2.0]", "toy.theta: expected at least 2 noise levels > 0"),
     ("hbni_toy", "hbni.fit.method=hmc", "hbni.fit.method: expected one of ['mh', 'nuts']"),
     ("hbni_toy", "hbni.fit.warmup_steps=-1", "hbni.fit.warmup_steps: expected an int >= 0"),
-    ("hbni_toy", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
+    ("macro_observation", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
     ("hbni_toy", "hbni.hyperprior.beta=-1", "hbni.hyperprior: HyperPrior.beta: expected a positive finite number"),
     ("hbni_toy", "toy.near_perfect_hyperprior.eta=0", "toy.near_perfect_hyperprior: HyperPrior.eta"),
     ("filtering_error", "study.targets=[0.5,1.5]", "study.targets: expected a probability in (0, 1]"),
@@ -107,8 +107,10 @@ RANGE_ERRORS = [
     ("mission", "mission.temper=auto", "mission.temper: expected 'fit' or a float in (0, 1]"),
     ("mission", "mission.temper=0", "mission.temper: expected 'fit' or a float in (0, 1]"),
     ("mission", "mission.frames=0", "mission.frames: expected an int >= 1"),
+    ("mission", "mission.calibration=platt", "mission.calibration: expected one of ['temperature', 'matrix']"),
+    ("mission", "mission.hbni_stop=early", "mission.hbni_stop: expected one of ['calibrated', 'nominal']"),
     ("mission", "+mission.conditions.fog=[0.1,0.2]", "mission.conditions: unknown field(s) ['fog']"),
-    ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'ssbf', 'max_of_mean']"),
+    ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'calibrated', 'ssbf', 'max_of_mean']"),
     ("mission", "warm_planner.budget=0", "warm_planner.budget: expected an int >= 1"),
     ("mission", "study.threads=0", "study.threads: expected an int >= 1"),
     ("mission", "+mission.foo=1", "mission.foo: Key 'foo' not in 'MissionBlock'"),
@@ -155,15 +157,20 @@ def _schema_fields(schema, seen):
 
 
 def test_the_yaml_is_the_only_place_for_defaults():
-    """Every schema field is MISSING (or a block): a default lives in conf/, and every experiment sets every key."""
+    """Every schema field is MISSING (or a block): a study's settings live in conf/, and every experiment sets every
+    key. The blocks typed after a library callable (``hbni.fit``, ``hbni.filter``) take that callable's defaults."""
     from omegaconf import MISSING, OmegaConf
 
+    from experiments.schemas.targets import signature_defaults
+    from hbni_pyro import HBNIFilter, fit
+
+    library = {"FitBlock": signature_defaults(fit), "FilterBlock": signature_defaults(HBNIFilter)}
     seen: set = set()
     defaults = [
         (cls.__name__, f.name)
         for schema in SCHEMAS.values()
         for cls, f in _schema_fields(schema, seen)
-        if f.default is not MISSING
+        if f.default is not MISSING and library.get(cls.__name__, {}).get(f.name, MISSING) != f.default
     ]
     assert defaults == []
     for name in EXPERIMENTS:

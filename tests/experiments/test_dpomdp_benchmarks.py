@@ -15,10 +15,11 @@ from decpomdp import JointController
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from experiments.dpomdp_benchmarks import build_rows, fraction_of_optimum
+from experiments.schemas import gdice_node
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")
-PLANNER = OmegaConf.load(REPO / "conf" / "planner" / "gdice.yaml")
+PLANNER = OmegaConf.create(gdice_node())
 
 
 SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4_monte_carlo", "recycling_inf"]

@@ -63,11 +63,12 @@ def test_filtering_error_smoke(tmp_path, repo_root):
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["N"] == list(range(1, 9)) and m["settings"]["hbni_filter_mode"] == "plugin"
     for size in ("15", "30"):
-        for method in ("voting", "max_of_mean", "ssbf", "hbni", "hbni_oracle"):
+        for method in ("voting", "max_of_mean", "ssbf", "calibrated", "hbni", "hbni_oracle"):
             e = m["error"][size][method]
             assert len(e["error"]) == 8 and all(lo <= x <= hi for lo, x, hi in zip(e["lo"], e["error"], e["hi"]))
             assert set(m["crossing_n"][size][method]) == {"0.05", "0.01", "0.005"}
         assert "crossing_ratio_hbni_over_baseline" in m["comparison"][size]["ssbf"]
+        assert "crossing_ratio_hbni_over_baseline" in m["comparison"][size]["calibrated"]
     assert set(m["acceptance"]) == {
         "train15_hbni_at_or_below_every_baseline_at_every_n",
         "train15_intervals_separated_wherever_baseline_above_1pct",
@@ -93,7 +94,7 @@ def test_macro_observation_smoke(tmp_path, repo_root):
         repo_root,
     )
     m = json.loads((tmp_path / "metrics.json").read_text())
-    for name in ("hbni", "ssbf"):
+    for name in ("hbni", "calibrated", "ssbf"):
         for source in ("true_theta", "posterior_predictive"):
             d = m["processes"][name][source]
             assert all(sum(row) == pytest.approx(1, abs=1e-12) for row in d["confusion"])

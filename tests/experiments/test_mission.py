@@ -3,7 +3,6 @@
 import json
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -11,10 +10,9 @@ import torch
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
-from mission_tiny import TINY_MISSION, TINY_MISSION_GDICE
+from mission_tiny import TINY_BANKS, TINY_MISSION, TINY_MISSION_FROM_SCRATCH, TINY_MISSION_GDICE
 
-BANKS = f"mission.bank.cache_dir={Path(tempfile.gettempdir()) / 'hbni-pyro-test-banks'}"
-TINY = [*TINY_MISSION, BANKS]
+TINY = [*TINY_MISSION, TINY_BANKS]
 
 
 def _run(repo_root, *args, multirun=False, tiny=TINY):
@@ -23,15 +21,13 @@ def _run(repo_root, *args, multirun=False, tiny=TINY):
 
 
 @pytest.fixture(scope="module")
-def mission_run(tmp_path_factory, repo_root):
-    run_dir = tmp_path_factory.mktemp("mission")
-    _run(repo_root, f"hydra.run.dir={run_dir}", "mission.bank.workers=1")  # the bank built in the background
-    return run_dir
+def mission_run(tiny_mission_run):
+    return tiny_mission_run
 
 
 def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     metrics = json.loads((mission_run / "metrics.json").read_text())
-    assert set(metrics["variants"]) == {"perfect", "hbni", "ssbf", "max_of_mean", "hbni_empirical"}
+    assert set(metrics["variants"]) == {"perfect", "hbni", "calibrated", "ssbf", "max_of_mean", "hbni_empirical"}
     for entry in metrics["variants"].values():
         assert {"value", "stderr", "delivered_per_rollout", "wrong_per_rollout", "mean_inference_frames"} <= set(entry)
         assert {"value", "stderr", "gap_in_stderr", "wrong_per_rollout"} <= set(entry["executed"])
@@ -40,6 +36,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert loop["planning"] == {
         "perfect": "exact",
         "hbni": "generative",
+        "calibrated": "generative",
         "ssbf": "generative",
         "max_of_mean": "generative",
         "hbni_empirical": "empirical",
@@ -54,7 +51,21 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
             fresh = 2 + extra if loop["planning"][name] == "empirical" else 2 + held + extra
             assert entry["executed"]["sequences_per_class"] == fresh
             assert ("on_demand" in entry["executed"]) == (name == "hbni")  # mission.bank.powered.entries
-    assert set(loop["acceptance"]) >= {"hbni_executed_over_perfect", "hbni_executed_beats_ssbf_outside_stderr"}
+    assert set(loop["acceptance"]) >= {
+        "hbni_executed_over_perfect",
+        "hbni_executed_beats_ssbf_outside_stderr",
+        "hbni_executed_at_least_calibrated",
+        "hbni_executed_at_least_98pct_perfect",
+        "hbni_honest_on_held_out",
+        "hbni_frames_at_most_1.5x_calibrated",
+        "hbni_timeouts_at_most_0.1",
+    }
+    for name in ("hbni", "calibrated", "ssbf", "max_of_mean"):  # each process on the held-out streams it ran on
+        checks = metrics["variants"][name]["held_out_process"]
+        assert checks["threshold"] == 0.95 and 0 <= checks["timeout_rate"] <= 1
+    assert metrics["variants"]["hbni"]["held_out_process"]["stop"] == metrics["hbni_stop"]["value"]
+    assert metrics["hbni_stop"]["fitted"] and metrics["calibrated_peer"]["kind"] == "matrix"
+    assert metrics["calibrated_peer"]["loss"] <= metrics["calibrated_peer"]["raw_loss"]
     report = (mission_run / "report.md").read_text()
     assert "## Closed loop: planned against executed" in report and "The **generative** planning model is" in report
     for png in ("values.png", "confusion.png", "frames.png", "learning_curves.png", "closed_loop.png"):
@@ -79,6 +90,7 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert started == {
         "perfect": "scratch",
         "hbni": "perfect",
+        "calibrated": "perfect",
         "ssbf": "perfect",
         "max_of_mean": "perfect",
         "hbni_empirical": "perfect",
@@ -102,7 +114,11 @@ def test_mission_writes_metrics_report_figures_and_artefacts(mission_run):
     assert set(manifest) == {
         "classifier",
         "posterior",
+        "calibration",
         "macro_hbni",
+        "macro_calibrated",
+        "macro_calibrated_generative",
+        "controller_calibrated",
         "macro_ssbf",
         "macro_max_of_mean",
         "macro_hbni_generative",
@@ -151,6 +167,7 @@ def test_generative_planning_model(tmp_path, repo_root, model, source):
     assert metrics["closed_loop"]["planning"] == {
         "perfect": "exact",
         "hbni": "generative",
+        "calibrated": "generative",
         "ssbf": "generative",
         "hbni_empirical": "empirical",
     }
@@ -211,7 +228,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            tiny=[*TINY_MISSION_GDICE, BANKS],
+            tiny=[*TINY_MISSION_GDICE, TINY_BANKS],
         )
     else:
         _run(
@@ -221,7 +238,7 @@ def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, 
             "hbni.model=paper",
             "mission.temper=0.5",
             "mission.conditions=null",
-            planning,
+            tiny=[*TINY_MISSION_FROM_SCRATCH, TINY_BANKS],
         )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan

@@ -60,7 +60,18 @@ def study(tmp_path_factory, repo_root):
 def test_study_writes_tables_figures_and_every_posterior(study):
     metrics = json.loads((study / "first" / "metrics.json").read_text())
     assert set(metrics["conditions"]) == {"default", "in_flight", "photos"}
-    filters = {"paper", "paper_tempered", "confusion", "confusion_tempered", "sequence", "ssbf", "max_of_mean"}
+    filters = {
+        "paper",
+        "paper_tempered",
+        "confusion",
+        "confusion_tempered",
+        "sequence",
+        "sequence_stopped",
+        "calibrated",
+        "calibrated_temperature",
+        "ssbf",
+        "max_of_mean",
+    }
     for cond in metrics["conditions"].values():
         assert set(cond["filters"]) == filters
         for row in cond["filters"].values():
@@ -121,7 +132,19 @@ def test_the_photo_condition_alone_is_a_study(tmp_path, repo_root):
     )
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics["conditions"]) == {"photos"}
-    assert set(metrics["conditions"]["photos"]["filters"]) == {"sequence", "ssbf", "max_of_mean"}
+    photos = metrics["conditions"]["photos"]
+    assert set(photos["filters"]) == {
+        "sequence",
+        "sequence_stopped",
+        "calibrated",
+        "calibrated_temperature",
+        "ssbf",
+        "max_of_mean",
+    }
+    assert set(photos["stops"]["sequence_stopped"]) == {"0.9", "0.95", "0.99"}
+    stopped = photos["filters"]["sequence_stopped"]["thresholds"]["0.95"]
+    assert stopped["stop"] == photos["stops"]["sequence_stopped"]["0.95"]
+    assert set(metrics["acceptance"]["photos"]["default_vs_calibrated"]) >= {"honest", "frames_over_peer", "met"}
 
 
 def _write_folder(root: Path, classes: list[str]) -> None:
@@ -151,7 +174,16 @@ def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     cond = metrics["conditions"]["images"]
     assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
-    assert set(cond["filters"]) == {"paper", "paper_tempered", "sequence", "ssbf", "max_of_mean"}
+    assert set(cond["filters"]) == {
+        "paper",
+        "paper_tempered",
+        "sequence",
+        "sequence_stopped",
+        "calibrated",
+        "calibrated_temperature",
+        "ssbf",
+        "max_of_mean",
+    }
 
 
 def _compose(*overrides):

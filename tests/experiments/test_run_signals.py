@@ -108,5 +108,7 @@ def test_a_planner_setting_the_planner_ignores_is_refused_at_the_start(tmp_path)
         capture_output=True,
         text=True,
     )
-    assert proc.returncode == 2 and "config error: warm_planner.ce_alpha: the planner warm_planner" in proc.stderr
+    assert (
+        proc.returncode == 2 and "config error: warm_planner.ce_alpha: experiment mission never reads it" in proc.stderr
+    )
     assert not (tmp_path / "run").exists()

@@ -40,6 +40,7 @@ def saved(tmp_path_factory):
     posterior = hbni_pyro.fit(
         calib.double(),
         torch.arange(3).repeat_interleave(10),
+        class_names=CLASSES,
         num_chains=2,
         num_samples=60,
         warmup_steps=60,
@@ -196,11 +197,14 @@ def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path,
         read_settings(cfg)
 
 
-def test_classes_that_are_not_the_classifiers_are_a_clear_error(tmp_path, saved, repo_root):
+def test_classes_that_are_not_the_posteriors_are_a_clear_error(tmp_path, saved, repo_root):
     proc = subprocess.run(
         _args(saved, tmp_path, "stream.classes=[a,b,c]"), cwd=repo_root, capture_output=True, text=True
     )
-    assert proc.returncode != 0 and "classes: expected a reordering of the classifier's classes" in proc.stderr
+    assert proc.returncode != 0 and (
+        "stream.classes: expected the posterior's classes in its column order "
+        "['police_car', 'ambulance', 'food_crate'], got ['a', 'b', 'c']" in proc.stderr
+    ), proc.stderr[-2000:]
 
 
 def test_streaming_steps_reject_bad_input(saved):
@@ -208,7 +212,7 @@ def test_streaming_steps_reject_bad_input(saved):
     with pytest.raises(ValueError, match="batch: expected an int >= 1, got 0"):
         next(classify_frames([], clf, CLASSES, batch=0))
     process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.95, 6)
-    with pytest.raises(ValueError, match="classes: expected 3 names"):
+    with pytest.raises(ValueError, match="classes: expected 3 distinct names"):
         next(macro_observations([], process, CLASSES[:2]))
     assert list(macro_observations([], process, CLASSES)) == []
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 from safetensors.torch import save as st_save
 
-from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.tensorfile import load_tensors, save_tensors, seal
 
 
 def test_round_trip_is_exact_and_copies(tmp_path):
@@ -48,15 +48,21 @@ def test_foreign_safetensors_and_bad_metadata(tmp_path):
         load_tensors(listed, "pkg.Thing")
 
 
-def test_files_in_the_older_per_package_layout_still_load(tmp_path):
+def test_files_without_a_digest_are_refused_until_sealed_in_either_layout(tmp_path):
     old = tmp_path / "old.safetensors"
     header = {"hbni_pyro.kind": "HBNIPosterior", "hbni_pyro.metadata": json.dumps({"version": 1})}
     old.write_bytes(st_save({"theta": torch.ones(2)}, metadata=header))
+    with pytest.raises(ValueError, match=r"old.safetensors' has no digest .*seal\("):
+        load_tensors(old, "hbni_pyro.HBNIPosterior")
+    seal(old, "hbni_pyro.HBNIPosterior")
     tensors, meta = load_tensors(old, "hbni_pyro.HBNIPosterior")
     assert meta == {"version": 1} and torch.equal(tensors["theta"], torch.ones(2))
     older = tmp_path / "older.safetensors"
     header = {"decpomdp.kind": "decpomdp.JointController", "decpomdp.metadata": json.dumps({"version": 1})}
     older.write_bytes(st_save({"action": torch.zeros(1)}, metadata=header))
+    with pytest.raises(ValueError, match="holds decpomdp.JointController, expected a saved pkg.Thing"):
+        seal(older, "pkg.Thing")
+    seal(older, "decpomdp.JointController")
     assert load_tensors(older, "decpomdp.JointController")[1] == {"version": 1}
 
 

@@ -1,14 +1,18 @@
 """Reliability diagrams, expected calibration error and the macro-observation threshold checks."""
 
+import math
+
 import pytest
 import torch
 from hbni_stubs import DT, THETA, DrawsPosterior
 
 from hbni_pyro.calibration import (
     binomial_stderr,
+    fit_stop_threshold,
     reliability,
     stream_reliability,
     threshold_checks,
+    wilson_lower,
 )
 from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
 from hbni_pyro.generative import sample_outputs
@@ -67,3 +71,38 @@ def test_threshold_checks_agree_with_the_process():
     assert checks["0.999999"]["timeout_rate"] > checks["0.9"]["timeout_rate"]
     assert assert_calibrated(MacroObservationProcess(f, 0.9, 4), streams, truth) == checks["0.9"]
     assert binomial_stderr(0.5, 0) != binomial_stderr(0.5, 0)  # NaN with no trials
+
+
+def test_wilson_lower_by_hand():
+    """The Wilson score interval's lower end: ``(p + z^2/2n - z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)``; all
+    right gives ``n / (n + z^2)``, none emitted gives 0."""
+    p, n, z = 0.9, 50, 1.3
+    expected = (p + z * z / (2 * n) - z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)
+    assert wilson_lower(45, 50, z) == pytest.approx(expected)
+    assert wilson_lower(60, 60) == pytest.approx(60 / 61)
+    assert wilson_lower(0, 0) == 0.0
+
+
+def test_stop_threshold_is_the_lowest_that_keeps_the_promise():
+    """On streams where the filter knows the truth (i.i.d. frames, true theta), the chosen stop is the lowest
+    candidate whose emitted accuracy's Wilson lower bound reaches the target, by brute force over the grid; a stop
+    at it keeps the promise and takes no more frames than stopping at the target itself."""
+    g = torch.Generator().manual_seed(2)
+    truth = torch.randint(0, 3, (400,), generator=g)
+    streams = sample_outputs(THETA, truth[:, None].expand(400, 12), g)
+    f = HBNIFilter(DrawsPosterior(THETA.unsqueeze(0)))
+    fit = fit_stop_threshold(f, streams, truth, 0.9)
+    for t, acc, lower in zip(fit.grid, fit.emitted_accuracy, fit.lower):
+        row = threshold_checks(f, streams, truth, [t])[f"{t:g}"]
+        assert acc == row["emitted_accuracy"]
+        assert lower == pytest.approx(wilson_lower(round(acc * row["emitted"]), row["emitted"]))
+    assert fit.stop == min(t for t, lower in zip(fit.grid, fit.lower) if lower >= 0.9)
+    checks = threshold_checks(f, streams, truth, [0.9], stops={0.9: fit.stop})["0.9"]
+    assert checks["stop"] == fit.stop and checks["emitted_accuracy"] >= 0.9
+    assert checks["mean_frames"] <= threshold_checks(f, streams, truth, [0.9])["0.9"]["mean_frames"]
+    # a promise no candidate keeps: the promise itself
+    assert fit_stop_threshold(StaticStateBayesFilter(3), streams, truth, 0.99, grid=[0.5, 0.6]).stop == 0.99
+    with pytest.raises(ValueError, match="grid"):
+        fit_stop_threshold(f, streams, truth, 0.9, grid=[0.1, 0.2])
+    with pytest.raises(ValueError, match="target"):
+        fit_stop_threshold(f, streams, truth, 0.0)

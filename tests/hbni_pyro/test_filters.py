@@ -9,6 +9,7 @@ import pytest
 import scipy.stats
 import torch
 
+from hbni_pyro.frame_calibration import FrameCalibration
 from hbni_pyro.filters import (
     FILTERS,
     StaticStateBayesFilter,
@@ -265,16 +266,21 @@ def test_shape_and_argument_errors():
 def test_make_filter_builds_every_named_filter():
     post = DrawsPosterior(THETA[None].expand(4, -1).clone())
     obs = sample_outputs(THETA, torch.tensor([0, 1, 2]), torch.Generator().manual_seed(0)).reshape(1, 3, -1)
-    built = {name: make_filter(name, post) for name in FILTERS}
+    identity = FrameCalibration(torch.eye(len(THETA)), torch.zeros(len(THETA)))
+    built = {
+        name: make_filter(name, post, **({"calibration": identity} if name == "calibrated" else {})) for name in FILTERS
+    }
     want = {
         "hbni": HBNIFilter(post),
+        "calibrated": StaticStateBayesFilter(len(THETA)),
         "ssbf": StaticStateBayesFilter(len(THETA)),
         "max_of_mean": MaxOfMeanFilter(len(THETA)),
         "voting": VotingFilter(len(THETA)),
     }
     for name in FILTERS:
         assert type(built[name]) is type(want[name])
-        torch.testing.assert_close(built[name].run(obs), want[name].run(obs), rtol=0, atol=0)
+        exact = {} if name == "calibrated" else {"rtol": 0, "atol": 0}  # the identity map renormalises in log space
+        torch.testing.assert_close(built[name].run(obs), want[name].run(obs), **exact)
     assert make_filter("hbni", post, mode="plugin", temper=0.5).mode == "plugin"
     assert make_filter("ssbf", num_classes=4).num_classes == 4
 

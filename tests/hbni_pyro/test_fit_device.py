@@ -25,6 +25,7 @@ needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a C
 CPU = torch.device("cpu")
 MODELS = model_names()
 FILTER_CASES = [("hbni", {}), ("hbni", {"mode": "plugin"}), ("ssbf", {}), ("max_of_mean", {}), ("voting", {})]
+# (the calibrated peer's map moves to the filter's device: tests/hbni_pyro/test_frame_calibration.py)
 TINY = dict(num_chains=2, num_samples=20, warmup_steps=20, progress=False)
 
 

@@ -45,7 +45,7 @@ from decpomdp.domains.disaster_relief.rules import (
     SAW,
 )
 from decpomdp.engine import EngineModel, outcome_table
-from decpomdp.perception import PerceptionModel, PerfectPerception
+from decpomdp.perception import PerceptionModel, PerfectPerception, check_class_names
 from hbni_infra.checks import as_float, as_int, as_probability
 
 _DESTINATION = torch.as_tensor(rules.DESTINATION)
@@ -67,7 +67,8 @@ class DisasterRelief(DecPOSMDP):
     """The health-aware disaster-relief Dec-POSMDP (9 MAs, 30 macro-observations per robot).
 
     Args:
-        perception: the model behind the ``infer`` MA (default ``PerfectPerception(6, frames=10)``).
+        perception: the model behind the ``infer`` MA (default ``PerfectPerception(6, frames=10)``); one with
+            ``class_names`` must name :data:`CLASSES` in that order.
         num_agents: robots in the team (>= 1).
         gamma, horizon: discount per time unit and simulation length.
         frame_period: time units per perception frame.
@@ -98,6 +99,7 @@ class DisasterRelief(DecPOSMDP):
             )
         if perception.num_classes != len(CLASSES):
             raise ValueError(f"perception: expected num_classes == {len(CLASSES)}, got {perception.num_classes}")
+        check_class_names(perception, CLASSES)
         self.perception, self.num_agents = perception, as_int("num_agents", num_agents, minimum=1)
         self.gamma = as_float("gamma", gamma, 0.0, 1.0, low_open=True)
         self.horizon = as_float("horizon", horizon, 0.0, low_open=True)

@@ -6,6 +6,7 @@ import torch
 
 from decpomdp.controller import JointController
 from decpomdp.domains.disaster_relief.rules import (
+    ACTION_NAMES,
     GO_AIRPORT,
     GO_B1,
     GO_B2,
@@ -53,4 +54,6 @@ def greedy_controller(num_agents: int = 2) -> JointController:
         home = GO_B1 if a % 2 == 0 else GO_B2
         actions.append([INFER, PICK, GO_HOSPITAL, GO_AIRPORT, GO_CRATE, PUT, home, REPAIR_MA])
     nxt = torch.tensor(next_node, dtype=torch.long)
-    return JointController(torch.tensor([actions], dtype=torch.long), nxt.expand(1, num_agents, -1, -1).clone())
+    return JointController(
+        torch.tensor([actions], dtype=torch.long), nxt.expand(1, num_agents, -1, -1).clone(), ACTION_NAMES, OBS_NAMES
+    )

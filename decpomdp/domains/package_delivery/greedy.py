@@ -7,6 +7,7 @@ import torch
 from decpomdp.controller import JointController
 from decpomdp.domains.package_delivery.batched import PackageDelivery
 from decpomdp.domains.package_delivery.rules import (
+    ACTION_NAMES,
     GO_B1,
     GO_D1,
     GO_D2,
@@ -68,4 +69,4 @@ def greedy_controller() -> JointController:
     }
     next_node = [[node[rule[name](obs)] for obs in OBS_NAMES] for name in names]
     one = JointController(torch.tensor([[action]]), torch.tensor([[next_node]]))
-    return shared(one, PackageDelivery.num_agents)
+    return shared(one, PackageDelivery.num_agents).named(ACTION_NAMES, OBS_NAMES)

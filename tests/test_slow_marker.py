@@ -1,0 +1,27 @@
+"""The ``slow`` marker: every test that starts an experiment process carries it, so ``-m "not slow"`` is quick."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def collected(*args: str) -> list[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-n", "0", "--collect-only", *args],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode in (0, 5), proc.stdout + proc.stderr  # 5: nothing selected
+    return [line for line in proc.stdout.splitlines() if "::" in line]
+
+
+def test_whole_experiment_runs_are_slow_and_the_rest_is_not():
+    runs = "tests/experiments/test_hbni_toy.py"  # one test, a whole hbni_toy run
+    assert collected(runs, "-m", "slow") and not collected(runs, "-m", "not slow")
+    unit = "tests/experiments/test_config_defaults.py"  # composes configs, starts no process
+    assert collected(unit, "-m", "not slow") and not collected(unit, "-m", "slow")
