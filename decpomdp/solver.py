@@ -64,6 +64,10 @@ LOOP_HORIZONS = (2, 3, 4, 5, 6, 7, 8)
 ASCENT_ROUNDS = 5
 """Most rounds of single changes :func:`solve` makes on an infinite-horizon controller (each round evaluates every
 single change of every agent's controller exactly)."""
+MAX_ASCENT_NODES = 12
+"""Largest controller (nodes per agent) whose single changes :func:`solve` tries at an infinite horizon: each change is
+an exact evaluation over up to ``nodes ** agents`` joint nodes, and there are about ``nodes ** 2 * observations`` of
+them per agent."""
 MAX_ENUMERATED = 20_000
 """Most controllers of one agent coordinate ascent enumerates (3 nodes with 3 actions and 2 observations: 19,683)."""
 
@@ -240,8 +244,9 @@ def _cyclic_search(
     ascent_starts: int,
 ) -> tuple[JointController, float, list[float], int]:
     """(controller, value, every start's value, planner runs) at ``env``'s infinite horizon: planner runs on a free
-    graph, loop-backs of finite-horizon solutions and coordinate ascent from random small controllers, each
-    the best of the first two improved by single changes (:func:`~decpomdp.dpomdp.cyclic.ascend`)."""
+    graph and loop-backs of finite-horizon solutions, each improved by single changes
+    (:func:`~decpomdp.dpomdp.cyclic.ascend`) when it has at most :data:`MAX_ASCENT_NODES` nodes, and coordinate ascent
+    from random small controllers."""
     starts = []
     if settings.restarts:
         num_nodes = settings.num_nodes or infinite_nodes(env.num_agents, env.num_states)
@@ -255,11 +260,11 @@ def _cyclic_search(
     best, values = None, []
     for controller in starts:
         value = float(exact_value(env, controller)[0])
+        if controller.num_nodes <= MAX_ASCENT_NODES:
+            controller, value, _ = ascend(env, controller, value, max_rounds=ASCENT_ROUNDS)
         values.append(value)
         if best is None or value > best[1]:
             best = (controller, value)
-    if best is not None:
-        best = ascend(env, *best, max_rounds=ASCENT_ROUNDS)[:2]
     enumerable = count_controllers(ascent_nodes, env.num_actions, env.num_obs) <= MAX_ENUMERATED
     for k in range(ascent_starts if enumerable else 0):
         controller = random_controllers(

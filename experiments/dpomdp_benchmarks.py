@@ -168,7 +168,7 @@ def _solve(
     for cap, keys in (
         ("iterations", ("ce_iterations",)),
         ("samples", ("ce_samples",)),
-        ("restarts", ("restarts", "layered_restarts", "jesp_restarts")),
+        ("restarts", ("restarts", "layered_restarts", "jesp_restarts", "ascent_starts")),
     ):
         if study.caps[cap] is not None:
             for key in keys:
