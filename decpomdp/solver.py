@@ -298,7 +298,7 @@ def solve(
     best_responses: bool = True,
     loop_horizons: tuple[int, ...] = LOOP_HORIZONS,
     ascent_nodes: int = 3,
-    ascent_starts: int = 8,
+    ascent_starts: int = 12,
     time_budget: float | None = None,
     exact_seconds: float = EXACT_SECONDS,
     num_nodes: int | None = None,
