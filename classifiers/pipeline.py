@@ -344,7 +344,12 @@ class FrameClassifier:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid setting: {exc}") from exc
         model.mean_, model.scale_ = mean, scale
-        model.head_ = OneVsOneSVC.from_state({k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta)
+        try:
+            model.head_ = OneVsOneSVC.from_state(
+                {k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta
+            )
+        except ValueError as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
         if model.mean_.shape != (model.backbone_.num_features,) or model.head_.coef_.shape[1] != model.mean_.shape[0]:
             raise ValueError(f"path: {str(path)!r} has inconsistent feature sizes")
         if not bool(torch.isfinite(model.mean_).all()) or not bool((model.scale_ > 0).all()):

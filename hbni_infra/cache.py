@@ -97,9 +97,12 @@ class FileLock:
             try:
                 fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             except FileExistsError:
+                judged = self._identity()
                 reason = self.stale()
                 if reason is None:
                     return False
+                if self._identity() != judged:  # replaced meanwhile (another waiter broke it and took it)
+                    continue
                 warnings.warn(f"{self.path}: breaking a stale cache lock ({reason})", RuntimeWarning, stacklevel=2)
                 self.path.unlink(missing_ok=True)
                 continue
@@ -123,6 +126,14 @@ class FileLock:
                 os.utime(self.path)
             except OSError:
                 return
+
+    def _identity(self) -> tuple[int, int] | None:
+        """The lock file's inode and mtime (``None`` when there is none): which lock a judgement was about."""
+        try:
+            st = self.path.stat()
+        except FileNotFoundError:
+            return None
+        return st.st_ino, st.st_mtime_ns
 
     def holder(self) -> str:
         """Who holds the lock, as its file says (``"unknown"`` for an empty or unreadable file)."""

@@ -26,7 +26,8 @@ def digest(*parts: Any) -> str:
         if isinstance(part, torch.Tensor):
             part = part.detach().cpu().contiguous()
             h.update(f"tensor:{part.dtype}:{tuple(part.shape)}:".encode())
-            h.update(part.view(torch.uint8).numpy().tobytes() if part.numel() else b"")
+            if part.numel():  # the bytes in place (a 0-d tensor as one element), no copy
+                h.update(part.reshape(-1).view(torch.uint8).numpy())
         elif isinstance(part, np.ndarray):
             part = np.ascontiguousarray(part)
             h.update(f"array:{part.dtype}:{part.shape}:".encode())

@@ -43,7 +43,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, has_values
+from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, check_same_classes, has_values
 from hbni_pyro.variants import noise_model
 from hbni_infra.checks import as_device, as_float, as_int
 from hbni_infra.threads import single_thread
@@ -471,5 +471,6 @@ def make_filter(
         )
     names = getattr(posterior, "class_names", None)
     if names is not None and len(names) == baseline.num_classes:
+        check_same_classes(baseline.class_names, names, "the calibration", "posterior")
         baseline.class_names = tuple(names)
     return baseline

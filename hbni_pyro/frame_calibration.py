@@ -99,7 +99,9 @@ class FrameCalibration:
         try:
             return cls(tensors["weight"], tensors["bias"], meta["kind"], meta.get("class_names"), meta.get("info"))
         except KeyError as exc:
-            raise ValueError(f"{path}: incomplete saved {_KIND} (missing {exc})") from None
+            raise ValueError(f"path: {str(path)!r} is an incomplete saved {_KIND} (missing {exc})") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
     def __repr__(self) -> str:
         extra = f", temperature={self.info['temperature']:.3f}" if "temperature" in self.info else ""

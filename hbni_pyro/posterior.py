@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
-from pyro.ops.stats import effective_sample_size, split_gelman_rubin
+from pyro.ops.stats import split_gelman_rubin
+from pyro.ops.tensor_utils import next_fast_len
 from torch import Tensor
 
 from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE, as_class_prior, has_values
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
-from hbni_infra.checks import as_device, as_float, as_int, as_names
+from hbni_infra.checks import as_device, as_float, as_generator, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.optional import require
 
@@ -169,12 +171,15 @@ class HBNIPosterior:
     def summary(self, prob: float = 0.9) -> dict[str, dict[str, float]]:
         """Per scalar parameter (``theta[0]``, ..., ``kappa``, ``gamma``; matrices entry by entry, the
         off-diagonal of ``beta`` and the upper triangle of covariances): mean, sd, the central
-        ``prob`` interval's quantiles (``q5``, ``q95`` for 0.9), ESS and split R-hat (``pyro.ops.stats``)."""
+        ``prob`` interval's quantiles (``q5``, ``q95`` for 0.9; ``prob`` in ``(0, 1)``), ESS
+        (:func:`effective_sample_size`) and split R-hat (``pyro.ops.stats``). Memory and time grow linearly with
+        the draws."""
+        prob = as_float("prob", prob, 0.0, 1.0, low_open=True, high_open=True)
         lo, hi = (1 - prob) / 2, (1 + prob) / 2
         out: dict[str, dict[str, float]] = {}
         for name, x in self.scalar_sites().items():
             flat = x.reshape(-1)
-            q = torch.quantile(flat, torch.tensor([lo, hi], dtype=flat.dtype, device=flat.device))
+            q = quantiles(flat, (lo, hi))
             rhat = (
                 split_gelman_rubin(x, chain_dim=0, sample_dim=1) if self.num_draws >= 4 else torch.tensor(float("nan"))
             )
@@ -183,7 +188,7 @@ class HBNIPosterior:
                 "sd": float(flat.std()),
                 f"q{lo * 100:g}": float(q[0]),
                 f"q{hi * 100:g}": float(q[1]),
-                "ess": float(effective_sample_size(x, chain_dim=0, sample_dim=1)),
+                "ess": effective_sample_size(x),
                 "r_hat": float(rhat),
             }
         return out
@@ -234,7 +239,11 @@ class HBNIPosterior:
         )
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
-        g = generator if generator is not None else seeded_generator(self.device, seed)
+        g = (
+            seeded_generator(self.device, seed)
+            if generator is None
+            else as_generator("generator", generator, self.device)
+        )
         draws = self.draws()
         first = next(iter(draws.values()))
         idx = torch.randint(first.shape[0], (num_streams,), generator=g, device=self.device)
@@ -315,6 +324,58 @@ class HBNIPosterior:
         if self.frame_correlation:
             head += f", frame_correlation={self.frame_correlation:.3f}"
         return head + f", method={self.info.get('method')!r})"
+
+
+def quantiles(x: Tensor, probs: tuple[float, ...]) -> list[float]:
+    """Quantiles of the 1-D ``x`` at ``probs``, interpolated linearly between order statistics as
+    ``torch.quantile`` does, by selection (``kthvalue``): linear memory, and no size limit."""
+    n = x.numel()
+    out = []
+    for p in probs:
+        pos = p * (n - 1)
+        below, above = math.floor(pos), math.ceil(pos)
+        a = float(torch.kthvalue(x, below + 1).values)
+        b = a if above == below else float(torch.kthvalue(x, above + 1).values)
+        out.append(a + (b - a) * (pos - below))
+    return out
+
+
+_FFT_BLOCK = 2**21
+"""Most padded entries transformed at once by :func:`effective_sample_size` (16 MB of float64)."""
+
+
+def effective_sample_size(x: Tensor) -> float:
+    """Effective sample size of the draws ``x (chains, draws)`` of one scalar, in memory linear in the draws.
+
+    The estimator of ``pyro.ops.stats.effective_sample_size`` (Stan's: Geyer's initial monotone sequence on the
+    chains' pooled autocorrelation, ``rho_k = 1 - (W - mean_c gamma_ck) / var+``), with each chain's
+    autocovariance ``gamma_ck`` from one FFT (as ArviZ computes it) and the monotone sequence by a running
+    minimum; pyro's running minimum builds a ``draws x draws`` matrix (320 GB at 400 000 draws). NaN when every
+    draw is equal, as pyro's.
+    """
+    x = x.to(DTYPE)
+    chains, n = x.shape
+    if n < 2:
+        return float("nan")
+    size = 2 * next_fast_len(n)
+    gamma = torch.zeros(n, dtype=DTYPE, device=x.device)  # sum over chains of each chain's autocovariance
+    for block in x.split(max(1, _FFT_BLOCK // size)):  # a few chains at a time: bounded temporaries
+        spectrum = torch.fft.rfft(block - block.mean(1, keepdim=True), n=size)
+        gamma += torch.fft.irfft(spectrum.real.square() + spectrum.imag.square(), n=size)[:, :n].sum(0)
+    gamma /= chains * torch.arange(n, 0, -1, dtype=DTYPE, device=x.device)
+    var_within = x.var(1).mean()
+    var_plus = (n - 1) / n * var_within
+    if chains > 1:
+        var_plus = var_plus + x.mean(1).var()
+    else:
+        var_within = var_plus
+    rho = (var_plus - var_within + gamma) / var_plus
+    rho[0] = 1.0
+    pairs = rho[: n - n % 2].reshape(-1, 2).sum(1)
+    tau = -1 + 2 * pairs[0]
+    if pairs.numel() > 1:
+        tau = tau + 2 * torch.cummin(pairs[1:].clamp(min=0), 0).values.sum()
+    return float(chains * n / tau)
 
 
 def posterior_from_samples(

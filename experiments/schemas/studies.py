@@ -65,7 +65,7 @@ NO_NOISE_MODEL = "it fits no noise model"
 
 def _check_theta(name: str, theta: list[float]) -> None:
     if len(theta) < 2 or any(not (math.isfinite(t) and t > 0) for t in theta):
-        raise ValueError(f"{name}: expected at least 2 finite noise levels > 0, got {list(theta)}")
+        raise ValueError(f"{name}: expected at least 2 noise levels > 0, all finite, got {list(theta)}")
 
 
 def _check_conditions(name: str, overrides: dict[str, Any] | None) -> None:

@@ -325,3 +325,11 @@ def test_characterize_refuses_a_generative_posterior_named_otherwise():
 def test_a_baseline_table_takes_the_generative_posteriors_names():
     baseline = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), 0.9, 2)
     assert hbni_pyro.characterize(baseline, posterior(DOMAIN_ORDER), 2, seed=0).class_names == tuple(DOMAIN_ORDER)
+
+
+def test_the_calibrated_filter_refuses_a_calibration_named_otherwise_than_the_posterior():
+    calibration = hbni_pyro.FrameCalibration(torch.eye(3), torch.zeros(3), class_names=ALPHABETICAL)
+    with pytest.raises(ValueError, match=words("posterior", str(ALPHABETICAL), str(DOMAIN_ORDER))):
+        hbni_pyro.make_filter("calibrated", posterior(DOMAIN_ORDER), calibration=calibration)
+    named = hbni_pyro.make_filter("calibrated", posterior(ALPHABETICAL), calibration=calibration)
+    assert named.class_names == tuple(ALPHABETICAL)

@@ -239,5 +239,5 @@ def _compose(*overrides: str):
     ],
 )
 def test_a_config_with_a_non_finite_theta_is_refused_when_composed(experiment, override, key):
-    with pytest.raises(ValueError, match=rf"^{key}: expected at least 2 finite noise levels > 0"):
+    with pytest.raises(ValueError, match=rf"^{key}: expected at least 2 noise levels > 0, all finite"):
         check_config(_compose(f"experiment={experiment}", override))

@@ -23,7 +23,7 @@ from classifiers import FrameClassifier
 from decpomdp import JointController
 from hbni_infra.cache import load_entry, store_entry
 from hbni_infra.tensorfile import load_tensors, save_tensors, seal
-from hbni_pyro import HBNIPosterior, MacroObservationModel
+from hbni_pyro import FrameCalibration, HBNIPosterior, MacroObservationModel
 
 POSTERIOR = "hbni_pyro.HBNIPosterior"
 CLASSIFIER = "classifiers.FrameClassifier"
@@ -329,3 +329,47 @@ def test_a_save_under_a_file_names_the_parent_that_is_a_file(tmp_path, fitted_cl
 def test_a_save_onto_a_directory_names_it(tmp_path):
     with pytest.raises(IsADirectoryError, match=refused(tmp_path, "is a directory")):
         posterior().save(tmp_path)
+
+
+def test_scalars_empty_and_boolean_tensors_round_trip_under_their_digest(tmp_path):
+    tensors = {"scalar": torch.tensor(1.5), "empty": torch.zeros(0, 3), "mask": torch.tensor([True, False])}
+    path = save_tensors(tmp_path / "odd.safetensors", "pkg.Thing", tensors, {})
+    back, _ = load_tensors(path, "pkg.Thing")
+    assert all(torch.equal(back[k], v) for k, v in tensors.items())
+    edit(path, tensors=lambda t: t["scalar"].fill_(2.5))
+    with pytest.raises(ValueError, match=refused(path, "does not match its digest")):
+        load_tensors(path, "pkg.Thing")
+
+
+CALIBRATION = "FrameCalibration"  # the kind its files record
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({"meta": lambda m: m.update(class_names=["b", "a", "c"])}, ("does not match its digest",)),
+        ({"tensors": lambda t: t["weight"].view(-1)[0].fill_(3.0)}, ("does not match its digest",)),
+    ],
+)
+def test_an_edited_frame_calibration_is_refused(tmp_path, change, words):
+    path = FrameCalibration(torch.eye(3), torch.zeros(3), class_names=("a", "b", "c")).save(
+        tmp_path / "cal.safetensors"
+    )
+    with pytest.raises(ValueError, match=refused(edit(path, **change), *words)):
+        FrameCalibration.load(path)
+
+
+@pytest.mark.parametrize(
+    "change, word",
+    [
+        ({"tensors": lambda t: t["bias"].fill_(float("nan"))}, "finite"),
+        ({"meta": lambda m: m.update(class_names="abc")}, "class_names"),
+        ({"meta": lambda m: m.update(kind="spline")}, "kind"),
+    ],
+)
+def test_a_sealed_frame_calibration_with_a_bad_value_is_refused_naming_the_file(tmp_path, change, word):
+    path = FrameCalibration(torch.eye(3), torch.zeros(3), class_names=("a", "b", "c")).save(
+        tmp_path / "cal.safetensors"
+    )
+    with pytest.raises(ValueError, match=refused(edit_sealed(path, CALIBRATION, **change), word)):
+        FrameCalibration.load(path)

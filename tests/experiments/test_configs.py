@@ -86,7 +86,7 @@ RANGE_ERRORS = [
     ("filtering_error", "study.training_sizes=[]", "study.training_sizes: expected sizes >= 1"),
     ("macro_observation", "study.threshold=0", "study.threshold: expected a probability in (0, 1]"),
     ("perception_replay", "study.classes=[irobot,unicorn]", "study.classes: expected at least 2 distinct objects"),
-    ("perception_replay", "classifier.cv=1", "classifier.cv: expected an integer >= 2"),
+    ("perception_replay", "classifier.cv=1", "classifier.cv: expected an int >= 2"),
     ("perception_replay", "+study.mission.fog=[1,2]", "study.mission: unknown field(s) ['fog']"),
     ("package_delivery", "planners.gdice.ce_alpha=2", "planners.gdice.ce_alpha: expected a finite number in (0, 1]"),
     ("package_delivery", "planners.cold.ce_alpha=2", "planners.cold.ce_alpha: expected a finite number in (0, 1]"),
