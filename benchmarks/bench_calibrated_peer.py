@@ -151,10 +151,14 @@ def mission(seeds: list[int], run: bool) -> None:
         for name in POLICIES[1:]:
             h = m["variants"].get(name, {}).get("held_out_process")
             if h:
+                right = (
+                    "none emitted"
+                    if h["emitted_accuracy"] is None
+                    else f"{h['emitted_accuracy']:.3f} ± {h['emitted_stderr']:.3f}"
+                )
                 print(
-                    f"| {seed} | {name} | {h['stop']:g} | {h['streams']} | {h['emitted_accuracy']:.3f} ± "
-                    f"{h['emitted_stderr']:.3f} | {h['mean_frames']:.2f} ± {h['frames_stderr']:.2f} | "
-                    f"{h['timeout_rate']:.3f} |"
+                    f"| {seed} | {name} | {h['stop']:g} | {h['streams']} | {right} | {h['mean_frames']:.2f} ± "
+                    f"{h['frames_stderr']:.2f} | {h['timeout_rate']:.3f} |"
                 )
     print()
     for seed, m, wall, cpu in lines:

@@ -200,8 +200,19 @@ def markdown(metrics: dict[str, Any], figures: list[str]) -> str:
                 + ", ".join(
                     f"`{k}` = {v:.3f}" if isinstance(v, float) else f"`{k}` = {v}"
                     for k, v in a.items()
-                    if k != "best_model"
+                    if k != "best_model" and not isinstance(v, dict)
                 ),
+                "",
+            ]
+        peer = a.get("default_vs_calibrated")
+        if peer:
+            lines += [
+                f"The default (sequence model, stopping at {peer['stop']:g} for the promise 0.95) against the "
+                f"calibrated peer: right when it emits {peer['emitted_accuracy']:.3f} ± {peer['emitted_stderr']:.3f} "
+                f"(peer {peer['peer_emitted_accuracy']:.3f}), {peer['mean_frames']:.2f} frames against "
+                f"{peer['peer_mean_frames']:.2f} ({peer['frames_over_peer']:.2f}x), timeouts "
+                f"{peer['timeout_rate']:.3f}: honest {peer['honest']}, at most 1.5x the peer's frames "
+                f"{peer['frames_at_most_1.5x_peer']}, timeouts at most 10 % {peer['timeouts_at_most_0.1']}.",
                 "",
             ]
         honest = metrics.get("honesty", {}).get(cond)
