@@ -20,6 +20,7 @@ from unittest import mock
 import torch
 
 from classifiers.backbone import SameConv2d, load_backbone
+from hbni_infra.streams import torch_generator
 
 
 def rate(backbone, x: torch.Tensor, batch_size: int) -> float:
@@ -36,7 +37,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds; the median is reported")
     args = parser.parse_args()
     backbone = load_backbone()
-    x = torch.randn(args.images, 3, 224, 224, generator=torch.Generator().manual_seed(0))
+    x = torch.randn(args.images, 3, 224, 224, generator=torch_generator(0))
     scores = backbone(x[:4])
     with mock.patch.object(SameConv2d, "forward", SameConv2d._padded):
         reference_scores = backbone(x[:4])

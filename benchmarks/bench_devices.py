@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 
 import torch
+from hbni_infra.streams import torch_generator
 
 DEVICES = ("cpu", "cuda")
 
@@ -49,7 +50,7 @@ def _rate(run: Callable[[], object], count: int, device: str, repeats: int = 2) 
 def cnn_rates(frames: int) -> dict[str, float | None]:
     from classifiers import load_backbone
 
-    x = torch.randn(frames, 3, 224, 224, generator=torch.Generator().manual_seed(0))
+    x = torch.randn(frames, 3, 224, 224, generator=torch_generator(0))
     out: dict[str, float | None] = {}
     for device, dtype, batch in (("cpu", torch.float32, 8), ("cuda", torch.float32, 256), ("cuda", torch.float16, 256)):
         label = f"{device} {str(dtype).removeprefix('torch.')}"
@@ -65,9 +66,7 @@ def exact_rates(count: int) -> dict[str, dict[str, float | None]]:
     from decpomdp import random_controllers
     from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 
-    ctrl = random_controllers(
-        count, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
-    )
+    ctrl = random_controllers(count, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch_generator(0))
     cases = {
         "dectiger h=4": (TabularDecPOSMDP.from_problem("dectiger", horizon=4), 4),
         "dectiger gamma=0.9 h=inf": (TabularDecPOSMDP.from_problem("dectiger", gamma=0.9, horizon=4), math.inf),
@@ -94,7 +93,7 @@ def mh_rates(n: int) -> dict[str, tuple[float, float] | None]:
 
     m = 10
     theta = torch.linspace(1.0, 20.0, m, dtype=torch.float64)
-    obs = sample_outputs(theta, torch.arange(m).repeat_interleave(n // m), torch.Generator().manual_seed(0)).float()
+    obs = sample_outputs(theta, torch.arange(m).repeat_interleave(n // m), torch_generator(0)).float()
     out: dict[str, tuple[float, float] | None] = {}
     for device in DEVICES:
         if device == "cuda" and not torch.cuda.is_available():

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbni_infra.streams import stream_seed
+from hbni_infra.streams import numpy_generator, stream_seed, torch_generator
 
 from decpomdp import JointController
 from decpomdp.dpomdp import (
@@ -58,7 +58,7 @@ def dense_reference_value(env: TabularDecPOSMDP, ctrl: JointController, horizon:
 
 def random_problem(n_states: int, n_actions: int, n_obs: int, per_row: int, seed: int) -> TabularDecPOSMDP:
     """Two agents; every T row has ``per_row`` random next states; dense random O; R depends on (ja, s)."""
-    rng = np.random.default_rng(seed)
+    rng = numpy_generator(seed)
     n_ja, n_jo = n_actions**2, n_obs**2
     cols = np.sort(np.stack([rng.choice(n_states, per_row, replace=False) for _ in range(n_ja * n_states)]), axis=1)
     data = rng.dirichlet(np.ones(per_row), size=n_ja * n_states)
@@ -85,7 +85,7 @@ def random_problem(n_states: int, n_actions: int, n_obs: int, per_row: int, seed
 
 def layered_controllers(env: TabularDecPOSMDP, count: int, nodes: int, seed: int, width: int = 3) -> JointController:
     """Uniform random layered controllers: node 0, then layers of ``width`` nodes; each node moves to the next layer."""
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     layer = torch.cat([torch.zeros(1, dtype=torch.long), torch.arange(nodes - 1) // width + 1])
     first = torch.clamp(layer + 1, max=int(layer[-1])) * width - (width - 1)  # first node of the next layer
     shape = (count, env.num_agents, nodes, env.num_obs)

@@ -29,6 +29,7 @@ from experiments.filtering_error import run as run_study
 from hbni_pyro.filters import HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
+from hbni_infra.streams import torch_generator
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 STUDY_FLOOR_SECONDS = 120.0
@@ -86,7 +87,7 @@ def main() -> None:
         )
 
     filt = HBNIFilter(posterior, "marginal", num_draws=1000)
-    g = torch.Generator().manual_seed(args.seed)
+    g = torch_generator(args.seed)
     trials, length = int(s.num_trials), int(s.max_len)
     truth = torch.randint(3, (trials,), generator=g)
     obs = sample_outputs(

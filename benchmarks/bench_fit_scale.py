@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 import torch
+from hbni_infra.streams import torch_generator
 
 ROOT = Path(__file__).resolve().parents[1]
 GB = 1024**3
@@ -45,7 +46,7 @@ def _peak_bytes() -> int:
 def _data(n: int, m: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     from hbni_pyro.generative import sample_outputs
 
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     theta = torch.linspace(1.0, 20.0, m, dtype=torch.float64)
     classes = torch.arange(m).repeat_interleave(n // m)
     return sample_outputs(theta, classes, g).float(), classes
@@ -80,7 +81,7 @@ def case_filter() -> list[dict]:
 
     torch.set_num_threads(2)
     M, C, S = 6, 16, 1000
-    g = torch.Generator().manual_seed(0)
+    g = torch_generator(0)
     theta = torch.linspace(1.0, 20.0, M, dtype=torch.float64) * torch.exp(
         0.2 * torch.randn(C, S, M, generator=g, dtype=torch.float64)
     )

@@ -28,7 +28,7 @@ from decpomdp import evaluate, random_controllers
 from decpomdp.domains import PackageDelivery, shared
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
-from hbni_infra.streams import torch_stream
+from hbni_infra.streams import torch_generator, torch_stream
 
 PAPER_ROLLOUTS = 100 * 100 * 80
 
@@ -42,7 +42,7 @@ def timed(fn):
 def tiger_iteration_cpu(seed: int) -> float:
     """CPU seconds of one G-DICE iteration's evaluation on Dec-Tiger (horizon 50, 100 samples x 80 rollouts)."""
     tiger = TabularDecPOSMDP.from_problem("dectiger", gamma=0.99, horizon=50)
-    gen = torch.Generator().manual_seed(seed)
+    gen = torch_generator(seed)
     ctrl = random_controllers(
         100, num_agents=2, num_nodes=13, num_actions=tiger.num_actions, num_obs=tiger.num_obs, generator=gen
     )

@@ -21,7 +21,7 @@ import torch
 import hbni_pyro
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.sbc import run_sbc
-from hbni_infra.streams import stream_seed
+from hbni_infra.streams import stream_seed, torch_generator
 
 SBC_CASES = {
     "paper": dict(labelled=False, size=15),
@@ -44,7 +44,7 @@ def sbc(datasets: int, seed: int) -> None:
 
 
 def datasets(seed: int) -> dict[str, tuple]:
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     alpha = torch.tensor([[5.0, 2.0, 0.4], [0.6, 9.0, 0.5], [0.3, 0.3, 4.0]], dtype=torch.float64)
     classes = torch.arange(3).repeat_interleave(5)
     conf = sample_dirichlet(alpha[classes], g)

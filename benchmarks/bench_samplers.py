@@ -16,6 +16,7 @@ import torch
 
 import hbni_pyro
 from hbni_pyro.generative import sample_outputs
+from hbni_infra.streams import torch_generator
 
 
 def min_ess_per_second(post: hbni_pyro.HBNIPosterior) -> tuple[float, float, dict]:
@@ -36,7 +37,7 @@ def main() -> None:
     args = parser.parse_args()
 
     obs = sample_outputs(
-        torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch.Generator().manual_seed(args.seed)
+        torch.tensor([1.0, 6.0, 20.0]), torch.arange(3).repeat_interleave(5), torch_generator(args.seed)
     )
     mh = hbni_pyro.fit(
         obs,

@@ -20,7 +20,6 @@ mean returns (the same controllers, so they agree within Monte Carlo error).
 from __future__ import annotations
 
 import argparse
-import random
 import time
 
 import torch
@@ -32,21 +31,22 @@ from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from hbni_pyro.model import HyperPrior
 from hbni_infra.threads import threads
+from hbni_infra.streams import numpy_generator, torch_generator
 
 
 def mutants(controller: JointController, count: int, mutations: int, seed: int, num_actions: int) -> JointController:
     """``controller`` and ``count - 1`` copies with ``mutations`` random entries changed each."""
     action = controller.action.expand(count, -1, -1).clone()
     next_node = controller.next_node.expand(count, -1, -1, -1).clone()
-    rng = random.Random(seed)
+    rng = numpy_generator(seed)
     _, agents, nodes, obs = next_node.shape
     for k in range(1, count):
         for _ in range(mutations):
-            a, n = rng.randrange(agents), rng.randrange(nodes)
+            a, n = int(rng.integers(agents)), int(rng.integers(nodes))
             if rng.random() < 0.5:
-                action[k, a, n] = rng.randrange(num_actions)
+                action[k, a, n] = int(rng.integers(num_actions))
             else:
-                next_node[k, a, n, rng.randrange(obs)] = rng.randrange(nodes)
+                next_node[k, a, n, int(rng.integers(obs))] = int(rng.integers(nodes))
     return JointController(action, next_node)
 
 
@@ -68,7 +68,7 @@ def rate(
     ``repeats`` identical calls (the least disturbed by other work on a shared machine)."""
     best_cpu = best_wall = float("inf")
     for _ in range(repeats):
-        g = torch.Generator().manual_seed(1)
+        g = torch_generator(1)
         cpu, wall = time.process_time(), time.perf_counter()
         returns = simulate(env, controller, rollouts, g, backend=backend)
         best_cpu, best_wall = min(best_cpu, time.process_time() - cpu), min(best_wall, time.perf_counter() - wall)

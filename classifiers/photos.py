@@ -21,6 +21,7 @@ import numpy as np
 
 from hbni_infra.checks import as_int
 from hbni_infra.optional import require
+from hbni_infra.streams import numpy_generator
 
 #: the classes: scikit-image's bundled colour photographs, by their ``skimage.data`` name
 PHOTOS = ("astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "immunohistochemistry")
@@ -106,7 +107,7 @@ def photo_sequence(
     if not isinstance(c, PhotoConditions):
         raise ValueError(f"conditions: expected a PhotoConditions or a preset name, got {type(conditions).__name__}")
     img = photo(name)
-    rng = np.random.default_rng([seed, PHOTOS.index(name), index])
+    rng = numpy_generator(seed, PHOTOS.index(name), index)
     h, w = img.shape[:2]
     short = min(h, w)
     side = rng.uniform(*c.crop) * short

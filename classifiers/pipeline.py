@@ -32,6 +32,7 @@ from classifiers.svm import OneVsOneSVC
 from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import torch_threads
+from hbni_infra.streams import numpy_generator
 
 __all__ = ["FrameClassifier"]
 
@@ -242,7 +243,7 @@ class FrameClassifier:
         """
         if copies < 0:
             raise ValueError(f"copies: expected >= 0, got {copies}")
-        rng = np.random.default_rng(self.seed)
+        rng = numpy_generator(self.seed)
         size = self.backbone_.input_size
         crops = []
         for im in as_image_batch(images):
@@ -348,7 +349,7 @@ class FrameClassifier:
             model.head_ = OneVsOneSVC.from_state(
                 {k[5:]: v for k, v in tensors.items() if k.startswith("head.")}, head_meta
             )
-        except ValueError as exc:
+        except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
         if model.mean_.shape != (model.backbone_.num_features,) or model.head_.coef_.shape[1] != model.mean_.shape[0]:
             raise ValueError(f"path: {str(path)!r} has inconsistent feature sizes")

@@ -29,6 +29,7 @@ from classifiers.platt import fit_platt, platt_predict
 from hbni_infra.checks import as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import single_thread
+from hbni_infra.streams import numpy_generator
 
 __all__ = ["OneVsOneSVC", "bias_scale", "objective", "train_squared_hinge"]
 
@@ -153,7 +154,7 @@ class OneVsOneSVC:
     # ---- training -------------------------------------------------------------------------------
     def _split(self, yi: np.ndarray) -> np.ndarray:
         """Stratified fold id per example (random within each class, seeded)."""
-        rng = np.random.default_rng(self.seed)
+        rng = numpy_generator(self.seed)
         fold = np.empty(len(yi), dtype=np.int64)
         for k in np.unique(yi):
             idx = np.flatnonzero(yi == k)

@@ -9,7 +9,8 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer
-from hbni_infra.checks import as_generator, as_int, as_seed
+from hbni_infra.checks import as_generator, as_int
+from hbni_infra.streams import torch_generator
 
 
 def random_controllers(
@@ -57,7 +58,7 @@ def monte_carlo_search(
     With ``budget = iterations * samples`` it sees as many controllers as a G-DICE run.
     """
     budget, batch, rollouts = as_int("budget", budget, 1), as_int("batch", batch, 1), as_int("rollouts", rollouts, 2)
-    generator = torch.Generator().manual_seed(as_seed("seed", seed))
+    generator = torch_generator(seed)
     best, best_value, all_values = None, -float("inf"), []
     for start in range(0, budget, batch):
         ctrl = random_controllers(

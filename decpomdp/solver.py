@@ -21,6 +21,7 @@ from decpomdp.dpomdp.best_response import jesp
 from decpomdp.dpomdp.bounds import Bounds, upper_bounds
 from decpomdp.dpomdp.cyclic import ascend, count_controllers, loop_back
 from decpomdp.dpomdp.exact import exact_value
+from decpomdp.dpomdp.gmaa import GMAA, GMAAResult
 from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
 from decpomdp.dpomdp.problems import load_problem, problem_names
@@ -47,6 +48,15 @@ def infinite_nodes(num_agents: int, num_states: int) -> int:
     return n
 
 
+EXACT_SECONDS = 30.0
+"""Default CPU seconds of :func:`solve`'s exact search (GMAA*-ICE) at a finite horizon."""
+FIRST_EXACT_SECONDS = 5.0
+"""CPU seconds the exact search gets before the planner runs (see :func:`solve`'s ``exact_seconds``)."""
+SHORTER_EXACT_SECONDS = 1.0
+"""CPU seconds of the exact search at each shorter horizon whose optimum warm-starts JESP when the exact search does
+not prove a horizon at once (tried from ``h - 1`` down, until one is proven)."""
+LOOP_EXACT_SECONDS = 2.0
+"""CPU seconds of the exact search for each finite horizon an infinite-horizon :func:`solve` loops back."""
 PROVEN_TOLERANCE = 1e-6
 """A solution is proven optimal when ``bound - value <= PROVEN_TOLERANCE * |value|``."""
 LOOP_HORIZONS = (2, 3, 4, 5, 6, 7, 8)
@@ -54,6 +64,10 @@ LOOP_HORIZONS = (2, 3, 4, 5, 6, 7, 8)
 ASCENT_ROUNDS = 5
 """Most rounds of single changes :func:`solve` makes on an infinite-horizon controller (each round evaluates every
 single change of every agent's controller exactly)."""
+MAX_ASCENT_NODES = 12
+"""Largest controller (nodes per agent) whose single changes :func:`solve` tries at an infinite horizon: each change is
+an exact evaluation over up to ``nodes ** agents`` joint nodes, and there are about ``nodes ** 2 * observations`` of
+them per agent."""
 MAX_ENUMERATED = 20_000
 """Most controllers of one agent coordinate ascent enumerates (3 nodes with 3 actions and 2 observations: 19,683)."""
 
@@ -144,9 +158,15 @@ class _Settings:
 
 
 def _finite_search(
-    env: TabularDecPOSMDP, settings: _Settings, seed: int, budget: float | None, start: float
+    env: TabularDecPOSMDP,
+    settings: _Settings,
+    seed: int,
+    budget: float | None,
+    start: float,
+    warm: list[JointController] = (),
 ) -> tuple[JointController, float, list[float], int]:
-    """(controller, value, every start's value, rounds) of the planner runs and JESP at ``env``'s finite horizon."""
+    """(controller, value, every start's value, rounds) of the planner runs and JESP at ``env``'s finite horizon,
+    JESP also starting from each ``warm`` controller."""
     h = int(env.horizon)
     num_nodes = min(max(8, 3 * h), MAX_FINITE_NODES) if settings.num_nodes is None else settings.num_nodes
     config = PlannerConfig(num_nodes=num_nodes, **{**EXACT_DEFAULTS, **settings.planner})
@@ -176,6 +196,8 @@ def _finite_search(
         if layered is not None and (runs < layered_restarts or runs >= rounds):
             keep(plan(scorer, layered, seed=stream_seed(seed, "solve", "layered", runs)).best)
         runs += 1
+    for controller in warm:
+        keep(controller)
     for k in range(settings.jesp_restarts if respond else 0):
         keep(
             random_controllers(
@@ -190,6 +212,29 @@ def _finite_search(
     return best[0], best[1], values, runs
 
 
+def _exact_and_search(
+    env: TabularDecPOSMDP, settings: _Settings, seed: int, budget: float | None, start: float, exact_seconds: float
+) -> tuple[JointController, float, list[float], int, GMAAResult | None]:
+    """:func:`_finite_search` around the exact search (see :func:`solve`'s ``exact_seconds``); also returns the exact
+    search's last result (``None`` if skipped)."""
+    exact = GMAA(env) if exact_seconds > 0 else None
+    found = None if exact is None else exact.run(min(exact_seconds, FIRST_EXACT_SECONDS))
+    if found is not None and found.finished and found.controller is not None:
+        return found.controller, found.value, [found.value], 0, found
+    shorter = []  # the optimum of the longest shorter horizon the exact search proves at once, and its loop-back
+    for h in range(int(env.horizon) - 1, 0, -1) if exact is not None else ():
+        short = GMAA(TabularDecPOSMDP(env.model, env.gamma, horizon=h)).run(SHORTER_EXACT_SECONDS)
+        if short.finished and short.controller is not None:
+            shorter = [short.controller, loop_back(short.controller)]
+            break
+    controller, value, values, runs = _finite_search(env, settings, seed, budget, start, shorter)
+    if exact is not None and exact_seconds > FIRST_EXACT_SECONDS:
+        found = exact.run(exact_seconds - FIRST_EXACT_SECONDS, lower_bound=value)
+    if found is not None and found.controller is not None and found.value > value:
+        controller, value = found.controller, float(exact_value(env, found.controller)[0])
+    return controller, value, values, runs, found
+
+
 def _cyclic_search(
     env: TabularDecPOSMDP,
     settings: _Settings,
@@ -199,8 +244,9 @@ def _cyclic_search(
     ascent_starts: int,
 ) -> tuple[JointController, float, list[float], int]:
     """(controller, value, every start's value, planner runs) at ``env``'s infinite horizon: planner runs on a free
-    graph, loop-backs of finite-horizon solutions and coordinate ascent from random small controllers, each
-    the best of the first two improved by single changes (:func:`~decpomdp.dpomdp.cyclic.ascend`)."""
+    graph and loop-backs of finite-horizon solutions, each improved by single changes
+    (:func:`~decpomdp.dpomdp.cyclic.ascend`) when it has at most :data:`MAX_ASCENT_NODES` nodes, and coordinate ascent
+    from random small controllers."""
     starts = []
     if settings.restarts:
         num_nodes = settings.num_nodes or infinite_nodes(env.num_agents, env.num_states)
@@ -209,15 +255,16 @@ def _cyclic_search(
         starts += [plan(scorer, config, seed=stream_seed(seed, "solve", r)).best for r in range(settings.restarts)]
     for h in loop_horizons:
         finite = TabularDecPOSMDP(env.model, env.gamma, horizon=h)
-        starts.append(loop_back(_finite_search(finite, settings, stream_seed(seed, "loop", h), None, 0.0)[0]))
+        found = _exact_and_search(finite, settings, stream_seed(seed, "loop", h), None, 0.0, LOOP_EXACT_SECONDS)
+        starts.append(loop_back(found[0]))
     best, values = None, []
     for controller in starts:
         value = float(exact_value(env, controller)[0])
+        if controller.num_nodes <= MAX_ASCENT_NODES:
+            controller, value, _ = ascend(env, controller, value, max_rounds=ASCENT_ROUNDS)
         values.append(value)
         if best is None or value > best[1]:
             best = (controller, value)
-    if best is not None:
-        best = ascend(env, *best, max_rounds=ASCENT_ROUNDS)[:2]
     enumerable = count_controllers(ascent_nodes, env.num_actions, env.num_obs) <= MAX_ENUMERATED
     for k in range(ascent_starts if enumerable else 0):
         controller = random_controllers(
@@ -251,8 +298,9 @@ def solve(
     best_responses: bool = True,
     loop_horizons: tuple[int, ...] = LOOP_HORIZONS,
     ascent_nodes: int = 3,
-    ascent_starts: int = 8,
+    ascent_starts: int = 12,
     time_budget: float | None = None,
+    exact_seconds: float = EXACT_SECONDS,
     num_nodes: int | None = None,
     threads: int | None = 1,
     **planner: Any,
@@ -285,6 +333,12 @@ def solve(
             controller of one agent at a time (an exact best response among them), from ``ascent_starts`` random
             joint controllers (streams ``(seed, "solve", "ascent", k)``); skipped where one agent has more than
             :data:`MAX_ENUMERATED` such controllers.
+        exact_seconds: at a finite horizon, CPU seconds for the exact search (GMAA*-ICE, :mod:`decpomdp.dpomdp.gmaa`;
+            0 skips it). It runs first for up to :data:`FIRST_EXACT_SECONDS`; if it proves the optimum there, its policy
+            is the solution and the planner does not run. Otherwise the planner and JESP run, and the exact search goes on
+            for the rest, pruning with their value as a lower bound: it either proves that value optimal, finds a better
+            policy, or leaves its open list's bound. So the result depends on the machine's speed only when the exact
+            search neither finishes nor is skipped (and then only through its bound or a better policy).
         time_budget: seconds; when set, restarts go on (beyond ``restarts``) until it is spent, so the
             result then depends on the machine's speed. ``None``: exactly ``restarts`` runs.
         num_nodes: controller nodes per agent of the planner's free graph (``None``: ``min(max(8, 3 h), 32)``, or
@@ -315,16 +369,19 @@ def solve(
     settings = _Settings(
         restarts, layered_restarts, layer_width, max_layered_horizon, jesp_restarts, best_responses, num_nodes, planner
     )
-    start, cpu = time.perf_counter(), time.process_time()
+    exact_seconds = as_float("exact_seconds", exact_seconds, 0.0)
+    start, cpu, found = time.perf_counter(), time.process_time(), None
     with torch_threads(threads):  # the whole search, not only its exact scores
         if finite:
-            controller, value, values, runs = _finite_search(env, settings, seed, budget, start)
+            controller, value, values, runs, found = _exact_and_search(
+                env, settings, seed, budget, start, exact_seconds
+            )
         else:
             controller, value, values, runs = _cyclic_search(
                 env, settings, seed, loop_horizons, ascent_nodes, ascent_starts
             )
         bounds = upper_bounds(env)
-    bound = bounds.best
+    bound = bounds.best if found is None else min(bounds.best, max(found.bound, value))
     if value > bound + 1e-9 * max(1.0, abs(bound)):
         raise RuntimeError(
             f"the bound {bound!r} lies below the value {value!r} of a controller: a bug in decpomdp.dpomdp.bounds"

@@ -31,6 +31,7 @@ from experiments.common import save_figure
 from hbni_pyro.filters import decide, make_filter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE
+from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import stream_seed, torch_stream
 
 BASELINES = ("voting", "max_of_mean", "ssbf")
@@ -54,7 +55,6 @@ COLORS = {
     "hbni": "tab:blue",
     "hbni_oracle": "k",
 }
-Z95 = 1.959963984540054
 
 
 class _TrueTheta:
@@ -68,14 +68,11 @@ class _TrueTheta:
         return self.theta.unsqueeze(0)
 
 
-def wilson_interval(errors: Tensor, trials: int) -> tuple[Tensor, Tensor]:
-    """95 % Wilson score interval for ``errors`` out of ``trials`` (elementwise)."""
-    k, n, z2 = errors.to(DTYPE), float(trials), Z95**2
-    centre = (k + z2 / 2) / (n + z2)
-    half = Z95 / (n + z2) * torch.sqrt(k * (n - k) / n + z2 / 4)
-    lo = torch.where(k == 0, 0.0, (centre - half).clamp_min(0))
-    hi = torch.where(k == n, 1.0, (centre + half).clamp_max(1))
-    return lo, hi
+def wilson_bounds(errors: Tensor, trials: int) -> tuple[Tensor, Tensor]:
+    """95 % Wilson score interval (:func:`hbni_infra.stats.wilson_interval`) of each count of ``errors`` out of
+    ``trials``: ``(lo, hi)``, each shaped like ``errors``."""
+    bounds = torch.tensor([wilson_interval(k, trials) for k in errors.flatten().tolist()], dtype=DTYPE)
+    return bounds[:, 0].reshape(errors.shape), bounds[:, 1].reshape(errors.shape)
 
 
 def first_crossing(error: Tensor, target: float) -> int | None:
@@ -168,7 +165,7 @@ def _metrics(wrong: dict[int, dict[str, Tensor]], s: dict[str, Any]) -> dict[str
     for size, counts in wrong.items():
         error[size], crossing[size] = {}, {}
         for method in METHODS:
-            lo, hi = wilson_interval(counts[method], trials)
+            lo, hi = wilson_bounds(counts[method], trials)
             error[size][method] = {
                 "error": counts[method].to(DTYPE) / trials,
                 "lo": lo,

@@ -6,6 +6,8 @@ A leaf package: it imports nothing of the project and holds no domain code.
 * :mod:`hbni_infra.tensorfile`: one-file storage of named tensors plus JSON metadata (safetensors, no pickle).
 * :mod:`hbni_infra.fingerprint`: what produced a checkpoint or cache, and a check that names the field that differs.
 * :mod:`hbni_infra.counter_random`: counter-based SplitMix64 random streams for compiled (numba) loops.
+* :mod:`hbni_infra.stats`: the exact binomial test, the Wilson interval and the two-sample Kolmogorov-Smirnov test
+  (scipy's) and a two-sample z test.
 * :mod:`hbni_infra.threads`: one thread setting for torch's intra-op threads and compiled loops' worker threads.
 * :mod:`hbni_infra.ros`: ROS plumbing: the ``ros`` extra imported on first use, ROS times, camera images to and from
   ROS messages.

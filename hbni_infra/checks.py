@@ -98,6 +98,13 @@ def as_probability(name: str, value: Any, allow_zero: bool = True) -> float:
     return as_float(name, value, 0.0, 1.0, low_open=not allow_zero)
 
 
+def as_choice(name: str, value: Any, choices: Sequence[Any]) -> Any:
+    """``value`` when it is one of ``choices``, else ``ValueError`` naming ``name`` and listing the choices."""
+    if value not in tuple(choices):
+        raise ValueError(f"{name}: expected one of {list(choices)}, got {value!r}")
+    return value
+
+
 def as_names(name: str, names: Any, count: int, at_least: bool = False) -> tuple[str, ...] | None:
     """``names`` as a tuple of ``count`` distinct strings (at least ``count`` with ``at_least``); ``None`` stays
     ``None`` (unnamed). ``TypeError`` for a string or a non-sequence, ``ValueError`` for the wrong count or repeats."""

@@ -5,6 +5,11 @@ Every entry point takes one ``seed``; each of its stages and variants draws from
 a spawn key made of a hash of each name. Streams of different names are independent, and adding a
 stage never shifts the numbers of another, which adding constants to the seed does not guarantee
 (one stage's offset 10 is another's offset 10).
+
+This module is the only place that seeds a generator: :func:`torch_generator` and :func:`numpy_generator`
+seed one with a seed as given (an entry point's own seed, or entropy words such as a seed and an index),
+:func:`torch_stream` and :func:`numpy_stream` with a named stream of a seed. ``tests/hbni_infra/test_streams.py``
+keeps it so.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ import hashlib
 
 import numpy as np
 import torch
+
+from hbni_infra.checks import as_seed
 
 
 def _key(name: str | int) -> int:
@@ -37,3 +44,21 @@ def torch_stream(seed: int, *names: str | int) -> torch.Generator:
 def numpy_stream(seed: int, *names: str | int) -> np.random.Generator:
     """A ``numpy.random.Generator`` seeded with :func:`stream_seed`."""
     return np.random.default_rng(stream_seed(seed, *names))
+
+
+def torch_generator(seed: int, device: str | torch.device = "cpu") -> torch.Generator | None:
+    """A ``torch.Generator`` on ``device`` seeded with ``seed`` itself (an int in ``[0, 2**63)``); ``None`` on
+    ``meta``, where tensors have shapes and no values and nothing is drawn."""
+    seed = as_seed("seed", seed)
+    device = torch.device(device)
+    return None if device.type == "meta" else torch.Generator(device).manual_seed(seed)
+
+
+def numpy_generator(*entropy: int) -> np.random.Generator:
+    """A ``numpy.random.Generator`` on the entropy words given (ints in ``[0, 2**63)``, such as a seed and an index):
+    ``numpy_generator(s)`` draws as ``numpy.random.default_rng(s)``, ``numpy_generator(s, i)`` as
+    ``numpy.random.default_rng([s, i])``."""
+    if not entropy:
+        raise ValueError("entropy: expected at least one int, got none")
+    words = [as_seed("entropy", word) for word in entropy]
+    return np.random.default_rng(np.random.SeedSequence(words))

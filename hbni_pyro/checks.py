@@ -21,9 +21,9 @@ decisions). Without labels only label-free quantities are checked, on all stream
 simulated from the posterior's class prior: ``timeouts``, ``frames`` and ``confidence`` (the confidence at
 the stop, Kolmogorov-Smirnov).
 
-The binomial tests (:func:`binomial_test`) take the simulated rate as exact; its Monte Carlo error is
-``1 / simulations`` of the observed one's variance. Kolmogorov-Smirnov (:func:`ks_test`) on frame counts (discrete)
-is conservative. :meth:`CheckResult.passed`
+The tests are :mod:`hbni_infra.stats`'s (scipy's exact binomial and two-sample Kolmogorov-Smirnov tests, a
+two-sample z test). The binomial tests take the simulated rate as exact; its Monte Carlo error is
+``1 / simulations`` of the observed one's variance. Kolmogorov-Smirnov on frame counts (discrete) is conservative. :meth:`CheckResult.passed`
 corrects for the number of tests (Bonferroni), so a model that is right fails with probability at most ``alpha``.
 The comparison is with the average over the posterior's draws: a held-out set far larger than the training set
 can reject an honest but uncertain posterior.
@@ -46,12 +46,13 @@ from torch import Tensor
 
 from hbni_pyro.calibration import Reliability, reliability
 from hbni_pyro.filters import HBNIFilter, StreamingFilter
-from hbni_pyro.generative import seeded_generator
 from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
 from hbni_infra.checks import as_int, as_probability, as_seed
 from hbni_infra.files import atomic_write_bytes
 from hbni_infra.optional import require
+from hbni_infra.stats import binomial_test, ks_test, z_test
+from hbni_infra.streams import torch_generator
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -225,7 +226,7 @@ def check(
     ids = torch.arange(n) if sequence_ids is None else as_sequence_ids(sequence_ids, n)
     streams = list(torch.argsort(ids, stable=True).split(torch.bincount(ids).tolist()))  # frames in the order given
     truth = None if labels is None else _stream_labels(as_labels(labels, n, num_classes), streams)
-    g = seeded_generator(posterior.device, seed)
+    g = torch_generator(seed, posterior.device)
     if truth is None:
         truth_sim = torch.multinomial(posterior.class_prior.to(DTYPE), len(streams) * simulations, True, generator=g)
         truth_sim = truth_sim.cpu()
@@ -336,7 +337,7 @@ def _row(obs: dict[str, Tensor], sim: dict[str, Tensor], labelled: bool) -> dict
         _binomial(row, "overall", obs["right"], sim["right"])
         gap, sim_gap = obs["right"].to(DTYPE) - obs["confidence"], sim["right"].to(DTYPE) - sim["confidence"]
         row["calibration_gap"], row["predicted_calibration_gap"] = float(gap.mean()), float(sim_gap.mean())
-        row["p_calibration"] = _z_test(gap, sim_gap)
+        row["p_calibration"] = z_test(gap, sim_gap)
     else:
         row["mean_confidence"], row["predicted_mean_confidence"] = (
             float(obs["confidence"].mean()),
@@ -357,41 +358,3 @@ def _binomial(row: dict[str, Any], name: str, hits: Tensor, sim_hits: Tensor) ->
         return
     p = min(max(rate, 0.5 / m), 1 - 0.5 / m)  # a simulated 0 or 1 is a rate below 1 / m, not an impossibility
     row["p_" + name] = binomial_test(k, n, p)
-
-
-def binomial_test(k: int, n: int, p: float) -> float:
-    """Two-sided exact binomial test of ``k`` successes in ``n`` trials at rate ``p``: the probability of every
-    count no likelier than ``k`` (the convention of ``scipy.stats.binomtest``)."""
-    pmf = torch.distributions.Binomial(n, torch.tensor(p, dtype=DTYPE)).log_prob(torch.arange(n + 1, dtype=DTYPE)).exp()
-    return min(1.0, float(pmf[pmf <= pmf[k] * (1 + 1e-7)].sum()))
-
-
-def ks_test(x: Tensor, y: Tensor) -> float:
-    """Two-sided two-sample Kolmogorov-Smirnov p-value (the asymptotic law with Stephens' small-sample correction;
-    conservative on discrete data); NaN when a sample is empty."""
-    if not len(x) or not len(y):
-        return float("nan")
-    x, y = x.to(DTYPE).sort().values, y.to(DTYPE).sort().values
-    points = torch.cat([x, y])
-    gap = float(
-        (torch.searchsorted(x, points, right=True) / len(x) - torch.searchsorted(y, points, right=True) / len(y))
-        .abs()
-        .max()
-    )
-    root = math.sqrt(len(x) * len(y) / (len(x) + len(y)))
-    lam = (root + 0.12 + 0.11 / root) * gap
-    if lam < 0.2:
-        return 1.0
-    k = torch.arange(1, 101, dtype=DTYPE)
-    return float((2 * ((-1) ** (k - 1) * torch.exp(-2 * k**2 * lam**2)).sum()).clamp(0.0, 1.0))
-
-
-def _z_test(x: Tensor, y: Tensor) -> float:
-    """Two-sided p-value of equal means of ``x`` and ``y`` (normal approximation, pooled variance)."""
-    if len(x) < 2 or len(y) < 2:
-        return float("nan")
-    var = float(torch.cat([x, y]).var())
-    se = math.sqrt(var * (1 / len(x) + 1 / len(y)))
-    if se == 0:
-        return 1.0 if float(x.mean()) == float(y.mean()) else 0.0
-    return math.erfc(abs(float(x.mean() - y.mean())) / se / math.sqrt(2))

@@ -4,7 +4,7 @@
 ``x_m ~ Ga(theta_m + 1, 1)`` and ``x_j ~ Ga(1, 1) = Exp(1)`` for ``j != m``. Gamma draws
 with shape >= 1 use Marsaglia and Tsang's squeeze method, vectorised over all entries,
 so every draw is reproducible from the generator alone. Draws are made on the device of the
-parameters, with a generator of that device (:func:`seeded_generator`). On ``meta`` parameters
+parameters, with a generator of that device (:func:`hbni_infra.streams.torch_generator`). On ``meta`` parameters
 (shapes only) there is no generator (``None``) and the draws are shapes without values.
 
 Every sampler checks its parameters (finite, in the range it can sample) and its generator (a ``torch.Generator``
@@ -24,19 +24,12 @@ from torch import Tensor
 from hbni_pyro.density import helmert_basis
 from hbni_pyro.frame_correlation import ar1_normals
 from hbni_pyro.validation import DTYPE, has_values
-from hbni_infra.checks import as_float, as_generator, as_int, as_seed
+from hbni_infra.checks import as_float, as_generator, as_int
 
 MAX_ROUNDS = 400
 """Most rounds of the gamma draws' rejection loop. With every shape >= 1 a round accepts each entry with
 probability >= 0.95, so 400 rounds leave an entry undrawn with probability below 1e-500: reaching the bound
 means the shapes were not what the checks let through, and it raises."""
-
-
-def seeded_generator(device: torch.device, seed: int) -> torch.Generator | None:
-    """A ``torch.Generator`` on ``device`` seeded with ``seed`` (an int in ``[0, 2**63)``); ``None`` on ``meta``,
-    where nothing is drawn."""
-    seed = as_seed("seed", seed)
-    return torch.Generator(device).manual_seed(seed) if device.type != "meta" else None
 
 
 def _check_values(name: str, x: Tensor, low: float, closed: bool, what: str) -> Tensor:

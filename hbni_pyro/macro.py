@@ -26,10 +26,11 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from hbni_pyro.filters import StreamingFilter, decide
-from hbni_pyro.generative import sample_outputs, seeded_generator
+from hbni_pyro.generative import sample_outputs
 from hbni_pyro.validation import DTYPE, check_same_classes, has_values
 from hbni_infra.checks import as_int, as_names, as_probability
 from hbni_infra.tensorfile import load_tensors, save_tensors
+from hbni_infra.streams import torch_generator
 
 _KIND = "hbni_pyro.MacroObservationModel"
 
@@ -54,10 +55,6 @@ class MacroObservationBatch(NamedTuple):
     timed_out: Tensor
 
 
-def _positive_int(value: Any, name: str) -> int:
-    return as_int(name, value, minimum=1)
-
-
 class MacroObservationProcess:
     """Run ``filter`` on a stream until ``max_m P(m) >= threshold`` or ``max_frames`` outputs.
 
@@ -72,7 +69,7 @@ class MacroObservationProcess:
             raise TypeError(f"filter: expected a StreamingFilter, got {type(filter).__name__}")
         self.filter = filter
         self.threshold = as_probability("threshold", threshold, allow_zero=False)
-        self.max_frames = _positive_int(max_frames, "max_frames")
+        self.max_frames = as_int("max_frames", max_frames, minimum=1)
 
     @property
     def num_classes(self) -> int:
@@ -317,13 +314,13 @@ def characterize(
     """
     if not isinstance(process, MacroObservationProcess):
         raise TypeError(f"process: expected a MacroObservationProcess, got {type(process).__name__}")
-    num_streams = _positive_int(num_streams, "num_streams")
+    num_streams = as_int("num_streams", num_streams, minimum=1)
     names = getattr(generative, "class_names", None)
     if process.class_names is not None and names is not None:
         check_same_classes(process.class_names, names, "the process's posterior", "generative")
     streams, source, device = _stream_sampler(generative, process.num_classes)
     M, T = process.num_classes, process.max_frames
-    g = seeded_generator(device, seed)
+    g = torch_generator(seed, device)
     results = []
     for c in tqdm(range(M), desc="characterize", disable=not progress):
         results.append(process.run_batch(streams(c, num_streams, T, g)))

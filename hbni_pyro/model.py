@@ -30,7 +30,8 @@ from hbni_pyro.density import (
 )
 from hbni_pyro.generative import gamma_variates
 from hbni_pyro.validation import DTYPE
-from hbni_infra.checks import as_int, as_seed
+from hbni_infra.checks import as_int
+from hbni_infra.streams import torch_generator
 
 
 @dataclass(frozen=True)
@@ -177,7 +178,7 @@ def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int =
         ``(K,)`` log density.
     """
     num_mc = as_int("num_mc", num_mc, minimum=1)
-    g = torch.Generator().manual_seed(as_seed("seed", seed))
+    g = torch_generator(seed)
     h = hyperprior
     kappa = gamma_variates(torch.full((num_mc,), h.beta), h.eta, g)
     gamma = gamma_variates(torch.full((num_mc,), h.nu), h.omega, g)

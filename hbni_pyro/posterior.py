@@ -14,13 +14,13 @@ from pyro.ops.stats import split_gelman_rubin
 from pyro.ops.tensor_utils import next_fast_len
 from torch import Tensor
 
-from hbni_pyro.generative import seeded_generator
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE, as_class_prior, has_values
 from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from hbni_infra.checks import as_device, as_float, as_generator, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.optional import require
+from hbni_infra.streams import torch_generator
 
 _KIND = "hbni_pyro.HBNIPosterior"
 _VERSION = 2  # format version of saved posteriors
@@ -240,7 +240,7 @@ class HBNIPosterior:
         if generator is not None and not isinstance(generator, torch.Generator):
             raise TypeError(f"generator: expected a torch.Generator or None, got {type(generator).__name__}")
         g = (
-            seeded_generator(self.device, seed)
+            torch_generator(seed, self.device)
             if generator is None
             else as_generator("generator", generator, self.device)
         )

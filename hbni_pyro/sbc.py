@@ -18,7 +18,7 @@ from hbni_pyro.fit import fit_many
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_pyro.variants import NoiseModel, noise_model
-from hbni_infra.streams import stream_seed
+from hbni_infra.streams import stream_seed, torch_generator
 from hbni_infra.checks import as_int, as_seed
 
 
@@ -66,7 +66,7 @@ def run_sbc(
             f"model: the {spec.name!r} noise model has no draw_prior, simulate and rank_statistics for SBC"
         )
     hp = hyperprior or HyperPrior()
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     truth = spec.draw_prior(hp, num_classes, num_datasets, g)
     classes = torch.arange(num_classes).repeat_interleave(math.ceil(size / num_classes))[:size]
     data = torch.stack(

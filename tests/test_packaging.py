@@ -27,7 +27,7 @@ LIBRARIES = ("hbni_infra", "hbni_pyro", "classifiers", "decpomdp")
 OURS = {*LIBRARIES, "experiments", "benchmarks"}  # benchmarks: the checkout's own scripts, never installed
 EXPERIMENTS_ONLY = ("hydra", "omegaconf", "hydra_plugins", "submitit", "matplotlib", "skimage", "arviz", "sklearn")
 """Modules only the experiments (or optional library features) use: the libraries import without them."""
-MODULE_TO_DIST = {"torchvision": "torchvision", "rclpy": None}
+MODULE_TO_DIST = {"torchvision": "torchvision", "rclpy": None, "paynt": "paynt"}
 """Import names that the running environment may not have installed (None: not on PyPI, a ROS 2 system
 package)."""
 

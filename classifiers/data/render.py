@@ -4,7 +4,7 @@ A frame is the class's canonical drawing (:mod:`classifiers.data.sprites`) place
 plane in front of a pinhole camera (pose: scale, yaw, pitch, roll, offset), composited
 over a background, lit (gain, colour cast, illumination gradient), motion-blurred and
 corrupted by sensor noise. All random draws for image ``i`` (or sequence ``i``) come from
-``numpy.random.SeedSequence([seed, i])`` and do not depend on the class, so every class
+``hbni_infra.streams.numpy_generator(seed, i)`` and do not depend on the class, so every class
 is seen under exactly the same poses, light, backgrounds, blur and noise.
 """
 
@@ -22,6 +22,7 @@ from classifiers.data import pixels
 from classifiers.data.conditions import Conditions, get_conditions
 from classifiers.data.sprites import SPRITE_SIZE, SPRITES, draw_sprite
 from hbni_infra.files import atomic_write_bytes
+from hbni_infra.streams import numpy_generator
 
 __all__ = [
     "FRAME_SHAPE",
@@ -71,7 +72,7 @@ def _check_class(name: str) -> None:
 
 
 def _rng(seed: int, index: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
+    return numpy_generator(seed, index)
 
 
 def _u(rng: np.random.Generator, r: tuple[float, float]) -> float:

@@ -25,6 +25,7 @@ from decpomdp.controller import JointController
 from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, tables
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from hbni_infra.streams import numpy_generator
 
 RESOLUTION = 1e-11
 """Beliefs whose two random projections (weights in [1, 2)) agree to this are merged: they are then equal to about
@@ -189,7 +190,7 @@ def _distinct_beliefs(mass_rows: np.ndarray, mass: np.ndarray) -> tuple[np.ndarr
     Rows are keyed by two random projections of the normalised belief on :data:`RESOLUTION`'s grid, and every merge
     is checked by a third projection; should one fail, the beliefs are compared entry by entry (``np.unique``).
     """
-    weights = np.random.default_rng(0).uniform(1.0, 2.0, (mass_rows.shape[1], 3))
+    weights = numpy_generator(0).uniform(1.0, 2.0, (mass_rows.shape[1], 3))
     proj = (mass_rows @ weights) / mass[:, None]  # (n, 3), each in [1, 2)
     keys = np.rint(proj[:, :2] / RESOLUTION).astype(np.int64)
     order = np.lexsort((keys[:, 1], keys[:, 0]))  # stable: a group's first row in ``order`` is its first row

@@ -105,11 +105,11 @@ def q_fib(
     ``max_ja b . Q[ja]`` (``horizon`` defaults to ``env.horizon``; ``tabs`` to ``tables(env)``)."""
     tabs = tabs or tables(env)
     return _iterate(
-        env, env.horizon if horizon is None else horizon, lambda q: _fib_backup(tabs.trans, tabs.obs, q), tol
+        env, env.horizon if horizon is None else horizon, lambda q: fib_backup(tabs.trans, tabs.obs, q), tol
     )
 
 
-def _fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> np.ndarray:
+def fib_backup(trans: list[sp.csr_matrix], obs: np.ndarray, q: np.ndarray) -> np.ndarray:
     """(JA, S) ``sum_o max_a' sum_s' T(s'|s, a) O(o|a, s') q[a', s']``."""
     out = np.zeros((len(trans), trans[0].shape[0]))
     for ja, tr in enumerate(trans):

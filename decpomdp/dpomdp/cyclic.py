@@ -87,6 +87,16 @@ def with_agent(controller: JointController, agent: int, action: Tensor, nxt: Ten
     return JointController.trusted(acts, moves)
 
 
+def _values(env: TabularDecPOSMDP, joint: JointController) -> Tensor:
+    """Exact infinite-horizon values; where GMRES stalls at its tolerance (values of hundreds, a residual of
+    1e-11), the systems are solved densely instead."""
+    try:
+        return exact_value(env, joint, horizon=float("inf"))
+    except RuntimeError:
+        unknowns = joint.num_nodes**joint.num_agents * env.num_states
+        return exact_value(env, joint, horizon=float("inf"), max_dense=unknowns)
+
+
 def loop_back(controller: JointController) -> JointController:
     """``controller`` with every node whose successors are all itself (a layered controller's last layer) moving
     to node 0 instead."""
@@ -119,7 +129,7 @@ def ascend(
             else:
                 cand = every
             joint = with_agent(controller, agent, *cand)
-            values = exact_value(env, joint, horizon=float("inf"))
+            values = _values(env, joint)
             k = int(values.argmax())
             if float(values[k]) > value + tol * max(1.0, abs(value)):
                 controller, value, improved = joint[k], float(values[k]), True

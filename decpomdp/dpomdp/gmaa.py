@@ -32,7 +32,7 @@ from decpomdp.controller import JointController
 from decpomdp.dpomdp.heuristics import Heuristic, belief_keys
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
-DEFAULT_MAX_OPEN = 2_000_000
+DEFAULT_MAX_OPEN = 500_000
 """Largest open list; beyond it the search stops (reporting the bound reached)."""
 
 

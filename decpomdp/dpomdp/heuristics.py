@@ -12,7 +12,7 @@ For a joint belief ``b`` at step ``t`` of a horizon-``h`` problem and a joint ac
 Every Dec-POMDP policy is a policy of both relaxations, so ``Q_BG <= Q_POMDP <= Q_FIB`` bound the optimal
 ``Q*(theta, ja)`` of every joint history ``theta`` whose belief is ``b``. The tree of beliefs reachable from the
 start is built layer by layer, equal beliefs merged, as deep as :data:`DEFAULT_MAX_ENTRIES` allows; below it the fast
-informed bound (:func:`~decpomdp.dpomdp.bounds.q_fib`) stands in. ``Q_BG`` falls back to ``Q_POMDP``'s backup where the
+informed bound (:func:`~decpomdp.dpomdp.bounds.q_fib`, one backup per step) stands in. ``Q_BG`` falls back to ``Q_POMDP``'s backup where the
 joint decision rules ``beta`` number more than :data:`MAX_RULES`.
 
 Arrays are numpy float64: beliefs ``(n, S)``, ``Q`` tables ``(n, JA)`` (values from step ``t`` on, not discounted by
@@ -26,8 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, q_fib, tables
+from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, fib_backup, tables
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
+from hbni_infra.streams import numpy_generator
 
 MAX_RULES = 4096
 """Most joint one-step decision rules ``beta`` a ``Q_BG`` backup enumerates."""
@@ -50,7 +51,7 @@ def joint_rules(env: TabularDecPOSMDP) -> np.ndarray:
 
 def belief_keys(beliefs: np.ndarray) -> np.ndarray:
     """``(n, 2)`` int64 keys of normalised beliefs ``(n, S)``: two fixed random projections on a grid."""
-    weights = np.random.default_rng(0).uniform(1.0, 2.0, (beliefs.shape[1], 2))
+    weights = numpy_generator(0).uniform(1.0, 2.0, (beliefs.shape[1], 2))
     return np.rint(beliefs @ weights / KEY_RESOLUTION).astype(np.int64)
 
 
@@ -109,7 +110,9 @@ class Heuristic:
         n_ja, n_jo = self.tabs.obs.shape[0], self.tabs.obs.shape[2]
         rules_count = (env.num_actions**env.num_obs) ** env.num_agents
         self.rules = joint_rules(env) if kind == "bg" and rules_count <= MAX_RULES else None
-        self._fib = {k: q_fib(env, k, tabs=self.tabs) for k in range(1, self.horizon + 1)}  # (JA, S) for k steps
+        self._fib = {1: self.tabs.reward}  # (JA, S) FIB Q of k steps
+        for k in range(2, self.horizon + 1):
+            self._fib[k] = self.tabs.reward + self.gamma * fib_backup(self.tabs.trans, self.tabs.obs, self._fib[k - 1])
         # forwards: distinct beliefs of each layer, and the index of every child
         layers, links, masses = [env.start_dist.numpy()[None, :]], [], []
         while len(layers) < self.horizon and layers[-1].shape[0] * n_ja * n_jo * env.num_states <= max_entries:

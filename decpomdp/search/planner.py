@@ -39,6 +39,7 @@ from decpomdp.search import cross_entropy, local_search, lookahead
 from decpomdp.search.config import PHASES, PlannerConfig
 from decpomdp.search.racing import duel
 from decpomdp.search.scoring import Scorer
+from hbni_infra.streams import torch_generator
 
 _KIND = "decpomdp.PlannerCheckpoint"
 _VERSION = 1
@@ -372,7 +373,7 @@ def plan(
     """
     cfg = _check_arguments(scorer, PlannerConfig() if config is None else config, init)
     seed, checkpoint_every = as_seed("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
-    generator = torch.Generator().manual_seed(seed)
+    generator = torch_generator(seed)
     fingerprint = {
         "sizes": {name: getattr(scorer, name) for name in ("num_agents", "num_actions", "num_obs")},
         "problem": describe(scorer),

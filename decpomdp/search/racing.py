@@ -26,6 +26,7 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.search.scoring import Scorer, mean_stderr
+from hbni_infra.streams import torch_generator
 
 ROUNDING = 1e-9
 """Least relative win of a duel: far above float64 rounding of a value, far below any Monte Carlo error."""
@@ -104,5 +105,5 @@ def duel(
 def _stage_streams(generator: torch.Generator) -> Callable[[], torch.Generator]:
     """Generators all in one state, drawn from ``generator``: every batched call of a racing stage gets one, so
     that its candidates run on common random numbers."""
-    state = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator))).get_state()
+    state = torch_generator(int(torch.randint(0, 2**62, (1,), generator=generator))).get_state()
     return lambda: torch.Generator().set_state(state)

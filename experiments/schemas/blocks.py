@@ -7,36 +7,19 @@ Messages name the field; :func:`experiments.schemas.check_config` prefixes the b
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import MISSING
 
 from experiments.schemas.targets import signature_defaults, target_schema
+from hbni_infra.checks import as_choice, as_int
 from hbni_pyro import HBNIFilter, fit
 from hbni_pyro.fit import METHODS
 
 HyperPriorBlock = target_schema("hbni_pyro.HyperPrior")
 _FIT = signature_defaults(fit)
 _FILTER = signature_defaults(HBNIFilter)
-
-
-def positive_int(name: str, value: int, minimum: int = 1) -> None:
-    """Raise ``ValueError`` naming ``name`` unless ``value >= minimum``."""
-    if value < minimum:
-        raise ValueError(f"{name}: expected an int >= {minimum}, got {value}")
-
-
-def probability(name: str, value: float, low_open: bool = True) -> None:
-    """Raise ``ValueError`` naming ``name`` unless ``value`` lies in (0, 1] (or [0, 1])."""
-    if not (math.isfinite(value) and (value > 0 if low_open else value >= 0) and value <= 1):
-        raise ValueError(f"{name}: expected a probability in {'(' if low_open else '['}0, 1], got {value}")
-
-
-def one_of(name: str, value: Any, choices: tuple) -> None:
-    if value not in choices:
-        raise ValueError(f"{name}: expected one of {list(choices)}, got {value!r}")
 
 
 @dataclass
@@ -50,10 +33,10 @@ class FitBlock:
     warmup_steps: int = _FIT["warmup_steps"]
 
     def check(self, path: str) -> None:
-        one_of("method", self.method, METHODS)
-        positive_int("num_chains", self.num_chains)
-        positive_int("num_samples", self.num_samples)
-        positive_int("warmup_steps", self.warmup_steps, 0)
+        as_choice("method", self.method, METHODS)
+        as_int("num_chains", self.num_chains, 1)
+        as_int("num_samples", self.num_samples, 1)
+        as_int("warmup_steps", self.warmup_steps, 0)
 
 
 @dataclass
@@ -63,7 +46,7 @@ class FilterBlock:
     mode: str = _FILTER["mode"]
 
     def check(self, path: str) -> None:
-        one_of("mode", self.mode, HBNIFilter.MODES)
+        as_choice("mode", self.mode, HBNIFilter.MODES)
 
 
 @dataclass
@@ -78,7 +61,7 @@ class HBNIBlock:
     def check(self, path: str) -> None:
         from hbni_pyro.variants import model_names
 
-        one_of("model", self.model, model_names())
+        as_choice("model", self.model, model_names())
 
 
 @dataclass
@@ -93,8 +76,8 @@ class PlanningStudy:
     threads: int = MISSING
 
     def check(self, path: str) -> None:
-        positive_int("reeval_rollouts", self.reeval_rollouts, 2)
-        positive_int("threads", self.threads)
+        as_int("reeval_rollouts", self.reeval_rollouts, 2)
+        as_int("threads", self.threads, 1)
 
 
 @dataclass
@@ -110,8 +93,8 @@ class BaselineStudy(PlanningStudy):
 
     def check(self, path: str) -> None:
         super().check(path)
-        positive_int("random_controllers", self.random_controllers, 2)
-        positive_int("select_rollouts", self.select_rollouts, 2)
+        as_int("random_controllers", self.random_controllers, 2)
+        as_int("select_rollouts", self.select_rollouts, 2)
 
 
 def check_seeded(planner: Any, seeded: dict[str, Any]) -> None:

@@ -14,11 +14,9 @@ from experiments.schemas.blocks import (
     HyperPriorBlock,
     PlanningStudy,
     check_seeded,
-    one_of,
-    positive_int,
-    probability,
 )
 from experiments.schemas.targets import target_schema
+from hbni_infra.checks import as_choice, as_float, as_int, as_probability
 
 ClassifierBlock = target_schema("classifiers.FrameClassifier")
 PlannerBlock = target_schema("decpomdp.search.PlannerConfig")
@@ -86,7 +84,7 @@ class ToyBlock:
 
     def check(self, path: str) -> None:
         _check_theta("theta", self.theta)
-        positive_int("per_class", self.per_class)
+        as_int("per_class", self.per_class, 1)
 
 
 @dataclass
@@ -117,14 +115,14 @@ class FilteringStudy:
         if not self.training_sizes or min(self.training_sizes) < 1:
             raise ValueError(f"training_sizes: expected sizes >= 1, got {list(self.training_sizes)}")
         for name in ("num_training_sets", "num_trials", "max_len", "filter_draws"):
-            positive_int(name, getattr(self, name))
+            as_int(name, getattr(self, name), 1)
         for t in self.targets:
-            probability("targets", t)
+            as_probability("targets", t, allow_zero=False)
 
 
 @dataclass
-class FilteringError(Root):
-    study: FilteringStudy = field(default_factory=FilteringStudy)
+class PaperStudy(Root):
+    """A study of the paper's own noise model: ``hbni.model`` is not read."""
 
     @classmethod
     def unread(cls, cfg: DictConfig) -> dict[str, str]:
@@ -133,6 +131,11 @@ class FilteringError(Root):
     @classmethod
     def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
         return ("paper",)
+
+
+@dataclass
+class FilteringError(PaperStudy):
+    study: FilteringStudy = field(default_factory=FilteringStudy)
 
 
 @dataclass
@@ -146,22 +149,14 @@ class MacroStudy:
 
     def check(self, path: str) -> None:
         _check_theta("true_theta", self.true_theta)
-        probability("threshold", self.threshold)
+        as_probability("threshold", self.threshold, allow_zero=False)
         for name in ("training_per_class", "max_frames", "num_streams", "filter_draws"):
-            positive_int(name, getattr(self, name))
+            as_int(name, getattr(self, name), 1)
 
 
 @dataclass
-class MacroObservation(Root):
+class MacroObservation(PaperStudy):
     study: MacroStudy = field(default_factory=MacroStudy)
-
-    @classmethod
-    def unread(cls, cfg: DictConfig) -> dict[str, str]:
-        return {"hbni.model": "the study fits the paper's model"}
-
-    @classmethod
-    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
-        return ("paper",)
 
 
 @dataclass
@@ -184,9 +179,9 @@ class ReplayStudy:
                 f"classes: expected at least 2 distinct objects of {list(OBJECTS)}, got {list(self.classes)}"
             )
         for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
-            positive_int(name, getattr(self, name))
-        positive_int("augment", self.augment, 0)
-        probability("threshold", self.threshold)
+            as_int(name, getattr(self, name), 1)
+        as_int("augment", self.augment, 0)
+        as_probability("threshold", self.threshold, allow_zero=False)
         _check_conditions("mission", self.mission)
 
 
@@ -203,9 +198,9 @@ class PackageStudy(BaselineStudy):
 
     def check(self, path: str) -> None:
         super().check(path)
-        positive_int("sweep_iterations", self.sweep_iterations)
+        as_int("sweep_iterations", self.sweep_iterations, 1)
         for alpha in self.alpha_sweep:
-            probability("alpha_sweep", alpha)
+            as_probability("alpha_sweep", alpha, allow_zero=False)
 
 
 @dataclass
@@ -244,7 +239,7 @@ class PaperComparison:
     runs: int = MISSING
 
     def check(self, path: str) -> None:
-        positive_int("runs", self.runs)
+        as_int("runs", self.runs, 1)
 
 
 @dataclass
@@ -268,7 +263,7 @@ class Caps:
     def check(self, path: str) -> None:
         for name in ("iterations", "samples", "restarts"):
             if getattr(self, name) is not None:
-                positive_int(name, getattr(self, name))
+                as_int(name, getattr(self, name), 1)
 
 
 @dataclass
@@ -288,17 +283,17 @@ class BenchmarkRow:
     def check(self, path: str) -> None:
         from decpomdp.dpomdp import problem_names
 
-        one_of("problem", self.problem, tuple(problem_names()))
-        probability("gamma", self.gamma)
+        as_choice("problem", self.problem, tuple(problem_names()))
+        as_probability("gamma", self.gamma, allow_zero=False)
         if self.horizon is None and self.gamma >= 1:
             raise ValueError("horizon: null (infinite) needs gamma < 1")
         if self.horizon is not None:
-            positive_int("horizon", self.horizon)
-        one_of("evaluator", self.evaluator, ("exact", "monte_carlo"))
+            as_int("horizon", self.horizon, 1)
+        as_choice("evaluator", self.evaluator, ("exact", "monte_carlo"))
         if self.evaluator == "monte_carlo" and self.horizon is None:
             raise ValueError("evaluator: monte_carlo rollouts need a finite horizon")
-        positive_int("rollouts", self.rollouts, 2)
-        positive_int("restarts", self.restarts)
+        as_int("rollouts", self.rollouts, 2)
+        as_int("restarts", self.restarts, 1)
         if self.optimum is not None and not self.source:
             raise ValueError("source: a published optimum needs its source")
 
@@ -311,8 +306,8 @@ class PaperBudget:
     ce_iterations: int = MISSING
 
     def check(self, path: str) -> None:
-        positive_int("ce_samples", self.ce_samples)
-        positive_int("ce_iterations", self.ce_iterations)
+        as_int("ce_samples", self.ce_samples, 1)
+        as_int("ce_iterations", self.ce_iterations, 1)
 
 
 @dataclass
@@ -340,11 +335,11 @@ class BenchmarkStudy:
                 f"solve: unknown settings {unknown}; expected keywords of decpomdp.solve or "
                 "PlannerConfig fields (seed and threads come from the study)"
             )
-        positive_int("threads", self.threads)
+        as_int("threads", self.threads, 1)
         missing = sorted(set(self.only or ()) - set(self.rows))
         if missing:
             raise ValueError(f"only: unknown rows {missing}")
-        positive_int("random_controllers", self.random_controllers, 2)
+        as_int("random_controllers", self.random_controllers, 2)
         if not self.rows:
             raise ValueError("rows: expected at least one row")
         for name, row in self.rows.items():
@@ -387,9 +382,8 @@ class PoweredBlock:
         unknown = sorted(set(self.entries) - set(known))
         if unknown:
             raise ValueError(f"entries: expected policies among {list(known)}, got {unknown}")
-        positive_int("max_sequences", self.max_sequences, 2)
-        if not 1.0 <= self.margin <= 4.0:
-            raise ValueError(f"margin: expected a float in [1, 4], got {self.margin}")
+        as_int("max_sequences", self.max_sequences, 2)
+        as_float("margin", self.margin, 1.0, 4.0)
 
 
 @dataclass
@@ -402,8 +396,8 @@ class BankBlock:
     powered: PoweredBlock = field(default_factory=PoweredBlock)
 
     def check(self, path: str) -> None:
-        positive_int("sequences", self.sequences, 2)
-        positive_int("workers", self.workers, 0)
+        as_int("sequences", self.sequences, 2)
+        as_int("workers", self.workers, 0)
         if not self.cache_dir.strip():
             raise ValueError("cache_dir: expected a directory for cached output banks")
 
@@ -416,8 +410,8 @@ class BootstrapBlock:
     rollouts: int = MISSING
 
     def check(self, path: str) -> None:
-        positive_int("replicates", self.replicates, 2)
-        positive_int("rollouts", self.rollouts, 2)
+        as_int("replicates", self.replicates, 2)
+        as_int("rollouts", self.rollouts, 2)
 
 
 @dataclass
@@ -443,14 +437,14 @@ class MissionBlock:
 
     def check(self, path: str) -> None:
         for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
-            positive_int(name, getattr(self, name))
-        one_of("planning_model", self.planning_model, PLANNING_MODELS)
+            as_int(name, getattr(self, name), 1)
+        as_choice("planning_model", self.planning_model, PLANNING_MODELS)
         from hbni_pyro.frame_calibration import CALIBRATIONS
 
-        one_of("calibration", self.calibration, CALIBRATIONS)
-        one_of("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
-        positive_int("augment", self.augment, 0)
-        probability("threshold", self.threshold)
+        as_choice("calibration", self.calibration, CALIBRATIONS)
+        as_choice("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
+        as_int("augment", self.augment, 0)
+        as_probability("threshold", self.threshold, allow_zero=False)
         t = self.temper
         if t != "fit" and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t <= 1):
             raise ValueError(f"temper: expected 'fit' or a float in (0, 1], got {t!r}")
@@ -565,12 +559,12 @@ class StreamBlock:
                 "run: expected a finished mission run (or latest), or both stream.classifier and stream.posterior"
             )
         if self.max_input_frames is not None:
-            positive_int("max_input_frames", self.max_input_frames)
+            as_int("max_input_frames", self.max_input_frames, 1)
         if self.temper is not None:
-            probability("temper", self.temper)
-        probability("threshold", self.threshold)
-        positive_int("max_frames", self.max_frames)
-        positive_int("batch", self.batch)
+            as_probability("temper", self.temper, allow_zero=False)
+        as_probability("threshold", self.threshold, allow_zero=False)
+        as_int("max_frames", self.max_frames, 1)
+        as_int("batch", self.batch, 1)
         unknown = [a for a in self.annotate if a not in ANNOTATIONS]
         if unknown:
             raise ValueError(f"annotate: expected a subset of {list(ANNOTATIONS)}, got {list(self.annotate)}")
@@ -579,7 +573,7 @@ class StreamBlock:
                 "annotate: 'bag' puts the annotated frames into the output bag, which stream.bag does not write "
                 "(null: only for a bag source)"
             )
-        positive_int("agent", self.agent, minimum=0)
+        as_int("agent", self.agent, minimum=0)
         if self.observations is not None and not (
             isinstance(self.observations, dict)
             and all(isinstance(k, str) and isinstance(v, str) for k, v in self.observations.items())
@@ -624,7 +618,7 @@ class NoiseToyBlock:
     def check(self, path: str) -> None:
         _check_theta("theta", self.theta)
         for name in ("training_size", "num_training_sets", "num_trials", "max_len", "filter_draws"):
-            positive_int(name, getattr(self, name))
+            as_int(name, getattr(self, name), 1)
         if self.training_size % len(self.theta):
             raise ValueError(
                 f"training_size: expected a multiple of the {len(self.theta)} classes, got {self.training_size}"
@@ -633,7 +627,7 @@ class NoiseToyBlock:
             raise ValueError(
                 f"num_trials: expected a multiple of num_training_sets ({self.num_training_sets}), got {self.num_trials}"
             )
-        probability("target", self.target)
+        as_probability("target", self.target, allow_zero=False)
 
 
 @dataclass
@@ -648,8 +642,8 @@ class NoiseMissionBlock:
 
     def check(self, path: str) -> None:
         for name in ("train_per_class", "calib_sequences", "test_sequences", "frames"):
-            positive_int(name, getattr(self, name))
-        positive_int("augment", self.augment, 0)
+            as_int(name, getattr(self, name), 1)
+        as_int("augment", self.augment, 0)
 
 
 @dataclass
@@ -681,7 +675,7 @@ class NoiseStudy:
             if not values:
                 raise ValueError(f"{name}: expected at least one threshold")
             for t in values:
-                probability(name, t)
+                as_probability(name, t, allow_zero=False)
         for name, overrides in self.conditions.items():
             _check_conditions(f"conditions.{name}", overrides)
         if not self.conditions and self.images is None and self.photos is None:

@@ -29,6 +29,7 @@ import torch
 import hbni_pyro
 from experiments import figures
 from hbni_pyro.calibration import stream_reliability
+from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import torch_stream
 
 ALPHA = 0.05
@@ -43,16 +44,6 @@ SHORTFALL = 0.03
 
 TARGET_POWER = 0.8
 """The power against :data:`SHORTFALL` the reported bank size is for."""
-
-
-def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a proportion ``k / n`` (95 % for ``z = 1.96``)."""
-    if n == 0:
-        return float("nan"), float("nan")
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
 
 
 def _proportions(n: int, p: float, replicates: int, g: torch.Generator) -> torch.Tensor:

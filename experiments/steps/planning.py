@@ -18,7 +18,7 @@ from decpomdp import JointController, monte_carlo_search, random_controllers
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains import rollout_counters
 from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, mean_stderr, plan
-from hbni_infra.streams import stream_seed, torch_stream
+from hbni_infra.streams import stream_seed, torch_generator, torch_stream
 
 
 def score(
@@ -26,9 +26,7 @@ def score(
 ) -> dict[str, Any]:
     """Mean return +- stderr over ``rollouts`` and the mean (+- stderr) of every per-rollout counter
     (``backend``: as in :func:`decpomdp.simulate`)."""
-    returns, counters = rollout_counters(
-        env, controller, rollouts, torch.Generator().manual_seed(seed), backend=backend
-    )
+    returns, counters = rollout_counters(env, controller, rollouts, torch_generator(seed), backend=backend)
     mean, se = mean_stderr(returns.flatten())
     out: dict[str, Any] = {"value": float(mean), "stderr": float(se)}
     for key, value in counters.items():

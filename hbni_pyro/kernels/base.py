@@ -23,6 +23,7 @@ from torch import Tensor
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_infra.checks import as_int
+from hbni_infra.streams import torch_generator
 
 
 def rm_rate(t: int) -> float:
@@ -121,7 +122,7 @@ class BatchedKernel(MCMCKernel):
         self.log_prior = prior.to(device, DTYPE).log()
         self._warmup_steps = warmup_steps
         self._t = 0
-        self._gen = torch.Generator(device).manual_seed(self.seed)
+        self._gen = torch_generator(self.seed, device)
         self._accept_sum = {k: torch.zeros((), dtype=DTYPE, device=device) for k in self.moves}
         self._accept_last = dict(self._accept_sum)
 

@@ -189,6 +189,7 @@ def test_the_sweep_guard_exits_2_with_one_line(capsys):
     assert err.startswith("config error: hbni.model: experiment hbni_toy never reads it") and "\n" not in err
 
 
+@pytest.mark.slow  # starts the entry point in a process (about 10 s, imports and composition)
 def test_a_real_sweep_over_an_unread_key_fails_before_any_work(tmp_path):
     sweep = tmp_path / "sweep"
     proc = subprocess.run(

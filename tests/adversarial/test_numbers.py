@@ -26,6 +26,7 @@ from decpomdp.domains.disaster_relief import greedy_controller
 from experiments.schemas import check_config, register
 from hbni_infra.checks import as_generator, as_seed
 from hbni_infra.counter_random import draw_seed
+from hbni_infra.streams import torch_generator
 from hbni_pyro import HBNIPosterior, reliability, threshold_checks
 from hbni_pyro.generative import (
     gamma_variates,
@@ -33,7 +34,6 @@ from hbni_pyro.generative import (
     sample_gaussian,
     sample_outputs,
     sample_sequences,
-    seeded_generator,
 )
 from hbni_pyro.model import prior_theta_log_density
 from hbni_pyro.sbc import run_sbc
@@ -100,7 +100,7 @@ CASES = [
         "correlation",
     ),
     ("sequences classes", lambda: sample_sequences(LOC, COV, COV[0], [5], 3, _g()), ValueError, "classes"),
-    ("seeded generator seed -1", lambda: seeded_generator(torch.device("cpu"), -1), ValueError, "seed"),
+    ("torch_generator seed -1", lambda: torch_generator(-1), ValueError, "seed"),
     # the posterior
     ("summary prob 1.5", lambda: POST.summary(prob=1.5), ValueError, "prob"),
     ("summary prob 0", lambda: POST.summary(prob=0), ValueError, "prob"),

@@ -214,28 +214,49 @@ def test_solve_is_seeded_and_takes_files_models_and_the_infinite_horizon(tmp_pat
     assert torch.equal(a.controller.action, b.controller.action) and a.values == b.values
     path = save_dpomdp(load_problem("dectiger"), tmp_path / "tiger.dpomdp")
     assert solve(path, 2, seed=4, restarts=1, layered_restarts=1, jesp_restarts=2).value == a.value
-    inf = solve(
-        load_problem("dectiger"), math.inf, 0.9, seed=0, restarts=1, layered_restarts=1, num_nodes=2, ce_iterations=5
+    inf = solve(  # the planner alone: no loop-backs, no coordinate ascent
+        load_problem("dectiger"),
+        math.inf,
+        0.9,
+        seed=0,
+        restarts=1,
+        num_nodes=2,
+        ce_iterations=5,
+        loop_horizons=(),
+        ascent_starts=0,
     )
     assert inf.horizon == math.inf and inf.controller.num_nodes == 2 and inf.value <= inf.bound
 
 
 def test_without_best_responses_solve_keeps_the_planners_results_alone():
-    s = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, best_responses=False)
+    s = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, best_responses=False, exact_seconds=0)
     assert len(s.values) == 2  # one free-graph run and one layered run, no JESP restarts
     with_br = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, jesp_restarts=0)
     assert with_br.value >= s.value - 1e-12
 
 
 def test_free_and_layered_runs_are_counted_apart():
-    more_layered = solve("dectiger", 3, seed=0, restarts=1, layered_restarts=3, best_responses=False, ce_iterations=10)
+    more_layered = solve(
+        "dectiger", 3, seed=0, restarts=1, layered_restarts=3, best_responses=False, ce_iterations=10, exact_seconds=0
+    )
     assert more_layered.restarts == 3 and len(more_layered.values) == 1 + 3
-    no_layers = solve("dectiger", 3, seed=0, restarts=2, layered_restarts=0, best_responses=False, ce_iterations=10)
+    no_layers = solve(
+        "dectiger", 3, seed=0, restarts=2, layered_restarts=0, best_responses=False, ce_iterations=10, exact_seconds=0
+    )
     assert no_layers.restarts == 2 and len(no_layers.values) == 2
     # the first free run and the first layered run are the same whatever the counts
     assert (
         more_layered.values[:2]
-        == solve("dectiger", 3, seed=0, restarts=1, layered_restarts=1, best_responses=False, ce_iterations=10).values
+        == solve(
+            "dectiger",
+            3,
+            seed=0,
+            restarts=1,
+            layered_restarts=1,
+            best_responses=False,
+            ce_iterations=10,
+            exact_seconds=0,
+        ).values
     )
     assert no_layers.values[0] == more_layered.values[0]
 

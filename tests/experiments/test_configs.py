@@ -82,9 +82,9 @@ RANGE_ERRORS = [
     ("macro_observation", "hbni.filter.mode=mean", "hbni.filter.mode: expected one of ['marginal', 'plugin']"),
     ("hbni_toy", "hbni.hyperprior.beta=-1", "hbni.hyperprior: HyperPrior.beta: expected a positive finite number"),
     ("hbni_toy", "toy.near_perfect_hyperprior.eta=0", "toy.near_perfect_hyperprior: HyperPrior.eta"),
-    ("filtering_error", "study.targets=[0.5,1.5]", "study.targets: expected a probability in (0, 1]"),
+    ("filtering_error", "study.targets=[0.5,1.5]", "study.targets: expected a finite number in (0, 1]"),
     ("filtering_error", "study.training_sizes=[]", "study.training_sizes: expected sizes >= 1"),
-    ("macro_observation", "study.threshold=0", "study.threshold: expected a probability in (0, 1]"),
+    ("macro_observation", "study.threshold=0", "study.threshold: expected a finite number in (0, 1]"),
     ("perception_replay", "study.classes=[irobot,unicorn]", "study.classes: expected at least 2 distinct objects"),
     ("perception_replay", "classifier.cv=1", "classifier.cv: expected an int >= 2"),
     ("perception_replay", "+study.mission.fog=[1,2]", "study.mission: unknown field(s) ['fog']"),
@@ -93,7 +93,7 @@ RANGE_ERRORS = [
     ("package_delivery", "reference.runs=0", "reference.runs: expected an int >= 1"),
     ("package_delivery", "planners.gdice.ce_elites=500", "planners.gdice.ce_elites: expected <= ce_samples"),
     ("package_delivery", "domain.gamma=1.5", "domain.gamma: expected a finite number in (0, 1]"),
-    ("package_delivery", "study.alpha_sweep=[0.1,3]", "study.alpha_sweep: expected a probability in (0, 1]"),
+    ("package_delivery", "study.alpha_sweep=[0.1,3]", "study.alpha_sweep: expected a finite number in (0, 1]"),
     (
         "package_delivery",
         "study.seeded.ce_init_weight=2",
@@ -103,7 +103,7 @@ RANGE_ERRORS = [
     ("disaster_relief", "study.reeval_rollouts=1", "study.reeval_rollouts: expected an int >= 2"),
     ("disaster_relief", "domain.degrade_prob=2", "domain.degrade_prob: expected a finite number in [0, 1]"),
     ("dpomdp_benchmarks", "study.caps.restarts=0", "study.caps.restarts: expected an int >= 1"),
-    ("mission", "mission.threshold=1.5", "mission.threshold: expected a probability in (0, 1]"),
+    ("mission", "mission.threshold=1.5", "mission.threshold: expected a finite number in (0, 1]"),
     ("mission", "mission.temper=auto", "mission.temper: expected 'fit' or a float in (0, 1]"),
     ("mission", "mission.temper=0", "mission.temper: expected 'fit' or a float in (0, 1]"),
     ("mission", "mission.frames=0", "mission.frames: expected an int >= 1"),
@@ -117,7 +117,7 @@ RANGE_ERRORS = [
     ("mission_full", "planner.num_nodes=0", "planner.num_nodes: expected an int >= 1"),
     ("mission", "mission.bank.powered.entries=[hbni_exact]", "mission.bank.powered.entries: expected policies among"),
     ("mission", "mission.bank.powered.max_sequences=1", "mission.bank.powered.max_sequences: expected an int >= 2"),
-    ("mission", "mission.bank.powered.margin=0.5", "mission.bank.powered.margin: expected a float in [1, 4]"),
+    ("mission", "mission.bank.powered.margin=0.5", "mission.bank.powered.margin: expected a finite number in [1, 4]"),
 ]
 
 

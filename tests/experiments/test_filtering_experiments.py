@@ -13,7 +13,7 @@ import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
-from experiments.filtering_error import first_crossing, wilson_interval
+from experiments.filtering_error import first_crossing, wilson_bounds
 from experiments.filtering_error import run as run_filtering
 from hbni_pyro import HBNIPosterior
 from hbni_pyro.macro import MacroObservationModel
@@ -42,8 +42,8 @@ def test_configs_compose_with_the_hbni_group(name):
         assert cfg.study.num_trials == 2000 and cfg.study.num_training_sets >= 20 and cfg.study.max_len == 50
 
 
-def test_wilson_interval_and_crossings():
-    lo, hi = wilson_interval(torch.tensor([0, 10, 2000]), 2000)
+def test_wilson_bounds_and_crossings():
+    lo, hi = wilson_bounds(torch.tensor([0, 10, 2000]), 2000)
     # closed form at k = 0: upper = z^2 / (n + z^2)
     assert float(lo[0]) == 0 and float(hi[0]) == pytest.approx(1.959964**2 / (2000 + 1.959964**2), rel=1e-6)
     assert float(lo[1]) < 10 / 2000 < float(hi[1]) and float(hi[2]) == 1

@@ -31,12 +31,6 @@ def _streams(theta: float, per_class: int, seed: int) -> tuple[torch.Tensor, tor
     return sample_outputs(torch.full((M,), theta, dtype=torch.float64), truth[:, None].expand(-1, FRAMES), g), truth
 
 
-def test_wilson_interval_closed_form():
-    lo, hi = honesty.wilson_interval(8, 10)
-    assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)
-    assert honesty.wilson_interval(0, 20)[0] == pytest.approx(0.0, abs=1e-12)
-
-
 def test_a_table_of_the_banks_own_streams_passes():
     process = _process()
     streams, truth = _streams(3.0, 40, seed=0)

@@ -90,7 +90,7 @@ def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
         env=env,
     )
     assert proc.returncode == 2
-    assert proc.stderr.strip() == "config error: mission.threshold: expected a probability in (0, 1], got 1.5"
+    assert proc.stderr.strip() == "config error: mission.threshold: expected a finite number in (0, 1], got 1.5"
     assert not run_dir.exists()
 
 

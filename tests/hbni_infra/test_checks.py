@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbni_infra.checks import as_device, as_float, as_int, as_names, as_probability, first_difference
+from hbni_infra.checks import as_choice, as_device, as_float, as_int, as_names, as_probability, first_difference
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), np.int32(3), torch.tensor(3)])
@@ -68,3 +68,10 @@ def test_devices_are_parsed_and_probed():
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="device: device 'cuda' is not available here"):
             as_device("device", "cuda")
+
+
+def test_choices_name_the_argument_and_list_the_choices():
+    assert as_choice("mode", "plugin", ("marginal", "plugin")) == "plugin"
+    assert as_choice("k", 2, range(3)) == 2
+    with pytest.raises(ValueError, match=r"mode: expected one of \['marginal', 'plugin'\], got 'mean'"):
+        as_choice("mode", "mean", ("marginal", "plugin"))
