@@ -113,7 +113,7 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
 
 def _blocks(node: Any, target: str, path: str) -> list[tuple[str, DictConfig]]:
     """(key, block) of every block of ``node`` whose ``_target_`` is ``target``."""
-    if not isinstance(node, DictConfig):
+    if not isinstance(node, DictConfig) or node._is_none() or node._is_missing():  # a block set to null
         return []
     if node.get("_target_") == target:
         return [(path, node)]

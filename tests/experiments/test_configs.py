@@ -177,3 +177,17 @@ def test_the_yaml_is_the_only_place_for_defaults():
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
             cfg = compose(config_name="config", overrides=[f"experiment={name}"])
         assert OmegaConf.missing_keys(cfg) == set(), name
+
+
+def test_a_block_set_to_null_is_not_searched_for_unread_settings():
+    """``mission.conditions=null`` (a block set to null) is a setting like any other, not a crash of the check."""
+    from experiments.schemas import check_overrides
+
+    overrides = [
+        "experiment=mission",
+        "perception=hbni",
+        "hbni.model=paper",
+        "mission.temper=0.5",
+        "mission.conditions=null",
+    ]
+    check_overrides(_compose(*overrides), overrides)

@@ -167,7 +167,6 @@ def test_generative_planning_model(tmp_path, repo_root, model, source):
     assert metrics["closed_loop"]["planning"] == {
         "perfect": "exact",
         "hbni": "generative",
-        "calibrated": "generative",
         "ssbf": "generative",
         "hbni_empirical": "empirical",
     }
