@@ -61,6 +61,19 @@ class Root:
 NO_NOISE_MODEL = "it fits no noise model"
 
 
+@dataclass
+class NoPerception(Root):
+    """A study that plans on a domain and fits no noise model: the ``hbni`` block is not read."""
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {"hbni": NO_NOISE_MODEL}
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ()
+
+
 def _check_theta(name: str, theta: list[float]) -> None:
     if len(theta) < 2 or any(not (math.isfinite(t) and t > 0) for t in theta):
         raise ValueError(f"{name}: expected at least 2 noise levels > 0, all finite, got {list(theta)}")
@@ -212,7 +225,7 @@ class ComparedPlanners:
 
 
 @dataclass
-class PlanningExperiment(Root):
+class PlanningExperiment(NoPerception):
     """A planning experiment: the cold-start planner, G-DICE cold and seeded from the greedy controller, baselines."""
 
     planners: ComparedPlanners = field(default_factory=ComparedPlanners)
@@ -220,14 +233,6 @@ class PlanningExperiment(Root):
 
     def check(self, path: str) -> None:
         check_seeded(self.planners.gdice, self.study.seeded)
-
-    @classmethod
-    def unread(cls, cfg: DictConfig) -> dict[str, str]:
-        return {"hbni": NO_NOISE_MODEL}
-
-    @classmethod
-    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
-        return ()
 
 
 @dataclass
@@ -350,17 +355,9 @@ class BenchmarkStudy:
 
 
 @dataclass
-class DPOMDPBenchmarks(Root):
+class DPOMDPBenchmarks(NoPerception):
     planner: Any = field(default_factory=PlannerBlock)
     study: BenchmarkStudy = field(default_factory=BenchmarkStudy)
-
-    @classmethod
-    def unread(cls, cfg: DictConfig) -> dict[str, str]:
-        return {"hbni": NO_NOISE_MODEL}
-
-    @classmethod
-    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
-        return ()
 
 
 PLANNING_MODELS = ("empirical", "generative")
