@@ -109,6 +109,8 @@ RANGE_ERRORS = [
     ("mission", "mission.frames=0", "mission.frames: expected an int >= 1"),
     ("mission", "mission.calibration=platt", "mission.calibration: expected one of ['temperature', 'matrix']"),
     ("mission", "mission.hbni_stop=early", "mission.hbni_stop: expected one of ['calibrated', 'nominal']"),
+    ("mission", "mission.stop_folds=1", "mission.stop_folds: expected an int >= 2, got 1"),
+    ("mission", "mission.stop_folds=49", "mission.stop_folds: expected at most calib_sequences=48, got 49"),
     ("mission", "+mission.conditions.fog=[0.1,0.2]", "mission.conditions: unknown field(s) ['fog']"),
     ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'calibrated', 'ssbf', 'max_of_mean']"),
     ("mission", "warm_planner.budget=0", "warm_planner.budget: expected an int >= 1"),
