@@ -4,9 +4,9 @@
    drifting light, blur, noise and an occluder): for each seed, every filter fitted on the same labelled
    calibration sequences and run at threshold 0.95 with a 30-frame budget on the held-out sequences: HBNI's
    default (the sequence model, stopping at the confidence that keeps the 0.95 promise on calibration
-   sequences held out of its fit), the sequence model stopping at 0.95 itself, the calibrated peer (the matrix form of Dirichlet
-   calibration or temperature scaling, then SSBF with its evidence weight fitted on the calibration sequences)
-   and SSBF on raw outputs. Then the acceptance checks of the default against the peer.
+   sequences held out of its fit), the sequence model stopping at 0.95 itself, the calibrated peer (the matrix
+   form of Dirichlet calibration or temperature scaling, then SSBF with its evidence weight fitted on the
+   calibration sequences) and SSBF on raw outputs. Then the acceptance checks of the default against the peer.
 2. The main job: for each seed the newest completed ``experiment=mission`` run under ``outputs/`` (``--run``
    runs them first, one after the other): planned, greedy and executed values of every policy, each process on
    the held-out streams of the closed loop, the closed-loop checks, and the run's wall time.
