@@ -8,7 +8,7 @@ and at the infinite horizon FB-HSVI's 13.448 for Dec-Tiger and the database's lo
 and Recycling, which bound the infinite horizon's optimum from below to within ``0.9 ** h`` times the largest
 reward); GridSmall's infinite horizon, which has none, is compared with ``paynt``'s 6.687 (``bench_paynt``). Each row
 prints the value, the best known value, the fraction of it reached (``1 - (best - value) / |best|``; a best known 0:
-1 when reached), the upper bound, whether optimality is proven (``bound - value <= 1e-6 |value|``), the CPU seconds
+1 when reached, else 0), the upper bound, whether optimality is proven (``bound - value <= 1e-6 |value|``), the CPU seconds
 and the controller size; the last lines name the rows below 0.99 of the best known value or over their CPU limit
 (60 s at a finite horizon, 120 s at the infinite one).
 
@@ -26,6 +26,7 @@ from pathlib import Path
 import yaml
 
 from decpomdp import solve
+from experiments.dpomdp_benchmarks import fraction_of_optimum
 
 TABLE = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "dpomdp_benchmarks.yaml"
 MAX_HORIZON = 10
@@ -55,13 +56,6 @@ def rows() -> dict[str, tuple[str, float, float, float]]:
     return out
 
 
-def fraction(value: float, best: float) -> float:
-    """``1 - (best - value) / |best|`` (a best of 0: 1 when reached, else -inf)."""
-    if best == 0:
-        return 1.0 if value >= -1e-12 else -math.inf
-    return 1.0 - (best - value) / abs(best)
-
-
 def run(selected: dict[str, tuple[str, float, float, float]], seed: int) -> list[dict]:
     out = []
     for name, (problem, horizon, gamma, best) in selected.items():
@@ -76,13 +70,13 @@ def run(selected: dict[str, tuple[str, float, float, float]], seed: int) -> list
             "gamma": gamma,
             "value": s.value,
             "best_known": best,
-            "fraction": fraction(s.value, best),
+            "fraction": fraction_of_optimum(s.value, best, best),
             "bound": s.bound,
             "gap": s.gap,
             "proven": s.proven,
             "cpu_s": cpu,
             "nodes": s.controller.num_nodes,
-            "passed": fraction(s.value, best) >= FRACTION and cpu <= limit,
+            "passed": fraction_of_optimum(s.value, best, best) >= FRACTION and cpu <= limit,
         }
         out.append(r)
         print(
