@@ -3,8 +3,8 @@
 1. Photographs (the ``noise_models`` study's photograph condition: six photographs, a moving camera, dim
    drifting light, blur, noise and an occluder): for each seed, every filter fitted on the same labelled
    calibration sequences and run at threshold 0.95 with a 30-frame budget on the held-out sequences: HBNI's
-   default (the sequence model, stopping at the confidence that keeps the 0.95 promise on the calibration
-   sequences), the sequence model stopping at 0.95 itself, the calibrated peer (the matrix form of Dirichlet
+   default (the sequence model, stopping at the confidence that keeps the 0.95 promise on calibration
+   sequences held out of its fit), the sequence model stopping at 0.95 itself, the calibrated peer (the matrix form of Dirichlet
    calibration or temperature scaling, then SSBF with its evidence weight fitted on the calibration sequences)
    and SSBF on raw outputs. Then the acceptance checks of the default against the peer.
 2. The main job: for each seed the newest completed ``experiment=mission`` run under ``outputs/`` (``--run``
@@ -46,7 +46,7 @@ def photo_filters(seed: int) -> tuple[dict, dict, tuple]:
     the held-out ``(streams, truth)``."""
     from hydra import compose, initialize_config_module
 
-    from experiments.noise_models import photo_outputs, read_settings
+    from experiments.noise_models import held_out_stops, photo_outputs, read_settings
     from experiments.schemas import register
     from experiments.steps.noise import fit_labelled
 
@@ -61,7 +61,7 @@ def photo_filters(seed: int) -> tuple[dict, dict, tuple]:
     hs, ht = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
     posterior = fit_labelled(calib, cfg.hbni, seed, False, model="sequence")
     hbni = hbni_pyro.make_filter("hbni", posterior)
-    stop = hbni_pyro.fit_stop_threshold(hbni, cs, ct, THRESHOLD, F).stop
+    stop = held_out_stops(calib, cfg, s)[THRESHOLD]
     labels = torch.arange(C).view(-1, 1, 1).expand(calib.shape[:3])
     filters = {"default": hbni, "sequence": hbni, "ssbf": hbni_pyro.make_filter("ssbf", num_classes=M)}
     for kind, key in (("matrix", "calibrated"), ("temperature", "calibrated_temperature")):

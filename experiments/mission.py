@@ -72,6 +72,7 @@ from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
 from hbni_pyro.calibration import binomial_stderr
+from hbni_pyro.filters import StreamingFilter
 from hbni_infra.threads import threads
 
 
@@ -275,9 +276,17 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
     threshold = float(cfg.mission.threshold)
     stop: dict[str, Any] = {"value": threshold, "fitted": False}
     if cfg.mission.hbni_stop == "calibrated":
-        hbni = hbni_pyro.make_filter("hbni", posterior, mode=cfg.hbni.filter.mode, temper=temper["value"])
-        fitted_stop = hbni_pyro.fit_stop_threshold(hbni, streams, truth, threshold, frames)
-        stop = {"fitted": True, **fitted_stop._asdict(), "value": fitted_stop.stop}
+        folds = int(cfg.mission.stop_folds)
+        settings.clock.say(f"choosing HBNI's stop on {folds} held-out folds of the calibration sequences")
+
+        def fit_fold(train: torch.Tensor, k: int) -> StreamingFilter:
+            fold = fit_labelled(train, cfg.hbni, stream_seed(settings.seed, "fit", "stop fold", k), settings.progress)
+            return hbni_pyro.make_filter("hbni", fold, mode=cfg.hbni.filter.mode, temper=temper["value"])
+
+        fitted_stop = hbni_pyro.fit_stop_threshold(
+            hbni_pyro.cross_fit(fit_fold, calib, folds), None, None, threshold, frames
+        )
+        stop = {"fitted": True, "folds": folds, **fitted_stop._asdict(), "value": fitted_stop.stop}
         del stop["stop"]
     return Noise(posterior, temper, peer, stop)
 

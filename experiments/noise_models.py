@@ -58,7 +58,7 @@ from hbni_infra.streams import stream_seed, torch_stream
 BASELINES = ("ssbf", "max_of_mean")
 DEFAULT_MODEL = "sequence"
 """The default noise model wherever real frames are filtered; its row ``sequence_stopped`` stops as early as its
-promise allows (:func:`hbni_pyro.fit_stop_threshold` on the calibration sequences)."""
+promise allows (:func:`hbni_pyro.fit_stop_threshold` on calibration sequences held out of the fit)."""
 
 
 class Settings(NamedTuple):
@@ -346,14 +346,10 @@ def evaluate_condition(
     C, _, F, M = calib.shape
     filters = fitted_filters(name, calib, cfg, s, run_dir)
     streams, truth = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
-    calib_streams, calib_truth = calib.reshape(-1, F, M), torch.arange(C).repeat_interleave(calib.shape[1])
     stops: dict[str, dict[float, float]] = {}
     if DEFAULT_MODEL in filters:  # the default: the sequence model stopping as early as its promise allows
         filters[f"{DEFAULT_MODEL}_stopped"] = filters[DEFAULT_MODEL]
-        stops[f"{DEFAULT_MODEL}_stopped"] = {
-            t: hbni_pyro.fit_stop_threshold(filters[DEFAULT_MODEL], calib_streams, calib_truth, t).stop
-            for t in s.thresholds
-        }
+        stops[f"{DEFAULT_MODEL}_stopped"] = held_out_stops(calib, cfg, s)
     rows = {}
     for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not s.progress):
         rows[fname] = score_filter(f, streams, truth, s, stops.get(fname))
@@ -369,6 +365,18 @@ def evaluate_condition(
         },
         "frame_accuracy": frame_acc,
     }
+
+
+def held_out_stops(calib: torch.Tensor, cfg: DictConfig, s: Settings) -> dict[float, float]:
+    """The default model's stopping confidence per threshold, chosen on calibration sequences held out of its fit
+    (:func:`hbni_pyro.cross_fit`: each fold's labels come from a model fitted on the other folds)."""
+
+    def fit_fold(train: torch.Tensor, k: int) -> Any:
+        post = fit_labelled(train, cfg.hbni, stream_seed(s.seed, "stop fold", k), False, model=DEFAULT_MODEL)
+        return hbni_pyro.make_filter("hbni", post, mode=cfg.hbni.filter.mode)
+
+    folds = hbni_pyro.cross_fit(fit_fold, calib)
+    return {t: hbni_pyro.fit_stop_threshold(folds, None, None, t).stop for t in s.thresholds}
 
 
 def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:

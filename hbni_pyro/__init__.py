@@ -18,7 +18,15 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 
 from hbni_infra.version import __version__
 
-from hbni_pyro.calibration import StopFit, fit_stop_threshold, reliability, stream_reliability, threshold_checks
+from hbni_pyro.calibration import (
+    Fold,
+    StopFit,
+    cross_fit,
+    fit_stop_threshold,
+    reliability,
+    stream_reliability,
+    threshold_checks,
+)
 from hbni_pyro.checks import CheckResult, check
 from hbni_pyro.confusion_model import confusion_model
 from hbni_pyro.density import gamma_log_prob, lifted_dirichlet_log_prob
@@ -69,6 +77,7 @@ __all__ = [
     "NoiseModel",
     "Segment",
     "SequenceMetropolis",
+    "Fold",
     "StopFit",
     "StreamReplay",
     "TemperFit",
@@ -85,6 +94,7 @@ __all__ = [
     "fit",
     "fit_many",
     "fit_frame_calibration",
+    "cross_fit",
     "fit_stop_threshold",
     "fit_temper",
     "gamma_log_prob",

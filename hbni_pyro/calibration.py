@@ -12,13 +12,13 @@ right a share q of the time. Two views, both on labelled held-out streams:
   ``threshold`` of the time; timid means it times out often or needs many frames.
 - :func:`fit_stop_threshold`: the lowest confidence at which to stop so that the emitted labels are still
   right at least a target share of the time on labelled calibration sequences (a conservative filter stops
-  earlier, an overconfident one later).
+  earlier, an overconfident one later); with :func:`cross_fit`, on sequences the filter was not fitted on.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import torch
@@ -28,6 +28,7 @@ from hbni_pyro.filters import StreamingFilter, decide
 from hbni_pyro.macro import MacroObservationProcess
 from hbni_pyro.validation import DTYPE
 from hbni_infra.checks import as_float, as_int, as_probability
+from hbni_infra.stats import wilson_interval
 
 
 class Reliability(NamedTuple):
@@ -132,15 +133,6 @@ def threshold_checks(
     return out
 
 
-def wilson_lower(right: int, n: int, z: float = 1.0) -> float:
-    """Wilson score lower bound of a proportion ``right / n`` at ``z`` standard errors (0 when ``n = 0``)."""
-    if n == 0:
-        return 0.0
-    p, zz = right / n, z * z
-    centre, half = p + zz / (2 * n), z * math.sqrt(p * (1 - p) / n + zz / (4 * n * n))
-    return (centre - half) / (1 + zz / n)
-
-
 DEFAULT_STOPS = (0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
 """Candidate stopping confidences of :func:`fit_stop_threshold`."""
 
@@ -159,10 +151,35 @@ class StopFit(NamedTuple):
     timeout_rate: list[float]
 
 
+class Fold(NamedTuple):
+    """A filter and labelled streams it was not fitted on: ``streams (B, N, M)``, ``truth (B,)``."""
+
+    filter: StreamingFilter
+    streams: Tensor
+    truth: Tensor
+
+
+def cross_fit(fit: Callable[[Tensor, int], StreamingFilter], outputs: Tensor, folds: int = 2) -> list[Fold]:
+    """Split each class's labelled sequences ``outputs (C, S, N, M)`` (``S`` sequences of ``N`` frames of true
+    class ``c``) into ``folds`` interleaved folds (sequence ``s`` in fold ``s % folds``), and for each fold ``k``
+    build ``fit(outputs without fold k, k)``: a filter fitted on the other folds, paired with fold ``k``'s
+    streams as its held-out data."""
+    folds = as_int("folds", folds, minimum=2)
+    if outputs.dim() != 4 or outputs.shape[1] < folds:
+        raise ValueError(f"outputs: expected (C, S, N, M) with S >= folds={folds}, got {tuple(outputs.shape)}")
+    index = torch.arange(outputs.shape[1])
+    out = []
+    for k in range(folds):
+        held = outputs[:, index % folds == k]
+        truth = torch.arange(held.shape[0]).repeat_interleave(held.shape[1])
+        out.append(Fold(fit(outputs[:, index % folds != k], k), held.reshape(-1, *held.shape[2:]), truth))
+    return out
+
+
 def fit_stop_threshold(
-    filter: StreamingFilter,
-    streams: Tensor,
-    truth: Tensor,
+    filter: StreamingFilter | Sequence[Fold],
+    streams: Tensor | None,
+    truth: Tensor | None,
     target: float,
     max_frames: int | None = None,
     grid: Sequence[float] | None = None,
@@ -176,24 +193,43 @@ def fit_stop_threshold(
     the promise ``target`` in fewer frames. ``stop`` is the lowest candidate of ``grid`` (``None``:
     :data:`DEFAULT_STOPS` above ``1 / M``) whose emitted labels' Wilson lower bound at ``z`` standard errors is at
     least ``target``; when none is (too few sequences to show it), ``target`` itself.
+
+    ``filter`` may instead be the :class:`Fold` s of :func:`cross_fit` (``streams`` and ``truth`` ``None``): the
+    process then runs each fold's filter on that fold's streams and pools the counts, so that the stop is chosen
+    on sequences the filter was not fitted on (a filter judged on its own fitting data looks more accurate than it
+    is on new data).
     """
     target = as_probability("target", target, allow_zero=False)
-    low = 1.0 / filter.num_classes
+    z = as_float("z", z, 0.0, math.inf, low_open=True, high_open=True)
+    if isinstance(filter, StreamingFilter):
+        folds = [Fold(filter, streams, truth)]
+    else:
+        folds = list(filter)
+        if not folds or not all(isinstance(f, Fold) for f in folds) or streams is not None or truth is not None:
+            raise TypeError("filter: expected a StreamingFilter, or a non-empty list of Fold with streams=truth=None")
+    low = 1.0 / folds[0].filter.num_classes
     grid = [float(t) for t in (DEFAULT_STOPS if grid is None else grid) if float(t) > low]
     if not grid:
         raise ValueError(f"grid: expected candidate stops in ({low:g}, 1], got none")
-    checks = threshold_checks(filter, streams, truth, grid, max_frames)
-    rows = [checks[f"{t:g}"] for t in grid]
-    lower = [
-        wilson_lower(round(r["emitted_accuracy"] * r["emitted"]) if r["emitted"] else 0, r["emitted"], z) for r in rows
-    ]
+    right, emitted, frames, timeouts, total = (torch.zeros(len(grid), dtype=DTYPE) for _ in range(5))
+    for fold in folds:
+        checks = threshold_checks(fold.filter, fold.streams, fold.truth, grid, max_frames)
+        for i, t in enumerate(grid):
+            row, b = checks[f"{t:g}"], len(fold.truth)
+            right[i] += round(row["emitted_accuracy"] * row["emitted"]) if row["emitted"] else 0
+            emitted[i] += row["emitted"]
+            frames[i] += row["mean_frames"] * b
+            timeouts[i] += row["timeout_rate"] * b
+            total[i] += b
+    confidence = math.erf(z / math.sqrt(2.0))
+    lower = [wilson_interval(int(k), int(n), confidence)[0] if n else 0.0 for k, n in zip(right, emitted)]
     stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
     return StopFit(
         stop,
         target,
         grid,
-        [r["emitted_accuracy"] for r in rows],
+        (right / emitted).tolist(),
         lower,
-        [r["mean_frames"] for r in rows],
-        [r["timeout_rate"] for r in rows],
+        (frames / total).tolist(),
+        (timeouts / total).tolist(),
     )

@@ -14,7 +14,7 @@ _LS = ("ls_candidates=40", "ls_stages=[[2,0.5],[4,2]]", "duel_rollouts=20", "vis
 _BASE = [
     "mission.train_per_class=5",
     "mission.augment=0",
-    "mission.calib_sequences=1",
+    "mission.calib_sequences=2",
     "mission.char_sequences=2",
     "mission.frames=5",
     "hbni.fit.num_chains=2",

@@ -424,6 +424,7 @@ class MissionBlock:
     threshold: float = MISSING
     temper: Any = MISSING
     hbni_stop: str = MISSING
+    stop_folds: int = MISSING
     calibration: str = MISSING
     conditions: Optional[dict[str, Any]] = MISSING
     planning_model: str = MISSING
@@ -440,6 +441,10 @@ class MissionBlock:
 
         as_choice("calibration", self.calibration, CALIBRATIONS)
         as_choice("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
+        if as_int("stop_folds", self.stop_folds, 2) > self.calib_sequences:
+            raise ValueError(
+                f"stop_folds: expected at most calib_sequences={self.calib_sequences}, got {self.stop_folds}"
+            )
         as_int("augment", self.augment, 0)
         as_probability("threshold", self.threshold, allow_zero=False)
         t = self.temper

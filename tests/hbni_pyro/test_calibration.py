@@ -7,12 +7,13 @@ import torch
 from hbni_stubs import DT, THETA, DrawsPosterior
 
 from hbni_pyro.calibration import (
+    Fold,
     binomial_stderr,
+    cross_fit,
     fit_stop_threshold,
     reliability,
     stream_reliability,
     threshold_checks,
-    wilson_lower,
 )
 from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
 from hbni_pyro.generative import sample_outputs
@@ -73,14 +74,13 @@ def test_threshold_checks_agree_with_the_process():
     assert binomial_stderr(0.5, 0) != binomial_stderr(0.5, 0)  # NaN with no trials
 
 
-def test_wilson_lower_by_hand():
-    """The Wilson score interval's lower end: ``(p + z^2/2n - z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)``; all
-    right gives ``n / (n + z^2)``, none emitted gives 0."""
-    p, n, z = 0.9, 50, 1.3
-    expected = (p + z * z / (2 * n) - z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)
-    assert wilson_lower(45, 50, z) == pytest.approx(expected)
-    assert wilson_lower(60, 60) == pytest.approx(60 / 61)
-    assert wilson_lower(0, 0) == 0.0
+def wilson_lower(right: int, n: int, z: float = 1.0) -> float:
+    """The Wilson score interval's lower end by hand: ``(p + z^2/2n - z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)``,
+    0 with no trials."""
+    if n == 0:
+        return 0.0
+    p = right / n
+    return (p + z * z / (2 * n) - z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)
 
 
 def test_stop_threshold_is_the_lowest_that_keeps_the_promise():
@@ -106,3 +106,50 @@ def test_stop_threshold_is_the_lowest_that_keeps_the_promise():
         fit_stop_threshold(f, streams, truth, 0.9, grid=[0.1, 0.2])
     with pytest.raises(ValueError, match="target"):
         fit_stop_threshold(f, streams, truth, 0.0)
+
+
+def test_cross_fit_holds_out_each_sequence_once():
+    """Each fold's filter is fitted on the other folds' sequences only, and every sequence is held out exactly
+    once, with its class as its truth."""
+    C, S, N, M = 3, 5, 4, 3
+    outputs = torch.arange(C * S * N * M, dtype=DT).reshape(C, S, N, M)
+    seen = []
+
+    def fit(train: torch.Tensor, k: int) -> StaticStateBayesFilter:
+        seen.append((k, train))
+        return StaticStateBayesFilter(M)
+
+    folds = cross_fit(fit, outputs, folds=2)
+    assert [k for k, _ in seen] == [0, 1] and [train.shape[1] for _, train in seen] == [2, 3]
+    held = {tuple(s.flatten().tolist()): int(t) for f in folds for s, t in zip(f.streams, f.truth)}
+    assert len(held) == C * S
+    for c in range(C):
+        for s in range(S):
+            assert held[tuple(outputs[c, s].flatten().tolist())] == c
+            k = s % 2
+            assert not (seen[k][1] == outputs[c, s]).all(-1).all(-1).any()  # never fitted on its held-out fold
+    with pytest.raises(ValueError, match="folds"):
+        cross_fit(fit, outputs, folds=1)
+    with pytest.raises(ValueError, match="outputs"):
+        cross_fit(fit, outputs, folds=6)
+
+
+def test_stop_on_folds_pools_their_counts():
+    """Folds that share one filter give exactly the stop, accuracies, bounds, frames and timeouts of that filter
+    on all their streams at once (the pooled counts are the counts of the union)."""
+    g = torch.Generator().manual_seed(3)
+    truth = torch.randint(0, 3, (300,), generator=g)
+    streams = sample_outputs(THETA, truth[:, None].expand(300, 10), g)
+    f = HBNIFilter(DrawsPosterior(THETA.unsqueeze(0)))
+    whole = fit_stop_threshold(f, streams, truth, 0.9)
+    folds = [Fold(f, streams[i::3], truth[i::3]) for i in range(3)]
+    pooled = fit_stop_threshold(folds, None, None, 0.9)
+    assert pooled.stop == whole.stop and pooled.grid == whole.grid
+    for a, b in zip(pooled[3:], whole[3:]):
+        torch.testing.assert_close(torch.tensor(a), torch.tensor(b), equal_nan=True)
+    with pytest.raises(TypeError, match="filter"):
+        fit_stop_threshold(folds, streams, truth, 0.9)
+    with pytest.raises(TypeError, match="filter"):
+        fit_stop_threshold([], None, None, 0.9)
+    with pytest.raises(ValueError, match="z"):
+        fit_stop_threshold(f, streams, truth, 0.9, z=0.0)
