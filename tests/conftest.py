@@ -96,4 +96,12 @@ def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return run_dir
 
 
-torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+# Small tensor programs on a busy machine: torch's intra-op threads wait on each other far longer than they work
+# (an experiment's tiny fit took 3x the CPU time on two threads beside the other workers). Under xdist every core
+# already runs a worker, so each worker, and every experiment process it starts, runs torch on one thread; tests
+# about thread counts set them explicitly.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
+else:
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))

@@ -15,6 +15,7 @@ _BASE = [
     "mission.train_per_class=5",
     "mission.augment=0",
     "mission.calib_sequences=2",
+    "study.threads=1",  # xdist already runs a worker per core
     "mission.char_sequences=2",
     "mission.frames=5",
     "hbni.fit.num_chains=2",
