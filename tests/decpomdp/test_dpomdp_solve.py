@@ -3,10 +3,12 @@ recursions, exact best responses against exhaustive search, solutions at publish
 writer's round trip, and errors."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from decpomdp import random_controllers, solve
 from decpomdp.dpomdp import (
@@ -50,9 +52,24 @@ def test_bounds_hold_the_exhaustive_optimum_and_are_ordered(name):
     assert b.lookahead <= b.fib + 1e-9 <= b.q_mdp + 2e-9 and b.best == b.lookahead
 
 
-@pytest.mark.parametrize("row", sorted(PUBLISHED))
-def test_bounds_hold_the_published_optima(row):
-    assert upper_bounds(env(*row)).best >= PUBLISHED[row] - 1e-9
+TABLE = yaml.safe_load((Path(__file__).resolve().parents[2] / "conf/experiment/dpomdp_benchmarks.yaml").read_text())
+OPTIMA = {  # every finite-horizon row of the benchmark table with a published optimum
+    name: row
+    for name, row in TABLE["study"]["rows"].items()
+    if row["optimum"] is not None and row["horizon"] is not None
+}
+
+
+PUBLISHED_ROUNDING = 5e-4
+"""Relative rounding of a published optimum: oneDoor's h3 optimum is published as -0.000395, 1.6e-4 of it above the
+exact -0.00039506 (the other values carry more digits)."""
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMA))
+def test_bounds_hold_every_published_optimum(name):
+    row = OPTIMA[name]
+    bound = upper_bounds(env(row["problem"], row["horizon"], row["gamma"])).best
+    assert bound >= row["optimum"] - PUBLISHED_ROUNDING * abs(row["optimum"]) - 1e-9
 
 
 def _dense(e):

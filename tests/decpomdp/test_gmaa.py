@@ -11,6 +11,7 @@ from decpomdp import solve
 from decpomdp.controller import JointController
 from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, upper_bounds
 from decpomdp.dpomdp.bounds import lookahead_bound
+from decpomdp.dpomdp import cyclic
 from decpomdp.dpomdp.cyclic import ascend, count_controllers, every_controller, loop_back, neighbours, with_agent
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.dpomdp.gmaa import GMAA, cluster, gmaa_ice, stage_bound
@@ -119,6 +120,15 @@ def test_cyclic_building_blocks():
     base = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
     joint = with_agent(base, 1, action[:4], nxt[:4])
     assert joint.num_controllers == 4 and torch.equal(joint.action[:, 1], action[:4])
+
+
+def test_values_in_chunks_are_the_whole_batchs(monkeypatch):
+    e = TabularDecPOSMDP.from_problem("recycling", gamma=0.9)
+    base = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
+    joint = with_agent(base, 0, *every_controller(2, e.num_actions, e.num_obs))  # 144 controllers
+    whole = exact_value(e, joint, horizon=math.inf)
+    monkeypatch.setattr(cyclic, "CHUNK", 25)  # 5 full chunks and a part
+    assert torch.equal(cyclic._values(e, joint), whole)
 
 
 def test_ascent_never_loses_value_and_reaches_a_best_response_among_small_controllers():
