@@ -192,7 +192,8 @@ def fit_stop_threshold(
     frames) is right more often than it says; stopping once its confidence reaches ``stop < target`` then keeps
     the promise ``target`` in fewer frames. ``stop`` is the lowest candidate of ``grid`` (``None``:
     :data:`DEFAULT_STOPS` above ``1 / M``) whose emitted labels' Wilson lower bound at ``z`` standard errors is at
-    least ``target``; when none is (too few sequences to show it), ``target`` itself.
+    least ``target`` (``z = 0``: the emitted accuracy itself); when none is (too few sequences to show it),
+    ``target`` itself.
 
     ``filter`` may instead be the :class:`Fold` s of :func:`cross_fit` (``streams`` and ``truth`` ``None``): the
     process then runs each fold's filter on that fold's streams and pools the counts, so that the stop is chosen
@@ -200,7 +201,7 @@ def fit_stop_threshold(
     is on new data).
     """
     target = as_probability("target", target, allow_zero=False)
-    z = as_float("z", z, 0.0, math.inf, low_open=True, high_open=True)
+    z = as_float("z", z, 0.0, math.inf, high_open=True)
     if isinstance(filter, StreamingFilter):
         folds = [Fold(filter, streams, truth)]
     else:
@@ -221,8 +222,11 @@ def fit_stop_threshold(
             frames[i] += row["mean_frames"] * b
             timeouts[i] += row["timeout_rate"] * b
             total[i] += b
-    confidence = math.erf(z / math.sqrt(2.0))
-    lower = [wilson_interval(int(k), int(n), confidence)[0] if n else 0.0 for k, n in zip(right, emitted)]
+    confidence = math.erf(z / math.sqrt(2.0))  # two-sided: the interval's lower end lies z standard errors down
+    lower = [
+        0.0 if not n else float(k / n) if z == 0 else wilson_interval(int(k), int(n), confidence)[0]
+        for k, n in zip(right, emitted)
+    ]
     stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
     return StopFit(
         stop,

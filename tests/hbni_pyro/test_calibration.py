@@ -152,4 +152,4 @@ def test_stop_on_folds_pools_their_counts():
     with pytest.raises(TypeError, match="filter"):
         fit_stop_threshold([], None, None, 0.9)
     with pytest.raises(ValueError, match="z"):
-        fit_stop_threshold(f, streams, truth, 0.9, z=0.0)
+        fit_stop_threshold(f, streams, truth, 0.9, z=-1.0)
