@@ -150,39 +150,40 @@ def test_same_seed_same_numbers_and_the_bank_comes_from_the_cache(mission_run, t
         assert again["variants"][name]["executed"]["value"] == entry["executed"]["value"]
 
 
-@pytest.mark.parametrize(
-    "model, source",
-    [("paper", "posterior predictive (paper model)"), ("sequence", "posterior predictive (sequence model)")],
-)
-def test_generative_planning_model(tmp_path, repo_root, model, source):
-    """Every noise model (hbni.model) simulates the streams of its own posterior predictive for the generative table."""
-    _run(
-        repo_root,
-        f"hydra.run.dir={tmp_path}",
-        "perception=[hbni,ssbf]",
-        "mission.planning_model=generative",
-        f"hbni.model={model}",
-    )
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+def _check_generative_planning(run_dir: Path, model: str, variants: list[str]) -> None:
+    """Every noise model simulates the streams of its own posterior predictive for each variant's generative
+    table; HBNI's empirical table is planned on too, and perfect perception exactly."""
+    source = f"posterior predictive ({model} model)"
+    metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["closed_loop"]["planning"] == {
         "perfect": "exact",
-        "hbni": "generative",
-        "ssbf": "generative",
+        **{v: "generative" for v in variants},
         "hbni_empirical": "empirical",
     }
-    ssbf = MacroObservationModel.load(tmp_path / "macro_ssbf_generative.safetensors")
+    ssbf = MacroObservationModel.load(run_dir / "macro_ssbf_generative.safetensors")
     assert ssbf.info["generative"] == source and "StaticStateBayesFilter" in ssbf.info["filter"]
-    assert HBNIPosterior.load(tmp_path / "posterior.safetensors").model == model
+    assert HBNIPosterior.load(run_dir / "posterior.safetensors").model == model
     assert (
-        f"model={model!r}" in MacroObservationModel.load(tmp_path / "macro_hbni_generative.safetensors").info["filter"]
+        f"model={model!r}" in MacroObservationModel.load(run_dir / "macro_hbni_generative.safetensors").info["filter"]
     )
     temper = metrics["hbni_temper"]
     if model == "paper":  # a frame-level model: the temper is fitted on the calibration sequences
         assert temper["fitted"] and temper["value"] in temper["grid"]
         assert temper["log_score"][temper["grid"].index(temper["value"])] == max(temper["log_score"])
-        assert f"temper is {temper['value']:g}" in (tmp_path / "report.md").read_text()
+        assert f"temper is {temper['value']:g}" in (run_dir / "report.md").read_text()
     else:
         assert temper == {"value": 1.0, "fitted": False, "needed": False}
+
+
+def test_generative_planning_on_the_sequence_model(mission_run):
+    """The defaults: the sequence model's posterior predictive for every variant, with no temper."""
+    _check_generative_planning(mission_run, "sequence", ["hbni", "calibrated", "ssbf", "max_of_mean"])
+
+
+def test_generative_planning_on_the_paper_model(tmp_path, repo_root):
+    """hbni.model=paper: the paper model's posterior predictive, with the temper fitted."""
+    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "hbni.model=paper")
+    _check_generative_planning(tmp_path, "paper", ["hbni", "ssbf"])
 
 
 def test_load_run_returns_ready_objects(mission_run):
