@@ -16,6 +16,7 @@ A saved file holds no device: :meth:`FrameClassifier.load` places it on any ``de
 
 from __future__ import annotations
 
+import inspect
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,19 +38,6 @@ from hbni_infra.streams import numpy_generator
 __all__ = ["FrameClassifier"]
 
 _KIND = "classifiers.FrameClassifier"
-_PARAMS = dict(  # every constructor argument and its default
-    backbone="efficientnet_lite0",
-    weights_path=None,
-    C=1.0,
-    cv=5,
-    padding=0.1,
-    seed=0,
-    batch_size=4,
-    threads=1,
-    device="cpu",
-    dtype=None,
-    half=False,
-)
 
 
 def _check_params(params: dict[str, Any]) -> None:
@@ -358,3 +346,9 @@ class FrameClassifier:
                 f"path: {str(path)!r} holds an invalid {_KIND} (mean and scale: expected finite, scale > 0)"
             )
         return model
+
+
+_PARAMS = {
+    name: p.default for name, p in inspect.signature(FrameClassifier.__init__).parameters.items() if name != "self"
+}
+"""Every constructor argument and its default, read from the signature (as scikit-learn reads it)."""
