@@ -67,12 +67,11 @@ from experiments.schemas.studies import MISSION_VARIANTS
 from experiments.steps import closed_loop, honesty
 from experiments.steps.bank import BankBuild, BankSpec
 from experiments.steps.on_demand import OnDemandStreams
-from experiments.steps.noise import fit_labelled
+from experiments.steps.noise import fit_labelled, stop_folds
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
 from hbni_pyro.calibration import binomial_stderr
-from hbni_pyro.filters import StreamingFilter
 from hbni_infra.threads import threads
 
 
@@ -278,14 +277,10 @@ def fit_noise(calib: torch.Tensor, cfg: DictConfig, settings: Settings, run_dir:
     if cfg.mission.hbni_stop == "calibrated":
         folds = int(cfg.mission.stop_folds)
         settings.clock.say(f"choosing HBNI's stop on {folds} held-out folds of the calibration sequences")
-
-        def fit_fold(train: torch.Tensor, k: int) -> StreamingFilter:
-            fold = fit_labelled(train, cfg.hbni, stream_seed(settings.seed, "fit", "stop fold", k), settings.progress)
-            return hbni_pyro.make_filter("hbni", fold, mode=cfg.hbni.filter.mode, temper=temper["value"])
-
-        fitted_stop = hbni_pyro.fit_stop_threshold(
-            hbni_pyro.cross_fit(fit_fold, calib, folds), None, None, threshold, frames
+        held_out = stop_folds(
+            calib, cfg.hbni, settings.seed, "fit", folds=folds, temper=temper["value"], progress=settings.progress
         )
+        fitted_stop = hbni_pyro.fit_stop_threshold(held_out, None, None, threshold, frames)
         stop = {"fitted": True, "folds": folds, **fitted_stop._asdict(), "value": fitted_stop.stop}
         del stop["stop"]
     return Noise(posterior, temper, peer, stop)

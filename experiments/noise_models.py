@@ -47,7 +47,7 @@ from experiments.artifacts import save_artifact
 from experiments.common import save_figure
 from experiments.report import write_report
 from hbni_infra.cache import cached, source_identity
-from experiments.steps.noise import fit_labelled
+from experiments.steps.noise import fit_labelled, stop_folds
 from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
 from hbni_pyro.generative import sample_outputs
@@ -370,12 +370,7 @@ def evaluate_condition(
 def held_out_stops(calib: torch.Tensor, cfg: DictConfig, s: Settings) -> dict[float, float]:
     """The default model's stopping confidence per threshold, chosen on calibration sequences held out of its fit
     (:func:`hbni_pyro.cross_fit`: each fold's labels come from a model fitted on the other folds)."""
-
-    def fit_fold(train: torch.Tensor, k: int) -> Any:
-        post = fit_labelled(train, cfg.hbni, stream_seed(s.seed, "stop fold", k), False, model=DEFAULT_MODEL)
-        return hbni_pyro.make_filter("hbni", post, mode=cfg.hbni.filter.mode)
-
-    folds = hbni_pyro.cross_fit(fit_fold, calib)
+    folds = stop_folds(calib, cfg.hbni, s.seed, model=DEFAULT_MODEL)
     return {t: hbni_pyro.fit_stop_threshold(folds, None, None, t).stop for t in s.thresholds}
 
 

@@ -7,6 +7,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
+from hbni_infra.streams import stream_seed
 
 
 def fit_labelled(
@@ -38,3 +39,24 @@ def fit_labelled(
         progress=progress,
         class_names=class_names,
     )
+
+
+def stop_folds(
+    outputs: torch.Tensor,
+    hbni: DictConfig,
+    seed: int,
+    *stream: str,
+    folds: int = 2,
+    model: str | None = None,
+    temper: float = 1.0,
+    progress: bool = False,
+) -> list[hbni_pyro.Fold]:
+    """:func:`hbni_pyro.cross_fit` of HBNI on labelled ``outputs (C, S, F, M)``: fold ``k``'s filter (mode
+    ``hbni.filter.mode``, ``temper``) comes from :func:`fit_labelled` on the other folds, seeded by the stream
+    ``(*stream, "stop fold", k)`` under ``seed``, for choosing a stop on sequences it was not fitted on."""
+
+    def fit_fold(train: torch.Tensor, k: int) -> hbni_pyro.HBNIFilter:
+        posterior = fit_labelled(train, hbni, stream_seed(seed, *stream, "stop fold", k), progress, model)
+        return hbni_pyro.make_filter("hbni", posterior, mode=hbni.filter.mode, temper=temper)
+
+    return hbni_pyro.cross_fit(fit_fold, outputs, folds)
