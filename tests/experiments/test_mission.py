@@ -13,6 +13,9 @@ from hbni_pyro import HBNIPosterior, MacroObservationModel
 from mission_tiny import TINY_BANKS, TINY_MISSION, TINY_MISSION_FROM_SCRATCH, TINY_MISSION_GDICE
 
 TINY = [*TINY_MISSION, TINY_BANKS]
+NO_POWER = "mission.bank.powered.entries=[]"
+"""For runs whose checks are not about the value test's power: no sequences rendered on demand (the shared run
+checks them)."""
 
 
 def _run(repo_root, *args, multirun=False, tiny=TINY):
@@ -180,10 +183,24 @@ def test_generative_planning_on_the_sequence_model(mission_run):
     _check_generative_planning(mission_run, "sequence", ["hbni", "calibrated", "ssbf", "max_of_mean"])
 
 
-def test_generative_planning_on_the_paper_model(tmp_path, repo_root):
-    """hbni.model=paper: the paper model's posterior predictive, with the temper fitted."""
-    _run(repo_root, f"hydra.run.dir={tmp_path}", "perception=[hbni,ssbf]", "hbni.model=paper")
+def test_generative_planning_on_the_paper_model_planned_by_gdice(tmp_path, repo_root):
+    """hbni.model=paper: the paper model's posterior predictive, with the temper fitted; perfect perception
+    planned by the paper's G-DICE, the variants from its plan; no preset conditions."""
+    _run(
+        repo_root,
+        f"hydra.run.dir={tmp_path}",
+        "perception=[hbni,ssbf]",
+        "hbni.model=paper",
+        "mission.conditions=null",
+        NO_POWER,
+        tiny=[*TINY_MISSION_GDICE, TINY_BANKS],  # G-DICE reads no local-search settings: the tiny ones are its own
+    )
     _check_generative_planning(tmp_path, "paper", ["hbni", "ssbf"])
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["planner"]["ce_result"] == "best_sampled" and metrics["warm_planner"]["phases"] == ["ls"]
+    assert metrics["variants"]["perfect"]["started_from"] == "scratch"
+    assert metrics["variants"]["hbni"]["started_from"] == metrics["variants"]["ssbf"]["started_from"] == "perfect"
+    assert metrics["conditions"]["overrides"] == {}
 
 
 def test_load_run_returns_ready_objects(mission_run):
@@ -204,7 +221,14 @@ def test_load_run_returns_ready_objects(mission_run):
 
 @pytest.mark.parametrize("launcher", ["joblib_local", "submitit_local_jobs"])
 def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
-    _run(repo_root, f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}", "perception=hbni,ssbf", multirun=True)
+    _run(
+        repo_root,
+        f"hydra/launcher={launcher}",
+        f"hydra.sweep.dir={tmp_path}",
+        "perception=hbni,ssbf",
+        NO_POWER,
+        multirun=True,
+    )
     for job, variant in (("0", "hbni"), ("1", "ssbf")):
         metrics = json.loads((tmp_path / job / "metrics.json").read_text())
         assert set(metrics["variants"]) == {"perfect", variant} | ({"hbni_empirical"} if variant == "hbni" else set())
@@ -218,36 +242,21 @@ def test_two_job_sweep_over_perception(tmp_path, repo_root, launcher):
     )
 
 
-@pytest.mark.parametrize("planning", ["planner=gdice", "warm_start=false"])
-def test_fixed_temper_preset_conditions_and_other_planning(tmp_path, repo_root, planning):
-    if planning == "planner=gdice":  # G-DICE reads no local-search settings: the tiny ones are its own
-        _run(
-            repo_root,
-            f"hydra.run.dir={tmp_path}",
-            "perception=hbni",
-            "hbni.model=paper",
-            "mission.temper=0.5",
-            "mission.conditions=null",
-            tiny=[*TINY_MISSION_GDICE, TINY_BANKS],
-        )
-    else:
-        _run(
-            repo_root,
-            f"hydra.run.dir={tmp_path}",
-            "perception=hbni",
-            "hbni.model=paper",
-            "mission.temper=0.5",
-            "mission.conditions=null",
-            tiny=[*TINY_MISSION_FROM_SCRATCH, TINY_BANKS],
-        )
+def test_fixed_temper_preset_conditions_and_planning_from_scratch(tmp_path, repo_root):
+    """mission.temper fixes the paper model's temper; without warm starts every variant is planned from scratch."""
+    _run(
+        repo_root,
+        f"hydra.run.dir={tmp_path}",
+        "perception=hbni",
+        "hbni.model=paper",
+        "mission.temper=0.5",
+        "mission.conditions=null",
+        NO_POWER,
+        tiny=[*TINY_MISSION_FROM_SCRATCH, TINY_BANKS],
+    )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    if planning == "planner=gdice":  # perfect perception planned by the paper's G-DICE, the variants from its plan
-        assert metrics["planner"]["ce_result"] == "best_sampled" and metrics["warm_planner"]["phases"] == ["ls"]
-        assert metrics["variants"]["perfect"]["started_from"] == "scratch"
-        assert metrics["variants"]["hbni"]["started_from"] == "perfect"
-    else:  # every variant from scratch
-        assert metrics["warm_planner"] is None
-        assert {entry["started_from"] for entry in metrics["variants"].values()} == {"scratch"}
+    assert metrics["warm_planner"] is None
+    assert {entry["started_from"] for entry in metrics["variants"].values()} == {"scratch"}
     assert metrics["hbni_temper"] == {"value": 0.5, "fitted": False}
     assert metrics["conditions"]["overrides"] == {}
     assert "temper=0.5" in MacroObservationModel.load(tmp_path / "macro_hbni.safetensors").info["filter"]
