@@ -121,32 +121,6 @@ def test_the_photo_condition_reports_sizes_honesty_and_the_default_models_target
     ]
 
 
-def test_the_photo_condition_alone_is_a_study(tmp_path, repo_root):
-    _run(
-        repo_root,
-        tmp_path / "run",
-        "~study.conditions.default",
-        "~study.conditions.in_flight",
-        "study.cache_dir=null",
-        "study.models=[sequence]",
-    )
-    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    assert set(metrics["conditions"]) == {"photos"}
-    photos = metrics["conditions"]["photos"]
-    assert set(photos["filters"]) == {
-        "sequence",
-        "sequence_stopped",
-        "calibrated",
-        "calibrated_temperature",
-        "ssbf",
-        "max_of_mean",
-    }
-    assert set(photos["stops"]["sequence_stopped"]) == {"0.9", "0.95", "0.99"}
-    stopped = photos["filters"]["sequence_stopped"]["thresholds"]["0.95"]
-    assert stopped["stop"] == photos["stops"]["sequence_stopped"]["0.95"]
-    assert set(metrics["acceptance"]["photos"]["default_vs_calibrated"]) >= {"honest", "frames_over_peer", "met"}
-
-
 def _write_folder(root: Path, classes: list[str]) -> None:
     for name in classes:
         for i, img in enumerate(render_images(name, 5, "training", seed=0)):
@@ -159,22 +133,21 @@ def _write_folder(root: Path, classes: list[str]) -> None:
                 cv2.imwrite(str(seq / f"frame_{i}.png"), frame)
 
 
-def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
+def test_a_user_image_folder_beside_the_photographs_without_the_mission_conditions(tmp_path, repo_root):
     classes = ["irobot", "quadrotor", "racecar"]
     _write_folder(tmp_path / "images", classes)
     _run(
         repo_root,
         tmp_path / "run",
         f"study.images={tmp_path / 'images'}",
-        "study.conditions={}",
+        "~study.conditions.default",
+        "~study.conditions.in_flight",
         "study.cache_dir=null",
         "study.models=[paper,sequence]",
-        "study.photos=null",
     )
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    cond = metrics["conditions"]["images"]
-    assert cond["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
-    assert set(cond["filters"]) == {
+    assert set(metrics["conditions"]) == {"images", "photos"}
+    filters = {
         "paper",
         "paper_tempered",
         "sequence",
@@ -184,6 +157,13 @@ def test_a_user_image_folder_is_a_condition(tmp_path, repo_root):
         "ssbf",
         "max_of_mean",
     }
+    images, photos = metrics["conditions"]["images"], metrics["conditions"]["photos"]
+    assert images["sizes"] == {"calibration_sequences_per_class": 2, "held_out_sequences": 6, "frames": 4}
+    assert set(images["filters"]) == set(photos["filters"]) == filters
+    assert set(photos["stops"]["sequence_stopped"]) == {"0.9", "0.95", "0.99"}
+    stopped = photos["filters"]["sequence_stopped"]["thresholds"]["0.95"]
+    assert stopped["stop"] == photos["stops"]["sequence_stopped"]["0.95"]
+    assert set(metrics["acceptance"]["photos"]["default_vs_calibrated"]) >= {"honest", "frames_over_peer", "met"}
 
 
 def _compose(*overrides):
