@@ -22,7 +22,7 @@ CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")
 PLANNER = OmegaConf.create(gdice_node())
 
 
-SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4_monte_carlo", "recycling_inf"]
+SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4_monte_carlo", "broadcast_inf"]
 
 
 def test_dpomdp_benchmarks_smoke(tmp_path):
@@ -60,7 +60,7 @@ def test_dpomdp_benchmarks_smoke(tmp_path):
             assert row["meets_95"] == (row["fraction_of_optimum"] >= 0.95)
             assert solved["value"] <= row["optimum"] + 1e-9 <= solved["bound"] + 2e-9  # the bound holds the optimum
             assert solved["meets_99"] == (solved["fraction_of_optimum"] >= 0.99)
-    assert rows["dectiger_h2"]["horizon"] == 2 and rows["recycling_inf"]["horizon"] == "inf"
+    assert rows["dectiger_h2"]["horizon"] == 2 and rows["broadcast_inf"]["horizon"] == "inf"
     assert rows["firefighting_h2"]["optimum_source"].startswith("exhaustive search over all 4096")
     assert rows["firefighting_h4_monte_carlo"]["evaluator"] == "monte_carlo"
     assert metrics["rows_scored"] == sum(r["meets_95"] is not None for r in rows.values())
