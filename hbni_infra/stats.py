@@ -48,9 +48,10 @@ def binomial_test(k: int, n: int, p: float) -> float:
 
 
 def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval (no continuity correction) of the proportion ``k / n``; ``(nan, nan)`` when ``n = 0``."""
+    """Wilson score interval (no continuity correction) of the proportion ``k / n``; ``(nan, nan)`` when ``n = 0``;
+    at ``confidence = 0`` (zero standard errors) the point ``k / n`` itself."""
     k, n = _count(k, n)
-    confidence = as_float("confidence", confidence, 0.0, 1.0, low_open=True, high_open=True)
+    confidence = as_float("confidence", confidence, 0.0, 1.0, high_open=True)
     if n == 0:
         return math.nan, math.nan
     ci = stats.binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")

@@ -223,10 +223,7 @@ def fit_stop_threshold(
             timeouts[i] += row["timeout_rate"] * b
             total[i] += b
     confidence = math.erf(z / math.sqrt(2.0))  # two-sided: the interval's lower end lies z standard errors down
-    lower = [
-        0.0 if not n else float(k / n) if z == 0 else wilson_interval(int(k), int(n), confidence)[0]
-        for k, n in zip(right, emitted)
-    ]
+    lower = [wilson_interval(int(k), int(n), confidence)[0] if n else 0.0 for k, n in zip(right, emitted)]
     stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
     return StopFit(
         stop,

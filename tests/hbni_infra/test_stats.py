@@ -33,6 +33,8 @@ def test_wilson_interval_closed_form():
     lo95, hi95 = wilson_interval(8, 10)
     assert lo95 < lo90 < 0.8 < hi90 < hi95
     assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    for k, n in [(8, 10), (0, 20), (20, 20), (1, 3)]:  # zero standard errors: the proportion itself
+        assert wilson_interval(k, n, confidence=0.0) == (k / n, k / n)
 
 
 def test_ks_test_is_scipys_on_continuous_and_tied_samples():
