@@ -92,14 +92,19 @@ def test_stop_threshold_is_the_lowest_that_keeps_the_promise():
     streams = sample_outputs(THETA, truth[:, None].expand(400, 12), g)
     f = HBNIFilter(DrawsPosterior(THETA.unsqueeze(0)))
     fit = fit_stop_threshold(f, streams, truth, 0.9)
+    emitted = []
     for t, acc, lower in zip(fit.grid, fit.emitted_accuracy, fit.lower):
         row = threshold_checks(f, streams, truth, [t])[f"{t:g}"]
+        emitted.append(row["emitted"])
         assert acc == row["emitted_accuracy"]
         assert lower == pytest.approx(wilson_lower(round(acc * row["emitted"]), row["emitted"]))
     assert fit.stop == min(t for t, lower in zip(fit.grid, fit.lower) if lower >= 0.9)
     checks = threshold_checks(f, streams, truth, [0.9], stops={0.9: fit.stop})["0.9"]
     assert checks["stop"] == fit.stop and checks["emitted_accuracy"] >= 0.9
     assert checks["mean_frames"] <= threshold_checks(f, streams, truth, [0.9])["0.9"]["mean_frames"]
+    at_zero = fit_stop_threshold(f, streams, truth, 0.9, z=0.0)  # zero standard errors: the emitted accuracy itself
+    assert at_zero.lower == [wilson_lower(round(a * n), n, z=0.0) for a, n in zip(at_zero.emitted_accuracy, emitted)]
+    assert at_zero.stop == min(t for t, acc in zip(at_zero.grid, at_zero.emitted_accuracy) if acc >= 0.9) <= fit.stop
     # a promise no candidate keeps: the promise itself
     assert fit_stop_threshold(StaticStateBayesFilter(3), streams, truth, 0.99, grid=[0.5, 0.6]).stop == 0.99
     with pytest.raises(ValueError, match="grid"):
