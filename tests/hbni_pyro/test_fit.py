@@ -7,47 +7,44 @@ import torch
 
 import hbni_pyro
 from hbni_pyro.generative import sample_outputs
-
-THETA = torch.tensor([1.0, 6.0, 20.0], dtype=torch.float64)
-CLASSES = torch.arange(3).repeat_interleave(5)
-
-
-def toy_obs(seed: int) -> torch.Tensor:
-    return sample_outputs(THETA, CLASSES, torch.Generator().manual_seed(seed))
+from known_models import CLASSES, THETA, toy_obs
+from nuts_references import load_reference
 
 
 @pytest.fixture(scope="module")
-def toy_fits():
-    obs = toy_obs(0)
-    mh = hbni_pyro.fit(obs, method="mh", num_chains=32, num_samples=2000, warmup_steps=1000, seed=1, progress=False)
-    nuts = hbni_pyro.fit(obs, method="nuts", num_chains=2, num_samples=400, warmup_steps=300, seed=2, progress=False)
-    return mh, nuts
+def toy_mh():
+    """MH on the toy data of the stored NUTS reference (``nuts_references.py``)."""
+    return load_reference("toy").problem.fit(method="mh", num_chains=32, num_samples=2000, warmup_steps=1000, seed=1)
 
 
-def test_mh_and_nuts_agree_within_4_monte_carlo_standard_errors(toy_fits):
-    mh, nuts = toy_fits
-    a, b = mh.summary(), nuts.summary()
+def test_mh_and_nuts_agree_within_4_monte_carlo_standard_errors(toy_mh):
+    """Against a stored NUTS run of 4 chains x 800 draws, without a divergence."""
+    ref = load_reference("toy")
+    a, b = toy_mh.summary(), ref.summary
+    assert set(a) == set(b) == {"theta[0]", "theta[1]", "theta[2]", "kappa", "gamma"}
     for name in a:
         se = math.sqrt(a[name]["sd"] ** 2 / a[name]["ess"] + b[name]["sd"] ** 2 / b[name]["ess"])
         assert abs(a[name]["mean"] - b[name]["mean"]) < 4 * se, (name, a[name], b[name])
-    assert nuts.info["divergences"] == 0
+    assert ref.divergences == 0
 
 
-def test_nuts_recovers_labels_with_infer_discrete(toy_fits):
-    _, nuts = toy_fits
+def test_nuts_recovers_labels_with_infer_discrete():
+    """A short live NUTS run: class probabilities on the simplex, the reliable classes' outputs assigned to their
+    true class with high posterior mass."""
+    nuts = hbni_pyro.fit(
+        toy_obs(0), method="nuts", num_chains=1, num_samples=50, warmup_steps=50, seed=2, progress=False
+    )
     assert nuts.label_probs.shape == (15, 3)
     torch.testing.assert_close(nuts.label_probs.sum(-1), torch.ones(15, dtype=torch.float64))
-    # The reliable classes' outputs are assigned to their true class with high posterior mass.
     assert (nuts.label_probs[5:].argmax(-1) == CLASSES[5:]).all()
 
 
-def test_recovery_on_the_paper_toy(toy_fits):
-    mh, _ = toy_fits
-    s = mh.summary()
+def test_recovery_on_the_paper_toy(toy_mh):
+    s = toy_mh.summary()
     for m, t in enumerate(THETA.tolist()):
         assert s[f"theta[{m}]"]["q5"] <= t <= s[f"theta[{m}]"]["q95"]
         assert s[f"theta[{m}]"]["r_hat"] < 1.05
-    med = mh.theta_point("median")
+    med = toy_mh.theta_point("median")
     assert med[0] < med[1] < med[2]
 
 

@@ -18,7 +18,7 @@ from hbni_pyro.confusion_model import (
     off_diagonal_values,
 )
 from hbni_pyro.density import concentrations, ilr, ilr_log_jacobian
-from hbni_pyro.generative import sample_dirichlet, sample_sequences
+from hbni_pyro.generative import sample_dirichlet
 from hbni_pyro.kernels import ConfusionMetropolis, SequenceMetropolis
 from hbni_pyro.model import HyperPrior
 from hbni_pyro.sequence_model import (
@@ -28,51 +28,10 @@ from hbni_pyro.sequence_model import (
     sequence_prior_log_prob,
     sequence_stats,
 )
+from known_models import ALPHA, DT, LOC, confusion_data, confusion_params, sequence_params, sequences
+from nuts_references import load_reference, problems
 
-DT = torch.float64
 HP = HyperPrior()
-ALPHA = torch.tensor([[5.0, 2.0, 0.4], [0.6, 9.0, 0.5], [0.3, 0.3, 4.0]], dtype=DT)
-"""A known confusion structure: class 0 leans towards class 1, class 2 is clean."""
-LOC = torch.tensor([[1.2, 0.1], [-0.7, 1.0], [-0.6, -1.1]], dtype=DT)
-
-
-def confusion_params():
-    theta = ALPHA.diagonal() - 1
-    beta = ALPHA.clone()
-    beta.diagonal().fill_(1.0)
-    return {
-        "theta": theta,
-        "beta": beta,
-        "kappa": torch.tensor(1.5, dtype=DT),
-        "gamma": torch.tensor(4.0, dtype=DT),
-        "beta_loc": torch.tensor(-0.3, dtype=DT),
-        "beta_scale": torch.tensor(0.8, dtype=DT),
-    }
-
-
-def sequence_params():
-    between = torch.stack(
-        [
-            torch.tensor([[0.3, 0.05], [0.05, 0.2]]),
-            torch.tensor([[0.25, 0.0], [0.0, 0.35]]),
-            torch.tensor([[0.2, -0.05], [-0.05, 0.3]]),
-        ]
-    ).to(DT)
-    return {
-        "loc": LOC,
-        "between": between,
-        "between_mean": torch.tensor([[0.3, 0.0], [0.0, 0.3]], dtype=DT),
-        "between_pooling": torch.tensor(8.0, dtype=DT),
-        "within": torch.tensor([[0.4, 0.1], [0.1, 0.5]], dtype=DT),
-    }
-
-
-def sequences(num_seq=9, frames=4, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    p = sequence_params()
-    classes = torch.arange(3).repeat_interleave(num_seq // 3)
-    obs = sample_sequences(p["loc"], p["between"], p["within"], classes, frames, g)
-    return obs, classes
 
 
 # -- closed forms --------------------------------------------------------------------------------
@@ -178,12 +137,6 @@ def test_sequence_log_joint_matches_brute_force_and_pyro_enumeration():
 # -- kernels under pyro.infer.MCMC -------------------------------------------------------------
 
 
-def confusion_data(n_per_class=10, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    classes = torch.arange(3).repeat_interleave(n_per_class)
-    return hbni_pyro.as_outputs(sample_dirichlet(ALPHA[classes], g)), classes
-
-
 def test_confusion_kernel_runs_is_seeded_and_keeps_labels():
     obs, classes = confusion_data()
     labels = torch.where(torch.arange(30) % 2 == 0, classes, torch.tensor(-1))
@@ -252,74 +205,53 @@ def test_kernels_reject_bad_settings(kernel):
 # -- MH against NUTS ----------------------------------------------------------------------------
 
 
-def agree_within_monte_carlo_error(a, b, z_max):
-    sa, sb = a.summary(), b.summary()
+def agree_within_monte_carlo_error(a: dict, b: dict, z_max: float) -> tuple[bool, float]:
+    """Whether two posterior summaries' means agree within ``z_max`` Monte Carlo standard errors (from each side's
+    ESS) on every scalar, and the worst z."""
     worst = max(
-        abs(sa[k]["mean"] - sb[k]["mean"])
-        / math.sqrt(sa[k]["sd"] ** 2 / sa[k]["ess"] + sb[k]["sd"] ** 2 / sb[k]["ess"])
-        for k in sa
+        abs(a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
+        for k in a
     )
     return worst < z_max, worst
 
 
 def test_confusion_mh_and_nuts_agree():
-    """Posterior means of all 13 scalars within 4 Monte Carlo standard errors (from each side's ESS):
-    a family-wise false-alarm rate under 0.1 %."""
-    obs, classes = confusion_data(4, seed=5)
-    labels = torch.where(torch.arange(12) % 3 == 0, torch.tensor(-1), classes)
-    mh = hbni_pyro.fit(
-        obs, labels, model="confusion", num_chains=32, num_samples=1500, warmup_steps=1000, seed=1, progress=False
-    )
-    nuts = hbni_pyro.fit(
-        obs,
-        labels,
-        model="confusion",
-        method="nuts",
-        num_chains=1,
-        num_samples=300,
-        warmup_steps=200,
-        seed=2,
-        progress=False,
-    )
-    ok, worst = agree_within_monte_carlo_error(mh, nuts, 4.0)
+    """Posterior means of all 13 scalars within 4 Monte Carlo standard errors of a stored NUTS run
+    (``nuts_references.py``): a family-wise false-alarm rate under 0.1 %."""
+    ref = load_reference("confusion")
+    mh = ref.problem.fit(num_chains=32, num_samples=1500, warmup_steps=1000, seed=1)
+    assert set(mh.summary()) == set(ref.summary) and len(ref.summary) == 13 and ref.divergences == 0
+    ok, worst = agree_within_monte_carlo_error(mh.summary(), ref.summary, 4.0)
     assert ok, worst
-    assert nuts.label_probs.shape == (12, 3) and (nuts.label_probs[labels >= 0].max(-1).values == 1).all()
 
 
 def test_sequence_mh_and_nuts_agree():
-    """Posterior means of all 15 scalars within 4 Monte Carlo standard errors, and the same class
-    probabilities for the unlabelled sequences (within 0.15: NUTS recovers them from 100 draws).
+    """Posterior means of all 22 scalars within 4 Monte Carlo standard errors of a stored NUTS run, and the same
+    class probabilities for the unlabelled sequences (within 0.15: NUTS recovers them from 100 draws).
     ``benchmarks/bench_noise_correctness.py`` repeats both comparisons with longer NUTS runs."""
-    obs, _ = sequences(6, 3, seed=6)
-    flat = obs.reshape(-1, 3)
-    ids = torch.arange(6).repeat_interleave(3)
-    labels = torch.tensor([0, -1, 1, 1, -1, 2]).repeat_interleave(3)
-    mh = hbni_pyro.fit(
-        flat,
-        labels,
-        model="sequence",
-        sequence_ids=ids,
-        num_chains=32,
-        num_samples=1500,
-        warmup_steps=500,
-        seed=1,
-        progress=False,
-    )
-    nuts = hbni_pyro.fit(
-        flat,
-        labels,
-        model="sequence",
-        sequence_ids=ids,
-        method="nuts",
-        num_chains=1,
-        num_samples=150,
-        warmup_steps=100,
-        seed=2,
-        progress=False,
-    )
-    ok, worst = agree_within_monte_carlo_error(mh, nuts, 4.0)
+    ref = load_reference("sequence")
+    mh = ref.problem.fit(num_chains=32, num_samples=1500, warmup_steps=500, seed=1)
+    assert set(mh.summary()) == set(ref.summary) and len(ref.summary) == 22
+    ok, worst = agree_within_monte_carlo_error(mh.summary(), ref.summary, 4.0)
     assert ok, worst
-    torch.testing.assert_close(mh.label_probs, nuts.label_probs, rtol=0, atol=0.15)
+    torch.testing.assert_close(mh.label_probs, ref.label_probs, rtol=0, atol=0.15)
+
+
+@pytest.mark.parametrize("name", ["confusion", "sequence"])
+def test_nuts_runs_on_the_model_and_recovers_the_labels(name):
+    """A short live NUTS run (the stored references stand in for long ones): its sites are MH's, and labelled
+    units have one-hot class probabilities."""
+    problem = problems()[name]
+    nuts = problem.fit(method="nuts", num_chains=1, num_samples=10, warmup_steps=10, seed=3)
+    units = len(problem.obs)
+    assert (
+        nuts.info["method"] == "nuts"
+        and nuts.samples.keys() == problem.fit(num_samples=2, warmup_steps=0).samples.keys()
+    )
+    assert nuts.label_probs.shape == (units, 3)
+    torch.testing.assert_close(nuts.label_probs.sum(-1), torch.ones(units, dtype=DT))
+    known = problem.labels >= 0
+    assert torch.equal(nuts.label_probs[known], torch.nn.functional.one_hot(problem.labels[known], 3).to(DT))
 
 
 # -- recovery -----------------------------------------------------------------------------------
