@@ -6,7 +6,8 @@
 * :func:`z_test`: two-sided test of equal means by the normal approximation (scipy has no two-sample z test).
 
 Samples are 1-d torch tensors, numpy arrays or sequences; an empty sample gives NaN, not an error, so that a
-report can hold a row for a class that saw no streams.
+report can hold a row for a class that saw no streams. ``scipy.stats`` is imported on a test's first call: it takes
+longer to import than the rest of ``hbni_pyro``, which a robot loads without ever running a test.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from hbni_infra.checks import as_float, as_int, as_probability
 
@@ -44,6 +44,8 @@ def binomial_test(k: int, n: int, p: float) -> float:
     probability of every count no likelier than ``k``."""
     k, n = _count(k, n)
     as_int("n", n, 1)
+    from scipy import stats
+
     return float(stats.binomtest(k, n, as_probability("p", p)).pvalue)
 
 
@@ -54,6 +56,8 @@ def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, fl
     confidence = as_float("confidence", confidence, 0.0, 1.0, high_open=True)
     if n == 0:
         return math.nan, math.nan
+    from scipy import stats
+
     ci = stats.binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
     return float(ci.low), float(ci.high)
 
@@ -64,6 +68,8 @@ def ks_test(x: Any, y: Any) -> float:
     x, y = _sample("x", x), _sample("y", y)
     if not len(x) or not len(y):
         return math.nan
+    from scipy import stats
+
     return float(stats.ks_2samp(x, y).pvalue)
 
 
