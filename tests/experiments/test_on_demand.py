@@ -49,20 +49,28 @@ def _process(threshold: float) -> hbni_pyro.MacroObservationProcess:
     return hbni_pyro.MacroObservationProcess(hbni_pyro.make_filter("ssbf", num_classes=3), threshold, FRAMES)
 
 
-def _held(tmp_path, clf, path, process) -> hbni_pyro.StreamReplay:
-    held = BankBuild(_spec(2), clf, path, tmp_path, workers=0).result()
-    return hbni_pyro.StreamReplay(process, held.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(2))
+@pytest.fixture(scope="module")
+def banks(classifier, tmp_path_factory) -> tuple[torch.Tensor, torch.Tensor]:
+    """The bank of 2 sequences per class and a larger one of 6, built whole: ``(3, S, FRAMES, 3)`` outputs each."""
+    clf, path = classifier
+    root = tmp_path_factory.mktemp("banks")
+    return tuple(BankBuild(_spec(n), clf, path, root / str(n), workers=0).result() for n in (2, 6))
+
+
+def _held(banks, process) -> hbni_pyro.StreamReplay:
+    return hbni_pyro.StreamReplay(
+        process, banks[0].reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(2)
+    )
 
 
 @pytest.mark.parametrize("workers", [0, 1])
-def test_outcomes_on_demand_are_those_on_whole_sequences(tmp_path, classifier, workers, monkeypatch):
+def test_outcomes_on_demand_are_those_on_whole_sequences(classifier, banks, workers, monkeypatch):
     """The bank's next sequences, rendered only as far as the process reads them, give the outcomes that a larger
     bank's whole sequences give; each rendered length is one of the blocks' ends, and the frames rendered are
     those of the whole sequences."""
     clf, path = classifier
     process = _process(0.99)  # the crates decide at once, the cars take longer or time out
-    held = _held(tmp_path / "a", clf, path, process)
-    larger = BankBuild(_spec(6), clf, path, tmp_path / "b", workers=0).result()
+    held, larger = _held(banks, process), banks[1]
     seen = []  # the new sequences' streams, as the process reads them
     undecided = OnDemandStreams._undecided
     monkeypatch.setattr(
@@ -89,30 +97,30 @@ def test_outcomes_on_demand_are_those_on_whole_sequences(tmp_path, classifier, w
     torch.testing.assert_close(classify_frames(clf, _spec(2), 1, 3, 2, 9), larger[1, 3, 2:9])  # a block alone
 
 
-def test_no_new_sequences_replays_the_held_ones(tmp_path, classifier):
+def test_no_new_sequences_replays_the_held_ones(classifier, banks):
     clf, path = classifier
-    held = _held(tmp_path, clf, path, _process(0.9))
+    held = _held(banks, _process(0.9))
     replay, rendered = OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=0)
     assert rendered.shape == (3, 0) and replay.streams_per_class.tolist() == [2, 2, 2]
 
 
-def test_bad_arguments_are_refused(tmp_path, classifier):
+def test_bad_arguments_are_refused(classifier, banks):
     clf, path = classifier
     with pytest.raises(ValueError, match="workers: expected an int >= 0"):
         OnDemandStreams(_spec(2), clf, path, -1)
     more = OnDemandStreams(_spec(2), clf, path, 0)
-    held = _held(tmp_path, clf, path, _process(0.9))
+    held = _held(banks, _process(0.9))
     with pytest.raises(ValueError, match="pool: expected a replay of this process on 3 classes"):
         more.replay(_process(0.9), held, first=2, count=1)
     with pytest.raises(ValueError, match="first, count: expected ints >= 0"):
         more.replay(held.process, held, first=-1, count=1)
 
 
-def test_a_replay_that_reads_past_the_rendered_frames_is_refused(tmp_path, classifier, monkeypatch):
+def test_a_replay_that_reads_past_the_rendered_frames_is_refused(classifier, banks, monkeypatch):
     """The replay of all new streams together must decide within each one's rendered frames; a process taken as
     decided too early (here: after the first block) is caught, not replayed on uniform filler frames."""
     clf, path = classifier
-    held = _held(tmp_path, clf, path, _process(0.99))
+    held = _held(banks, _process(0.99))
     monkeypatch.setattr(OnDemandStreams, "_undecided", staticmethod(lambda process, todo, streams, rendered: []))
     with pytest.raises(RuntimeError, match="it read frames it had not read on those undecided alone"):
         OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=4)
