@@ -21,7 +21,7 @@ def collected(*args: str) -> list[str]:
 
 
 def test_whole_experiment_runs_are_slow_and_the_rest_is_not():
-    runs = "tests/experiments/test_hbni_toy.py"  # one test, a whole hbni_toy run
+    runs = "tests/experiments/test_planning_experiments.py"  # two tests, each running its experiment twice
     unit = "tests/experiments/test_config_defaults.py"  # composes configs, starts no process
     slow, fast = collected(runs, unit, "-m", "slow"), collected(runs, unit, "-m", "not slow")
     assert slow and all(test.startswith(runs) for test in slow)

@@ -1,4 +1,5 @@
-"""load_run: a round trip through a real run directory, and clear errors for missing pieces."""
+"""The hbni_toy experiment through the real Hydra entry point, and load_run on its run directory: a round trip, and
+clear errors for missing pieces."""
 
 import json
 import shutil
@@ -71,6 +72,16 @@ def test_missing_and_corrupt_artefacts(toy_run, tmp_path):
     (copy / "artifacts.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt manifest"):
         load_run(copy)
+
+
+def test_the_toy_study_writes_its_summary_figures_and_posterior(toy_run):
+    metrics = json.loads((toy_run / "metrics.json").read_text())
+    assert set(metrics["summary"]) == {"theta[0]", "theta[1]", "theta[2]", "kappa", "gamma"}
+    assert metrics["theta_true"] == [1.0, 6.0, 20.0]
+    for png in ("theta_posterior.png", "hyperparameters.png"):
+        assert (toy_run / png).stat().st_size > 10_000
+    assert HBNIPosterior.load(toy_run / "posterior.safetensors").samples["theta"].shape == (2, 50, 3)
+    assert (toy_run / ".hydra" / "config.yaml").is_file()
 
 
 def test_a_run_says_where_it_wrote_and_fills_its_log(toy_run):
