@@ -156,12 +156,13 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         results, histories = plan(models, cfg, settings, run_dir, bank)
         settings.clock.start("bank_wait", "waiting for the held-out bank")
         banked = bank.result(settings.progress)
-        more = OnDemandStreams(
-            bank.spec, clf, run_dir / "classifier.safetensors", int(cfg.study.threads), settings.progress
-        )
-        reliability = execute_closed_loop(
-            banked, outputs.held_out, noise, models, results, cfg, settings, run_dir, more
-        )
+        threads = int(cfg.study.threads)  # on one, this process renders: it would only wait on a worker it must start
+        with OnDemandStreams(
+            bank.spec, clf, run_dir / "classifier.safetensors", threads if threads > 1 else 0, settings.progress
+        ) as more:
+            reliability = execute_closed_loop(
+                banked, outputs.held_out, noise, models, results, cfg, settings, run_dir, more
+            )
     finally:
         bank.cancel()
     return write_outputs(run_dir, cfg, settings, outputs, noise, models, results, histories, bank, reliability)

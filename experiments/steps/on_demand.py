@@ -39,6 +39,9 @@ def _lengths(frames: int) -> list[int]:
 class OnDemandStreams:
     """Bank sequences rendered and classified for a process, a block of frames at a time.
 
+    The worker processes start with the first replay that renders and serve every later one (each takes seconds
+    to start: torch and the classifier); :meth:`close`, or leaving a ``with`` block, ends them.
+
     Args:
         spec: the bank the sequences belong to (its ``sequences`` are not read: any index may be asked for).
         clf: the fitted classifier; ``classifier_path`` its saved file (loaded by the workers).
@@ -58,6 +61,24 @@ class OnDemandStreams:
             raise ValueError(f"workers: expected an int >= 0, got {workers!r}")
         self.spec, self.clf, self.workers, self.progress = spec, clf, workers, progress
         self._classifier_path = str(classifier_path)
+        self._pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> OnDemandStreams:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """End the worker processes, if any started; a later replay starts new ones."""
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+    def _workers(self) -> ProcessPoolExecutor | None:
+        if self.workers and self._pool is None:
+            self._pool = worker_pool(self._classifier_path, self.workers)
+        return self._pool
 
     def replay(
         self, process: hbni_pyro.MacroObservationProcess, pool: hbni_pyro.StreamReplay, first: int, count: int
@@ -78,19 +99,14 @@ class OnDemandStreams:
         streams = torch.full((C, count, F, C), 1.0 / C, dtype=torch.float64)
         rendered = torch.zeros(C, count, dtype=torch.long)
         todo = [(c, i) for c in range(C) for i in range(count)]
-        workers = worker_pool(self._classifier_path, self.workers) if self.workers and todo else None
-        try:
-            with tqdm(total=len(todo), desc="powered held-out", unit="seq", disable=not self.progress) as bar:
-                for length in _lengths(F):
-                    if not todo:
-                        break
-                    self._render(todo, length, first, streams, rendered, workers)
-                    todo = self._undecided(process, todo, streams, rendered)
-                    bar.n = C * count - len(todo)
-                    bar.refresh()
-        finally:
-            if workers is not None:
-                workers.shutdown(cancel_futures=True)
+        with tqdm(total=len(todo), desc="powered held-out", unit="seq", disable=not self.progress) as bar:
+            for length in _lengths(F):
+                if not todo:
+                    break
+                self._render(todo, length, first, streams, rendered, self._workers())
+                todo = self._undecided(process, todo, streams, rendered)
+                bar.n = C * count - len(todo)
+                bar.refresh()
         if not count:
             return pool, rendered
         new = hbni_pyro.StreamReplay(process, streams.reshape(-1, F, C), torch.arange(C).repeat_interleave(count))

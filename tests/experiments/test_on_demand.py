@@ -1,5 +1,7 @@
 """Held-out sequences rendered on demand: the process's outcomes on them are those on the whole sequences."""
 
+import multiprocessing
+
 import numpy as np
 import pytest
 import torch
@@ -76,7 +78,8 @@ def test_outcomes_on_demand_are_those_on_whole_sequences(classifier, banks, work
     monkeypatch.setattr(
         OnDemandStreams, "_undecided", staticmethod(lambda *args: seen.append(args[2]) or undecided(*args))
     )
-    replay, rendered = OnDemandStreams(_spec(2), clf, path, workers).replay(process, held, first=2, count=4)
+    with OnDemandStreams(_spec(2), clf, path, workers) as more:
+        replay, rendered = more.replay(process, held, first=2, count=4)
     whole = hbni_pyro.StreamReplay(
         process, larger.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
     )
@@ -95,6 +98,22 @@ def test_outcomes_on_demand_are_those_on_whole_sequences(classifier, banks, work
             torch.testing.assert_close(streams[c, i, :n], larger[c, 2 + i, :n].double())
             assert (streams[c, i, n:] == 1 / 3).all()  # frames never rendered: uniform outputs
     torch.testing.assert_close(classify_frames(clf, _spec(2), 1, 3, 2, 9), larger[1, 3, 2:9])  # a block alone
+
+
+def test_the_workers_serve_every_replay_until_closed(classifier, banks):
+    clf, path = classifier
+    process = _process(0.99)
+    before = {p.pid for p in multiprocessing.active_children()}
+    with OnDemandStreams(_spec(2), clf, path, 1) as more:
+        once, _ = more.replay(process, _held(banks, process), first=2, count=1)
+        started = {p.pid for p in multiprocessing.active_children()} - before
+        twice, _ = more.replay(process, once, first=3, count=1)
+        assert len(started) == 1 and {p.pid for p in multiprocessing.active_children()} - before == started
+    assert not started & {p.pid for p in multiprocessing.active_children()}  # ended with the block
+    whole = hbni_pyro.StreamReplay(
+        process, banks[1].reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
+    )
+    assert torch.equal(twice.results.label, whole.subset(torch.arange(18).view(3, 6)[:, :4].reshape(-1)).results.label)
 
 
 def test_no_new_sequences_replays_the_held_ones(classifier, banks):
