@@ -13,7 +13,6 @@ Usage, from the repository root: ``python -m benchmarks.bench_noise_correctness 
 from __future__ import annotations
 
 import argparse
-import math
 import time
 
 import torch
@@ -21,6 +20,7 @@ import torch
 import hbni_pyro
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.sbc import run_sbc
+from hbni_infra.stats import monte_carlo_z
 from hbni_infra.streams import stream_seed, torch_generator
 
 SBC_CASES = {
@@ -91,10 +91,7 @@ def mh_vs_nuts(seed: int, nuts_samples: int) -> None:
         )
         nuts_cpu = time.process_time() - cpu
         a, b = mh.summary(), nuts.summary()
-        z = {
-            k: (a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
-            for k in a
-        }
+        z = monte_carlo_z(a, b)
         worst = max(z, key=lambda k: abs(z[k]))
         print(
             f"MH vs NUTS {model:9s} MH cpu {mh_cpu:6.1f} s, NUTS cpu {nuts_cpu:6.1f} s ({nuts.info['divergences']} divergences): "

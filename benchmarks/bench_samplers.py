@@ -10,12 +10,12 @@ two posterior means are in Monte Carlo standard errors.
 from __future__ import annotations
 
 import argparse
-import math
 
 import torch
 
 import hbni_pyro
 from hbni_pyro.generative import sample_outputs
+from hbni_infra.stats import monte_carlo_z
 from hbni_infra.streams import torch_generator
 
 
@@ -69,11 +69,8 @@ def main() -> None:
     print(f"ratio MH / NUTS in min-ESS/s: {rows[0][3] / rows[1][3]:.0f}x  (floor 100x)")
     print("posterior means (MH vs NUTS, difference in Monte Carlo standard errors):")
     a, b = rows[0][4], rows[1][4]
-    for k in a:
-        se = math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
-        print(
-            f"  {k:9s} {a[k]['mean']:8.3f} vs {b[k]['mean']:8.3f}   |diff| = {abs(a[k]['mean'] - b[k]['mean']) / se:.2f} SE"
-        )
+    for k, z in monte_carlo_z(a, b).items():
+        print(f"  {k:9s} {a[k]['mean']:8.3f} vs {b[k]['mean']:8.3f}   |diff| = {abs(z):.2f} SE")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@
 * :func:`wilson_interval`: Wilson score interval of a proportion (``scipy.stats.binomtest(...).proportion_ci``).
 * :func:`ks_test`: two-sided two-sample Kolmogorov-Smirnov test (``scipy.stats.ks_2samp``).
 * :func:`z_test`: two-sided test of equal means by the normal approximation (scipy has no two-sample z test).
+* :func:`monte_carlo_z`: the gap between two posterior summaries' means in Monte Carlo standard errors.
 
 Samples are 1-d torch tensors, numpy arrays or sequences; an empty sample gives NaN, not an error, so that a
 report can hold a row for a class that saw no streams. ``scipy.stats`` is imported on a test's first call: it takes
@@ -13,13 +14,14 @@ longer to import than the rest of ``hbni_pyro``, which a robot loads without eve
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from hbni_infra.checks import as_float, as_int, as_probability
 
-__all__ = ["binomial_test", "ks_test", "wilson_interval", "z_test"]
+__all__ = ["binomial_test", "ks_test", "monte_carlo_z", "wilson_interval", "z_test"]
 
 
 def _sample(name: str, x: Any) -> np.ndarray:
@@ -84,3 +86,20 @@ def z_test(x: Any, y: Any) -> float:
     if se == 0:
         return 1.0 if gap == 0 else 0.0
     return math.erfc(gap / se / math.sqrt(2))
+
+
+def monte_carlo_z(a: Mapping[str, Mapping[str, float]], b: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+    """Per scalar of posterior summary ``a`` (``name -> {"mean", "sd", "ess", ...}``, as ``HBNIPosterior.summary``
+    gives), ``(mean_a - mean_b) / sqrt(sd_a**2 / ess_a + sd_b**2 / ess_b)``: the signed gap between the two
+    samplers' means in Monte Carlo standard errors, each side's from its effective sample size.
+
+    Raises:
+        ValueError: ``b`` lacks a scalar of ``a``.
+    """
+    missing = sorted(set(a) - set(b))
+    if missing:
+        raise ValueError(f"b: expected every scalar of a, missing {missing}")
+    return {
+        k: (a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
+        for k in a
+    }

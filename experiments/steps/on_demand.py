@@ -75,7 +75,7 @@ class OnDemandStreams:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
-    def _workers(self) -> ProcessPoolExecutor | None:
+    def _worker_pool(self) -> ProcessPoolExecutor | None:
         if self.workers and self._pool is None:
             self._pool = worker_pool(self._classifier_path, self.workers)
         return self._pool
@@ -103,7 +103,7 @@ class OnDemandStreams:
             for length in _lengths(F):
                 if not todo:
                     break
-                self._render(todo, length, first, streams, rendered, self._workers())
+                self._render(todo, length, first, streams, rendered, self._worker_pool())
                 todo = self._undecided(process, todo, streams, rendered)
                 bar.n = C * count - len(todo)
                 bar.refresh()

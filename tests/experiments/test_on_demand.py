@@ -59,9 +59,10 @@ def banks(classifier, tmp_path_factory) -> tuple[torch.Tensor, torch.Tensor]:
     return tuple(BankBuild(_spec(n), clf, path, root / str(n), workers=0).result() for n in (2, 6))
 
 
-def _held(banks, process) -> hbni_pyro.StreamReplay:
+def _replay(bank: torch.Tensor, process: hbni_pyro.MacroObservationProcess) -> hbni_pyro.StreamReplay:
+    """``process`` replayed on every sequence of ``bank`` ``(3, S, FRAMES, 3)``."""
     return hbni_pyro.StreamReplay(
-        process, banks[0].reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(2)
+        process, bank.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(bank.shape[1])
     )
 
 
@@ -72,7 +73,7 @@ def test_outcomes_on_demand_are_those_on_whole_sequences(classifier, banks, work
     those of the whole sequences."""
     clf, path = classifier
     process = _process(0.99)  # the crates decide at once, the cars take longer or time out
-    held, larger = _held(banks, process), banks[1]
+    held, larger = _replay(banks[0], process), banks[1]
     seen = []  # the new sequences' streams, as the process reads them
     undecided = OnDemandStreams._undecided
     monkeypatch.setattr(
@@ -80,9 +81,7 @@ def test_outcomes_on_demand_are_those_on_whole_sequences(classifier, banks, work
     )
     with OnDemandStreams(_spec(2), clf, path, workers) as more:
         replay, rendered = more.replay(process, held, first=2, count=4)
-    whole = hbni_pyro.StreamReplay(
-        process, larger.reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
-    )
+    whole = _replay(larger, process)
     for field in ("label", "frames_used", "timed_out"):
         assert torch.equal(getattr(replay.results, field), getattr(whole.results, field)), field
     assert torch.equal(replay.true_class, whole.true_class)
@@ -105,20 +104,18 @@ def test_the_workers_serve_every_replay_until_closed(classifier, banks):
     process = _process(0.99)
     before = {p.pid for p in multiprocessing.active_children()}
     with OnDemandStreams(_spec(2), clf, path, 1) as more:
-        once, _ = more.replay(process, _held(banks, process), first=2, count=1)
+        once, _ = more.replay(process, _replay(banks[0], process), first=2, count=1)
         started = {p.pid for p in multiprocessing.active_children()} - before
         twice, _ = more.replay(process, once, first=3, count=1)
         assert len(started) == 1 and {p.pid for p in multiprocessing.active_children()} - before == started
     assert not started & {p.pid for p in multiprocessing.active_children()}  # ended with the block
-    whole = hbni_pyro.StreamReplay(
-        process, banks[1].reshape(-1, FRAMES, 3).double(), torch.arange(3).repeat_interleave(6)
-    )
+    whole = _replay(banks[1], process)
     assert torch.equal(twice.results.label, whole.subset(torch.arange(18).view(3, 6)[:, :4].reshape(-1)).results.label)
 
 
 def test_no_new_sequences_replays_the_held_ones(classifier, banks):
     clf, path = classifier
-    held = _held(banks, _process(0.9))
+    held = _replay(banks[0], _process(0.9))
     replay, rendered = OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=0)
     assert rendered.shape == (3, 0) and replay.streams_per_class.tolist() == [2, 2, 2]
 
@@ -128,7 +125,7 @@ def test_bad_arguments_are_refused(classifier, banks):
     with pytest.raises(ValueError, match="workers: expected an int >= 0"):
         OnDemandStreams(_spec(2), clf, path, -1)
     more = OnDemandStreams(_spec(2), clf, path, 0)
-    held = _held(banks, _process(0.9))
+    held = _replay(banks[0], _process(0.9))
     with pytest.raises(ValueError, match="pool: expected a replay of this process on 3 classes"):
         more.replay(_process(0.9), held, first=2, count=1)
     with pytest.raises(ValueError, match="first, count: expected ints >= 0"):
@@ -139,7 +136,7 @@ def test_a_replay_that_reads_past_the_rendered_frames_is_refused(classifier, ban
     """The replay of all new streams together must decide within each one's rendered frames; a process taken as
     decided too early (here: after the first block) is caught, not replayed on uniform filler frames."""
     clf, path = classifier
-    held = _held(banks, _process(0.99))
+    held = _replay(banks[0], _process(0.99))
     monkeypatch.setattr(OnDemandStreams, "_undecided", staticmethod(lambda process, todo, streams, rendered: []))
     with pytest.raises(RuntimeError, match="it read frames it had not read on those undecided alone"):
         OnDemandStreams(_spec(2), clf, path, 0).replay(held.process, held, first=2, count=4)

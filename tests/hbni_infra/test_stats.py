@@ -9,7 +9,7 @@ import pytest
 import torch
 from scipy import stats
 
-from hbni_infra.stats import binomial_test, ks_test, wilson_interval, z_test
+from hbni_infra.stats import binomial_test, ks_test, monte_carlo_z, wilson_interval, z_test
 
 
 @pytest.mark.parametrize(("k", "n", "p"), [(3, 10, 0.5), (28, 30, 0.99), (0, 5, 0.1), (450, 500, 0.95), (30, 30, 0.97)])
@@ -57,6 +57,20 @@ def test_z_test_against_the_normal_law():
     assert math.isnan(z_test([1.0], [1.0, 2.0]))
 
 
+def test_monte_carlo_z_is_the_gap_in_standard_errors_of_iid_draws():
+    """With ess = draws (independent draws), the z of two summaries is the two-sample z statistic of their means."""
+    g = np.random.default_rng(0)
+    x, y = g.normal(0.3, 2.0, 400), g.normal(0.0, 1.0, 100)
+
+    def summary(v: np.ndarray) -> dict:
+        return {"theta": {"mean": v.mean(), "sd": v.std(ddof=1), "ess": float(len(v)), "r_hat": 1.0}}
+
+    z = monte_carlo_z(summary(x), summary(y))
+    se = math.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
+    assert z.keys() == {"theta"} and z["theta"] == pytest.approx((x.mean() - y.mean()) / se, rel=1e-12)
+    assert monte_carlo_z(summary(y), summary(x))["theta"] == -z["theta"]  # signed: a's mean less b's
+
+
 @pytest.mark.parametrize(
     ("call", "error", "match"),
     [
@@ -71,6 +85,7 @@ def test_z_test_against_the_normal_law():
         (lambda: ks_test([[1.0]], [1.0]), ValueError, "x: expected a 1-d sample"),
         (lambda: ks_test([1.0], [float("nan")]), ValueError, "y: expected finite values"),
         (lambda: z_test([1.0, float("inf")], [1.0, 2.0]), ValueError, "x: expected finite values"),
+        (lambda: monte_carlo_z({"a": {}, "c": {}}, {"b": {}}), ValueError, "b: expected every scalar of a, missing"),
     ],
 )
 def test_bad_arguments_are_refused(call, error, match):

@@ -27,6 +27,7 @@ import hbni_pyro
 from hbni_infra.files import atomic_write_text
 from hbni_pyro.fit import _nuts_args
 from hbni_pyro.model import HyperPrior
+from hbni_pyro.validation import as_class_prior
 from hbni_pyro.variants import noise_model
 from known_models import DT, confusion_data, sequences, toy_obs
 
@@ -69,10 +70,9 @@ class Problem:
         spec = noise_model(self.model)
         x = hbni_pyro.as_outputs(self.obs)
         args = _nuts_args(spec, x, self.labels, self.sequence_ids)
-        prior = torch.full((x.shape[1],), 1.0 / x.shape[1], dtype=DT)
         return initialize_model(
             spec.pyro_model,
-            model_args=(*args, prior, HyperPrior()),
+            model_args=(*args, as_class_prior(None, x.shape[1]), HyperPrior()),  # fit's defaults
             max_plate_nesting=spec.max_plate_nesting,
             num_chains=num_chains,
             init_strategy=pyro.infer.autoguide.initialization.init_to_sample,

@@ -28,6 +28,7 @@ from hbni_pyro.sequence_model import (
     sequence_prior_log_prob,
     sequence_stats,
 )
+from hbni_infra.stats import monte_carlo_z
 from known_models import ALPHA, DT, LOC, confusion_data, confusion_params, sequence_params, sequences
 from nuts_references import load_reference, problems
 
@@ -205,24 +206,14 @@ def test_kernels_reject_bad_settings(kernel):
 # -- MH against NUTS ----------------------------------------------------------------------------
 
 
-def agree_within_monte_carlo_error(a: dict, b: dict, z_max: float) -> tuple[bool, float]:
-    """Whether two posterior summaries' means agree within ``z_max`` Monte Carlo standard errors (from each side's
-    ESS) on every scalar, and the worst z."""
-    worst = max(
-        abs(a[k]["mean"] - b[k]["mean"]) / math.sqrt(a[k]["sd"] ** 2 / a[k]["ess"] + b[k]["sd"] ** 2 / b[k]["ess"])
-        for k in a
-    )
-    return worst < z_max, worst
-
-
 def test_confusion_mh_and_nuts_agree():
     """Posterior means of all 13 scalars within 4 Monte Carlo standard errors of a stored NUTS run
     (``nuts_references.py``): a family-wise false-alarm rate under 0.1 %."""
     ref = load_reference("confusion")
     mh = ref.problem.fit(num_chains=32, num_samples=1500, warmup_steps=1000, seed=1)
     assert set(mh.summary()) == set(ref.summary) and len(ref.summary) == 13 and ref.divergences == 0
-    ok, worst = agree_within_monte_carlo_error(mh.summary(), ref.summary, 4.0)
-    assert ok, worst
+    z = monte_carlo_z(mh.summary(), ref.summary)
+    assert max(map(abs, z.values())) < 4, z
 
 
 def test_sequence_mh_and_nuts_agree():
@@ -232,8 +223,8 @@ def test_sequence_mh_and_nuts_agree():
     ref = load_reference("sequence")
     mh = ref.problem.fit(num_chains=32, num_samples=1500, warmup_steps=500, seed=1)
     assert set(mh.summary()) == set(ref.summary) and len(ref.summary) == 22
-    ok, worst = agree_within_monte_carlo_error(mh.summary(), ref.summary, 4.0)
-    assert ok, worst
+    z = monte_carlo_z(mh.summary(), ref.summary)
+    assert max(map(abs, z.values())) < 4, z
     torch.testing.assert_close(mh.label_probs, ref.label_probs, rtol=0, atol=0.15)
 
 
