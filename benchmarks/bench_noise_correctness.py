@@ -18,6 +18,7 @@ import time
 import torch
 
 import hbni_pyro
+from hbni_pyro.fit import NUTS_SEED_LIMIT
 from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.sbc import run_sbc
 from hbni_infra.stats import monte_carlo_z
@@ -85,7 +86,7 @@ def mh_vs_nuts(seed: int, nuts_samples: int) -> None:
             num_chains=2,
             num_samples=nuts_samples,
             warmup_steps=nuts_samples // 2,
-            seed=stream_seed(seed, "nuts"),
+            seed=stream_seed(seed, "nuts") % NUTS_SEED_LIMIT,
             progress=False,
             **extra,
         )
