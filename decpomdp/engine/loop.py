@@ -23,8 +23,14 @@ more than most rules):
 With two agents, each kind of event runs in its own copy of the rules, with ``agents`` the constant tuple
 ``ONLY_0``, ``ONLY_1`` (one agent completes alone) or ``BOTH`` (they complete together, as after a joint MA):
 the rules' tests of ``agents[a]``, coin flips for the branch predictor, fold away (package delivery's loop runs
-1.5x faster with the first two, 6 % faster again with the third; compiling it takes about 55 s, 38 s without
-the third copy). Rules therefore read ``agents`` (a bool array or such a tuple) and count agents with ``len``.
+1.5x faster with the first two, 6 % faster again with the third). Rules therefore read ``agents`` (a bool array
+or such a tuple) and count agents with ``len``.
+
+The small helpers the rules call at many sites (an index into the state, a table lookup, the random stream's
+mix) are plain ``@njit`` functions, which LLVM inlines: numba's own inlining copies a helper's IR at every call
+site of every copy of the rules, and typing and SSA passes then run over the whole copy. Package delivery's loop
+compiled in 65 s with its helpers inlined by numba and compiles in 29 s without, at the same speed and with the
+same returns (disaster relief's: 16.5 and 8.6 CPU s).
 
 :func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
 long, which :func:`decpomdp.engine.simulate.run` calls on chunks of rollouts in parallel::

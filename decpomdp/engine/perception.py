@@ -59,7 +59,7 @@ def no_perception() -> OutcomeTable:
     return OutcomeTable(np.ones((1, 1)), np.zeros((1, 1), dtype=np.int64), np.ones((1, 1), dtype=np.int64))
 
 
-@njit(inline="always")
+@njit
 def sample_outcome(perception: tuple, true_class: np.int64, rng: np.ndarray) -> tuple[np.int64, np.int64]:
     """``(label, frames)`` of one inference of an object of class ``true_class``."""
     cdf, label, frames = perception

@@ -124,7 +124,7 @@ def tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return TRAVEL.copy(), SLOWDOWN.copy(), DESTINATION.copy()
 
 
-@njit(inline="always")
+@njit
 def at(a, field):
     """Index of robot ``a``'s entry ``field`` in the int state."""
     return _T + _R * a + field
@@ -142,7 +142,7 @@ def reset(si, sf, p, tab, perception, num_agents, rng):
         si[at(a, BELIEF)] = -1
 
 
-@njit(inline="always")
+@njit
 def may_start(si, a, ma):
     """Whether robot ``a`` may start ``ma``: the preconditions."""
     loc, carry = si[at(a, LOC)], si[at(a, CARRY)]
@@ -157,7 +157,7 @@ def may_start(si, a, ma):
     return carry >= 0 and HOSPITAL <= loc <= CRATE_ZONE  # put down
 
 
-@njit(inline="always")
+@njit
 def mean_duration(si, tab, a, ma):
     """Mean duration of ``ma`` for robot ``a``: travel or handling time, slowed down by its health."""
     travel, slowdown, _ = tab

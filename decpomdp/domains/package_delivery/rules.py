@@ -307,26 +307,26 @@ def tables(reference_pickup: bool, rewards: Rewards) -> tuple:
     return (*start_tables(reference_pickup), *drop_tables(rewards), *ma_tables(), arrival)
 
 
-@njit(inline="always")
+@njit
 def at(a, field):
     """Index of robot ``a``'s entry ``field`` in the int state."""
     return _T + _R * a + field
 
 
-@njit(inline="always")
+@njit
 def new_package(tab, rng):
     """A package code for a base that has just been emptied."""
     arrival = tab[7]
     return arrival[below(rng, arrival.shape[0])]
 
 
-@njit(inline="always")
+@njit
 def waiting_here(si, a):
     """The package waiting at robot ``a``'s base (Base1's away from the bases)."""
     return si[BASE + 1] if si[at(a, LOC)] == BASE2 else si[BASE]
 
 
-@njit(inline="always")
+@njit
 def situation(si, a, ma, here):
     """Index of robot ``a`` beginning ``ma`` with ``here`` at its base in the start tables (unsigned: numba adds
     no negative-index wraparound to a lookup with it)."""
