@@ -2,7 +2,7 @@
 
 ``tests/conftest.py`` runs both parts side by side before the suite's workers start. On a fresh machine each
 worker would otherwise compile every kernel it meets, several workers the same kernel at once (package
-delivery's event loop alone takes about 80 s). Where the cache is warm, a part only loads it.
+delivery's event loop alone takes about 30 s). Where the cache is warm, a part only loads it.
 
     python tests/compile_kernels.py package_delivery|others
 """
