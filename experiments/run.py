@@ -33,7 +33,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from hydra.utils import get_method
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from experiments.common import write_json
 from experiments.schemas import check_config, check_overrides, register
@@ -69,8 +69,30 @@ def _config_error(run_dir: Path, exc: Exception) -> None:
     sys.exit(2)
 
 
+HELP_FLAGS = ("--help", "-h")
+"""Flags that print the experiments' list (:func:`help_text`) instead of running one."""
+
+
+def help_text() -> str:
+    """The ``hydra.help.template`` of ``conf/config.yaml``: the command line and the experiments, one per line.
+
+    :func:`main` prints it without composing any config: Hydra's own ``--help`` first lists every config group,
+    which copies the whole config store for each group (seconds), although the template shows none of them."""
+    config = OmegaConf.load(Path(__file__).resolve().parent / "conf" / "config.yaml")
+    return config.hydra.help.template
+
+
+def main() -> None:
+    """The console entry point (``hbni-pyro``, ``python -m experiments.run``): ``--help`` or ``-h`` prints
+    :func:`help_text`; anything else is a run (or a ``-m`` sweep) of :func:`run`."""
+    if any(arg in HELP_FLAGS for arg in sys.argv[1:]):
+        print(help_text())
+        return
+    run()
+
+
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
-def main(cfg: DictConfig) -> dict:
+def run(cfg: DictConfig) -> dict:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     tic = time.perf_counter()
     try:

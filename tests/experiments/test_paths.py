@@ -45,13 +45,21 @@ def test_the_root_can_be_moved_and_latest_run_finds_its_runs_from_anywhere(tmp_p
     assert _compose("experiment=mission").paths.outputs == str(root / "outputs")
 
 
-def test_help_lists_every_experiment_on_one_line():
+def test_help_lists_every_experiment_on_one_line(tmp_path):
     import subprocess
     import sys
 
+    from experiments.run import help_text
+
     out = subprocess.run(
-        [sys.executable, "-m", "experiments.run", "--help"], cwd=ROOT, capture_output=True, text=True, check=True
+        [sys.executable, "-m", "experiments.run", "experiment=hbni_toy", "-h"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**os.environ, "HBNI_PYRO_ROOT": str(tmp_path)},
     ).stdout
     names = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
     listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ") and line.split()}
     assert set(names) <= listed and len(out.splitlines()) < 30
+    assert out == help_text() + "\n" and not any(tmp_path.iterdir())  # the help runs nothing and writes nothing
