@@ -3,10 +3,12 @@ marker on every test that starts an experiment process."""
 
 from __future__ import annotations
 
+import functools
 import inspect
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -51,15 +53,18 @@ def _starts_an_experiment(item: pytest.Item) -> bool:
     for defs in info.name2fixturedefs.values() if info else ():
         for fixture in defs:
             parts += [fixture.func, *(getattr(module, n, None) for n in fixture.func.__code__.co_names)]
-    for part in parts:
-        if inspect.isfunction(part):
-            try:
-                source = inspect.getsource(part)
-            except OSError:
-                continue
-            if "experiments.run" in source and "sys.executable" in source:
-                return True
-    return False
+    return any(_runs_an_experiment(part) for part in parts if inspect.isfunction(part))
+
+
+@functools.cache
+def _runs_an_experiment(function: Callable) -> bool:
+    """Whether ``function``'s source starts ``python -m experiments.run`` (read once per function: the items of a
+    parametrized test and the tests sharing a fixture ask again)."""
+    try:
+        source = inspect.getsource(function)
+    except OSError:
+        return False
+    return "experiments.run" in source and "sys.executable" in source
 
 
 @pytest.fixture(scope="session")
