@@ -26,6 +26,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from experiments.filtering_error import run as run_study
+from experiments.schemas import register
 from hbni_pyro.filters import HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
@@ -58,6 +59,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
+    register()  # the experiments' schemas, which their configs name
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(
             config_name="config", overrides=["experiment=filtering_error", "progress=false", f"seed={args.seed}"]

@@ -56,6 +56,7 @@ def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
         warmup_steps=300,
         seed=seed,
         progress=False,
+        class_names=list(CLASSES),
     )
     return clf, posterior
 
