@@ -52,6 +52,7 @@ from numba.core.compiler import Compiler
 from hbni_infra.counter_random import stream_key
 
 ZERO_DURATION = 1  # error flag: a rule returned an end time not after the event that started it
+NOT_TWO_AGENTS = 2  # error flag: a loop compiled for two agents got controllers of another number
 ONLY_0, ONLY_1 = (True, False), (False, True)  # the flags of an event where one of two agents completes alone
 BOTH = (True, True)  # the flags of an event where both of two agents complete
 
@@ -140,97 +141,137 @@ def _event(start, complete, rules, controller, log_gamma, track_visits, out, scr
     return reward * math.exp(t * log_gamma) if reward != 0.0 else 0.0
 
 
-@njit(inline="always")
-def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
-    """Simulate rollouts ``lo .. hi - 1`` (rollout ``b`` is rollout ``b % R`` of controller ``b // R``) into
-    ``out`` (row ``chunk`` of its per-chunk arrays) with the working arrays ``scratch``; see the module doc.
+def _event_loop(two_agents: bool):
+    """:func:`event_loop`, or with ``two_agents`` the loop for exactly two agents (:data:`event_loop_two_agents`)."""
 
-    Args:
-        args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
-            horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
-            (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
-            ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
-            or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
-            instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
-    """
-    (
-        params,
-        tables,
-        perception,
-        action,
-        next_node,
-        first_controller,
-        stride,
-        rollouts,
-        seed,
-        horizon,
-        log_gamma,
-        counter_slots,
-        track_visits,
-        init_int,
-        init_float,
-        keep_state,
-    ) = args
-    a_count = action.shape[1]
-    rules, controller = (params, tables, perception), (action, next_node)
-    si, sf, node, act, end, obs, agents, rng = scratch
-    use_init = init_int.shape[0] > 0
-    for b in range(lo, hi):
-        k = b // rollouts
-        rng[0] = stream_key(seed, first_controller + stride * k, b - k * rollouts)
-        if use_init:
-            for i in range(si.shape[0]):
-                si[i] = init_int[i]
-            for i in range(sf.shape[0]):
-                sf[i] = init_float[i]
-        else:
-            si[:] = 0
-            sf[:] = 0.0
-            reset(si, sf, params, tables, perception, a_count, rng)
-        for a in range(a_count):
-            node[a] = 0
-            act[a] = action[k, a, 0]
-            agents[a] = True
-            end[a] = 0.0
-        start(si, sf, params, tables, perception, agents, act, 0.0, end, rng)
-        value, t_prev = 0.0, 0.0
-        while True:
-            if a_count == 2:  # the next completion without a loop over agents (a tenth of package delivery's time)
-                t = min(end[0], end[1])
+    @njit(inline="always")
+    def event_loop(reset, start, complete, args, out, scratch, chunk, lo, hi):
+        """Simulate rollouts ``lo .. hi - 1`` (rollout ``b`` is rollout ``b % R`` of controller ``b // R``) into
+        ``out`` (row ``chunk`` of its per-chunk arrays) with the working arrays ``scratch``; see the module doc.
+
+        Args:
+            args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
+                horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
+                (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
+                ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
+                or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
+                instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
+        """
+        (
+            params,
+            tables,
+            perception,
+            action,
+            next_node,
+            first_controller,
+            stride,
+            rollouts,
+            seed,
+            horizon,
+            log_gamma,
+            counter_slots,
+            track_visits,
+            init_int,
+            init_float,
+            keep_state,
+        ) = args
+        a_count = action.shape[1]
+        if two_agents and a_count != 2:
+            out.status[chunk] = NOT_TWO_AGENTS
+            return
+        rules, controller = (params, tables, perception), (action, next_node)
+        si, sf, node, act, end, obs, agents, rng = scratch
+        use_init = init_int.shape[0] > 0
+        for b in range(lo, hi):
+            k = b // rollouts
+            rng[0] = stream_key(seed, first_controller + stride * k, b - k * rollouts)
+            if use_init:
+                for i in range(si.shape[0]):
+                    si[i] = init_int[i]
+                for i in range(sf.shape[0]):
+                    sf[i] = init_float[i]
             else:
-                t = end[0]
-                for a in range(1, a_count):
-                    t = min(t, end[a])
-            if t > horizon:
-                break
-            if not t > t_prev:
-                out.status[chunk] = ZERO_DURATION
-                break
-            if a_count == 2:  # two robots: a copy of the rules for each of the three events, flags constant
-                if end[0] < end[1]:
-                    value += _event(
-                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, ONLY_0
-                    )
-                elif end[1] < end[0]:
-                    value += _event(
-                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, ONLY_1
-                    )
+                si[:] = 0
+                sf[:] = 0.0
+                reset(si, sf, params, tables, perception, a_count, rng)
+            for a in range(a_count):
+                node[a] = 0
+                act[a] = action[k, a, 0]
+                agents[a] = True
+                end[a] = 0.0
+            start(si, sf, params, tables, perception, agents, act, 0.0, end, rng)
+            value, t_prev = 0.0, 0.0
+            while True:
+                # the next completion without a loop over agents (a tenth of package delivery's time)
+                if two_agents or a_count == 2:
+                    t = min(end[0], end[1])
                 else:
+                    t = end[0]
+                    for a in range(1, a_count):
+                        t = min(t, end[a])
+                if t > horizon:
+                    break
+                if not t > t_prev:
+                    out.status[chunk] = ZERO_DURATION
+                    break
+                # two robots: a copy of the rules for each of the three events, flags constant
+                if two_agents or a_count == 2:
+                    if end[0] < end[1]:
+                        value += _event(
+                            start,
+                            complete,
+                            rules,
+                            controller,
+                            log_gamma,
+                            track_visits,
+                            out,
+                            scratch,
+                            chunk,
+                            k,
+                            t,
+                            ONLY_0,
+                        )
+                    elif end[1] < end[0]:
+                        value += _event(
+                            start,
+                            complete,
+                            rules,
+                            controller,
+                            log_gamma,
+                            track_visits,
+                            out,
+                            scratch,
+                            chunk,
+                            k,
+                            t,
+                            ONLY_1,
+                        )
+                    else:
+                        value += _event(
+                            start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, BOTH
+                        )
+                else:
+                    for a in range(a_count):
+                        agents[a] = end[a] == t
                     value += _event(
-                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, BOTH
+                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, agents
                     )
-            else:
-                for a in range(a_count):
-                    agents[a] = end[a] == t
-                value += _event(
-                    start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, agents
-                )
-            t_prev = t
-        out.returns[b] = value
-        for j in range(counter_slots.shape[0]):
-            out.counters[j, b] = si[counter_slots[j]]
-        if keep_state:
-            for i in range(si.shape[0]):
-                out.final_int[b, i] = si[i]
-            for i in range(sf.shape[0]):
-                out.final_float[b, i] = sf[i]
+                t_prev = t
+            out.returns[b] = value
+            for j in range(counter_slots.shape[0]):
+                out.counters[j, b] = si[counter_slots[j]]
+            if keep_state:
+                for i in range(si.shape[0]):
+                    out.final_int[b, i] = si[i]
+                for i in range(sf.shape[0]):
+                    out.final_float[b, i] = sf[i]
+
+    return event_loop
+
+
+event_loop = _event_loop(False)
+event_loop_two_agents = _event_loop(True)
+"""The event loop of a domain whose every instance has two agents: numba removes the loop over any number of
+agents (``two_agents`` is a constant of its code) before it inlines the loop, so the chunk function compiles three
+copies of the rules instead of four (package delivery's: 23 s instead of 29, at the same speed). It stops a chunk with the status
+:data:`NOT_TWO_AGENTS` when the controllers have another number of agents."""

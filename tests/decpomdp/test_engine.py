@@ -398,3 +398,12 @@ def test_controllers_too_large_for_int16_tables_run_on_int32(tmp_path):
     one = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
     env = module["Foraging"]()
     assert torch.equal(run(env, wide, 500, 5).returns, run(env, one, 500, 5).returns)
+
+
+def test_the_two_agent_loop_stops_on_another_number_of_agents():
+    """Package delivery compiles the loop for two robots only; controllers of one robot reach it only past the
+    callers' size checks, and it refuses them instead of reading a second robot that is not there."""
+    obs = PackageDelivery().num_obs
+    one = JointController(torch.zeros(1, 1, 1, dtype=torch.long), torch.zeros(1, 1, 1, obs, dtype=torch.long))
+    with pytest.raises(ValueError, match="runs two agents, got 1"):
+        run(PackageDelivery(), one, 2, seed=0)

@@ -93,7 +93,7 @@ import torch
 from numba import njit
 
 from decpomdp.engine import EngineDomain, StateLayout, below, normal
-from decpomdp.engine.loop import chunk_function, event_loop
+from decpomdp.engine.loop import chunk_function, event_loop_two_agents
 
 NODE_NAMES = ["Base1", "Base2", "Rendezvous", "Dest1", "Dest2"]
 BASE1, BASE2, RENDEZVOUS, DEST1, DEST2 = range(5)
@@ -476,8 +476,8 @@ def complete(si, sf, p, tab, perception, agents, actions, t, obs, rng):
 
 @chunk_function
 def chunk(args, out, scratch, index, lo, hi):
-    """The engine's event loop with these rules, on rollouts ``lo .. hi - 1``."""
-    return event_loop(reset, start, complete, args, out, scratch, index, lo, hi)
+    """The engine's event loop for two robots with these rules, on rollouts ``lo .. hi - 1``."""
+    return event_loop_two_agents(reset, start, complete, args, out, scratch, index, lo, hi)
 
 
 ENGINE = EngineDomain(chunk, StateLayout(team=TEAM, robot=ROBOT), COUNTERS)
