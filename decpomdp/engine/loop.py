@@ -214,47 +214,24 @@ def _event_loop(two_agents: bool):
                 if not t > t_prev:
                     out.status[chunk] = ZERO_DURATION
                     break
-                # two robots: a copy of the rules for each of the three events, flags constant
-                if two_agents or a_count == 2:
-                    if end[0] < end[1]:
-                        value += _event(
-                            start,
-                            complete,
-                            rules,
-                            controller,
-                            log_gamma,
-                            track_visits,
-                            out,
-                            scratch,
-                            chunk,
-                            k,
-                            t,
-                            ONLY_0,
-                        )
-                    elif end[1] < end[0]:
-                        value += _event(
-                            start,
-                            complete,
-                            rules,
-                            controller,
-                            log_gamma,
-                            track_visits,
-                            out,
-                            scratch,
-                            chunk,
-                            k,
-                            t,
-                            ONLY_1,
-                        )
-                    else:
-                        value += _event(
-                            start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, BOTH
-                        )
-                else:
+                if not (two_agents or a_count == 2):
                     for a in range(a_count):
                         agents[a] = end[a] == t
                     value += _event(
                         start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, agents
+                    )
+                # two robots: a copy of the rules for each of the three events, flags constant
+                elif end[0] < end[1]:
+                    value += _event(
+                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, ONLY_0
+                    )
+                elif end[1] < end[0]:
+                    value += _event(
+                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, ONLY_1
+                    )
+                else:
+                    value += _event(
+                        start, complete, rules, controller, log_gamma, track_visits, out, scratch, chunk, k, t, BOTH
                     )
                 t_prev = t
             out.returns[b] = value
