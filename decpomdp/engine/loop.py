@@ -29,8 +29,8 @@ or such a tuple) and count agents with ``len``.
 The small helpers the rules call at many sites (an index into the state, a table lookup, the random stream's
 mix) are plain ``@njit`` functions, which LLVM inlines: numba's own inlining copies a helper's IR at every call
 site of every copy of the rules, and typing and SSA passes then run over the whole copy. Package delivery's loop
-compiled in 65 s with its helpers inlined by numba and compiles in 29 s without, at the same speed and with the
-same returns (disaster relief's: 16.5 and 8.6 CPU s).
+compiled in 65 s with its helpers inlined by numba and in 29 s without, at the same speed and with the same
+returns (disaster relief's: 16.5 and 8.6 CPU s).
 
 :func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
 long, which :func:`decpomdp.engine.simulate.run` calls on chunks of rollouts in parallel::
@@ -150,12 +150,13 @@ def _event_loop(two_agents: bool):
         ``out`` (row ``chunk`` of its per-chunk arrays) with the working arrays ``scratch``; see the module doc.
 
         Args:
-            args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts, seed,
-                horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
+            args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts,
+                seed, horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
                 (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
-                ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed ``first_controller + k``)
-                or 0 (common random numbers); ``init_int``/``init_float`` a state every rollout starts from
-                instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final state.
+                ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed
+                ``first_controller + k``) or 0 (common random numbers); ``init_int``/``init_float`` a state every
+                rollout starts from instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final
+                state.
         """
         (
             params,
@@ -250,5 +251,5 @@ event_loop = _event_loop(False)
 event_loop_two_agents = _event_loop(True)
 """The event loop of a domain whose every instance has two agents: numba removes the loop over any number of
 agents (``two_agents`` is a constant of its code) before it inlines the loop, so the chunk function compiles three
-copies of the rules instead of four (package delivery's: 23 s instead of 29, at the same speed). It stops a chunk with the status
-:data:`NOT_TWO_AGENTS` when the controllers have another number of agents."""
+copies of the rules instead of four (package delivery's: 23-24 s instead of 29, at the same speed). It stops a
+chunk with the status :data:`NOT_TWO_AGENTS` when the controllers have another number of agents."""

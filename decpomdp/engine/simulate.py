@@ -226,9 +226,10 @@ def run(
     else:
         for future in [_executor(threads).submit(domain.chunk, *job) for job in jobs]:
             future.result()
-    if int(out.status.max()) == loop.ZERO_DURATION:
+    status = int(out.status.max())
+    if status == loop.ZERO_DURATION:
         raise RuntimeError("env.start returned a completion time not after the start time (zero duration)")
-    if int(out.status.max()) == loop.NOT_TWO_AGENTS:
+    if status == loop.NOT_TWO_AGENTS:
         raise ValueError(f"controller: this domain's engine runs two agents, got {a_count}")
     shape = (controller.num_controllers, rollouts)
     counters = {name: torch.from_numpy(out.counters[j]).view(shape) for j, name in enumerate(domain.counters)}
