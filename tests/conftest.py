@@ -15,6 +15,7 @@ import pytest
 import torch
 from filelock import FileLock
 
+from experiment_runs import run_experiment
 from mission_tiny import TINY_BANKS, TINY_MISSION
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -58,13 +59,14 @@ def _starts_an_experiment(item: pytest.Item) -> bool:
 
 @functools.cache
 def _runs_an_experiment(function: Callable) -> bool:
-    """Whether ``function``'s source starts ``python -m experiments.run`` (read once per function: the items of a
+    """Whether ``function``'s source starts ``python -m experiments.run``, itself or through
+    :func:`experiment_runs.run_experiment` (read once per function: the items of a
     parametrized test and the tests sharing a fixture ask again)."""
     try:
         source = inspect.getsource(function)
     except OSError:
         return False
-    return "experiments.run" in source and "sys.executable" in source
+    return "run_experiment(" in source or ("experiments.run" in source and "sys.executable" in source)
 
 
 @pytest.fixture(scope="session")
@@ -82,20 +84,15 @@ def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     run_dir = root / "outputs" / "mission" / "2026-01-01_00-00-00"
     with FileLock(str(shared / "tiny-mission.lock")):
         if not (run_dir / "metrics.json").is_file():
-            subprocess.run(
+            run_experiment(
                 [
-                    sys.executable,
-                    "-m",
-                    "experiments.run",
                     "experiment=mission",
                     *TINY_MISSION,
                     TINY_BANKS,
                     f"hydra.run.dir={run_dir}",
                     "mission.bank.workers=1",
                 ],  # the bank built in the background
-                cwd=REPO_ROOT,
-                check=True,
-                capture_output=True,
+                REPO_ROOT,
                 env={**os.environ, "HBNI_PYRO_ROOT": str(root)},
             )
     return run_dir

@@ -4,12 +4,11 @@ checked in the parent before any is launched). Composition-time checks: Hydra's 
 one real sweep."""
 
 import dataclasses
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from experiment_runs import run_experiment
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.types import RunMode
@@ -189,15 +188,13 @@ def test_the_sweep_guard_exits_2_with_one_line(capsys):
     assert err.startswith("config error: hbni.model: experiment hbni_toy never reads it") and "\n" not in err
 
 
-@pytest.mark.slow  # starts the entry point in a process (about 10 s, imports and composition)
+@pytest.mark.slow  # starts the entry point in a process
 def test_a_real_sweep_over_an_unread_key_fails_before_any_work(tmp_path):
     sweep = tmp_path / "sweep"
-    proc = subprocess.run(
-        [sys.executable, "-m", "experiments.run", "-m", "experiment=hbni_toy", "hbni.model=paper,sequence"]
-        + [f"hydra.sweep.dir={sweep}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
+    proc = run_experiment(
+        ["-m", "experiment=hbni_toy", "hbni.model=paper,sequence", f"hydra.sweep.dir={sweep}"],
+        ROOT,
+        check=False,
         timeout=300,
     )
     assert proc.returncode == 2, proc.stderr

@@ -4,11 +4,10 @@ and config errors raised before any work."""
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from experiment_runs import run_experiment
 from omegaconf import OmegaConf
 
 from decpomdp import JointController
@@ -26,11 +25,8 @@ SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4
 
 
 def test_dpomdp_benchmarks_smoke(tmp_path):
-    subprocess.run(
+    run_experiment(
         [
-            sys.executable,
-            "-m",
-            "experiments.run",
             "experiment=dpomdp_benchmarks",
             f"hydra.run.dir={tmp_path}",
             "progress=false",
@@ -40,9 +36,7 @@ def test_dpomdp_benchmarks_smoke(tmp_path):
             "study.random_controllers=10",
             f"study.only=[{','.join(SMOKE_ROWS)}]",
         ],
-        cwd=REPO,
-        check=True,
-        capture_output=True,
+        REPO,
     )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     rows = metrics["rows"]

@@ -4,13 +4,12 @@ and a -m sweep over hbni.filter.mode runs both jobs through the joblib launcher.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 import yaml
+from experiment_runs import run_experiment
 from hydra import compose, initialize_config_dir
 
 from experiments.filtering_error import first_crossing, wilson_bounds
@@ -52,14 +51,8 @@ def test_wilson_bounds_and_crossings():
     assert first_crossing(err, -1) is None
 
 
-def _run(args, repo_root):
-    return subprocess.run(
-        [sys.executable, "-m", "experiments.run", *args], cwd=repo_root, check=True, capture_output=True, text=True
-    )
-
-
 def test_filtering_error_smoke(tmp_path, repo_root):
-    _run(["experiment=filtering_error", f"hydra.run.dir={tmp_path}", *TINY_FILTERING], repo_root)
+    run_experiment(["experiment=filtering_error", f"hydra.run.dir={tmp_path}", *TINY_FILTERING], repo_root)
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["N"] == list(range(1, 9)) and m["settings"]["hbni_filter_mode"] == "plugin"
     for size in ("15", "30"):
@@ -82,7 +75,7 @@ def test_filtering_error_smoke(tmp_path, repo_root):
 
 
 def test_macro_observation_smoke(tmp_path, repo_root):
-    _run(
+    run_experiment(
         [
             "experiment=macro_observation",
             f"hydra.run.dir={tmp_path}",
@@ -105,7 +98,7 @@ def test_macro_observation_smoke(tmp_path, repo_root):
 
 
 def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
-    _run(
+    run_experiment(
         [
             "-m",
             "experiment=filtering_error",

@@ -3,11 +3,10 @@ clear errors for missing pieces."""
 
 import json
 import shutil
-import subprocess
-import sys
 
 import pytest
 import torch
+from experiment_runs import run_experiment
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior
@@ -16,10 +15,7 @@ from hbni_pyro import HBNIPosterior
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory, repo_root):
     run_dir = tmp_path_factory.mktemp("toy")
-    cmd = [
-        sys.executable,
-        "-m",
-        "experiments.run",
+    args = [
         "experiment=hbni_toy",
         f"hydra.run.dir={run_dir}",
         "hbni.fit.num_chains=2",
@@ -27,7 +23,7 @@ def toy_run(tmp_path_factory, repo_root):
         "hbni.fit.warmup_steps=50",
         "progress=false",
     ]
-    subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
+    run_experiment(args, repo_root)
     return run_dir
 
 
@@ -91,16 +87,13 @@ def test_a_run_says_where_it_wrote_and_fills_its_log(toy_run):
 
 
 def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
-    cmd = [
-        sys.executable,
-        "-m",
-        "experiments.run",
+    args = [
         "experiment=hbni_toy",
         f"hydra.run.dir={tmp_path}",
         "entry=experiments.hbni_toy.no_such_study",
         "progress=false",
     ]  # fails once started
-    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    proc = run_experiment(args, repo_root, check=False)
     assert proc.returncode != 0 and "no_such_study" in proc.stderr
     status = json.loads((tmp_path / "status.json").read_text())
     assert status["status"] == "failed" and "no_such_study" in status["error"]
@@ -131,10 +124,7 @@ def _without_timings(obj):
 
 
 def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root):
-    cmd = [
-        sys.executable,
-        "-m",
-        "experiments.run",
+    args = [
         "experiment=hbni_toy",
         f"hydra.run.dir={tmp_path}",
         "hbni.fit.num_chains=2",
@@ -142,6 +132,6 @@ def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root
         "hbni.fit.warmup_steps=50",
         "progress=false",
     ]
-    subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True)
+    run_experiment(args, repo_root)
     first, second = (json.loads((d / "metrics.json").read_text()) for d in (toy_run, tmp_path))
     assert json.dumps(_without_timings(first)) == json.dumps(_without_timings(second))

@@ -1,12 +1,11 @@
 """The mission through the real entry point with tiny settings: artefacts, report, load_run, sweeps."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from experiment_runs import run_experiment
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior, MacroObservationModel
@@ -19,8 +18,7 @@ checks them)."""
 
 
 def _run(repo_root, *args, multirun=False, tiny=TINY):
-    cmd = [sys.executable, "-m", "experiments.run", *(["-m"] if multirun else []), "experiment=mission", *tiny, *args]
-    return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
+    return run_experiment([*(["-m"] if multirun else []), "experiment=mission", *tiny, *args], repo_root)
 
 
 @pytest.fixture(scope="module")
@@ -274,11 +272,8 @@ def test_stream_runs_a_missions_saved_models(mission_run, tmp_path, repo_root):
         writer.write(frame)
     writer.release()
     out = tmp_path / "stream"
-    subprocess.run(
+    run_experiment(
         [
-            sys.executable,
-            "-m",
-            "experiments.run",
             "experiment=stream",
             f"stream.source={video}",
             f"stream.run={mission_run}",
@@ -287,10 +282,7 @@ def test_stream_runs_a_missions_saved_models(mission_run, tmp_path, repo_root):
             "progress=false",
             f"hydra.run.dir={out}",
         ],
-        cwd=repo_root,
-        check=True,
-        capture_output=True,
-        text=True,
+        repo_root,
     )
     metrics = json.loads((out / "metrics.json").read_text())
     mission = json.loads((mission_run / "metrics.json").read_text())

@@ -4,13 +4,12 @@ image folder, its config checks, and the one key that switches the mission's noi
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import pytest
 import torch
+from experiment_runs import run_experiment
 from hydra import compose, initialize_config_dir
 
 from classifiers.data import render_images, render_sequence
@@ -45,8 +44,7 @@ TINY = [
 
 
 def _run(repo_root, run_dir, *args):
-    cmd = [sys.executable, "-m", "experiments.run", "experiment=noise_models", f"hydra.run.dir={run_dir}", *TINY, *args]
-    return subprocess.run(cmd, cwd=repo_root, check=True, capture_output=True, text=True)
+    return run_experiment(["experiment=noise_models", f"hydra.run.dir={run_dir}", *TINY, *args], repo_root)
 
 
 @pytest.fixture(scope="module")

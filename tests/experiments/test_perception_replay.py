@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+
+from experiment_runs import run_experiment
 
 from classifiers import FrameClassifier
 from experiments.artifacts import load_run
 
 
 def test_perception_replay_smoke(tmp_path, repo_root):
-    subprocess.run(
+    run_experiment(
         [
-            sys.executable,
-            "-m",
-            "experiments.run",
             "experiment=perception_replay",
             f"hydra.run.dir={tmp_path}",
             "progress=false",
@@ -29,8 +26,7 @@ def test_perception_replay_smoke(tmp_path, repo_root):
             "hbni.fit.num_samples=40",
             "hbni.fit.warmup_steps=40",
         ],
-        cwd=repo_root,
-        check=True,
+        repo_root,
     )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["classes"] == ["irobot", "quadrotor", "racecar"]

@@ -1,11 +1,10 @@
 """Smoke tests: the planning experiments run end to end through the real Hydra entry point."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from experiment_runs import run_experiment
 
 from decpomdp import JointController
 
@@ -36,12 +35,7 @@ REFERENCE = [*(f"reference.planner.{s}" for s in GDICE), "reference.runs=2"]
 
 
 def run(name: str, tmp_path: Path, *overrides: str) -> dict:
-    subprocess.run(
-        [sys.executable, "-m", "experiments.run", f"experiment={name}", f"hydra.run.dir={tmp_path}", *TINY, *overrides],
-        cwd=ROOT,
-        check=True,
-        capture_output=True,
-    )
+    run_experiment([f"experiment={name}", f"hydra.run.dir={tmp_path}", *TINY, *overrides], ROOT)
     return json.loads((tmp_path / "metrics.json").read_text())
 
 

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from experiment_runs import run_experiment
 
 from mission_tiny import TINY_MISSION
 
@@ -75,19 +76,8 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
 def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
     run_dir = tmp_path / "run"
     env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "experiments.run",
-            "experiment=mission",
-            f"hydra.run.dir={run_dir}",
-            "mission.threshold=1.5",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        env=env,
+    proc = run_experiment(
+        ["experiment=mission", f"hydra.run.dir={run_dir}", "mission.threshold=1.5"], ROOT, env=env, check=False
     )
     assert proc.returncode == 2
     assert proc.stderr.strip() == "config error: mission.threshold: expected a finite number in (0, 1], got 1.5"
@@ -95,18 +85,8 @@ def test_a_config_error_is_one_line_and_leaves_no_run_folder(tmp_path):
 
 
 def test_a_planner_setting_the_planner_ignores_is_refused_at_the_start(tmp_path):
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "experiments.run",
-            "experiment=mission",
-            f"hydra.run.dir={tmp_path / 'run'}",
-            "warm_planner.ce_alpha=0.3",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
+    proc = run_experiment(
+        ["experiment=mission", f"hydra.run.dir={tmp_path / 'run'}", "warm_planner.ce_alpha=0.3"], ROOT, check=False
     )
     assert (
         proc.returncode == 2 and "config error: warm_planner.ce_alpha: experiment mission never reads it" in proc.stderr

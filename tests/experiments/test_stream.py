@@ -2,14 +2,13 @@
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import torch
+from experiment_runs import run_experiment
 
 import hbni_pyro
 from hydra import compose, initialize_config_dir
@@ -64,9 +63,6 @@ def saved(tmp_path_factory):
 
 def _args(saved, out, *extra):
     return [
-        sys.executable,
-        "-m",
-        "experiments.run",
         "experiment=stream",
         f"stream.source={saved['video']}",
         f"stream.classifier={saved['classifier']}",
@@ -81,7 +77,7 @@ def _args(saved, out, *extra):
 
 
 def test_stream_experiment_on_a_generated_video(tmp_path, saved, repo_root):
-    proc = subprocess.run(_args(saved, tmp_path), cwd=repo_root, capture_output=True, text=True, check=True)
+    proc = run_experiment(_args(saved, tmp_path), repo_root)
     assert f"wrote {tmp_path / 'macro_observations.jsonl'}" in proc.stdout
     records = [json.loads(line) for line in (tmp_path / "macro_observations.jsonl").read_text().splitlines()]
     # consecutive frame ranges covering the whole video; the process restarts after each record
@@ -129,13 +125,7 @@ def test_a_folder_of_frames_gives_the_in_process_segments(tmp_path, saved, repo_
     for i, f in enumerate(saved["frames"][:20]):
         cv2.imwrite(str(folder / f"f{i}.png"), f)
     out = tmp_path / "run"
-    subprocess.run(
-        _args(saved, out, f"stream.source={folder}", "stream.annotate=[]", "stream.batch=3"),
-        cwd=repo_root,
-        capture_output=True,
-        text=True,
-        check=True,
-    )
+    run_experiment(_args(saved, out, f"stream.source={folder}", "stream.annotate=[]", "stream.batch=3"), repo_root)
     records = [json.loads(line) for line in (out / "macro_observations.jsonl").read_text().splitlines()]
     assert not (out / "annotated.mp4").exists() and not (out / "strip.png").exists()
     clf = FrameClassifier.load(saved["classifier"])
@@ -170,7 +160,7 @@ def test_bad_settings_are_clear_errors(saved, override, message):
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     register()
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + [override])
+        cfg = compose(config_name="config", overrides=_args(saved, "unused")[:-2] + [override])
     with pytest.raises(ValueError, match=re.escape(message)):
         check_config(cfg)
 
@@ -179,7 +169,7 @@ def test_a_wrong_type_fails_while_composing(saved):
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     register()
     with pytest.raises(ConfigCompositionException), initialize_config_dir(config_dir=conf, version_base="1.3"):
-        compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.batch=many"])
+        compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["stream.batch=many"])
 
 
 def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path, monkeypatch):
@@ -188,7 +178,7 @@ def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path,
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     register()
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["stream.classifier=null"])
+        cfg = compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["stream.classifier=null"])
     check_config(cfg)  # run=latest is found when the stream starts
     monkeypatch.setenv("HBNI_PYRO_ROOT", str(tmp_path))
     with pytest.raises(
@@ -198,9 +188,7 @@ def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path,
 
 
 def test_classes_that_are_not_the_posteriors_are_a_clear_error(tmp_path, saved, repo_root):
-    proc = subprocess.run(
-        _args(saved, tmp_path, "stream.classes=[a,b,c]"), cwd=repo_root, capture_output=True, text=True
-    )
+    proc = run_experiment(_args(saved, tmp_path, "stream.classes=[a,b,c]"), repo_root, check=False)
     assert proc.returncode != 0 and (
         "stream.classes: expected the posterior's classes in its column order "
         "['police_car', 'ambulance', 'food_crate'], got ['a', 'b', 'c']" in proc.stderr
@@ -223,11 +211,10 @@ def test_a_run_that_is_not_a_mission_is_a_clear_error(tmp_path, saved, repo_root
     (other / ".hydra" / "config.yaml").write_text("name: hbni_toy\n")
     (other / "metrics.json").write_text("{}")
     (other / "status.json").write_text('{"status": "completed"}')
-    proc = subprocess.run(
+    proc = run_experiment(
         _args(saved, tmp_path / "out", "stream.classifier=null", "stream.posterior=null", f"stream.run={other}"),
-        cwd=repo_root,
-        capture_output=True,
-        text=True,
+        repo_root,
+        check=False,
     )
     assert (
         proc.returncode != 0

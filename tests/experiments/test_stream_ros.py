@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from experiment_runs import run_experiment
 from hydra import compose, initialize_config_dir
 
 from classifiers.bags import BagSource, write_image_bag
@@ -49,7 +50,7 @@ def _records(run_dir):
 def test_a_bag_streams_like_its_frames_and_records_a_ros_bag(tmp_path, saved, recorded, repo_root):  # noqa: F811
     mapping = ",".join(f"{c}:saw_{c}" for c in CLASSES)
     on_bag = tmp_path / "bag_run"
-    proc = subprocess.run(
+    proc = run_experiment(
         _args(
             saved,
             on_bag,
@@ -58,9 +59,8 @@ def test_a_bag_streams_like_its_frames_and_records_a_ros_bag(tmp_path, saved, re
             f"stream.observations={{{mapping}}}",
             "stream.annotate=[bag]",
         ),
-        cwd=repo_root,
-        capture_output=True,
-        text=True,
+        repo_root,
+        check=False,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (
@@ -68,13 +68,7 @@ def test_a_bag_streams_like_its_frames_and_records_a_ros_bag(tmp_path, saved, re
         and str(on_bag / "macro_observations") in proc.stdout
     )
     on_folder = tmp_path / "folder_run"
-    subprocess.run(
-        _args(saved, on_folder, f"stream.source={recorded['folder']}", "stream.annotate=[]"),
-        cwd=repo_root,
-        capture_output=True,
-        text=True,
-        check=True,
-    )
+    run_experiment(_args(saved, on_folder, f"stream.source={recorded['folder']}", "stream.annotate=[]"), repo_root)
     from_bag, from_folder = _records(on_bag), _records(on_folder)
     keys = ("index", "start_frame", "end_frame", "label", "label_index", "confidence", "frames_used", "timed_out")
     assert [[r[k] for k in keys] for r in from_bag] == [[r[k] for k in keys] for r in from_folder]  # exactly
@@ -177,7 +171,7 @@ def _compose(saved, extra):  # noqa: F811
     register()
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        return compose(config_name="config", overrides=_args(saved, "unused")[3:-2] + ["progress=false", *extra])
+        return compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["progress=false", *extra])
 
 
 @pytest.mark.parametrize(
@@ -217,9 +211,7 @@ def test_the_ros_page_runs_as_written(tmp_path, saved, repo_root):  # noqa: F811
     assert first.stdout.splitlines()[0] == "/camera/image_raw sensor_msgs/msg/Image 40 10.0 fps"
     assert first.stdout.splitlines()[2] == "15"
     run_dir = tmp_path / "outputs" / "stream" / "2026-01-01_00-00-00"
-    subprocess.run(
-        _args(saved, run_dir, "stream.source=flight"), cwd=tmp_path, env=env, check=True, capture_output=True
-    )
+    run_experiment(_args(saved, run_dir, "stream.source=flight"), tmp_path, env=env)
     second = subprocess.run([sys.executable, "-c", read_output], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert second.returncode == 0, second.stderr[-2000:]
     records = _records(run_dir)

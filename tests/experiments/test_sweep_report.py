@@ -1,8 +1,8 @@
 """Sweep reports: swept keys as columns, the experiment's headline metrics, failed jobs with their error."""
 
 import json
-import subprocess
-import sys
+
+from experiment_runs import run_experiment
 
 from experiments.report import headline_values, multirun_report
 
@@ -10,17 +10,8 @@ FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=30", "hbni.fit.warmup_step
 
 
 def test_a_sweep_with_a_failing_job_still_writes_its_report(tmp_path, repo_root):
-    cmd = [
-        sys.executable,
-        "-m",
-        "experiments.run",
-        "-m",
-        "experiment=hbni_toy",
-        "toy.per_class=2,0",
-        f"hydra.sweep.dir={tmp_path}",
-        *FIT,
-    ]
-    proc = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    args = ["-m", "experiment=hbni_toy", "toy.per_class=2,0", f"hydra.sweep.dir={tmp_path}", *FIT]
+    proc = run_experiment(args, repo_root, check=False)
     assert proc.returncode != 0  # the failing job fails the sweep ...
     report = (tmp_path / "report.md").read_text()  # ... and the report is there all the same
     header = next(line for line in report.splitlines() if line.startswith("| job"))
