@@ -44,15 +44,11 @@ POLICIES = ("perfect", "hbni", "calibrated", "ssbf", "max_of_mean")
 def photo_filters(seed: int) -> tuple[dict, dict, tuple]:
     """Every filter of :data:`ROWS` fitted on the photographs' calibration sequences of ``seed``, HBNI's stop, and
     the held-out ``(streams, truth)``."""
-    from hydra import compose, initialize_config_module
-
     from experiments.noise_models import held_out_stops, photo_outputs, read_settings
-    from experiments.schemas import register
+    from experiments.schemas import compose_config
     from experiments.steps.noise import fit_labelled
 
-    register()
-    with initialize_config_module("conf", version_base=None):
-        cfg = compose("config", overrides=["experiment=noise_models", f"seed={seed}", "progress=false"])
+    cfg = compose_config(["experiment=noise_models", f"seed={seed}", "progress=false"])
     s = read_settings(cfg)
     scratch = Path(os.environ.get("TMPDIR", "/tmp")) / "bench_calibrated_peer"
     calib, held = photo_outputs(cfg, s, scratch)

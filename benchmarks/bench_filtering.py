@@ -23,16 +23,14 @@ import numpy as np
 import scipy.special
 import scipy.stats
 import torch
-from hydra import compose, initialize_config_dir
 
 from experiments.filtering_error import run as run_study
-from experiments.schemas import register
+from experiments.schemas import compose_config
 from hbni_pyro.filters import HBNIFilter
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.posterior import HBNIPosterior
 from hbni_infra.streams import torch_generator
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
 STUDY_FLOOR_SECONDS = 120.0
 RATIO_FLOOR = 100.0
 
@@ -59,11 +57,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    register()  # the experiments' schemas, which their configs name
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(
-            config_name="config", overrides=["experiment=filtering_error", "progress=false", f"seed={args.seed}"]
-        )
+    cfg = compose_config(["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
     s = cfg.study
     print(
         f"filtering_error study: {s.num_trials} trials x N = 1..{s.max_len} x 5 methods x training sizes "

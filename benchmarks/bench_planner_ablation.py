@@ -32,16 +32,14 @@ import time
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from decpomdp.domains import DisasterRelief, PackageDelivery, rollout_counters, shared
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
-from experiments.schemas import register
+from experiments.schemas import compose_config
 from hbni_infra.files import atomic_write_text
 from hbni_infra.streams import torch_stream
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
 
 VARIANTS = {
     "full": {},
@@ -60,9 +58,7 @@ DOMAINS = {"package_delivery": (PackageDelivery, True), "disaster_relief": (Disa
 
 def experiment_planner(domain: str) -> PlannerConfig:
     """The ``planners.cold`` of ``experiment=<domain>`` (``conf/planner/cold.yaml`` and the experiment's overrides)."""
-    register()
-    with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        return instantiate(compose(config_name="config", overrides=[f"experiment={domain}"]).planners.cold)
+    return instantiate(compose_config([f"experiment={domain}"]).planners.cold)
 
 
 def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, seed: int, reeval: int) -> dict:

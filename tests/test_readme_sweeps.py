@@ -6,9 +6,8 @@ import re
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 
-from experiments.schemas import check_config, check_overrides, register
+from experiments.schemas import check_config, check_overrides, compose_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,9 +34,7 @@ def jobs(overrides: list[str]) -> list[list[str]]:
 
 
 def _compose(overrides: list[str]):
-    register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=overrides)
+    return compose_config(overrides)
 
 
 def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():

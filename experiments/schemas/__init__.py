@@ -15,8 +15,11 @@ before it launches any (:mod:`experiments.sweep`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+import hydra
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -26,7 +29,10 @@ from decpomdp.search import gdice_config
 from experiments.schemas.targets import join_key, preset
 from experiments.paths import register_resolver
 
-__all__ = ["SCHEMAS", "check_config", "check_overrides", "gdice_node", "register", "unread_settings"]
+__all__ = ["SCHEMAS", "check_config", "check_overrides", "compose_config", "gdice_node", "register", "unread_settings"]
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+"""The experiments' Hydra configs (``conf/`` of the checkout, ``experiments/conf`` of an installed wheel)."""
 
 PLANNER = "decpomdp.search.PlannerConfig"
 
@@ -38,6 +44,14 @@ def register() -> None:
     for name, schema in SCHEMAS.items():
         store.store(group="schema", name=name, node=schema, package="_global_")
     store.store(group="planner", name="gdice", node=gdice_node())
+
+
+def compose_config(overrides: Sequence[str] = (), *, return_hydra_config: bool = False) -> DictConfig:
+    """The config that ``python -m experiments.run <overrides>`` composes (``experiment=<name>`` picks the
+    experiment), with the schemas registered; unchecked (:func:`check_config` checks it, as a run does)."""
+    register()
+    with hydra.initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return hydra.compose("config", overrides=list(overrides), return_hydra_config=return_hydra_config)
 
 
 def gdice_node() -> dict[str, Any]:

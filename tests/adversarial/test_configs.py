@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 import torch
 from experiment_runs import run_experiment
-from hydra import compose, initialize_config_dir
+from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
-from experiments.schemas import check_config, check_overrides, register, unread_settings
+from experiments.schemas import check_config, check_overrides, compose_config, register, unread_settings
 from experiments.sweep import SweepGuard, check_sweep, sweep_jobs
 from hbni_pyro.generative import sample_outputs
 from hbni_pyro.variants import NOISE_MODELS
@@ -27,8 +27,7 @@ register()
 
 
 def _compose(overrides: list[str]) -> DictConfig:
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="config", overrides=overrides)
+    return compose_config(overrides)
 
 
 def _refused(overrides: list[str]) -> str:

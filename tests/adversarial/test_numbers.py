@@ -5,11 +5,9 @@ never torch's global random stream), and configs refuse what their experiments c
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 import hbni_pyro
 from decpomdp import (
@@ -23,7 +21,7 @@ from decpomdp import (
 )
 from decpomdp import simulate, solve
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, compose_config
 from hbni_infra.checks import as_generator, as_seed
 from hbni_infra.counter_random import draw_seed
 from hbni_infra.streams import torch_generator
@@ -38,7 +36,6 @@ from hbni_pyro.generative import (
 from hbni_pyro.model import prior_theta_log_density
 from hbni_pyro.sbc import run_sbc
 
-CONF = Path(__file__).resolve().parents[2] / "conf"
 NAN, INF = math.nan, math.inf
 THETA = torch.tensor([1.0, 6.0, 20.0], dtype=torch.float64)
 
@@ -223,9 +220,7 @@ def test_the_same_generator_state_gives_the_same_draws_as_before():
 
 
 def _compose(*overrides: str):
-    register()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+    return compose_config(overrides, return_hydra_config=True)
 
 
 @pytest.mark.parametrize(

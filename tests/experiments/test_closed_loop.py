@@ -2,7 +2,6 @@
 
 import math
 import re
-from pathlib import Path
 
 import pytest
 import torch
@@ -216,27 +215,17 @@ def test_report_pieces_and_acceptance():
     ],
 )
 def test_bad_loop_settings_fail_before_any_work(override, message):
-    from hydra import compose, initialize_config_dir
+    from experiments.schemas import check_config, compose_config
 
-    from experiments.schemas import check_config, register
-
-    register()
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["experiment=mission", override])
+    cfg = compose_config(["experiment=mission", override])
     with pytest.raises(ValueError, match=re.escape(message)):
         check_config(cfg)
 
 
 def test_loop_settings_are_read_from_the_mission_config():
-    from hydra import compose, initialize_config_dir
+    from experiments.schemas import compose_config
 
-    from experiments.schemas import register
-
-    register()
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        full = compose(config_name="config", overrides=["experiment=mission_full", "mission.planning_model=generative"])
+    full = compose_config(["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
     assert loop.planning_model == "generative" and loop.bank_sequences == 192 and loop.workers == 2
     assert (

@@ -7,11 +7,10 @@ Type errors and unknown keys fail while Hydra composes; ranges (and keys added w
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from hydra.utils import get_method
 
-from experiments.schemas import SCHEMAS, check_config, register
+from experiments.schemas import SCHEMAS, check_config, compose_config, register
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
@@ -19,8 +18,7 @@ register()
 
 
 def _compose(*overrides: str):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+    return compose_config(overrides, return_hydra_config=True)
 
 
 def test_every_experiment_has_a_schema():
@@ -179,8 +177,7 @@ def test_the_yaml_is_the_only_place_for_defaults():
     ]
     assert defaults == []
     for name in EXPERIMENTS:
-        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[f"experiment={name}"])
+        cfg = compose_config([f"experiment={name}"])
         assert OmegaConf.missing_keys(cfg) == set(), name
 
 

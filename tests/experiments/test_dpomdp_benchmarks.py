@@ -121,12 +121,8 @@ def test_infinite_rows_need_a_discount():
 )
 def test_composed_config_fails_naming_the_key(override, message):
     """The typed schema rejects a bad row when the config is composed and checked, before the run starts."""
-    from hydra import compose, initialize_config_dir
+    from experiments.schemas import check_config, compose_config
 
-    from experiments.schemas import check_config, register
-
-    register()
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["experiment=dpomdp_benchmarks", override])
+    cfg = compose_config(["experiment=dpomdp_benchmarks", override])
     with pytest.raises(ValueError, match=message):
         check_config(cfg)

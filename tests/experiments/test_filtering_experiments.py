@@ -4,20 +4,18 @@ and a -m sweep over hbni.filter.mode runs both jobs through the joblib launcher.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 import torch
 import yaml
 from experiment_runs import run_experiment
-from hydra import compose, initialize_config_dir
 
 from experiments.filtering_error import first_crossing, wilson_bounds
+from experiments.schemas import compose_config
 from experiments.filtering_error import run as run_filtering
 from hbni_pyro import HBNIPosterior
 from hbni_pyro.macro import MacroObservationModel
 
-CONF = Path(__file__).resolve().parents[2] / "conf"
 TINY_FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40", "progress=false"]
 TINY_FILTERING = [
     "study.num_trials=40",
@@ -31,8 +29,7 @@ TINY_FILTERING = [
 
 @pytest.mark.parametrize("name", ["filtering_error", "macro_observation"])
 def test_configs_compose_with_the_hbni_group(name):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"experiment={name}", "hbni.filter.mode=plugin"])
+    cfg = compose_config([f"experiment={name}", "hbni.filter.mode=plugin"])
     assert cfg.name == name and cfg.entry == f"experiments.{name}.run"
     assert cfg.hbni.filter.mode == "plugin" and cfg.hbni.fit.method == "mh"
     assert list(cfg.study.true_theta) == [1.0, 6.0, 20.0]
@@ -119,10 +116,7 @@ def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
 
 def test_filtering_error_is_a_function_of_the_seed(tmp_path):
     def metrics(seed, sub):
-        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            cfg = compose(
-                config_name="config", overrides=["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING]
-            )
+        cfg = compose_config(["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING])
         (tmp_path / sub).mkdir()
         return run_filtering(cfg, tmp_path / sub)
 

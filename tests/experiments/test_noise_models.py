@@ -10,15 +10,13 @@ import cv2
 import pytest
 import torch
 from experiment_runs import run_experiment
-from hydra import compose, initialize_config_dir
 
 from classifiers.data import render_images, render_sequence
 from experiments.artifacts import load_run
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, compose_config
 from experiments.steps.noise import fit_labelled
 from hbni_pyro import HBNIPosterior
 
-CONF = Path(__file__).resolve().parents[2] / "conf"
 TINY = [
     "progress=false",
     "study.mission.train_per_class=5",
@@ -165,9 +163,7 @@ def test_a_user_image_folder_beside_the_photographs_without_the_mission_conditio
 
 
 def _compose(*overrides):
-    register()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+    return compose_config(overrides)
 
 
 @pytest.mark.parametrize(

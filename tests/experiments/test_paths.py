@@ -4,19 +4,16 @@ import json
 import os
 from pathlib import Path
 
-from hydra import compose, initialize_config_dir
 
 from experiments import latest_run
 from experiments.paths import project_root
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, compose_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _compose(*overrides):
-    register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+    return compose_config(overrides, return_hydra_config=True)
 
 
 def test_defaults_resolve_against_the_working_directory(tmp_path, monkeypatch):

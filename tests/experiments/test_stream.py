@@ -2,7 +2,6 @@
 
 import json
 import re
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,12 +10,11 @@ import torch
 from experiment_runs import run_experiment
 
 import hbni_pyro
-from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from classifiers import FrameClassifier
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, compose_config
 from classifiers import classify_frames
 from hbni_pyro import macro_observations
 
@@ -157,28 +155,20 @@ def test_a_folder_of_frames_gives_the_in_process_segments(tmp_path, saved, repo_
 )
 def test_bad_settings_are_clear_errors(saved, override, message):
     """Checked against the stream's schema before anything is loaded, naming the key."""
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    register()
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=_args(saved, "unused")[:-2] + [override])
+    cfg = compose_config(_args(saved, "unused")[:-2] + [override])
     with pytest.raises(ValueError, match=re.escape(message)):
         check_config(cfg)
 
 
 def test_a_wrong_type_fails_while_composing(saved):
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    register()
-    with pytest.raises(ConfigCompositionException), initialize_config_dir(config_dir=conf, version_base="1.3"):
-        compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["stream.batch=many"])
+    with pytest.raises(ConfigCompositionException):
+        compose_config(_args(saved, "unused")[:-2] + ["stream.batch=many"])
 
 
 def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path, monkeypatch):
     from experiments.stream import read_settings
 
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    register()
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["stream.classifier=null"])
+    cfg = compose_config(_args(saved, "unused")[:-2] + ["stream.classifier=null"])
     check_config(cfg)  # run=latest is found when the stream starts
     monkeypatch.setenv("HBNI_PYRO_ROOT", str(tmp_path))
     with pytest.raises(

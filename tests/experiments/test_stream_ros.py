@@ -7,18 +7,16 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import torch
 from experiment_runs import run_experiment
-from hydra import compose, initialize_config_dir
 
 from classifiers.bags import BagSource, write_image_bag
 from decpomdp import JointController
-from experiments.schemas import check_config, register
+from experiments.schemas import check_config, compose_config
 from hbni_infra import ros
 from test_stream import CLASSES, PER_CLASS, _args, saved  # noqa: F401 (saved is a fixture)
 
@@ -168,10 +166,7 @@ def test_a_wrong_topic_fails_naming_the_bags_image_topics(tmp_path, saved, recor
 
 
 def _compose(saved, extra):  # noqa: F811
-    register()
-    conf = str(Path(__file__).resolve().parents[2] / "conf")
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        return compose(config_name="config", overrides=_args(saved, "unused")[:-2] + ["progress=false", *extra])
+    return compose_config(_args(saved, "unused")[:-2] + ["progress=false", *extra])
 
 
 @pytest.mark.parametrize(
