@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 
 import pytest
@@ -32,3 +33,13 @@ def test_unknown_names_are_refused(monkeypatch, capsys):
     with pytest.raises(SystemExit):
         page.main()
     assert "bench_nope" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (page.ROOT / "benchmarks").glob("bench_*.py")))
+def test_every_benchmark_imports_and_parses_its_arguments(name, monkeypatch, capsys):
+    """Each benchmark imports and its ``--help`` answers, so that none stops at its start when the page is rebuilt."""
+    module = importlib.import_module(f"benchmarks.{name}")
+    monkeypatch.setattr("sys.argv", [name, "--help"])
+    with pytest.raises(SystemExit) as info:
+        module.main()
+    assert info.value.code == 0 and capsys.readouterr().out.startswith("usage:")
