@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -102,8 +103,9 @@ def main() -> None:
         r = rows[-1]
         print(
             f"{args.domain} | {name} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} s",
+            file=sys.stderr,
             flush=True,
-        )
+        )  # progress; the table below is the result
     print(f"\n{args.domain}, budget {base.budget:,} rollouts, seed {args.seed}, values on {args.reeval} fresh rollouts")
     print("| variant | value +- s.e. | rollouts | CPU s |\n|---|---|---|---|")
     for r in rows:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -61,8 +62,9 @@ def run(rows: list[tuple[str, int]], seed: int) -> dict[str, dict[str, dict[str,
             print(
                 f"{name:>18} {problem} h{horizon}: {s.value:.4f} ({s.value / OPTIMA[problem, horizon]:.4f} of the "
                 f"optimum) in {out[name][f'{problem} h{horizon}']['cpu_s']:.1f} CPU s",
+                file=sys.stderr,
                 flush=True,
-            )
+            )  # progress; the table is the result
     return out
 
 
