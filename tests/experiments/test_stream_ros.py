@@ -206,7 +206,9 @@ def test_the_ros_page_runs_as_written(tmp_path, saved, repo_root):  # noqa: F811
     assert first.stdout.splitlines()[0] == "/camera/image_raw sensor_msgs/msg/Image 40 10.0 fps"
     assert first.stdout.splitlines()[2] == "15"
     run_dir = tmp_path / "outputs" / "stream" / "2026-01-01_00-00-00"
-    run_experiment(_args(saved, run_dir, "stream.source=flight"), tmp_path, env=env)
+    run_experiment(
+        _args(saved, run_dir, "stream.source=flight"), tmp_path, env=os.environ | {"HBNI_PYRO_ROOT": str(tmp_path)}
+    )
     second = subprocess.run([sys.executable, "-c", read_output], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert second.returncode == 0, second.stderr[-2000:]
     records = _records(run_dir)
