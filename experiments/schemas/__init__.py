@@ -15,6 +15,7 @@ before it launches any (:mod:`experiments.sweep`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -37,8 +38,10 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 PLANNER = "decpomdp.search.PlannerConfig"
 
 
+@functools.cache
 def register() -> None:
-    """Store every experiment's schema as ``schema/<name>`` (package ``_global_``) in Hydra's ConfigStore."""
+    """Store every experiment's schema as ``schema/<name>`` (package ``_global_``) in Hydra's ConfigStore (once per
+    process: a later call finds them stored)."""
     register_resolver()
     store = ConfigStore.instance()
     for name, schema in SCHEMAS.items():
