@@ -28,7 +28,7 @@ _ROLLOUT = np.uint64(0x8CB92BA72F3D8DD7)
 _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
 
 
-@njit
+@njit(inline="always")
 def mix64(z: np.uint64) -> np.uint64:
     """SplitMix64's finaliser: a bijective 64-bit mix."""
     z = (z ^ (z >> _S30)) * _M1
@@ -44,14 +44,14 @@ def stream_key(seed: np.uint64, controller: np.int64, rollout: np.int64) -> np.u
     return mix64(h ^ (np.uint64(rollout) * _ROLLOUT + GOLDEN))
 
 
-@njit
+@njit(inline="always")
 def next_u64(rng: np.ndarray) -> np.uint64:
     """The stream's next 64 random bits (advances ``rng[0]``)."""
     rng[0] += GOLDEN
     return mix64(rng[0])
 
 
-@njit
+@njit(inline="always")
 def unit(bits: np.uint64) -> float:
     """The top 53 of 64 random bits as a uniform float64 in [0, 1) (converted as a signed integer, which is exact
     below 2**63 and one instruction, where an unsigned 64-bit conversion is a branchy sequence)."""
@@ -80,7 +80,7 @@ _LOW9 = np.uint64(511)
 _ZIG_SIGNED_WIDTH = np.concatenate([_ZIG_X[:256], -_ZIG_X[:256]]) / 9007199254740992.0
 
 
-@njit
+@njit(inline="always")
 def _signed_point(bits: np.uint64) -> tuple[np.int64, float]:
     """64 random bits as a ziggurat (layer, signed point): the low 8 bits pick the layer, bit 8 the sign (no
     branch: the bit is a coin flip) and the top 53 bits the position within the layer's width. One product of the
