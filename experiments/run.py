@@ -36,7 +36,7 @@ from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.common import write_json
-from experiments.schemas import check_config, check_overrides, register
+from experiments.schemas import CONF, check_config, check_overrides, register
 from experiments.status import write_status
 from experiments.sweep import in_sweep_worker
 
@@ -78,7 +78,7 @@ def help_text() -> str:
 
     :func:`main` prints it without composing any config: Hydra's own ``--help`` first lists every config group,
     which copies the whole config store for each group (seconds), although the template shows none of them."""
-    config = OmegaConf.load(Path(__file__).resolve().parent / "conf" / "config.yaml")
+    config = OmegaConf.load(CONF / "config.yaml")
     return config.hydra.help.template
 
 

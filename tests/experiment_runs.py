@@ -74,8 +74,8 @@ def _changes_import_settings(env: Mapping[str, str]) -> bool:
 
 
 def _run_main(args: list[str], cwd: str, env: dict[str, str], out: str, err: str) -> None:
-    """In the forked process: take the run's directory, import path, environment and streams, run the entry point, then the
-    exit handlers that a fresh interpreter runs when it ends (multiprocessing's child ends without them)."""
+    """In the forked process: take the run's directory, import path, environment and streams, run the entry point,
+    then the exit handlers that a fresh interpreter runs when it ends (multiprocessing's child ends without them)."""
     os.chdir(cwd)
     sys.path[:] = [cwd, *(p for p in sys.path if p and not Path(p).resolve().is_relative_to(TESTS))]  # as `-m` sets it
     os.environ.clear()

@@ -33,10 +33,6 @@ def jobs(overrides: list[str]) -> list[list[str]]:
     return [list(job) for job in itertools.product(*options)]
 
 
-def _compose(overrides: list[str]):
-    return compose_config(overrides)
-
-
 def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
     sweeps = readme_sweeps()
     assert len(sweeps) >= 2
@@ -44,7 +40,7 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
         expanded = jobs(overrides)
         assert len(expanded) == announced, (overrides, len(expanded))
         for job in expanded:
-            cfg = _compose(job)
+            cfg = compose_config(job)
             check_config(cfg)
             check_overrides(cfg, job)
 
@@ -64,7 +60,7 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
     ],
 )
 def test_a_setting_the_planner_ignores_is_refused(override, message):
-    cfg = _compose(["experiment=mission", override])
+    cfg = compose_config(["experiment=mission", override])
     check_config(cfg)
     with pytest.raises(ValueError, match=message):
         check_overrides(cfg, [override])
@@ -72,6 +68,6 @@ def test_a_setting_the_planner_ignores_is_refused(override, message):
 
 
 def test_gdice_ignores_local_search():
-    cfg = _compose(["experiment=package_delivery"])
+    cfg = compose_config(["experiment=package_delivery"])
     with pytest.raises(ValueError, match="planners.gdice.ls_candidates: .* ignores ls_candidates"):
         check_overrides(cfg, ["planners.gdice.ls_candidates=10"])

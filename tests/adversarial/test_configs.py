@@ -26,13 +26,9 @@ EXPERIMENTS = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml
 register()
 
 
-def _compose(overrides: list[str]) -> DictConfig:
-    return compose_config(overrides)
-
-
 def _refused(overrides: list[str]) -> str:
     """The message of the refusal of ``overrides`` (a run's check at its start)."""
-    cfg = _compose(overrides)
+    cfg = compose_config(overrides)
     with pytest.raises(ValueError) as info:
         check_overrides(cfg, overrides)
     return str(info.value)
@@ -103,7 +99,7 @@ def test_a_setting_the_experiment_never_reads_is_refused_naming_it_and_the_exper
 @pytest.mark.parametrize("name", EXPERIMENTS)
 def test_every_unread_key_of_every_experiment_is_refused_and_every_read_one_accepted(name):
     """Each key the experiment declares unread is refused when set; every other leaf of its config is accepted."""
-    cfg = _compose([f"experiment={name}"])
+    cfg = compose_config([f"experiment={name}"])
     unread = unread_settings(cfg)
     assert name not in ("hbni_toy", "package_delivery", "stream") or unread
     for key in unread:
@@ -125,7 +121,7 @@ def _leaves(node, path):
 
 def test_the_settings_the_refusal_accepts_still_run_the_same_checks():
     """A read key with a bad value is not reported as unread: the range check names it."""
-    cfg = _compose(["experiment=macro_observation", "hbni.filter.mode=mean"])
+    cfg = compose_config(["experiment=macro_observation", "hbni.filter.mode=mean"])
     check_overrides(cfg, ["hbni.filter.mode=mean"])
     with pytest.raises(ValueError, match=r"^hbni.filter.mode: expected one of \['marginal', 'plugin'\]"):
         check_config(cfg)
