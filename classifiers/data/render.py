@@ -38,7 +38,6 @@ __all__ = [
 #: the object kinds the renderer can draw; a caller says which of them make up its classes
 OBJECTS = tuple(SPRITES)
 FRAME_SHAPE = (240, 320)  # (H, W) pixels
-_NO_NOISE = np.zeros((0, 0, 3))
 
 
 @dataclass(frozen=True)
@@ -190,8 +189,7 @@ def render_frame(name: str, pose: Pose, look: Look, background: np.ndarray, rng:
     img = pixels.lit(obj, a, background, xs, ys, cos, sin, float(look.shading), float(look.gain), cast)
     if look.blur >= 1.5:
         img = cv2.filter2D(img, -1, _motion_kernel(look.blur, look.blur_angle), borderType=cv2.BORDER_REFLECT)
-    noise = rng.normal(0, look.noise, size=img.shape) if look.noise > 0 else _NO_NOISE
-    return pixels.quantized(img, noise)
+    return pixels.quantized(img, rng, float(look.noise))
 
 
 def render_images(
@@ -269,7 +267,7 @@ def render_sequence(
     for i in range(stop):
         if i < start:  # a frame not asked for: only its sensor noise's draws, to keep the stream's place
             if base.noise > 0:
-                rng.standard_normal(size=(h, w, 3))
+                pixels.skip_normals(rng, h * w * 3)
             continue
         px, py = (int(round(pan * (1 + 2 * d * (t[i] - 0.5)))) for d in pan_dir)
         bg = big[py : py + h, px : px + w]
