@@ -227,7 +227,7 @@ def test_loop_settings_are_read_from_the_mission_config():
 
     full = compose_config(["experiment=mission_full", "mission.planning_model=generative"])
     loop = closed_loop.read_loop_settings(full)
-    assert loop.planning_model == "generative" and loop.bank_sequences == 192 and loop.workers == 2
+    assert loop.planning_model == "generative" and loop.bank_sequences == 128 and loop.workers == 2
     assert (
         loop.bootstrap == closed_loop.Bootstrap(64, 4000) and loop.cache_dir == project_root() / ".cache" / "banks"
     )  # the project's, from anywhere
