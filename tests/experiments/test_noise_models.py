@@ -162,10 +162,6 @@ def test_a_user_image_folder_beside_the_photographs_without_the_mission_conditio
     assert set(metrics["acceptance"]["photos"]["default_vs_calibrated"]) >= {"honest", "frames_over_peer", "met"}
 
 
-def _compose(*overrides):
-    return compose_config(overrides)
-
-
 @pytest.mark.parametrize(
     "override, match",
     [
@@ -180,18 +176,20 @@ def _compose(*overrides):
 )
 def test_bad_settings_fail_before_any_work(override, match):
     with pytest.raises(ValueError, match=match):
-        check_config(_compose("experiment=noise_models", override))
+        check_config(compose_config(["experiment=noise_models", override]))
 
 
 @pytest.mark.parametrize("experiment", ["mission", "perception_replay"])
 @pytest.mark.parametrize("model", ["confusion", "sequence"])
 def test_one_key_switches_the_noise_model_of_the_mission_and_the_replay(experiment, model):
-    cfg = _compose(
-        f"experiment={experiment}",
-        f"hbni.model={model}",
-        "hbni.fit.num_chains=2",
-        "hbni.fit.num_samples=20",
-        "hbni.fit.warmup_steps=20",
+    cfg = compose_config(
+        [
+            f"experiment={experiment}",
+            f"hbni.model={model}",
+            "hbni.fit.num_chains=2",
+            "hbni.fit.num_samples=20",
+            "hbni.fit.warmup_steps=20",
+        ]
     )
     check_config(cfg)
     g = torch.Generator().manual_seed(0)

@@ -4,7 +4,6 @@ import json
 import os
 from pathlib import Path
 
-
 from experiments import latest_run
 from experiments.paths import project_root
 from experiments.schemas import check_config, compose_config
