@@ -109,10 +109,9 @@ def threshold_checks(
     max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
     truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
-    for t in thresholds:
-        stop = float((stops or {}).get(t, t))
-        process = MacroObservationProcess(filter, threshold=stop, max_frames=max_frames or streams.shape[1])
-        batch = process.run_batch(streams)
+    stop_at = [float((stops or {}).get(t, t)) for t in thresholds]
+    process = MacroObservationProcess(filter, max_frames=max_frames)
+    for t, stop, batch in zip(thresholds, stop_at, process.run_thresholds(streams, stop_at)):
         emitted = ~batch.timed_out
         right = batch.label == truth
         n = int(emitted.sum())

@@ -17,7 +17,7 @@ stops depends on values.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -53,6 +53,16 @@ class MacroObservationBatch(NamedTuple):
     confidence: Tensor
     frames_used: Tensor
     timed_out: Tensor
+
+
+def _first_crossing(conf: Tensor, label: Tensor, threshold: float) -> MacroObservationBatch:
+    """Each stream's macro-observation at ``threshold`` from its filter's confidence and label after every frame
+    ``(B, N)``, evaluated at least up to its first frame at ``threshold`` (the last frame: the budget spent)."""
+    crossed = conf >= threshold
+    crossed[:, -1] = True
+    step = crossed.to(torch.int8).argmax(-1, keepdim=True)  # the first crossing
+    confidence = conf.gather(1, step).squeeze(1)
+    return MacroObservationBatch(label.gather(1, step).squeeze(1), confidence, step.squeeze(1) + 1, confidence < threshold)
 
 
 class MacroObservationProcess:
@@ -110,36 +120,34 @@ class MacroObservationProcess:
         Only the first ``min(N, max_frames)`` frames are used. The posterior is evaluated in
         frame blocks of doubling length, and only for streams that have not stopped yet.
         """
+        return self.run_thresholds(obs, [self.threshold])[0]
+
+    def run_thresholds(self, obs: Any, thresholds: Sequence[float]) -> list[MacroObservationBatch]:
+        """:meth:`run_batch` of this process stopping at each of ``thresholds`` instead (probabilities in ``(0, 1]``)
+        on ``obs (B, N, M)``, the filter evaluated once: on the frames the highest threshold reads (a lower one
+        stops no later), in frame blocks of doubling length, only for streams that have not reached it yet."""
+        thresholds = [as_probability(f"thresholds[{i}]", t, allow_zero=False) for i, t in enumerate(thresholds)]
+        if not thresholds:
+            return []
         obs = torch.as_tensor(obs)
         if obs.dim() != 3 or obs.shape[1] < 1:
             raise ValueError(f"obs: expected shape (B, N, M) with N >= 1, got {tuple(obs.shape)}")
         stats, counts = self.filter.statistics(obs[:, : self.max_frames])
         num_streams, horizon = stats.shape[:2]
-        device = stats.device
-        label = torch.zeros(num_streams, dtype=torch.long, device=device)
-        confidence = torch.zeros(num_streams, dtype=DTYPE, device=device)
-        frames = torch.full((num_streams,), horizon, dtype=torch.long, device=device)
-        timed_out = torch.ones(num_streams, dtype=torch.bool, device=device)
-        active = torch.arange(num_streams, device=device)
+        top = max(thresholds)
+        conf = torch.full((num_streams, horizon), -1.0, dtype=DTYPE, device=stats.device)  # -1: not evaluated
+        label = torch.zeros(num_streams, horizon, dtype=torch.long, device=stats.device)
+        active = torch.arange(num_streams, device=stats.device)
         start, width = 0, 1
         while start < horizon and active.numel():
             end = min(horizon, start + width)
             block = stats[active, start:end]
             probs = self.filter.posterior(block, counts[start:end].expand(block.shape[:-1]))  # (A, k, M)
-            conf = probs.max(-1).values
-            crossed = conf >= self.threshold
-            if end == horizon:
-                crossed[:, -1] = True  # the budget is spent: stop at the last frame
-            stopped = crossed.any(-1)
-            step = crossed.to(torch.int8).argmax(-1)[stopped]  # first crossing in the block
-            rows = active[stopped]
-            label[rows] = decide(probs[stopped, step])
-            confidence[rows] = conf[stopped, step]
-            frames[rows] = start + step + 1
-            timed_out[rows] = confidence[rows] < self.threshold
-            active = active[~stopped]
+            conf[active, start:end] = probs.max(-1).values
+            label[active, start:end] = decide(probs)
+            active = active[~(conf[active, start:end] >= top).any(-1)]
             start, width = end, 2 * width
-        return MacroObservationBatch(label, confidence, frames, timed_out)
+        return [_first_crossing(conf, label, t) for t in thresholds]
 
     def __repr__(self) -> str:
         return f"MacroObservationProcess({self.filter!r}, threshold={self.threshold}, max_frames={self.max_frames})"

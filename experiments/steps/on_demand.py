@@ -16,7 +16,7 @@ those sequences.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 
 import torch
 from torch import Tensor
@@ -100,13 +100,7 @@ class OnDemandStreams:
         rendered = torch.zeros(C, count, dtype=torch.long)
         todo = [(c, i) for c in range(C) for i in range(count)]
         with tqdm(total=len(todo), desc="powered held-out", unit="seq", disable=not self.progress) as bar:
-            for length in _lengths(F):
-                if not todo:
-                    break
-                self._render(todo, length, first, streams, rendered, self._worker_pool())
-                todo = self._undecided(process, todo, streams, rendered)
-                bar.n = C * count - len(todo)
-                bar.refresh()
+            self._render(process, todo, first, streams, rendered, bar)
         if not count:
             return pool, rendered
         new = hbni_pyro.StreamReplay(process, streams.reshape(-1, F, C), torch.arange(C).repeat_interleave(count))
@@ -123,24 +117,52 @@ class OnDemandStreams:
 
     def _render(
         self,
+        process: hbni_pyro.MacroObservationProcess,
         todo: list[tuple[int, int]],
-        length: int,
         first: int,
         streams: Tensor,
         rendered: Tensor,
-        workers: ProcessPoolExecutor | None,
+        bar: tqdm,
     ) -> None:
-        """Render and classify frames ``rendered .. length - 1`` of each ``(class, sequence)`` in ``todo``."""
-        blocks = [(c, first + i, int(rendered[c, i]), length) for c, i in todo]
-        if workers is None:
-            outputs = [classify_frames(self.clf, self.spec, *block) for block in blocks]
-        else:
-            tasks = [blocks[j : j + _TASK] for j in range(0, len(blocks), _TASK)]
-            futures = [workers.submit(classify_blocks_in_worker, self.spec, task) for task in tasks]
-            outputs = [out for future in futures for out in future.result()]
-        for (c, i), (_, _, start, stop), out in zip(todo, blocks, outputs):
-            streams[c, i, start:stop] = out.double()
-            rendered[c, i] = stop
+        """Render and classify each ``(class, sequence)`` of ``todo`` a block at a time (:data:`LENGTHS`) until
+        ``process`` has decided on it, writing its outputs into ``streams`` and its length into ``rendered``.
+
+        Sequences go in tasks of :data:`_TASK`, the process runs on each task's sequences as the task ends, and those
+        still undecided wait for their next block; with workers, tasks keep them busy meanwhile (a partial task is
+        sent only when fewer than two per worker are queued)."""
+        lengths = _lengths(self.spec.frames)
+        waiting: dict[int, list[tuple[int, int]]] = {0: list(todo)}  # index into lengths -> sequences to render
+        pending: dict[Future, tuple[list[tuple[int, int]], int]] = {}
+        pool = self._worker_pool() if todo else None
+        while pending or any(waiting.values()):
+            for k in sorted(waiting):
+                group = waiting[k]
+                while len(group) >= _TASK or (group and len(pending) < 2 * max(self.workers, 1)):
+                    task, group = group[:_TASK], group[_TASK:]
+                    pending[self._submit(pool, task, first, lengths[k], rendered)] = (task, k)
+                waiting[k] = group
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                task, k = pending.pop(future)
+                stop = lengths[k]
+                for (c, i), out in zip(task, future.result()):
+                    streams[c, i, int(rendered[c, i]) : stop] = out.double()
+                    rendered[c, i] = stop
+                undecided = self._undecided(process, task, streams, rendered)
+                waiting.setdefault(k + 1, []).extend(undecided)
+                bar.update(len(task) - len(undecided))
+
+    def _submit(
+        self, pool: ProcessPoolExecutor | None, task: list[tuple[int, int]], first: int, stop: int, rendered: Tensor
+    ) -> Future:
+        """Frames ``rendered .. stop - 1`` of each ``(class, sequence)`` of ``task``, classified in ``pool`` (in this
+        process, at once, without one)."""
+        blocks = [(c, first + i, int(rendered[c, i]), stop) for c, i in task]
+        if pool is not None:
+            return pool.submit(classify_blocks_in_worker, self.spec, blocks)
+        future: Future = Future()
+        future.set_result([classify_frames(self.clf, self.spec, *block) for block in blocks])
+        return future
 
     @staticmethod
     def _undecided(

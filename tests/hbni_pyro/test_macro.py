@@ -87,6 +87,28 @@ def test_batched_process_agrees_with_the_streaming_process(make_filter, max_fram
     assert int(batch.frames_used.max()) <= min(20, max_frames)
 
 
+@pytest.mark.parametrize(
+    "make_filter",
+    [MaxOfMeanFilter, StaticStateBayesFilter, lambda M: HBNIFilter(scattered_posterior())],
+    ids=["max_of_mean", "ssbf", "hbni"],
+)
+def test_several_thresholds_at_once_agree_with_a_process_at_each(make_filter):
+    """One evaluation of the filter serves every threshold, the highest first or not: each result is the process's
+    own at that threshold, field by field."""
+    obs = toy_streams(60, 20, seed=4)
+    filt = make_filter(3)
+    thresholds = [0.9, 0.5, 0.999, 0.97, 0.9]
+    batches = MacroObservationProcess(filt, threshold=0.6, max_frames=12).run_thresholds(obs, thresholds)
+    assert len(batches) == len(thresholds)
+    for t, batch in zip(thresholds, batches):
+        alone = MacroObservationProcess(filt, threshold=t, max_frames=12).run_batch(obs)
+        for field in batch._fields:
+            assert torch.equal(getattr(batch, field), getattr(alone, field)), (t, field)
+    assert MacroObservationProcess(filt).run_thresholds(obs, []) == []
+    with pytest.raises(ValueError, match=r"thresholds\[1\]"):
+        MacroObservationProcess(filt).run_thresholds(obs, [0.9, 1.5])
+
+
 def test_process_errors():
     with pytest.raises(TypeError, match="filter"):
         MacroObservationProcess("ssbf")
