@@ -19,6 +19,7 @@ from __future__ import annotations
 import inspect
 import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -207,14 +208,23 @@ class FrameClassifier:
         return self
 
     # ---- features -------------------------------------------------------------------------------
-    def _embed(self, crops: list[np.ndarray], progress: bool) -> Tensor:
-        out = []
+    def _embed(self, crops: list[np.ndarray], progress: bool, workers: int = 1) -> Tensor:
+        """Backbone scores of ``crops``, a chunk of ``batch_size`` at a time, ``workers`` chunks side by side (each
+        on one torch thread: the same values as one after another)."""
+        workers = as_int("workers", workers, minimum=1)
+        if workers > 1 and self.threads not in (None, 1):
+            raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {self.threads}")
+        chunks = [crops[i : i + self.batch_size] for i in range(0, len(crops), self.batch_size)]
+
+        def embed(chunk: list[np.ndarray]) -> Tensor:
+            x = normalize(chunk, self.backbone_.mean, self.backbone_.std)
+            return self.backbone_(x, self.batch_size, threads=None)
+
         bar = tqdm(total=len(crops), desc="backbone", unit="img", disable=not progress, leave=False)
-        with torch_threads(self.threads):
-            for i in range(0, len(crops), self.batch_size):
-                chunk = crops[i : i + self.batch_size]
-                x = normalize(chunk, self.backbone_.mean, self.backbone_.std)
-                out.append(self.backbone_(x, self.batch_size, threads=None))
+        with torch_threads(1 if workers > 1 else self.threads), ThreadPoolExecutor(workers) as pool:
+            out = []
+            for chunk, scores in zip(chunks, pool.map(embed, chunks)):
+                out.append(scores)
                 bar.update(len(chunk))
         bar.close()
         return torch.cat(out)
@@ -224,10 +234,11 @@ class FrameClassifier:
         size = self.backbone_.input_size
         return self._embed([center_crop(im, size, self.padding) for im in as_image_batch(images)], progress)
 
-    def augmented_features(self, images: Any, copies: int, progress: bool = False) -> Tensor:
+    def augmented_features(self, images: Any, copies: int, progress: bool = False, workers: int = 1) -> Tensor:
         """Features ``(B * (1 + copies), 1000)``: each image's centre crop, then ``copies`` random crops/mirrors.
 
         Rows are grouped per image: ``[crop_0, aug_0_1, .., aug_0_copies, crop_1, ...]``. Seeded by ``seed``.
+        ``workers`` threads embed them side by side (the same values; the classifier must run on one torch thread).
         """
         if copies < 0:
             raise ValueError(f"copies: expected >= 0, got {copies}")
@@ -237,7 +248,7 @@ class FrameClassifier:
         for im in as_image_batch(images):
             crops.append(center_crop(im, size, self.padding))
             crops += [augment(im, rng, size, self.padding) for _ in range(copies)]
-        return self._embed(crops, progress)
+        return self._embed(crops, progress, workers)
 
     # ---- training and prediction ----------------------------------------------------------------
     def _check_fitted(self, what: str = "call fit() or load() first") -> None:
@@ -255,9 +266,15 @@ class FrameClassifier:
         return self
 
     def fit(
-        self, images: Any, labels: Sequence | np.ndarray | Tensor, augment: int = 0, progress: bool = False
+        self,
+        images: Any,
+        labels: Sequence | np.ndarray | Tensor,
+        augment: int = 0,
+        progress: bool = False,
+        workers: int = 1,
     ) -> FrameClassifier:
-        """Train on ``images`` with ``labels`` (one per image); ``augment`` extra random crops/mirrors each."""
+        """Train on ``images`` with ``labels`` (one per image); ``augment`` extra random crops/mirrors each, embedded by
+        ``workers`` threads side by side (the same fit)."""
         batch = as_image_batch(images)
         if isinstance(labels, (str, bytes)) or not hasattr(labels, "__len__"):
             raise TypeError(
@@ -266,7 +283,7 @@ class FrameClassifier:
         labels = list(labels.tolist() if isinstance(labels, (Tensor, np.ndarray)) else labels)
         if len(labels) != len(batch):
             raise ValueError(f"labels: expected {len(batch)} labels, got {len(labels)}")
-        x = self.augmented_features(batch, augment, progress)
+        x = self.augmented_features(batch, augment, progress, workers)
         return self.fit_features(x, [lab for lab in labels for _ in range(1 + augment)])
 
     def proba_from_features(self, X: Tensor) -> Tensor:

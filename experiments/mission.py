@@ -197,6 +197,7 @@ def train_perception(cfg: DictConfig, settings: Settings, run_dir: Path) -> Fram
         int(st.augment),
         stream_seed(settings.seed, "train"),
         settings.progress,
+        int(cfg.study.threads),
     )
     save_artifact(run_dir, "classifier", clf)
     return clf
@@ -423,9 +424,13 @@ def plan(
     results: dict[str, Any] = {}
     histories = {}
     start = None  # with warm_start: the perfect-perception plan every perception variant starts from
+
+    def free() -> int:
+        """The threads the bank's workers leave, asked at every rollout call: all of them once it is built."""
+        return max(1, int(study.threads) - (bank.workers if bank is not None and bank.building else 0))
+
     for name in ("perfect", *models):
-        busy = bank.workers if bank is not None and bank.building else 0
-        with threads(max(1, int(study.threads) - busy)):
+        with threads(free):
             env = instantiate(cfg.domain, perception=None if name == "perfect" else models[name])
             greedy = greedy_controller(env.num_agents)
             result, best, entry = run_planner(

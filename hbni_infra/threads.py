@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import ModuleType
 
 import torch
@@ -19,7 +19,7 @@ from threadpoolctl import ThreadpoolController
 
 from hbni_infra.checks import as_int
 
-_workers: int | None = None  # None: every core this process may run on
+_workers: int | Callable[[], int] | None = None  # None: every core this process may run on
 _pools: ThreadpoolController | None = None  # the thread pools of loaded native libraries, found once
 
 
@@ -75,7 +75,10 @@ def _check(threads: int | None) -> None:
 
 
 def worker_threads() -> int:
-    """Threads a compiled loop may use: the value set by :func:`threads`, else the cores available."""
+    """Threads a compiled loop may use: the value set by :func:`threads` (asked now, when it set a function), else the
+    cores available."""
+    if callable(_workers):
+        return as_int("threads()", _workers(), minimum=1)
     if _workers is not None:
         return _workers
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -95,13 +98,16 @@ def set_threads(count: int) -> None:
 
 
 @contextlib.contextmanager
-def threads(count: int | None) -> Iterator[None]:
+def threads(count: int | Callable[[], int] | None) -> Iterator[None]:
     """Run torch's intra-op threads and compiled loops' worker threads on ``count`` threads inside the block
-    (``None``: unchanged), then restore both."""
+    (``None``: unchanged), then restore both. ``count`` may be a function of no arguments: each compiled loop then
+    runs on as many threads as it returns when the loop starts (the cores that background work leaves, say), and
+    torch on as many as it returns on entering the block."""
     global _workers
-    _check(count)
+    now = count() if callable(count) else count
+    _check(now)
     before = _workers
-    with torch_threads(count):
+    with torch_threads(now):
         if count is not None:
             _workers = count
         try:

@@ -62,7 +62,9 @@ def _first_crossing(conf: Tensor, label: Tensor, threshold: float) -> MacroObser
     crossed[:, -1] = True
     step = crossed.to(torch.int8).argmax(-1, keepdim=True)  # the first crossing
     confidence = conf.gather(1, step).squeeze(1)
-    return MacroObservationBatch(label.gather(1, step).squeeze(1), confidence, step.squeeze(1) + 1, confidence < threshold)
+    return MacroObservationBatch(
+        label.gather(1, step).squeeze(1), confidence, step.squeeze(1) + 1, confidence < threshold
+    )
 
 
 class MacroObservationProcess:

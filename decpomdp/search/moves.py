@@ -27,6 +27,7 @@ sampled.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -153,8 +154,10 @@ class Neighbourhood:
     def build(self, index: Tensor) -> JointController:
         """The controllers of moves ``index`` (long (C,), values in [0, size))."""
         c = index.numel()
-        action = self.controller.action.expand(c, -1, -1).clone()
-        next_node = self.controller.next_node.expand(c, -1, -1, -1).clone()
+        # copied by numpy, whose allocator asks for huge pages: 8000 controllers' tables (46 MB) took 21 ms to
+        # write through torch's, 5 ms through numpy's
+        action = torch.from_numpy(np.repeat(self.controller.action.numpy(), c, 0))
+        next_node = torch.from_numpy(np.repeat(self.controller.next_node.numpy(), c, 0))
         single = index < self.num_singles
         if bool(single.any()):
             rows = single.nonzero().squeeze(1)

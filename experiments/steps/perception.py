@@ -18,17 +18,27 @@ from hbni_infra.threads import single_thread, worker_threads
 
 
 def train_classifier(
-    classifier: DictConfig, classes: list[str], per_class: int, augment: int, seed: int, progress: bool
+    classifier: DictConfig,
+    classes: list[str],
+    per_class: int,
+    augment: int,
+    seed: int,
+    progress: bool,
+    workers: int | None = None,
 ) -> FrameClassifier:
     """Instantiate the frame classifier and train it on ``per_class`` training-condition snapshots
-    of each class (plus ``augment`` random crop + mirror copies of each)."""
+    of each class (plus ``augment`` random crop + mirror copies of each), embedded by ``workers`` threads side by side
+    (``None``: :func:`hbni_infra.threads.worker_threads`, or one for a classifier set to several torch threads; the
+    same classifier for any ``workers``)."""
     clf: FrameClassifier = instantiate(classifier)
+    if workers is None:
+        workers = worker_threads() if clf.threads in (None, 1) else 1
     images, labels = [], []
     for name in classes:
         snaps = render_images(name, per_class, "training", seed=seed)
         images += list(snaps)
         labels += [name] * len(snaps)
-    clf.fit(images, labels, augment=augment, progress=progress)
+    clf.fit(images, labels, augment=augment, progress=progress, workers=workers)
     if clf.classes_ != sorted(classes):
         raise RuntimeError(f"classifier classes {clf.classes_} differ from {sorted(classes)}")
     return clf

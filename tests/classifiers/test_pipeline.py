@@ -32,8 +32,13 @@ def test_fit_on_images_is_seeded(frames):
     labels = [VEHICLES[k // 2] for k in range(6)]
     images = np.concatenate([frames, frames[:, :, ::-1]])  # 4 images per class, cv=2
     a = FrameClassifier(cv=2, seed=1).fit(images, labels * 2, augment=1)
-    b = FrameClassifier(cv=2, seed=1).fit(images, labels * 2, augment=1)
+    b = FrameClassifier(cv=2, seed=1).fit(images, labels * 2, augment=1, workers=2)  # chunks embedded side by side
     assert torch.equal(a.predict_proba(frames), b.predict_proba(frames))
+    assert torch.equal(a.augmented_features(frames, 1), b.augmented_features(frames, 1, workers=3))
+    with pytest.raises(ValueError, match="workers: 2 threads need a classifier on one torch thread, it has 2"):
+        FrameClassifier(threads=2).fit(images, labels * 2, workers=2)
+    with pytest.raises(ValueError, match="workers: expected an int >= 1"):
+        a.augmented_features(frames, 1, workers=0)
     feats = a.augmented_features(frames[:2], copies=2)
     assert feats.shape == (6, 1000)
     assert torch.allclose(feats[0], a.features(frames[:1])[0], atol=1e-4)  # row 0 of each group is the centre crop

@@ -50,3 +50,21 @@ def test_a_whole_runs_setting_covers_torch_blas_opencv_and_compiled_loops(monkey
         finally:
             torch.set_num_threads(before)
             cv2.setNumThreads(cv)
+
+
+def test_a_count_given_as_a_function_is_asked_at_each_use():
+    """Compiled loops ask the function each time (the cores background work leaves may change inside the block);
+    torch takes its value on entry; a bad value is refused when asked."""
+    threads = importlib.import_module("hbni_infra.threads").threads
+    before = torch.get_num_threads()
+    free = [1]
+    with threads(lambda: free[0]):
+        assert worker_threads() == 1 and torch.get_num_threads() == 1
+        free[0] = 2
+        assert worker_threads() == 2 and torch.get_num_threads() == 1
+        free[0] = 0
+        with pytest.raises(ValueError, match=r"threads\(\): expected an int >= 1"):
+            worker_threads()
+    assert torch.get_num_threads() == before
+    with pytest.raises(ValueError, match="threads: expected an int"), threads(lambda: 0):
+        pass
