@@ -17,9 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from hbni_infra.numba_cache import use_cache_dir
-
-use_cache_dir()  # before any cached function is decorated
+import hbni_infra.numba_cache  # noqa: F401  (sets numba's cache directory first)
 
 _LOG_2PI = math.log(2.0 * math.pi)
 _FLOOR = -700.0  # terms below exp(-700) cannot change a sum that is >= 1 (as logsumexp_in_order clamps them)
