@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from hbni_pyro import evidence_numba
+
 from hbni_pyro.density import (
     block_log_lik,
     concentrations,
