@@ -258,13 +258,7 @@ def look_variance(count: Tensor | float, lam: Tensor) -> tuple[Tensor, Tensor]:
     return var, var.log().sum(-1)
 
 
-def look_log_marginal(
-    count: Tensor | float,
-    resid: Tensor,
-    lam: Tensor,
-    logdet_within: Tensor,
-    variance: tuple[Tensor, Tensor] | None = None,
-) -> Tensor:
+def look_log_marginal(count: Tensor | float, resid: Tensor, lam: Tensor, logdet_within: Tensor) -> Tensor:
     """``log N(ybar; loc, between + within / n)``: how a sequence's mean look tells classes apart.
 
     In the two-level model a sequence's look ``mu ~ N(loc_c, between_c)`` and its frames
@@ -275,12 +269,11 @@ def look_log_marginal(
         count: frames ``n`` (broadcasts against the result).
         resid: ``A (ybar - loc)`` in the basis of :func:`look_basis`, ``(..., d)``.
         lam, logdet_within: from :func:`look_basis`, ``(..., d)`` and ``(...)``.
-        variance: :func:`look_variance` of ``count`` and ``lam``, when the caller keeps it (the same values).
 
     Returns:
         ``(...)`` log density.
     """
-    var, log_var = look_variance(count, lam) if variance is None else variance
+    var, log_var = look_variance(count, lam)
     d = resid.shape[-1]
     return -0.5 * ((resid * resid / var).sum(-1) + log_var + logdet_within + d * math.log(2 * math.pi))
 

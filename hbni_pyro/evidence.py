@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
+from hbni_pyro import evidence_numba
 from hbni_pyro.density import (
     block_log_lik,
     concentrations,
@@ -136,20 +138,34 @@ class SequenceEvidence:
         )  # (S, M, d, d), (S, M, d), (S, 1)
         self._basis_loc = (self._basis @ loc.unsqueeze(-1)).squeeze(-1)  # (S, M, d)
         self._within_prec = torch.linalg.inv(within).reshape(S, -1)  # (S, d d)
-        self._variances: dict[float, tuple[Tensor, Tensor]] = {}
+        self._compiled = None  # on the CPU: the tables of evidence_numba.log_evidence, draws last
+        if loc.device.type == "cpu" and loc.dtype == torch.float64:
+            self._compiled = tuple(
+                t.contiguous().numpy()
+                for t in (
+                    self._basis.permute(1, 2, 3, 0),
+                    self._basis_loc.permute(1, 2, 0),
+                    self._within_prec.T.reshape(self.dim, self.dim, S),
+                    self._logdet.reshape(S),
+                )
+            )
+        self._variances: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_variances": {}}  # a copy sent to another process recomputes what it needs
 
-    def _variance(self, n_eff: Tensor) -> tuple[Tensor, Tensor]:
-        """:func:`~hbni_pyro.density.look_variance` at the effective count ``n_eff`` (one value), ``(1, S, M, d)`` and
-        ``(1, S, M)``, computed once per count on the CPU: its logs took a sixth of a stream's evidence."""
-        key = float(n_eff)
-        kept = self._variances.get(key)
+    def _variance(self, n_eff: float) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`~hbni_pyro.density.look_variance` at the effective count ``n_eff``, ``(M, d, S)``, and the sum of its
+        logs, ``(M, S)``, computed once per count: the logs cost more than the rest of a block's evidence."""
+        kept = self._variances.get(n_eff)
         if kept is None:
             if len(self._variances) >= _KEPT_VARIANCES:
                 self._variances.clear()
-            kept = self._variances[key] = look_variance(n_eff.reshape(1, 1, 1), self._lam)
+            var, log_var = look_variance(n_eff, self._lam)
+            kept = self._variances[n_eff] = (
+                var.permute(1, 2, 0).contiguous().numpy(),
+                log_var.T.contiguous().numpy(),
+            )
         return kept
 
     def features(self, obs: Tensor) -> Tensor:
@@ -164,7 +180,7 @@ class SequenceEvidence:
         return torch.cat([y, (y.unsqueeze(-1) * y.unsqueeze(-2)).flatten(-2)], -1)
 
     def log_evidence(self, stats: Tensor, counts: Tensor) -> Tensor:
-        S, M, d = self._basis.shape[0], self.num_classes, self.dim
+        S, d = self._basis.shape[0], self.dim
         rho = self.correlation
         weight = (1.0 - rho**2) + (counts - 1.0) * (1.0 - rho) ** 2  # sum_t a_t^2 (= n without correlation)
         mean_y = stats[:, :d] / weight.unsqueeze(-1)
@@ -172,11 +188,40 @@ class SequenceEvidence:
         effective = weight / (1.0 - rho**2)  # n_eff
         # the AR(1) density's terms that depend on neither class nor draw (0 without correlation)
         shift = -0.5 * d * ((weight / counts).log() + (counts - 2.0) * math.log(1.0 - rho**2))
+        if self._compiled is not None and stats.device.type == "cpu" and stats.dtype == torch.float64:
+            out = self._compiled_evidence(mean_y, scatter, counts, effective)
+        else:
+            out = self._torch_evidence(mean_y, scatter, counts, effective)
+        return out - math.log(S) + shift.unsqueeze(-1)
+
+    def _compiled_evidence(self, mean_y: Tensor, scatter: Tensor, counts: Tensor, effective: Tensor) -> Tensor:
+        """``log sum_s`` of the draws' terms ``(K, M)`` by :func:`hbni_pyro.evidence_numba.log_evidence`, the blocks
+        of each effective count together."""
+        out = torch.empty(len(counts), self.num_classes, dtype=torch.float64)
+        values, group = torch.unique(effective, return_inverse=True)
+        scatter = scatter.reshape(-1, self.dim, self.dim)
+        for u, n_eff in enumerate(values.tolist()):
+            rows = (group == u).nonzero().squeeze(1)
+            out[rows] = torch.from_numpy(
+                evidence_numba.log_evidence(
+                    mean_y[rows].numpy(),
+                    scatter[rows].numpy(),
+                    counts[rows].numpy(),
+                    *self._variance(n_eff),
+                    *self._compiled,
+                    1.0 / (1.0 - self.correlation**2),
+                )
+            )
+        return out
+
+    def _torch_evidence(self, mean_y: Tensor, scatter: Tensor, counts: Tensor, effective: Tensor) -> Tensor:
+        """``log sum_s`` of the draws' terms ``(K, M)`` with torch, a chunk of blocks at a time (on any device)."""
+        S, M, d = self._basis.shape[0], self.num_classes, self.dim
+        rho = self.correlation
         flat_basis = self._basis.reshape(S * M * d, d)
-        out = torch.empty(stats.shape[0], M, dtype=stats.dtype, device=stats.device)
+        out = torch.empty(mean_y.shape[0], M, dtype=mean_y.dtype, device=mean_y.device)
         step = max(1, _CHUNK_ELEMENTS // (S * M * d))
-        on_cpu = stats.device.type == "cpu"
-        for start in _chunks(stats.shape[0], S * M * d):
+        for start in _chunks(mean_y.shape[0], S * M * d):
             rows = slice(start, start + step)
             k = mean_y[rows].shape[0]
             resid = (flat_basis @ mean_y[rows].T).reshape(S, M, d, k).permute(
@@ -185,10 +230,8 @@ class SequenceEvidence:
             n, n_eff = counts[rows][:, None, None], effective[rows][:, None, None]
             # tr(W^-1 scatter) by one matmul, over (1 - rho^2) W
             trace = (scatter[rows] @ self._within_prec.T).unsqueeze(-1) / (1.0 - rho**2)  # (k, S, 1)
-            one_count = on_cpu and (k == 1 or bool((n_eff == n_eff[0]).all()))  # (no device sync for a key)
-            variance = self._variance(n_eff[0]) if one_count else None
-            terms = look_log_marginal(n_eff, resid, self._lam, self._logdet, variance) + within_log_prob(
+            terms = look_log_marginal(n_eff, resid, self._lam, self._logdet) + within_log_prob(
                 n, trace, self._logdet, d
             )
             out[rows] = logsumexp_in_order(terms.transpose(1, 2))
-        return out - math.log(S) + shift.unsqueeze(-1)
+        return out

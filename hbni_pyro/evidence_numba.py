@@ -7,7 +7,7 @@ loop makes one pass per block, vectorised over the draws, and sums each class's 
 fixed order, so a block's value does not depend on the blocks beside it either. It computes what the torch path
 computes (its test oracle), up to rounding.
 
-Shapes: ``K`` blocks, ``S`` draws, ``M`` classes, ``d`` look dimensions, ``U`` distinct effective frame counts.
+Shapes: ``K`` blocks, ``S`` draws, ``M`` classes, ``d`` look dimensions.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ import math
 import numpy as np
 from numba import njit
 
-import hbni_infra.numba_cache  # noqa: F401  (sets numba's cache directory first)
+from hbni_infra.numba_cache import use_cache_dir
+
+use_cache_dir()  # before any cached function is decorated
 
 _LOG_2PI = math.log(2.0 * math.pi)
 _FLOOR = -700.0  # terms below exp(-700) cannot change a sum that is >= 1 (as logsumexp_in_order clamps them)
@@ -28,7 +30,6 @@ def log_evidence(
     mean_y: np.ndarray,
     scatter: np.ndarray,
     counts: np.ndarray,
-    group: np.ndarray,
     variance: np.ndarray,
     log_variance: np.ndarray,
     basis: np.ndarray,
@@ -42,9 +43,9 @@ def log_evidence(
 
     Args:
         mean_y: ``(K, d)`` each block's mean look; scatter: ``(K, d, d)`` its scatter about that mean.
-        counts: ``(K,)`` frames ``n`` per block; group: ``(K,)`` int64 index of its effective count in ``variance``.
-        variance, log_variance: ``(U, M, d, S)`` :func:`~hbni_pyro.density.look_variance` ``lam + 1 / n_eff`` and
-            ``(U, M, S)`` the sum of its logs, per distinct effective count.
+        counts: ``(K,)`` frames ``n`` per block, all of the same effective count ``n_eff``.
+        variance, log_variance: ``(M, d, S)`` :func:`~hbni_pyro.density.look_variance` ``lam + 1 / n_eff`` and
+            ``(M, S)`` the sum of its logs.
         basis: ``(M, d, d, S)`` :func:`~hbni_pyro.density.look_basis` ``A`` (row ``j``, column ``i``);
             basis_loc: ``(M, d, S)`` ``A loc``; within_prec: ``(d, d, S)`` ``W^-1``; logdet: ``(S,)`` ``log|W|``.
         scale: ``1 / (1 - rho^2)``, the factor of the scatter's trace.
@@ -54,7 +55,7 @@ def log_evidence(
     out = np.empty((K, M))
     within, resid, quad = np.empty(S), np.empty(S), np.empty(S)
     for k in range(K):  # the draws innermost throughout: vectorised
-        n, u = counts[k], group[k]
+        n = counts[k]
         rest = -0.5 * (n - 1.0) * d * _LOG_2PI - 0.5 * d * math.log(n)
         within[:] = 0.0
         for i in range(d):
@@ -74,10 +75,10 @@ def log_evidence(
                     for s in range(S):
                         resid[s] += basis[m, j, i, s] * y
                 for s in range(S):
-                    quad[s] += resid[s] * resid[s] / variance[u, m, j, s]
+                    quad[s] += resid[s] * resid[s] / variance[m, j, s]
             top = -np.inf
             for s in range(S):
-                quad[s] = within[s] - 0.5 * (quad[s] + log_variance[u, m, s] + logdet[s] + d * _LOG_2PI)
+                quad[s] = within[s] - 0.5 * (quad[s] + log_variance[m, s] + logdet[s] + d * _LOG_2PI)
                 top = max(top, quad[s])
             total = 0.0
             for s in range(S):

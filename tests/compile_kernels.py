@@ -22,7 +22,8 @@ def package_delivery() -> None:
 
 
 def others() -> None:
-    """Disaster relief's and the tabular problems' event loops, the MH class move and the sequence model's loops."""
+    """Disaster relief's and the tabular problems' event loops, the MH class move and the sequence model's loops
+    (its sampler's and its filter's evidence)."""
     import hbni_pyro
     from decpomdp import JointController, simulate
     from decpomdp.domains import DisasterRelief, disaster_relief
@@ -38,9 +39,10 @@ def others() -> None:
     obs = sample_outputs(torch.tensor([2.0, 5.0, 9.0]), torch.arange(3).repeat_interleave(4), g)
     settings = dict(num_chains=2, num_samples=2, warmup_steps=2, progress=False)
     hbni_pyro.fit(obs, **settings)
-    hbni_pyro.fit(
+    posterior = hbni_pyro.fit(
         obs, torch.arange(3).repeat_interleave(4), model="sequence", sequence_ids=torch.arange(12) // 2, **settings
     )
+    hbni_pyro.HBNIFilter(posterior).run(obs.view(3, 4, 3))  # the sequence model's compiled evidence
 
 
 if __name__ == "__main__":
