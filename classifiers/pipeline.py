@@ -16,6 +16,7 @@ A saved file holds no device: :meth:`FrameClassifier.load` places it on any ``de
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import os
 from collections.abc import Sequence
@@ -221,9 +222,10 @@ class FrameClassifier:
             return self.backbone_(x, self.batch_size, threads=None)
 
         bar = tqdm(total=len(crops), desc="backbone", unit="img", disable=not progress, leave=False)
-        with torch_threads(1 if workers > 1 else self.threads), ThreadPoolExecutor(workers) as pool:
+        pool = ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext()  # one: no thread to start
+        with torch_threads(1 if workers > 1 else self.threads), pool:
             out = []
-            for chunk, scores in zip(chunks, pool.map(embed, chunks)):
+            for chunk, scores in zip(chunks, (pool.map if workers > 1 else map)(embed, chunks)):
                 out.append(scores)
                 bar.update(len(chunk))
         bar.close()

@@ -17,6 +17,12 @@ from hbni_infra.checks import as_int
 from hbni_infra.threads import single_thread, worker_threads
 
 
+def _workers(clf: FrameClassifier) -> int:
+    """Threads that embed frames side by side by default: :func:`hbni_infra.threads.worker_threads`, or one for a
+    classifier set to several torch threads."""
+    return worker_threads() if clf.threads in (None, 1) else 1
+
+
 def train_classifier(
     classifier: DictConfig,
     classes: list[str],
@@ -31,8 +37,7 @@ def train_classifier(
     (``None``: :func:`hbni_infra.threads.worker_threads`, or one for a classifier set to several torch threads; the
     same classifier for any ``workers``)."""
     clf: FrameClassifier = instantiate(classifier)
-    if workers is None:
-        workers = worker_threads() if clf.threads in (None, 1) else 1
+    workers = _workers(clf) if workers is None else workers
     images, labels = [], []
     for name in classes:
         snaps = render_images(name, per_class, "training", seed=seed)
@@ -63,9 +68,7 @@ def sequence_outputs(
     classify sequences side by side, each on one torch thread (rendering and the backbone release the
     GIL), so the outputs are the same for any ``workers``.
     """
-    if workers is None:
-        workers = worker_threads() if clf.threads in (None, 1) else 1
-    workers = as_int("workers", workers, minimum=1)
+    workers = as_int("workers", _workers(clf) if workers is None else workers, minimum=1)
     if workers > 1 and clf.threads not in (None, 1):
         raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {clf.threads}")
     order = class_columns(clf, classes)
