@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 import hbni_pyro
-from hbni_pyro.calibration import threshold_checks
+from hbni_pyro import threshold_checks
 
 THRESHOLD = 0.95
 ROWS = {

@@ -26,9 +26,7 @@ import torch
 
 from experiments.filtering_error import run as run_study
 from experiments.schemas import compose_config
-from hbni_pyro.filters import HBNIFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.posterior import HBNIPosterior
+from hbni_pyro import HBNIFilter, HBNIPosterior, sample_outputs
 from hbni_infra.streams import torch_generator
 
 STUDY_FLOOR_SECONDS = 120.0

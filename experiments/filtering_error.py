@@ -28,8 +28,7 @@ from tqdm.auto import tqdm
 
 import hbni_pyro
 from experiments.common import save_figure
-from hbni_pyro.filters import decide, make_filter
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import decide, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import stream_seed, torch_stream

@@ -18,9 +18,8 @@ from omegaconf import DictConfig
 import hbni_pyro
 from experiments.artifacts import save_artifact
 from experiments.common import save_figure
-from hbni_pyro.density import gamma_log_prob
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.model import prior_theta_log_density
+from hbni_pyro import gamma_log_prob, sample_outputs
+from hbni_pyro.models.paper.program import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
 

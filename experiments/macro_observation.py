@@ -21,9 +21,7 @@ from omegaconf import DictConfig
 
 import hbni_pyro
 from experiments.common import save_figure
-from hbni_pyro.filters import make_filter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
+from hbni_pyro import MacroObservationModel, MacroObservationProcess, characterize, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
 

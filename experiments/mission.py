@@ -71,7 +71,7 @@ from experiments.steps.noise import fit_labelled, stop_folds
 from experiments.steps.perception import sequence_outputs, train_classifier
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
-from hbni_pyro.calibration import binomial_stderr
+from hbni_pyro import binomial_stderr
 from hbni_infra.threads import threads
 
 

@@ -49,10 +49,8 @@ from experiments.report import write_report
 from hbni_infra.cache import cached, source_identity
 from experiments.steps.noise import fit_labelled, stop_folds
 from experiments.steps.perception import sequence_outputs, train_classifier
-from hbni_pyro.calibration import binomial_stderr, stream_reliability, threshold_checks
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import binomial_stderr, noise_model, sample_outputs, stream_reliability, threshold_checks
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants import noise_model
 from hbni_infra.streams import stream_seed, torch_stream
 
 BASELINES = ("ssbf", "max_of_mean")

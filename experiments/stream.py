@@ -9,10 +9,10 @@
    the posterior's class order and the HBNI temper; the macro-observation process built on them.
    :func:`load_controller`: a saved controller's executor, when ``stream.controller`` is given.
 3. :func:`stream_frames`: every stamped frame through the classifier (batches of ``stream.batch``) and
-   the process, which restarts after each macro-observation (:func:`hbni_pyro.live.live_macro_observations`,
+   the process, which restarts after each macro-observation (:func:`hbni_pyro.live_macro_observations`,
    the per-frame code of the ROS 2 node too); each complete one is the observation that completes the
    controller's current macro-action. The annotated video and the ROS output bag
-   (:class:`hbni_pyro.ros.MacroObservationBag`: a bag source's default) are written as frames go.
+   (:class:`hbni_pyro.runtime.ros_messages.MacroObservationBag`: a bag source's default) are written as frames go.
 4. :func:`write_outputs`: ``macro_observations.jsonl`` (one record per macro-observation: frame
    range, label, confidence, frames used, timed out, stream ended, first and last stamps, the
    controller's decision), ``strip.png`` and the metrics (frames, macro-observations, frames per
@@ -31,9 +31,8 @@ from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from hbni_pyro.live import live_macro_observations
-from hbni_pyro.ros import MacroObservationBag
-from hbni_pyro.variants import noise_model
+from hbni_pyro import live_macro_observations, noise_model
+from hbni_pyro.runtime import MacroObservationBag
 from classifiers import FrameClassifier, class_columns
 from classifiers.bags import is_bag
 from classifiers.sources import FrameSource, open_source

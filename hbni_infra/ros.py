@@ -1,4 +1,5 @@
-"""ROS plumbing shared by the bag reader (:mod:`classifiers.bags`) and the bag writer (:mod:`hbni_pyro.ros`).
+"""ROS plumbing shared by the bag reader (:mod:`classifiers.bags`) and the bag writer
+(:mod:`hbni_pyro.runtime.ros_messages`).
 
 * The ``ros`` extra's packages (``rosbags``, ``rosbags-image``, ``mcap``, ``mcap-ros2-support``) are imported
   on first use by :func:`require` (:func:`hbni_infra.optional.require`), which says what to install when one is

@@ -95,7 +95,7 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
     Each experiment's schema names its own (``unread``: a block it has no use for, such as ``hbni`` in a planning
     study, or a key its other settings make irrelevant, such as ``warm_planner`` without ``warm_start``); every
     hyperprior block adds the fields no noise model it fits reads (``noise_models``,
-    :attr:`hbni_pyro.variants.NoiseModel.hyperprior_fields`), and every planner block the settings its planner
+    :attr:`hbni_pyro.NoiseModel.hyperprior_fields`), and every planner block the settings its planner
     ignores (:meth:`decpomdp.search.PlannerConfig.ignored`).
     """
     from hydra.utils import instantiate
@@ -106,7 +106,7 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
     out = dict(schema.unread(cfg))
     models = schema.noise_models(cfg)
     if models:
-        from hbni_pyro.variants import model_names, noise_model
+        from hbni_pyro import model_names, noise_model
 
         if all(m in model_names() for m in models):  # else the model fails its own check, naming the key
             fields = {f for m in models for f in noise_model(m).hyperprior_fields}

@@ -59,7 +59,7 @@ class HBNIBlock:
     filter: FilterBlock = field(default_factory=FilterBlock)
 
     def check(self, path: str) -> None:
-        from hbni_pyro.variants import model_names
+        from hbni_pyro import model_names
 
         as_choice("model", self.model, model_names())
 

@@ -437,7 +437,7 @@ class MissionBlock:
         for name in ("train_per_class", "calib_sequences", "char_sequences", "frames", "generative_streams"):
             as_int(name, getattr(self, name), 1)
         as_choice("planning_model", self.planning_model, PLANNING_MODELS)
-        from hbni_pyro.frame_calibration import CALIBRATIONS
+        from hbni_pyro import CALIBRATIONS
 
         as_choice("calibration", self.calibration, CALIBRATIONS)
         as_choice("hbni_stop", self.hbni_stop, ("calibrated", "nominal"))
@@ -485,7 +485,7 @@ class Mission(Root):
         unknown = [v for v in chosen if v not in MISSION_VARIANTS]
         if unknown or not chosen:
             raise ValueError(f"perception: expected a subset of {list(MISSION_VARIANTS)}, got {chosen}")
-        from hbni_pyro.variants import noise_model
+        from hbni_pyro import noise_model
 
         if self.mission.temper != "fit" and noise_model(self.hbni.model).correlated_frames:
             raise ValueError(
@@ -664,7 +664,7 @@ class NoiseStudy:
     photos: Optional[NoiseMissionBlock] = MISSING
 
     def check(self, path: str) -> None:
-        from hbni_pyro.variants import model_names
+        from hbni_pyro import model_names
 
         if (
             not self.models

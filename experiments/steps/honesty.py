@@ -28,7 +28,7 @@ import torch
 
 import hbni_pyro
 from experiments import figures
-from hbni_pyro.calibration import stream_reliability
+from hbni_pyro import stream_reliability
 from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import torch_stream
 

@@ -1,6 +1,6 @@
 """Posterior predictive checks of a fitted noise model on a user's held-out classifier outputs.
 
-:func:`check` runs the macro-observation process (a filter
+:func:`predictive_check` runs the macro-observation process (a filter
 on the posterior, stopped at ``threshold`` or at the frame budget) on every held-out stream, and the same
 process on streams simulated from the posterior (:meth:`~hbni_pyro.HBNIPosterior.sample_streams`), as many
 per held-out stream as ``simulations`` says, each of the same class and length. It then compares, per class:
@@ -23,7 +23,7 @@ the stop, Kolmogorov-Smirnov).
 
 The tests are :mod:`hbni_infra.stats`'s (scipy's exact binomial and two-sample Kolmogorov-Smirnov tests, a
 two-sample z test). The binomial tests take the simulated rate as exact; its Monte Carlo error is
-``1 / simulations`` of the observed one's variance. Kolmogorov-Smirnov on frame counts (discrete) is conservative. :meth:`CheckResult.passed`
+``1 / simulations`` of the observed one's variance. Kolmogorov-Smirnov on frame counts (discrete) is conservative. :meth:`PredictiveCheck.passed`
 corrects for the number of tests (Bonferroni), so a model that is right fails with probability at most ``alpha``.
 The comparison is with the average over the posterior's draws: a held-out set far larger than the training set
 can reject an honest but uncertain posterior.
@@ -44,9 +44,9 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from hbni_pyro.calibration import Reliability, reliability
-from hbni_pyro.filters import HBNIFilter, StreamingFilter
-from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
+from hbni_pyro.diagnostics.reliability import Reliability, reliability
+from hbni_pyro.filters.macro import MacroObservationBatch, MacroObservationProcess
+from hbni_pyro.filters.streaming import HBNIFilter, StreamingFilter
 from hbni_pyro.validation import DTYPE, as_labels, as_outputs, as_sequence_ids
 from hbni_infra.checks import as_int, as_probability, as_seed
 from hbni_infra.files import atomic_write_bytes
@@ -57,7 +57,7 @@ from hbni_infra.streams import torch_generator
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from hbni_pyro.posterior import HBNIPosterior
+    from hbni_pyro.posterior.posterior import HBNIPosterior
 
 LABELLED_CHECKS = ("emitted", "overall", "timeouts", "frames", "calibration")
 UNLABELLED_CHECKS = ("timeouts", "frames", "confidence")
@@ -80,8 +80,8 @@ class _Outcomes:
 
 
 @dataclass
-class CheckResult:
-    """The outcome of :func:`check`.
+class PredictiveCheck:
+    """The outcome of :func:`predictive_check`.
 
     Attributes:
         table: one row per class (``class`` is its name or index), or one row ``"all"`` without labels: observed
@@ -137,7 +137,7 @@ class CheckResult:
     def figure(self) -> "Figure":
         """A matplotlib Figure: the reliability diagram (labelled only) and frames-to-threshold histograms,
         observed against predicted (needs matplotlib: the ``analysis`` extra)."""
-        figure = require("matplotlib.figure", "analysis", "CheckResult.figure()")
+        figure = require("matplotlib.figure", "analysis", "PredictiveCheck.figure()")
         fig = figure.Figure(figsize=(10 if self.labelled else 5, 4), layout="constrained")
         axes = fig.subplots(1, 2 if self.labelled else 1, squeeze=False)[0]
         if self.labelled and self.observed is not None and self.predicted is not None:
@@ -182,7 +182,7 @@ _VALUE_KEYS = {
 }
 
 
-def check(
+def predictive_check(
     posterior: "HBNIPosterior",
     outputs: Any,
     labels: Any = None,
@@ -193,7 +193,7 @@ def check(
     seed: int = 0,
     simulations: int = 20,
     filter: StreamingFilter | None = None,
-) -> CheckResult:
+) -> PredictiveCheck:
     """Posterior predictive checks of ``posterior`` on held-out outputs (see the module's docstring).
 
     Args:
@@ -260,7 +260,7 @@ def check(
         checks = LABELLED_CHECKS if labelled else UNLABELLED_CHECKS
         p_values.update({f"{name}: {k}": row[f"p_{k}"] for k in checks if not math.isnan(row[f"p_{k}"])})
     low = 1.0 / num_classes
-    return CheckResult(
+    return PredictiveCheck(
         table,
         p_values,
         labelled,
@@ -278,7 +278,7 @@ def _stream_labels(labels: Tensor, streams: list[Tensor]) -> Tensor:
     out = labels[first]
     if (out < 0).any():
         raise ValueError(
-            f"labels: entry {int(first[out < 0][0])} is -1 (unknown); check needs every label, or labels=None"
+            f"labels: entry {int(first[out < 0][0])} is -1 (unknown); predictive_check needs every label, or labels=None"
         )
     lengths = torch.tensor([len(rows) for rows in streams])
     mixed = labels[torch.cat(streams)] != out.repeat_interleave(lengths)

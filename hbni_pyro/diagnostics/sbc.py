@@ -14,10 +14,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.fit import fit_many
-from hbni_pyro.model import HyperPrior
+from hbni_pyro.models import NoiseModel, noise_model
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants import NoiseModel, noise_model
 from hbni_infra.streams import stream_seed, torch_generator
 from hbni_infra.checks import as_int, as_seed
 

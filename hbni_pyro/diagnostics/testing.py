@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from hbni_pyro.calibration import binomial_stderr, threshold_checks
-from hbni_pyro.checks import CheckResult, check
-from hbni_pyro.macro import MacroObservationProcess
+from hbni_pyro.diagnostics.predictive import PredictiveCheck, predictive_check
+from hbni_pyro.filters.macro import MacroObservationProcess
+from hbni_pyro.filters.stopping import binomial_stderr, threshold_checks
 from hbni_infra.checks import as_float, as_probability
 
 if TYPE_CHECKING:
-    from hbni_pyro.posterior import HBNIPosterior
+    from hbni_pyro.posterior.posterior import HBNIPosterior
 
 
 def assert_calibrated(
@@ -62,7 +62,7 @@ def assert_calibrated(
     return row
 
 
-def assert_check_passes(
+def assert_predictive_check_passes(
     posterior: "HBNIPosterior",
     outputs: Any,
     labels: Any = None,
@@ -70,10 +70,10 @@ def assert_check_passes(
     *,
     alpha: float = 0.01,
     **options: Any,
-) -> CheckResult:
-    """Assert that :func:`hbni_pyro.check` finds no misfit at family-wise level ``alpha``; ``options`` go to it
-    (``threshold``, ``max_frames``, ``seed``, ``simulations``, ``filter``). Returns the result."""
-    result = check(posterior, outputs, labels, sequence_ids, **options)
+) -> PredictiveCheck:
+    """Assert that :func:`hbni_pyro.predictive_check` finds no misfit at family-wise level ``alpha``; ``options`` go
+    to it (``threshold``, ``max_frames``, ``seed``, ``simulations``, ``filter``). Returns the result."""
+    result = predictive_check(posterior, outputs, labels, sequence_ids, **options)
     failures = result.failures(alpha)
     if failures:
         raise AssertionError(
@@ -85,7 +85,7 @@ def assert_check_passes(
     return result
 
 
-def assert_check_fails(
+def assert_predictive_check_fails(
     posterior: "HBNIPosterior",
     outputs: Any,
     labels: Any = None,
@@ -93,10 +93,10 @@ def assert_check_fails(
     *,
     alpha: float = 0.01,
     **options: Any,
-) -> CheckResult:
-    """Assert that :func:`hbni_pyro.check` rejects the posterior at family-wise level ``alpha`` (the outputs come
-    from a different noise). Returns the result."""
-    result = check(posterior, outputs, labels, sequence_ids, **options)
+) -> PredictiveCheck:
+    """Assert that :func:`hbni_pyro.predictive_check` rejects the posterior at family-wise level ``alpha`` (the
+    outputs come from a different noise). Returns the result."""
+    result = predictive_check(posterior, outputs, labels, sequence_ids, **options)
     if result.passed(alpha):
         raise AssertionError(
             f"posterior predictive check passed at alpha {alpha:g}, smallest p-value {result.min_p_value:.3g} "

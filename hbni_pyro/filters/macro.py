@@ -25,8 +25,8 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from hbni_pyro.filters import StreamingFilter, decide
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro.filters.streaming import StreamingFilter, decide
+from hbni_pyro.models.paper.sampler import sample_outputs
 from hbni_pyro.validation import DTYPE, check_same_classes, has_values
 from hbni_infra.checks import as_int, as_names, as_probability
 from hbni_infra.tensorfile import load_tensors, save_tensors

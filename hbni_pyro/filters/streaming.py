@@ -15,7 +15,7 @@ filter                           per-frame feature       posterior after N frame
 ===============================  ======================  ===============================================
 
 The calibrated peer (``make_filter("calibrated")``) is SSBF on calibrated frames ``q_i``
-(:mod:`hbni_pyro.frame_calibration`), its feature ``log q`` and every frame's evidence weighed by a
+(:mod:`hbni_pyro.filters.frame_calibration`), its feature ``log q`` and every frame's evidence weighed by a
 temper ``tau``: ``∝ p_m * prod_i (q_i,m / p_m)^tau``.
 
 The streaming path (:meth:`StreamingFilter.update`) adds one feature to the running sum;
@@ -43,8 +43,8 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
+from hbni_pyro.models import noise_model
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, check_same_classes, has_values
-from hbni_pyro.variants import noise_model
 from hbni_infra.checks import as_device, as_float, as_int
 from hbni_infra.threads import single_thread
 
@@ -193,7 +193,7 @@ class StaticStateBayesFilter(_LogLinearFilter):
     ``P_N(m) ∝ p_m * prod_i (o_i,m / p_m)``.
 
     The calibrated peer (``make_filter("calibrated")``) is the same filter on calibrated frames: with a
-    :class:`~hbni_pyro.frame_calibration.FrameCalibration` ``calibration``, each output ``o_i`` is replaced by
+    :class:`~hbni_pyro.filters.frame_calibration.FrameCalibration` ``calibration``, each output ``o_i`` is replaced by
     ``q_i = calibration(o_i)`` (fitted on labelled calibration frames), and a ``temper`` ``tau`` in ``(0, 1]``
     weighs every frame's evidence, ``P_N(m) ∝ p_m * prod_i (q_i,m / p_m)^tau``: ``N`` correlated frames of one
     sequence count as ``tau * N`` independent ones (:func:`hbni_pyro.fit_temper` fits ``tau`` on labelled
@@ -247,7 +247,7 @@ class _Posterior(Protocol):
 
 
 class HBNIFilter(StreamingFilter):
-    """Class filter under a fitted HBNI noise model (any variant of :data:`hbni_pyro.variants.NOISE_MODELS`).
+    """Class filter under a fitted HBNI noise model (any variant of :data:`hbni_pyro.models.NOISE_MODELS`).
 
     Args:
         posterior: an :class:`hbni_pyro.HBNIPosterior` (its ``model`` picks the likelihood), or
@@ -270,7 +270,7 @@ class HBNIFilter(StreamingFilter):
         class_prior: ``(M,)`` class prior; ``None`` takes ``posterior.class_prior``.
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
             draws; its cost is ``O(draws)`` per frame and class. ``None`` = the model's
-            spec's ``filter_draws`` (:mod:`hbni_pyro.variants`): all draws, except at most 2000 under the
+            spec's ``filter_draws`` (:mod:`hbni_pyro.models`): all draws, except at most 2000 under the
             sequence model, whose cost per draw is ``M - 1`` times the paper's (2000 draws keep a frame under 2 ms).
         temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood (all statistics scaled by
             ``tau``). The frame-level models treat outputs as i.i.d.; the frames of one camera
@@ -279,7 +279,7 @@ class HBNIFilter(StreamingFilter):
             filter; :func:`hbni_pyro.fit_temper` fits ``tau`` on labelled sequences. The sequence
             model integrates each sequence's look out instead and needs no temper.
         frame_correlation: under the sequence model, the lag-1 correlation in ``(-1, 1)`` of a stream's frames
-            about its look (:mod:`hbni_pyro.frame_correlation`): ``N`` correlated frames then count as
+            about its look (:mod:`hbni_pyro.models.sequence.correlation`): ``N`` correlated frames then count as
             ``1 + (N - 1)(1 - rho) / (1 + rho)`` about their look. ``None`` takes the posterior's
             ``frame_correlation`` (0 when it has none); 0 treats the frames as exchangeable.
         device: where the filter runs (the draws are moved there); ``None``: the device of the posterior's draws.
@@ -435,8 +435,8 @@ def make_filter(
 
     ``"hbni"`` is :class:`HBNIFilter` on ``posterior`` with ``options`` (``mode``, ``temper``, ``num_draws``,
     ``class_prior``, ``frame_correlation``); ``"calibrated"``, the calibrated peer, is :class:`StaticStateBayesFilter`
-    on calibrated frames (options ``calibration``, a :class:`~hbni_pyro.frame_calibration.FrameCalibration`, required,
-    ``temper`` and ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only
+    on calibrated frames (options ``calibration``, a :class:`~hbni_pyro.FrameCalibration`, required, ``temper`` and
+    ``class_prior``); the baselines ``"ssbf"``, ``"max_of_mean"`` and ``"voting"`` need only
     ``num_classes`` (default: the posterior's, or the calibration's; given a posterior, they take its class
     names), and ``"ssbf"`` takes a ``class_prior``.
     ``device``: where the filter runs (``None``: the posterior's device, else the CPU).

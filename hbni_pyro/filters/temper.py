@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
-from hbni_pyro.filters import HBNIFilter
+from hbni_pyro.filters.streaming import HBNIFilter
 from hbni_pyro.validation import DTYPE
 
 __all__ = ["TemperFit", "fit_temper"]

@@ -1,7 +1,37 @@
-"""MCMC kernels for the HBNI noise models, runnable by ``pyro.infer.MCMC``."""
+"""The MH machinery the noise models' kernels share, runnable by ``pyro.infer.MCMC``.
 
-from hbni_pyro.kernels.confusion_mh import ConfusionMetropolis
-from hbni_pyro.kernels.mh import HBNIMetropolis
-from hbni_pyro.kernels.sequence_mh import SequenceMetropolis
+- :mod:`.base`: :class:`BatchedKernel`, the ``MCMCKernel`` protocol over many chains in one tensor program (the
+  datasets x chains layout, step-size adaptation in warm-up, acceptance bookkeeping), and its random walks.
+- :mod:`.class_moves`: the class move of the frame-level models (the paper's and the confusion-aware one),
+  their state and data (:class:`FrameData`), compiled on the CPU by :mod:`.class_move_numba`.
 
-__all__ = ["ConfusionMetropolis", "HBNIMetropolis", "SequenceMetropolis"]
+Each model's own kernel and steps live in its room (:mod:`hbni_pyro.models`).
+"""
+
+from hbni_pyro.mcmc.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
+from hbni_pyro.mcmc.class_moves import (
+    FrameData,
+    MHData,
+    MHState,
+    alias_draw,
+    alias_tables,
+    frame_data,
+    sufficient_stats,
+    update_classes,
+)
+
+__all__ = [
+    "AdaptiveWalk",
+    "AdaptiveWalk2D",
+    "BatchedKernel",
+    "FrameData",
+    "MHData",
+    "MHState",
+    "alias_draw",
+    "alias_tables",
+    "flatten_chains",
+    "fraction",
+    "frame_data",
+    "sufficient_stats",
+    "update_classes",
+]

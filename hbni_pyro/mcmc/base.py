@@ -20,7 +20,7 @@ import torch
 from pyro.infer.mcmc.mcmc_kernel import MCMCKernel
 from torch import Tensor
 
-from hbni_pyro.model import HyperPrior
+from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.validation import DTYPE
 from hbni_infra.checks import as_int
 from hbni_infra.streams import torch_generator
@@ -88,7 +88,7 @@ class BatchedKernel(MCMCKernel):
 
     Args:
         num_chains: chains advanced together (a multiple of the number of datasets).
-        hyperprior: the :class:`~hbni_pyro.model.HyperPrior`.
+        hyperprior: the :class:`~hbni_pyro.HyperPrior`.
         class_prior: ``(M,)`` class prior ``p`` (``None`` = uniform).
         seed: seed of the kernel's own ``torch.Generator`` (initial state and every move).
     """

@@ -1,7 +1,7 @@
 """Compiled class move of the paper's model for data on the CPU: the MH move of every unknown class,
 the per-class sufficient statistics and (after warm-up) the label counts.
 
-The move is that of :func:`hbni_pyro.kernels.mh_steps.update_classes` (``beta=None``): stay with
+The move is that of :func:`hbni_pyro.mcmc.class_moves.update_classes` (``beta=None``): stay with
 probability ``stay_prob``, else propose from the alias tables of ``w_i``, accept by the Hastings
 ratio. Under the paper's model ``log p(c_i = k) + log Dir(o_i; theta_k e_k + 1)`` is
 ``offset_k + theta_k log o_ik``, so a move is ``O(1)`` per output.

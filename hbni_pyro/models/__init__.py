@@ -1,29 +1,41 @@
-"""The noise-model variants, by name.
+"""The noise models, by name: each one a :class:`NoiseModel` record in its own room.
 
-- ``paper``: ``o | c ~ Dir(theta_c e_c + 1)`` (:mod:`hbni_pyro.model`), the default of the library.
-- ``confusion``: ``o | c ~ Dir(theta_c e_c + beta_c)``, a full concentration vector per class
-  under a prior that shrinks it towards the paper's (:mod:`hbni_pyro.confusion_model`).
-- ``sequence``: a latent look per sequence, so a sequence's frames are exchangeable
-  (:mod:`hbni_pyro.sequence_model`); its fits take sequence ids.
+- ``paper`` (:mod:`hbni_pyro.models.paper`): ``o | c ~ Dir(theta_c e_c + 1)``, the default of the library.
+- ``confusion`` (:mod:`hbni_pyro.models.confusion`): ``o | c ~ Dir(theta_c e_c + beta_c)``, a full concentration
+  vector per class under a prior that shrinks it towards the paper's.
+- ``sequence`` (:mod:`hbni_pyro.models.sequence`): a latent look per sequence, so a sequence's frames are
+  exchangeable; its fits take sequence ids.
 
-Each is a :class:`NoiseModel` in its own module. A new variant is one module that builds a
-``NoiseModel`` and one :func:`register` call (or one line in :data:`NOISE_MODELS`).
+A model's room holds its Pyro program, generative sampler, MH kernel and steps and the filter's evidence; what
+several models share lies below them (:mod:`hbni_pyro.distributions`, :mod:`hbni_pyro.mcmc`). A new model is one
+room that builds a ``NoiseModel`` and one :func:`register` call (or one line in :data:`NOISE_MODELS`).
 """
 
 from __future__ import annotations
 
-from hbni_pyro.variants import confusion, paper, sequence
-from hbni_pyro.variants.spec import NoiseModel
+from hbni_pyro.models import confusion, paper, sequence
+from hbni_pyro.models.confusion import ConfusionEvidence, ConfusionMetropolis, confusion_model
+from hbni_pyro.models.paper import HBNIMetropolis, PaperEvidence, hbni_model, log_joint, sample_outputs
+from hbni_pyro.models.sequence import (
+    SequenceEvidence,
+    SequenceMetropolis,
+    SequenceStats,
+    estimate_frame_correlation,
+    sample_sequences,
+    sequence_model,
+    sequence_stats,
+)
+from hbni_pyro.models.spec import Draws, NoiseModel
 
 NOISE_MODELS: dict[str, NoiseModel] = {
     spec.name: spec for spec in (paper.NOISE_MODEL, confusion.NOISE_MODEL, sequence.NOISE_MODEL)
 }
-"""The registered variants, name -> spec."""
+"""The registered noise models, name -> record."""
 _BUILT_IN = tuple(NOISE_MODELS)
 
 
 def model_names() -> tuple[str, ...]:
-    """The names of the registered variants, in registration order."""
+    """The names of the registered noise models, in registration order."""
     return tuple(NOISE_MODELS)
 
 
@@ -54,7 +66,7 @@ def register(spec: NoiseModel) -> NoiseModel:
 
 
 def unregister(name: str) -> None:
-    """Remove the variant ``name`` (for tests and interactive work); the built-in variants stay."""
+    """Remove the noise model ``name`` (for tests and interactive work); the built-in models stay."""
     if name in _BUILT_IN:
         raise ValueError(f"name: the built-in noise model {name!r} cannot be removed")
     noise_model(name)
@@ -68,11 +80,27 @@ def site_shapes(model: str, num_classes: int) -> dict[str, tuple[int, ...]]:
 
 __all__ = [
     "NOISE_MODELS",
+    "ConfusionEvidence",
+    "ConfusionMetropolis",
+    "Draws",
+    "HBNIMetropolis",
     "NoiseModel",
+    "PaperEvidence",
+    "SequenceEvidence",
+    "SequenceMetropolis",
+    "SequenceStats",
     "check_model",
+    "confusion_model",
+    "estimate_frame_correlation",
+    "hbni_model",
+    "log_joint",
     "model_names",
     "noise_model",
     "register",
+    "sample_outputs",
+    "sample_sequences",
+    "sequence_model",
+    "sequence_stats",
     "site_shapes",
     "unregister",
 ]

@@ -1,8 +1,8 @@
 """``NoiseModel``: everything the package needs to know about one noise-model variant.
 
-A variant is one module (see :mod:`hbni_pyro.variants.paper` for the smallest) that builds a
-``NoiseModel`` and one line in :data:`hbni_pyro.variants.NOISE_MODELS` (or a call to
-:func:`hbni_pyro.variants.register`). The fitting driver, the posterior, the filter, the
+A variant is one room of :mod:`hbni_pyro.models` (see :mod:`hbni_pyro.models.paper` for the smallest) whose
+``__init__`` builds a ``NoiseModel``, and one line in :data:`hbni_pyro.models.NOISE_MODELS` (or a call to
+:func:`hbni_pyro.models.register`). The fitting driver, the posterior, the filter, the
 generative tables and simulation-based calibration read the variant only through this record.
 """
 
@@ -39,8 +39,9 @@ class NoiseModel:
             ``(obs (N, M), labels)`` or, for a sequence model, ``(padded (K, T, M), mask (K, T), labels (K,))``.
             NUTS runs on it with the classes enumerated out.
         kernel: the vectorised MH kernel class, ``kernel(num_chains=, hyperprior=, class_prior=, seed=)``; its
-            ``setup`` takes ``(obs, labels)``, or the :class:`~hbni_pyro.sequence_model.SequenceStats` of a sequence model.
-        evidence: the filter's evidence class over pooled draws (:mod:`hbni_pyro.evidence`).
+            ``setup`` takes ``(obs, labels)``, or the :class:`~hbni_pyro.models.sequence.program.SequenceStats` of a
+            sequence model.
+        evidence: the filter's evidence class over pooled draws (:mod:`hbni_pyro.models.paper.evidence`).
         site_shapes: ``M -> {site: per-draw shape}``; the first site's first axis indexes the classes.
         nuts_sites: the posterior sites from the Pyro program's sampled sites ``(chains, draws, ...)``.
         sample_streams: ``(draws, true_class, num_frames, generator) -> (n, num_frames, M)`` output
@@ -48,7 +49,7 @@ class NoiseModel:
         sequences: fits take sequence ids, and a sequence's frames share a latent look.
         correlated_frames: ``sample_streams`` and ``evidence`` also take ``correlation``, the AR(1) lag-1
             correlation of a stream's frames about its look, and fits estimate it from their sequences
-            (:mod:`hbni_pyro.frame_correlation`; a sequence model only).
+            (:mod:`hbni_pyro.models.sequence.correlation`; a sequence model only).
         max_plate_nesting: the Pyro program's plate depth (for NUTS).
         filter_draws: the filter's default number of draws (``None``: all).
         point_estimate: the filter's plug-in draw from pooled draws.

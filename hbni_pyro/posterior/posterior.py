@@ -14,9 +14,9 @@ from pyro.ops.stats import split_gelman_rubin
 from pyro.ops.tensor_utils import next_fast_len
 from torch import Tensor
 
-from hbni_pyro.model import HyperPrior
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.models import NoiseModel, model_names, noise_model
 from hbni_pyro.validation import DTYPE, as_class_prior, has_values
-from hbni_pyro.variants import NoiseModel, model_names, noise_model
 from hbni_infra.checks import as_device, as_float, as_generator, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.optional import require
@@ -32,17 +32,17 @@ class HBNIPosterior:
 
     Attributes:
         samples: site -> ``(chains, draws, *site shape)``; the sites of each model are its spec's
-            ``site_shapes`` (:mod:`hbni_pyro.variants`; paper: ``theta (M,)``, ``kappa``, ``gamma``).
+            ``site_shapes`` (:mod:`hbni_pyro.models`; paper: ``theta (M,)``, ``kappa``, ``gamma``).
         class_prior: ``(M,)`` class prior ``p`` used in the fit.
         hyperprior: the :class:`HyperPrior` used in the fit.
         label_probs: ``(N, M)`` posterior probability of each training output's class, or ``None``.
         info: JSON-serialisable fit metadata (method, settings, sampler diagnostics).
-        model: the noise model's name, a key of :data:`hbni_pyro.variants.NOISE_MODELS` (default ``"paper"``).
+        model: the noise model's name, a key of :data:`hbni_pyro.models.NOISE_MODELS` (default ``"paper"``).
         class_names: the name of each class, in the order of the outputs' columns (``None``: unnamed); filters,
             tables and streams built on the posterior check their names against it.
         frame_correlation: the lag-1 correlation in ``(-1, 1)`` of a stream's frames about its look, used by the
-            filter and the predictive streams (:mod:`hbni_pyro.frame_correlation`); fits of a model with ``correlated_frames``
-            estimate it from their sequences, and it must be 0 under other models.
+            filter and the predictive streams (:mod:`hbni_pyro.models.sequence.correlation`); fits of a model with
+            ``correlated_frames`` estimate it from their sequences, and it must be 0 under other models.
     """
 
     samples: dict[str, Tensor]
@@ -117,7 +117,7 @@ class HBNIPosterior:
 
     @property
     def noise_model(self) -> NoiseModel:
-        """The spec of :attr:`model` (:mod:`hbni_pyro.variants`)."""
+        """The spec of :attr:`model` (:mod:`hbni_pyro.models`)."""
         return noise_model(self.model)
 
     @property

@@ -6,8 +6,8 @@ frames carry their times (``stamp``, ``received`` and ``frame_id`` attributes, i
 :class:`classifiers.stamped.StampedFrame`), and hands each completed macro-observation to a robot's
 controller (an object with ``action``, ``observe(observation)``, ``obs_names``, ``node`` and ``agent``:
 :class:`decpomdp.ControllerExecutor`). It is the per-frame code of ``experiment=stream``, of its ROS output
-bag (:mod:`hbni_pyro.ros`) and of the live ROS 2 node; this package imports neither the classifier's nor the
-controller's.
+bag (:mod:`hbni_pyro.runtime.ros_messages`) and of the live ROS 2 node; this package imports neither the
+classifier's nor the controller's.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 
 from torch import Tensor
 
-from hbni_pyro.macro import MacroObservationProcess
-from hbni_pyro.segments import Segment, macro_observations
+from hbni_pyro.filters.macro import MacroObservationProcess
+from hbni_pyro.runtime.segments import Segment, macro_observations
 
 
 class Decision(NamedTuple):

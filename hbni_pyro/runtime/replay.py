@@ -22,7 +22,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from hbni_pyro.macro import MacroObservationBatch, MacroObservationProcess
+from hbni_pyro.filters.macro import MacroObservationBatch, MacroObservationProcess
 
 
 class StreamReplay:

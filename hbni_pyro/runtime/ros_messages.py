@@ -1,6 +1,6 @@
 """Macro-observations as ROS 2 messages, and the MCAP bag that records them.
 
-Each :class:`~hbni_pyro.live.LiveMacroObservation` becomes, on topics under a namespace (``/hbni`` by default):
+Each :class:`~hbni_pyro.runtime.live.LiveMacroObservation` becomes, on topics under a namespace (``/hbni`` by default):
 
 * ``<ns>/classification``, ``vision_msgs/msg/Classification``: one ``ObjectHypothesis`` per class, in the
   posterior's order, ``class_id`` the class name and ``score`` its posterior probability;
@@ -30,7 +30,7 @@ import numpy as np
 
 from hbni_infra import ros
 from hbni_infra.files import atomic_path, atomic_write_text
-from hbni_pyro.live import LiveMacroObservation
+from hbni_pyro.runtime.live import LiveMacroObservation
 
 OBJECT_HYPOTHESIS = """\
 # An object hypothesis that contains no pose information (vision_msgs 4, ROS 2 Humble and later).

@@ -15,8 +15,8 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
-from hbni_pyro.filters import HBNIFilter
-from hbni_pyro.macro import MacroObservationProcess
+from hbni_pyro.filters.macro import MacroObservationProcess
+from hbni_pyro.filters.streaming import HBNIFilter
 from hbni_pyro.validation import check_same_classes
 from hbni_infra.checks import as_names
 

@@ -17,8 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 import hbni_pyro
 from experiments.schemas import check_config, check_overrides, compose_config, register, unread_settings
 from experiments.sweep import SweepGuard, check_sweep, sweep_jobs
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.variants import NOISE_MODELS
+from hbni_pyro import NOISE_MODELS, sample_outputs
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = str(ROOT / "conf")

@@ -23,8 +23,7 @@ from decpomdp.domains import DisasterRelief
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import ros_node
 from experiments.stream import Settings, load_models
-from hbni_pyro import HBNIPosterior, MacroObservationModel, macro_observations
-from hbni_pyro.live import live_macro_observations
+from hbni_pyro import HBNIPosterior, MacroObservationModel, live_macro_observations, macro_observations
 
 ALPHABETICAL = ["a_crate", "b_car", "c_copter"]
 DOMAIN_ORDER = ["c_copter", "a_crate", "b_car"]  # a posterior's column order, not the classifier's

@@ -15,10 +15,10 @@ import pytest
 import torch
 
 import hbni_infra.cache as cache
-import hbni_pyro.generative as generative
+import hbni_pyro.distributions.sampling as sampling
 from hbni_infra.cache import FileLock, cached, entry_path, store_entry, wait_for_entry
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.generative import gamma_variates, sample_dirichlet, sample_gamma, sample_outputs
+from hbni_pyro import HBNIPosterior, sample_dirichlet, sample_outputs
+from hbni_pyro.distributions import gamma_variates, sample_gamma
 
 LIMIT = 60.0  # seconds a call may take before it counts as a hang (each ends in well under a second)
 
@@ -97,7 +97,7 @@ def test_a_posterior_with_an_impossible_theta_refuses_to_sample_instead_of_hangi
 
 
 def test_the_rejection_loop_has_a_bound_and_a_message(monkeypatch):
-    monkeypatch.setattr(generative, "MAX_ROUNDS", 0)
+    monkeypatch.setattr(sampling, "MAX_ROUNDS", 0)
     _refused(lambda: sample_gamma(torch.tensor([2.0], dtype=torch.float64), _g()), RuntimeError, "sample_gamma")
 
 

@@ -249,7 +249,7 @@ class Block:
         if name.split(".")[0] in ("rosbags", "mcap", "mcap_ros2", "rclpy"):
             raise ImportError(f"No module named {{name!r}} (blocked)")
 sys.meta_path.insert(0, Block())
-import classifiers, classifiers.bags, classifiers.sources, hbni_pyro, hbni_pyro.ros, hbni_pyro.live, hbni_infra.ros
+import classifiers, classifiers.bags, classifiers.sources, hbni_pyro, hbni_pyro.runtime.ros_messages, hbni_pyro.runtime.live, hbni_infra.ros
 import experiments.stream
 try:
     classifiers.sources.open_source({str(path)!r})

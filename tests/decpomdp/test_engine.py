@@ -30,7 +30,7 @@ from decpomdp.engine import OutcomeTable, outcome_table, run
 from decpomdp.engine.simulate import chunk_bounds, table_dtype
 from decpomdp.perception import PerfectPerception
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 from hbni_infra.threads import threads
 
 ROOT = Path(__file__).resolve().parents[2]

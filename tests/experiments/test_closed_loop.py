@@ -13,7 +13,7 @@ from decpomdp.domains.disaster_relief import greedy_controller
 from experiments.paths import project_root
 from experiments.steps import closed_loop
 from experiments.steps.planning import score
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 M, FRAMES = 6, 12
 

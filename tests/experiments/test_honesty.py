@@ -7,7 +7,7 @@ import torch
 
 import hbni_pyro
 from experiments.steps import honesty
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 M, FRAMES = 4, 10
 

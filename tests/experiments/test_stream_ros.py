@@ -193,7 +193,7 @@ def test_bad_ros_settings_are_clear_errors(saved, recorded, extra, message):  # 
 def test_the_ros_page_runs_as_written(tmp_path, saved, repo_root):  # noqa: F811
     """docs/ros.md: its Python blocks run as a reader pastes them (the second after experiment=stream on the bag
     the first writes), and the message definitions it shows are the registered ones."""
-    from hbni_pyro.ros import DEFINITIONS
+    from hbni_pyro.runtime import DEFINITIONS
 
     page = (repo_root / "docs" / "ros.md").read_text()
     for name, text in DEFINITIONS:

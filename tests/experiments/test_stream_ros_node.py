@@ -16,7 +16,7 @@ from classifiers.bags import BagSource
 from experiments import ros_node
 from experiments.stream import run
 from hbni_infra import ros
-from hbni_pyro.ros import typestore
+from hbni_pyro.runtime import typestore
 from test_stream import CLASSES, saved  # noqa: F401 (saved is a fixture)
 from test_stream_ros import _compose, recorded  # noqa: F401 (recorded is a fixture)
 

@@ -8,17 +8,17 @@ import pytest
 import torch
 import yaml
 
-from hbni_pyro.live import Decision, LiveMacroObservation
-from hbni_pyro.ros import (
+from hbni_pyro import LiveMacroObservation, Segment
+from hbni_pyro.runtime import (
     DEFINITIONS,
     TOPICS,
+    Decision,
     MacroObservationBag,
     messages,
     topic_names,
     typestore,
     write_interface_package,
 )
-from hbni_pyro.segments import Segment
 from hbni_infra import ros
 
 CLASSES = ["ambulance", "food_crate", "police_car"]

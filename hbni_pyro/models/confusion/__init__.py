@@ -1,14 +1,12 @@
-"""The confusion-aware model: ``o | c ~ Dir(theta_c e_c + beta_c)``, a full concentration vector per
-class under a prior that shrinks it towards the paper's (:mod:`hbni_pyro.confusion_model`).
+"""The confusion-aware model: ``o | c ~ Dir(theta_c e_c + beta_c)``, a full concentration vector per class under
+a prior that shrinks it towards the paper's, as one :class:`NoiseModel`.
 
-Where not to use it: on correlated frames (one camera sequence) with thresholds above 0.95. It
-treats a sequence's frames as independent, and its per-class confusion vectors make each frame
-sharper evidence than the paper's model does, so the evidence compounds fast: on the real-photo
-condition of ``experiment=noise_models`` (180 held-out sequences of 30 frames) it stops after
-1.7 frames at threshold 0.95 with its emitted labels right 0.883 +- 0.024 of the time. The
-fitted temper (:func:`hbni_pyro.fit_temper`, 0.15 there) makes it honest at 0.9 and 0.95
-(0.908, 0.924) but not at 0.99 (0.956 +- 0.016, below 0.96). On camera sequences use the
-sequence model; use this one untempered only on i.i.d. outputs.
+Its room holds the Pyro program (:mod:`.program`), the MH kernel (:mod:`.kernel`, its steps in :mod:`.steps`; the
+class move and the ``(kappa, gamma)`` move are the paper's) and the filter's evidence (:mod:`.evidence`). It
+treats a sequence's frames as independent, and its per-class confusion vectors make each frame sharper evidence
+than the paper's model does, so on correlated frames its confidence compounds fastest of the three; a fitted
+temper (:func:`hbni_pyro.fit_temper`) helps at moderate thresholds only (docs/noise_models.md measures it). On
+camera sequences use the sequence model; use this one untempered only on i.i.d. outputs.
 """
 
 from __future__ import annotations
@@ -16,15 +14,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbni_pyro.confusion_model import confusion_model, off_diagonal
-from hbni_pyro.density import concentrations
-from hbni_pyro.evidence import ConfusionEvidence
-from hbni_pyro.generative import sample_dirichlet
-from hbni_pyro.kernels import ConfusionMetropolis
-from hbni_pyro.model import HyperPrior
+from hbni_pyro.distributions.density import concentrations
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.distributions.sampling import sample_dirichlet
+from hbni_pyro.models.confusion.evidence import ConfusionEvidence
+from hbni_pyro.models.confusion.kernel import ConfusionMetropolis
+from hbni_pyro.models.confusion.program import confusion_log_joint, confusion_model, off_diagonal
+from hbni_pyro.models.paper import PAPER_HYPERPRIOR, concentration_prior, concentration_statistics
+from hbni_pyro.models.spec import Draws, NoiseModel
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants.paper import PAPER_HYPERPRIOR, concentration_prior, concentration_statistics
-from hbni_pyro.variants.spec import Draws, NoiseModel
 
 SCALARS = ("kappa", "gamma", "beta_loc", "beta_scale")
 
@@ -91,3 +89,5 @@ NOISE_MODEL = NoiseModel(
     rank_statistics=rank_statistics,
     hyperprior_fields=(*PAPER_HYPERPRIOR, "offdiag_loc_sd", "offdiag_scale_sd"),
 )
+
+__all__ = ["NOISE_MODEL", "ConfusionEvidence", "ConfusionMetropolis", "confusion_log_joint", "confusion_model"]

@@ -19,37 +19,26 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbni_pyro.generative import gamma_variates
-from hbni_pyro.kernels.base import (
-    AdaptiveWalk,
-    AdaptiveWalk2D,
-    BatchedKernel,
-    flatten_chains,
-    fraction,
-)
-from hbni_pyro.kernels.confusion_steps import (
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.distributions.sampling import gamma_variates
+from hbni_pyro.mcmc.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
+from hbni_pyro.mcmc.class_moves import FrameData, MHState, sufficient_stats, update_classes
+from hbni_pyro.models.confusion.steps import (
     draw_beta_loc,
     off_diagonal_logs,
     split_conc,
     update_beta_scale,
     update_concentrations,
 )
-from hbni_pyro.kernels.mh import FrameData
-from hbni_pyro.kernels.mh_steps import (
-    MHState,
-    sufficient_stats,
-    update_classes,
-    update_hyper,
-)
-from hbni_pyro.model import HyperPrior
+from hbni_pyro.models.paper.steps import update_hyper
 from hbni_pyro.validation import DTYPE
 from hbni_infra.checks import as_float
 
 
 class ConfusionMetropolis(BatchedKernel):
-    """Vectorised MH kernel for the confusion-aware posterior (see :mod:`hbni_pyro.confusion_model`).
+    """Vectorised MH kernel for the confusion-aware posterior (see :mod:`hbni_pyro.models.confusion.program`).
 
-    Same data contract as :class:`~hbni_pyro.kernels.HBNIMetropolis`. Sites returned per
+    Same data contract as :class:`~hbni_pyro.models.paper.kernel.HBNIMetropolis`. Sites returned per
     iteration: ``theta (C, M)``, ``beta (C, M, M)`` (unit diagonal), ``kappa``, ``gamma``,
     ``beta_loc``, ``beta_scale`` ``(C,)``.
     """

@@ -22,13 +22,9 @@ import pyro.distributions as dist
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import (
-    class_log_lik,
-    concentrations,
-    gamma_log_prob,
-    normal_log_prob,
-)
-from hbni_pyro.model import HyperPrior, observe_outputs
+from hbni_pyro.distributions.density import class_log_lik, concentrations, gamma_log_prob, normal_log_prob
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.models.paper.program import observe_outputs
 
 
 def off_diagonal(values: Tensor, fill: float = 1.0) -> Tensor:

@@ -1,10 +1,10 @@
 """Pure update steps of the confusion-aware model's MH sampler, vectorised over chains.
 
-The class moves and the ``(kappa, gamma)`` move are the paper's (:mod:`hbni_pyro.kernels.mh_steps`,
-called with ``beta``). This module adds the moves of the concentration matrix and of the
-confusions' hyperparameters. ``log_conc (..., M, M)`` holds ``log theta_c`` on its diagonal and
+The class move is the frame-level kernels' shared one (:mod:`hbni_pyro.mcmc.class_moves`, called with
+``beta``) and the ``(kappa, gamma)`` move the paper's (:mod:`hbni_pyro.models.paper.steps`). This module adds the
+moves of the concentration matrix and of the confusions' hyperparameters. ``log_conc (..., M, M)`` holds ``log theta_c`` on its diagonal and
 ``log beta_cj`` off it; given the classes, each row depends on the data only through its
-class's count and log-output sums (:func:`hbni_pyro.density.assigned_log_lik`).
+class's count and log-output sums (:func:`hbni_pyro.distributions.density.assigned_log_lik`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import assigned_log_lik
+from hbni_pyro.distributions.density import assigned_log_lik
 
 
 def split_conc(log_conc: Tensor) -> tuple[Tensor, Tensor]:

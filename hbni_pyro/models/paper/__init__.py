@@ -1,9 +1,10 @@
-"""The paper's model: ``o | c ~ Dir(theta_c e_c + 1)`` under a shared Gamma hyperprior (:mod:`hbni_pyro.model`).
+"""The paper's model: ``o | c ~ Dir(theta_c e_c + 1)`` under a shared Gamma hyperprior, as one :class:`NoiseModel`.
 
-Where not to use it untempered: on correlated frames (one camera sequence) with thresholds above 0.9. It
-treats a sequence's frames as independent, so evidence compounds: on the real-photo condition of
-``experiment=noise_models`` its emitted labels are right 0.893 +- 0.023 of the time at threshold 0.95.
-With the fitted temper (:func:`hbni_pyro.fit_temper`) it is honest at 0.9, 0.95 and 0.99 there.
+Its room holds the Pyro program (:mod:`.program`), the output sampler (:mod:`.sampler`), the MH kernel
+(:mod:`.kernel`, its steps in :mod:`.steps`; the class move is the frame-level kernels' shared one,
+:mod:`hbni_pyro.mcmc.class_moves`) and the filter's evidence (:mod:`.evidence`). It treats a sequence's frames as
+independent, so on correlated frames (one camera sequence) its confidence compounds too fast: use it there with
+the fitted temper (:func:`hbni_pyro.fit_temper`), or use the sequence model (docs/noise_models.md measures both).
 """
 
 from __future__ import annotations
@@ -11,11 +12,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbni_pyro.evidence import PaperEvidence
-from hbni_pyro.generative import gamma_variates, sample_outputs
-from hbni_pyro.kernels import HBNIMetropolis
-from hbni_pyro.model import HyperPrior, hbni_model
-from hbni_pyro.variants.spec import Draws, NoiseModel
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.distributions.sampling import gamma_variates
+from hbni_pyro.models.paper.evidence import PaperEvidence
+from hbni_pyro.models.paper.kernel import HBNIMetropolis
+from hbni_pyro.models.paper.program import hbni_model, log_joint, prior_theta_log_density
+from hbni_pyro.models.paper.sampler import sample_outputs
+from hbni_pyro.models.spec import Draws, NoiseModel
 
 SITES = ("theta", "kappa", "gamma")
 
@@ -72,3 +75,13 @@ NOISE_MODEL = NoiseModel(
     rank_statistics=concentration_statistics,
     hyperprior_fields=PAPER_HYPERPRIOR,
 )
+
+__all__ = [
+    "NOISE_MODEL",
+    "HBNIMetropolis",
+    "PaperEvidence",
+    "hbni_model",
+    "log_joint",
+    "prior_theta_log_density",
+    "sample_outputs",
+]

@@ -1,5 +1,11 @@
-"""The sequence-aware model: a latent look per sequence, so a sequence's frames are exchangeable
-rather than independent (:mod:`hbni_pyro.sequence_model`); its fits take sequence ids."""
+"""The sequence-aware model: a latent look per sequence, so a sequence's frames are exchangeable rather than
+independent, as one :class:`NoiseModel`; its fits take sequence ids.
+
+Its room holds the Pyro program (:mod:`.program`) with its Wishart priors (:mod:`.wishart`) and look terms
+(:mod:`.looks`), the output sampler (:mod:`.sampler`) with the AR(1) correlation of a camera's frames
+(:mod:`.correlation`), the MH kernel (:mod:`.kernel`, its steps in :mod:`.steps`, compiled in :mod:`.steps_numba`)
+and the filter's evidence (:mod:`.evidence`, compiled in :mod:`.evidence_numba`).
+"""
 
 from __future__ import annotations
 
@@ -8,14 +14,22 @@ import math
 import torch
 from torch import Tensor
 
-from hbni_pyro.evidence import SequenceEvidence
-from hbni_pyro.generative import sample_sequences
-from hbni_pyro.kernels import SequenceMetropolis
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.sequence_model import hyper_scales, look_prior_mean, sequence_model
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.models.sequence.correlation import estimate_frame_correlation
+from hbni_pyro.models.sequence.evidence import SequenceEvidence
+from hbni_pyro.models.sequence.kernel import SequenceMetropolis
+from hbni_pyro.models.sequence.sampler import sample_sequences
+from hbni_pyro.models.sequence.program import (
+    SequenceStats,
+    hyper_scales,
+    look_prior_mean,
+    sequence_log_joint,
+    sequence_model,
+    sequence_stats,
+)
+from hbni_pyro.models.sequence.wishart import sample_wishart
+from hbni_pyro.models.spec import Draws, NoiseModel
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.variants.spec import Draws, NoiseModel
-from hbni_pyro.wishart import sample_wishart
 
 COVARIANCES = ("between", "between_mean", "within")
 
@@ -121,3 +135,15 @@ NOISE_MODEL = NoiseModel(
         "within_df",
     ),
 )
+
+__all__ = [
+    "NOISE_MODEL",
+    "SequenceEvidence",
+    "SequenceMetropolis",
+    "SequenceStats",
+    "estimate_frame_correlation",
+    "sample_sequences",
+    "sequence_log_joint",
+    "sequence_model",
+    "sequence_stats",
+]

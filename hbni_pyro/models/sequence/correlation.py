@@ -24,7 +24,7 @@ import math
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import ilr
+from hbni_pyro.distributions.density import ilr
 from hbni_pyro.validation import DTYPE
 
 LIMIT = 0.99

@@ -1,11 +1,11 @@
 """Compiled evidence of the sequence model for statistics on the CPU.
 
-:meth:`hbni_pyro.evidence.SequenceEvidence.log_evidence` averages, for every block of outputs and class, the
-two-level density over a few thousand posterior draws. Done with torch, one block at a time (so that one stream and
-a batch of streams agree exactly), a block costs a dozen passes over ``(S, M, d)`` tensors and their hand-offs; this
-loop makes one pass per block, vectorised over the draws, and sums each class's terms over the draws in one
-fixed order, so a block's value does not depend on the blocks beside it either. It computes what the torch path
-computes (its test oracle), up to rounding.
+:meth:`.evidence.SequenceEvidence.log_evidence` averages, for every block of outputs and class, the two-level
+density over a few thousand posterior draws. Done with torch, one block at a time (so that one stream and a batch of
+streams agree exactly), a block costs a dozen passes over ``(S, M, d)`` tensors and their hand-offs; this loop makes
+one pass per block, vectorised over the draws, and sums each class's terms over the draws in one fixed order, so a
+block's value does not depend on the blocks beside it either. It computes what the torch path computes (its test
+oracle), up to rounding.
 
 Shapes: ``K`` blocks, ``S`` draws, ``M`` classes, ``d`` look dimensions.
 """
@@ -44,9 +44,9 @@ def log_evidence(
     Args:
         mean_y: ``(K, d)`` each block's mean look; scatter: ``(K, d, d)`` its scatter about that mean.
         counts: ``(K,)`` frames ``n`` per block, all of the same effective count ``n_eff``.
-        variance, log_variance: ``(M, d, S)`` :func:`~hbni_pyro.density.look_variance` ``lam + 1 / n_eff`` and
-            ``(M, S)`` the sum of its logs.
-        basis: ``(M, d, d, S)`` :func:`~hbni_pyro.density.look_basis` ``A`` (row ``j``, column ``i``);
+        variance, log_variance: ``(M, d, S)`` :func:`~.looks.look_variance` ``lam + 1 / n_eff`` and ``(M, S)`` the
+            sum of its logs.
+        basis: ``(M, d, d, S)`` :func:`~.looks.look_basis` ``A`` (row ``j``, column ``i``);
             basis_loc: ``(M, d, S)`` ``A loc``; within_prec: ``(d, d, S)`` ``W^-1``; logdet: ``(S,)`` ``log|W|``.
         scale: ``1 / (1 - rho^2)``, the factor of the scatter's trace.
     """

@@ -1,6 +1,6 @@
 """The sequence-aware model's sampler as a ``pyro.infer.mcmc.MCMCKernel``.
 
-Each iteration does, for every chain at once (see :mod:`hbni_pyro.kernels.sequence_steps`):
+Each iteration does, for every chain at once (see :mod:`hbni_pyro.models.sequence.steps`):
 
 1. every sequence's class (look integrated out; labelled ones kept) and then its look;
 2. the class means: an exact conditional draw;
@@ -20,8 +20,10 @@ import math
 import torch
 from torch import Tensor
 
-from hbni_pyro.kernels.base import AdaptiveWalk, BatchedKernel, flatten_chains, fraction
-from hbni_pyro.kernels.sequence_steps import (
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.mcmc.base import AdaptiveWalk, BatchedKernel, flatten_chains, fraction
+from hbni_pyro.models.sequence.program import SITES, SequenceStats, hyper_scales, look_prior_mean
+from hbni_pyro.models.sequence.steps import (
     SequenceState,
     between_data,
     draw_class_covs,
@@ -31,14 +33,12 @@ from hbni_pyro.kernels.sequence_steps import (
     update_classes_and_looks,
     update_pooling,
 )
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.sequence_model import SITES, SequenceStats, hyper_scales, look_prior_mean
+from hbni_pyro.models.sequence.wishart import sample_wishart
 from hbni_pyro.validation import DTYPE
-from hbni_pyro.wishart import sample_wishart
 
 
 class SequenceMetropolis(BatchedKernel):
-    """Vectorised sampler for the sequence-aware posterior (see :mod:`hbni_pyro.sequence_model`).
+    """Vectorised sampler for the sequence-aware posterior (see :mod:`hbni_pyro.models.sequence.program`).
 
     ``MCMC(kernel, num_samples, warmup_steps).run(stats)`` with a :class:`SequenceStats` of ``K``
     sequences (tensors ``(K, ...)``, shared by every chain) or of ``D`` datasets (``(D, K, ...)``), on the

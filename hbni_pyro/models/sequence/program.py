@@ -17,13 +17,12 @@ about the class: a class-specific ``W_c`` lets evidence from that scatter grow w
 and frames of a moving camera are correlated in time, so it grows too fast (held-out log score
 of the mission's in-flight sequences -0.43 against -0.21 with one ``W``).
 The fit keeps the frames exchangeable given the look; the filter and the predictive streams add
-the AR(1) correlation of frames about it that the fit estimates apart (:mod:`hbni_pyro.frame_correlation`).
+the AR(1) correlation of frames about it that the fit estimates apart (:mod:`hbni_pyro.models.sequence.correlation`).
 A class's mean look is a full vector, so the model is confusion-aware as well: the looks of
 medical and news copters may lie close together, those of copters and crates far apart.
 
 Integrating ``mu_k`` out, a sequence's ``n`` frames enter only through ``n``, ``sum y`` and
-``sum y y^T`` (:func:`hbni_pyro.density.look_log_marginal` and :func:`~hbni_pyro.density.within_log_prob`);
-the Pyro program does the same (:class:`TwoLevelSequence`), so NUTS explores only the global
+``sum y y^T`` (:func:`.looks.look_log_marginal` and :func:`~.looks.within_log_prob`); the Pyro program does the same (:class:`TwoLevelSequence`), so NUTS explores only the global
 parameters, and samples the covariances through their Cholesky factors. Defaults are in
 :class:`~hbni_pyro.HyperPrior`.
 """
@@ -40,18 +39,10 @@ from pyro.distributions.torch_distribution import TorchDistribution
 from torch import Tensor
 from torch.distributions import constraints
 
-from hbni_pyro.density import (
-    helmert_basis,
-    ilr,
-    ilr_log_jacobian,
-    look_basis,
-    look_log_marginal,
-    normal_log_prob,
-    scatter_trace,
-    within_log_prob,
-)
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.wishart import (
+from hbni_pyro.distributions.density import helmert_basis, ilr, ilr_log_jacobian, normal_log_prob
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.models.sequence.looks import look_basis, look_log_marginal, scatter_trace, within_log_prob
+from hbni_pyro.models.sequence.wishart import (
     InvWishartCholesky,
     WishartCholesky,
     inv_wishart_log_prob,
@@ -133,8 +124,8 @@ class TwoLevelSequence(TorchDistribution):
     """A padded sequence of outputs ``(T, M)`` whose look ``mu ~ N(loc, between)`` is integrated out,
     frames ``ilr(o) ~ N(mu, within)``; ``mask (..., T)`` marks the real frames.
 
-    ``log_prob`` is :func:`~hbni_pyro.density.look_log_marginal` plus
-    :func:`~hbni_pyro.density.within_log_prob` plus the frames' log-ratio Jacobians.
+    ``log_prob`` is :func:`~hbni_pyro.models.sequence.looks.look_log_marginal` plus
+    :func:`~hbni_pyro.models.sequence.looks.within_log_prob` plus the frames' log-ratio Jacobians.
     """
 
     arg_constraints = {"loc": constraints.real_vector}

@@ -1,10 +1,10 @@
 """Pure update steps of the sequence-aware model's sampler, vectorised over chains.
 
-The model (:mod:`hbni_pyro.sequence_model`) is conditionally conjugate, so every block but the
+The model (:mod:`hbni_pyro.models.sequence.program`) is conditionally conjugate, so every block but the
 pooling is drawn from its exact conditional (an MH move whose proposal is the conditional,
 accepted with probability 1); the pooling moves by a Gaussian random walk on its log with the
 class spreads integrated out, after which they are drawn anew. Sequences enter only through
-their statistics (:class:`~hbni_pyro.sequence_model.SequenceStats`).
+their statistics (:class:`~hbni_pyro.models.sequence.program.SequenceStats`).
 
 Shapes: state ``(..., K)`` classes, ``(..., K, d)`` looks, ``(..., M, d)`` class means,
 ``(..., M, d, d)`` class spreads, ``(..., d, d)`` shared covariances; statistics broadcast
@@ -20,10 +20,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbni_pyro.density import look_basis, look_log_marginal, normal_log_prob
-from hbni_pyro.kernels import sequence_numba
-from hbni_pyro.sequence_model import SequenceStats, look_residuals
-from hbni_pyro.wishart import logdet_spd, sample_wishart
+from hbni_pyro.distributions.density import normal_log_prob
+from hbni_pyro.models.sequence import steps_numba as sequence_numba
+from hbni_pyro.models.sequence.looks import look_basis, look_log_marginal
+from hbni_pyro.models.sequence.program import SequenceStats, look_residuals
+from hbni_pyro.models.sequence.wishart import logdet_spd, sample_wishart
 from hbni_infra.counter_random import draw_seed
 
 LOOK_CHUNK = 4096
@@ -96,7 +97,7 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
 
 
 def _compiled(compiled: bool | None, t: Tensor) -> bool:
-    """Whether to use the compiled loops of :mod:`hbni_pyro.kernels.sequence_numba` (``None``: on the CPU)."""
+    """Whether to use the compiled loops of :mod:`hbni_pyro.models.sequence.steps_numba` (``None``: on the CPU)."""
     return t.device.type == "cpu" if compiled is None else compiled
 
 
@@ -139,7 +140,7 @@ def look_products(f: LookFactors, c: Tensor, z: Tensor, compiled: bool | None = 
     """Every look ``cov_g (pb_loc_c + wy_k) + tril_g z_k`` for standard normals ``z (..., K, d)``.
 
     ``compiled`` (default: on the CPU) reads each sequence's own factors in a compiled loop
-    (:func:`hbni_pyro.kernels.sequence_numba.looks`). Otherwise, with at most :data:`GROUPED_LOOKS` groups every
+    (:func:`hbni_pyro.models.sequence.steps_numba.looks`). Otherwise, with at most :data:`GROUPED_LOOKS` groups every
     sequence goes through every group's factors in one batched product and keeps its own, else the factors are
     gathered per sequence in blocks of :data:`LOOK_CHUNK`."""
     if _compiled(compiled, z):
@@ -175,7 +176,7 @@ def draw_looks(
     """Exact draw of every look ``mu_k | c_k ~ N(P^-1 (B_c^-1 m_c + W^-1 sum y), P^-1)`` with
     ``P = B_c^-1 + n W^-1`` (:func:`look_factors`, :func:`look_products`). ``compiled`` (default: on the CPU): the
     standard normals come from counter-based streams seeded by ``generator``
-    (:func:`hbni_pyro.kernels.sequence_numba.normals`), else from ``torch.randn``."""
+    (:func:`hbni_pyro.models.sequence.steps_numba.normals`), else from ``torch.randn``."""
     factors = look_factors(state, stats, c)
     shape = c.shape + state.loc.shape[-1:]
     if _compiled(compiled, state.loc):
@@ -198,7 +199,7 @@ def update_classes_and_looks(
 
 def class_totals(c: Tensor, values: Tensor, num_classes: int, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
     """``counts (..., M)`` of sequences per class and ``sum_{k: c_k = m} values_k`` ``(..., M, *value shape)``: in a
-    compiled loop (``compiled``, default: on the CPU; :func:`hbni_pyro.kernels.sequence_numba.class_sums`) or by a
+    compiled loop (``compiled``, default: on the CPU; :func:`hbni_pyro.models.sequence.steps_numba.class_sums`) or by a
     one-hot product."""
     if _compiled(compiled, values):
         batch, tail = c.shape[:-1], values.shape[c.dim() :]
@@ -228,7 +229,7 @@ def draw_locs(state: SequenceState, prior_mean: Tensor, prior_sd: float, generat
 
 def between_data(state: SequenceState, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
     """Per class: the number of sequences and the scatter of their looks about the class mean, in a compiled
-    loop (``compiled``, default: on the CPU; :func:`hbni_pyro.kernels.sequence_numba.class_scatter`) or
+    loop (``compiled``, default: on the CPU; :func:`hbni_pyro.models.sequence.steps_numba.class_scatter`) or
     accumulated class by class (no per-sequence outer products)."""
     num_classes = state.loc.shape[-2]
     if _compiled(compiled, state.look):
@@ -248,7 +249,7 @@ def between_data(state: SequenceState, compiled: bool | None = None) -> tuple[Te
 def within_data(state: SequenceState, stats: SequenceStats, compiled: bool | None = None) -> tuple[Tensor, Tensor]:
     """The number of frames ``(...)`` and their scatter about their sequence's look ``(..., d, d)``: in a compiled
     loop (``compiled``, default: on the CPU), each sequence's scatter about its mean plus
-    ``n (ybar - mu)(ybar - mu)^T`` (:func:`hbni_pyro.kernels.sequence_numba.offset_scatter`); else
+    ``n (ybar - mu)(ybar - mu)^T`` (:func:`hbni_pyro.models.sequence.steps_numba.offset_scatter`); else
     ``sum_k [sum_i y y^T - s mu^T - mu s^T + n mu mu^T]`` by matrix products over the sequences."""
     mu = state.look
     if _compiled(compiled, mu):

@@ -4,7 +4,7 @@ Each sequence's look and its share of the class scatter are small dense products
 whose factor depends on the sequence's class: batched torch products either compute every class's
 product for every sequence and keep one, or gather a ``d x d`` factor per sequence. These loops read
 each sequence's own factor instead. They compute what the torch paths of
-:mod:`hbni_pyro.kernels.sequence_steps` compute (their test oracles); the looks' standard normals come from
+:mod:`hbni_pyro.models.sequence.steps` compute (their test oracles); the looks' standard normals come from
 counter-based streams (:func:`normals`, one stream per chain), a fifth of the cost of ``torch.randn``. The
 products compile with ``fastmath`` (sums reassociated, so vectorised).
 

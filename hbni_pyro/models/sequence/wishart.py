@@ -23,7 +23,7 @@ from torch import Tensor
 from torch.distributions import biject_to, constraints, transform_to
 from torch.distributions.transforms import Transform
 
-from hbni_pyro.generative import gamma_variates
+from hbni_pyro.distributions.sampling import gamma_variates
 
 
 def logdet_spd(x: Tensor) -> Tensor:
