@@ -4,7 +4,7 @@ A domain written for the engine (:class:`EngineDomain`) is three compiled scalar
 rollout's state, compiled together with the event loop into one chunk function (see :mod:`decpomdp.engine.loop`),
 and a :class:`StateLayout` naming the entries of that state. A :class:`~decpomdp.core.DecPOSMDP` instance plugs into the engine by returning an
 :class:`EngineModel` from ``engine_model()``: the domain, its parameters (float64 vector), its
-constant tables (a tuple of arrays) and its perception's :class:`~decpomdp.engine.perception.OutcomeTable`.
+constant tables (a tuple of arrays) and its perception's :class:`~decpomdp.engine.outcomes.OutcomeTable`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from decpomdp.engine.perception import OutcomeTable
+from decpomdp.engine.outcomes import OutcomeTable
 
 
 @dataclass(frozen=True)

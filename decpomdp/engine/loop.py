@@ -3,7 +3,7 @@
 Each rollout runs its events in order: the next completion time ``t = min_a end[a]`` (stop past the
 horizon), the completing agents' ``complete`` rule (reward, observation), each of them moves along
 its controller, and their ``start`` rule begins the next MA. Rollouts are split into chunks that
-threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
+threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.runner.run`);
 each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)`` (with
 common random numbers, ``(seed, first_controller, r)`` for every controller ``k``)
 (:mod:`hbni_infra.counter_random`), so the returns do not depend on the thread count or the chunking.
@@ -34,7 +34,7 @@ and 8.6 CPU s). The random stream's helpers (:mod:`hbni_infra.counter_random`) s
 compiled MH class move runs 3 % faster so, for 1.5 s more of package delivery's first compile.
 
 :func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
-long, which :func:`decpomdp.engine.simulate.run` calls on chunks of rollouts in parallel::
+long, which :func:`decpomdp.engine.runner.run` calls on chunks of rollouts in parallel::
 
     @chunk_function
     def chunk(args, out, scratch, index, lo, hi):
@@ -102,7 +102,7 @@ _CHUNK_OPTIONS = {"nogil": True, "pipeline_class": _NoAliasCompiler, "_nrt": Fal
 def chunk_function(fn):
     """The decorator of a domain's chunk function: compiled, releasing the GIL, its array arguments declared free
     of aliases, and cached on disk when its source is a file (not when typed into an interpreter). Every array
-    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it).
+    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.runner.run` checks it).
 
     It uses numpy's error model: a division by zero gives inf or nan instead of raising, so the loop carries no
     checks for it (package delivery's loop runs 8 % faster; no rule divides by a value that may be zero). Lookups
@@ -153,7 +153,7 @@ def _event_loop(two_agents: bool):
         Args:
             args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts,
                 seed, horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
-                (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
+                (:func:`decpomdp.engine.runner.run` builds it): ``action`` int16 or int32 (K, A, Nn),
                 ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed
                 ``first_controller + k``) or 0 (common random numbers); ``init_int``/``init_float`` a state every
                 rollout starts from instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from decpomdp.controller import JointController
 from decpomdp.engine import loop
-from decpomdp.engine.domain import EngineModel
+from decpomdp.engine.interface import EngineModel
 from hbni_infra.threads import worker_threads
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)

@@ -1,7 +1,7 @@
 """A classified frame stream cut into consecutive macro-observations.
 
 :func:`macro_observations` runs a :class:`~hbni_pyro.MacroObservationProcess` on ``(frame, output)``
-pairs (for instance :func:`classifiers.stream.classify_frames`) and restarts it after every
+pairs (for instance :func:`classifiers.classify.classify_frames`) and restarts it after every
 macro-observation, so a long stream becomes consecutive :class:`Segment` s. The process pulls frames
 lazily: nothing after the last frame a decision needs is read before that decision is made.
 """

@@ -27,7 +27,7 @@ from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.engine import OutcomeTable, outcome_table, run
-from decpomdp.engine.simulate import chunk_bounds, table_dtype
+from decpomdp.engine.runner import chunk_bounds, table_dtype
 from decpomdp.perception import PerfectPerception
 from decpomdp.search import PlannerConfig, RolloutScorer, plan
 from hbni_pyro import sample_outputs
