@@ -44,9 +44,9 @@ POLICIES = ("perfect", "hbni", "calibrated", "ssbf", "max_of_mean")
 def photo_filters(seed: int) -> tuple[dict, dict, tuple]:
     """Every filter of :data:`ROWS` fitted on the photographs' calibration sequences of ``seed``, HBNI's stop, and
     the held-out ``(streams, truth)``."""
-    from experiments.noise_models import held_out_stops, photo_outputs, read_settings
     from experiments.schemas import compose_config
     from experiments.steps.noise import fit_labelled
+    from experiments.studies.noise_models import held_out_stops, photo_outputs, read_settings
 
     cfg = compose_config(["experiment=noise_models", f"seed={seed}", "progress=false"])
     s = read_settings(cfg)
@@ -97,7 +97,7 @@ def photographs(seeds: list[int]) -> None:
 
 def mission_runs(seeds: list[int], run: bool) -> dict[int, Path]:
     from experiments import latest_run
-    from experiments.paths import outputs_root
+    from experiments.runs.paths import outputs_root
 
     found = {}
     for seed in seeds:

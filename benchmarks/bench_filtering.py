@@ -1,6 +1,6 @@
 """Benchmark: the full filtering_error study, and the batched HBNI filter against a per-frame scipy loop.
 
-1. Runs ``experiments.filtering_error.run`` at the issue's full settings (2000 trials x 50
+1. Runs ``experiments.studies.filtering_error.run`` at the issue's full settings (2000 trials x 50
    lengths x 5 methods x 4 training sizes, 20 training sets per size, every MH fit through
    ``hbni_pyro.fit_many``) and prints its wall time. Floor: under 2 minutes on 2 cores.
 2. Times the batched marginal HBNI filter (1000 posterior draws) on all 2000 x 50 trial frames
@@ -24,8 +24,8 @@ import scipy.special
 import scipy.stats
 import torch
 
-from experiments.filtering_error import run as run_study
 from experiments.schemas import compose_config
+from experiments.studies.filtering_error import run as run_study
 from hbni_pyro import HBNIFilter, HBNIPosterior, sample_outputs
 from hbni_infra.streams import torch_generator
 

@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING, Any
 from hbni_infra.version import __version__
 
 if TYPE_CHECKING:
-    from experiments.artifacts import Run, latest_run, load_run
+    from experiments.runs.artifacts import Run, latest_run, load_run
 
 __all__ = ["Run", "__version__", "latest_run", "load_run"]
 
 
 def __getattr__(name: str) -> Any:
     if name in ("Run", "latest_run", "load_run"):
-        from experiments import artifacts
+        from experiments.runs import artifacts
 
         return getattr(artifacts, name)
     raise AttributeError(f"module 'experiments' has no attribute {name!r}")

@@ -35,9 +35,9 @@ from hydra.types import RunMode
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.common import write_json
+from experiments.runs.outputs import write_json
+from experiments.runs.status import write_status
 from experiments.schemas import CONF, check_config, check_overrides, register
-from experiments.status import write_status
 from experiments.sweep import in_sweep_worker
 
 log = logging.getLogger("experiments")

@@ -7,8 +7,8 @@ import numpy as np
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments import figures
-from experiments.common import beats
+from experiments.reports import figures
+from experiments.reports.scores import beats
 
 LABELS = figures.LABELS
 

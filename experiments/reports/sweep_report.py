@@ -21,13 +21,8 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.status import read_status
-from hbni_infra.files import atomic_write_text
-
-
-def write_report(path: str | os.PathLike, text: str) -> Path:
-    """Atomically write a markdown report."""
-    return atomic_write_text(path, text)
+from experiments.runs.outputs import write_report
+from experiments.runs.status import read_status
 
 
 def headline_values(metrics: dict[str, Any], paths: list[str]) -> dict[str, str]:

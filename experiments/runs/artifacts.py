@@ -17,9 +17,9 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.common import write_json
-from experiments.paths import outputs_root
-from experiments.status import read_status
+from experiments.runs.outputs import write_json
+from experiments.runs.paths import outputs_root
+from experiments.runs.status import read_status
 
 MANIFEST = "artifacts.json"
 
@@ -164,7 +164,7 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
 
 def latest_run(name: str, root: str | os.PathLike | None = None) -> Path:
     """The newest completed run directory of experiment ``name`` under ``root/<name>/`` (default root: the
-    project's ``outputs``, :func:`experiments.paths.outputs_root`, from any working directory).
+    project's ``outputs``, :func:`experiments.runs.paths.outputs_root`, from any working directory).
 
     Raises:
         FileNotFoundError: no completed run of ``name`` under ``root``.

@@ -1,4 +1,4 @@
-"""Helpers shared by the experiment entry points: JSON output, figures, seeding, score comparison."""
+"""A run's output files: its metrics as JSON, its figures as PNG and its markdown report, each written atomically."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from hbni_infra.files import atomic_write_bytes  # noqa: E402
+from hbni_infra.files import atomic_write_bytes, atomic_write_text  # noqa: E402
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -52,14 +52,6 @@ def save_figure(fig: plt.Figure, path: str | os.PathLike, dpi: int = 120) -> Pat
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def ratio(numerator: float, denominator: float) -> float:
-    """``numerator / denominator``, NaN when the denominator is 0 (a reference that earned nothing)."""
-    return numerator / denominator if denominator else float("nan")
-
-
-def beats(entry: dict[str, float], other: dict[str, float]) -> bool:
-    """Whether ``entry``'s value beats ``other``'s by a margin outside both standard errors.
-
-    Both are score dicts with ``value`` and ``stderr``: ``value - stderr > other value + other stderr``.
-    """
-    return entry["value"] - entry["stderr"] > other["value"] + other["stderr"]
+def write_report(path: str | os.PathLike, text: str) -> Path:
+    """Atomically write a markdown report."""
+    return atomic_write_text(path, text)

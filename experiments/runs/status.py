@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from experiments.common import write_json
+from experiments.runs.outputs import write_json
 
 STATUS = "status.json"
 STATES = ("running", "completed", "failed")

@@ -27,8 +27,8 @@ from omegaconf.errors import OmegaConfBaseException
 
 from experiments.schemas.studies import SCHEMAS
 from decpomdp.search import gdice_config
+from experiments.runs.paths import register_resolver
 from experiments.schemas.targets import join_key, preset
-from experiments.paths import register_resolver
 
 __all__ = ["SCHEMAS", "check_config", "check_overrides", "compose_config", "gdice_node", "register", "unread_settings"]
 

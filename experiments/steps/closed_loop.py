@@ -37,8 +37,8 @@ from omegaconf import DictConfig
 
 import hbni_pyro
 from decpomdp import JointController
-from experiments import figures
-from experiments.common import beats, ratio
+from experiments.reports import figures
+from experiments.reports.scores import beats, ratio
 from experiments.schemas.studies import PLANNING_MODELS
 from experiments.steps import honesty
 from experiments.steps.planning import delivery_rates, score

@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt
 import torch
 
 import hbni_pyro
-from experiments import figures
+from experiments.reports import figures
 from hbni_pyro import stream_reliability
 from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import torch_stream

@@ -19,9 +19,9 @@ from omegaconf import DictConfig
 from decpomdp import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.search import PlannerConfig
-from experiments.common import save_figure
+from experiments.reports.planning_figures import history_figure, planner_figure
+from experiments.runs.outputs import save_figure
 from experiments.steps.planning import run_baselines, run_planner, run_seeded, score
-from experiments.steps.planning_figures import history_figure, planner_figure
 from hbni_infra.streams import stream_seed
 
 

@@ -23,10 +23,11 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.common import beats, save_figure
-from experiments.report import write_report
+from experiments.reports.planning_figures import bar_figure, comparison_table
+from experiments.reports.scores import beats
+from experiments.runs.outputs import save_figure
+from experiments.runs.outputs import write_report
 from experiments.steps.planner_comparison import compare_planners
-from experiments.steps.planning_figures import bar_figure, comparison_table
 from hbni_infra.threads import set_threads
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")

@@ -41,7 +41,7 @@ from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search.cross_entropy import layered_mask, sample_controllers
-from experiments.common import save_figure
+from experiments.runs.outputs import save_figure
 from hbni_infra.files import atomic_write_text
 from hbni_infra.threads import set_threads
 from hbni_infra.streams import stream_seed, torch_stream

@@ -27,7 +27,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from experiments.common import save_figure
+from experiments.runs.outputs import save_figure
 from hbni_pyro import decide, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.stats import wilson_interval

@@ -16,8 +16,8 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 import hbni_pyro
-from experiments.artifacts import save_artifact
-from experiments.common import save_figure
+from experiments.runs.artifacts import save_artifact
+from experiments.runs.outputs import save_figure
 from hbni_pyro import gamma_log_prob, sample_outputs
 from hbni_pyro.models.paper.program import prior_theta_log_density
 from hbni_pyro.validation import DTYPE

@@ -20,7 +20,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 import hbni_pyro
-from experiments.common import save_figure
+from experiments.runs.outputs import save_figure
 from hbni_pyro import MacroObservationModel, MacroObservationProcess, characterize, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream

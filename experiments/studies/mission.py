@@ -59,16 +59,17 @@ from classifiers.data import get_conditions
 from decpomdp import JointController
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from decpomdp.search import PlannerConfig
-from experiments import mission_report
-from experiments.artifacts import save_artifact
-from experiments.common import beats, ratio, save_figure
-from experiments.report import write_report
+from experiments.reports import mission_report
+from experiments.reports.scores import beats, ratio
+from experiments.runs.artifacts import save_artifact
+from experiments.runs.outputs import save_figure
+from experiments.runs.outputs import write_report
 from experiments.schemas.studies import MISSION_VARIANTS
 from experiments.steps import closed_loop, honesty
 from experiments.steps.bank import BankBuild, BankSpec
-from experiments.steps.on_demand import OnDemandStreams
+from experiments.steps.classification import sequence_outputs, train_classifier
 from experiments.steps.noise import fit_labelled, stop_folds
-from experiments.steps.perception import sequence_outputs, train_classifier
+from experiments.steps.on_demand import OnDemandStreams
 from experiments.steps.planning import delivery_rates, run_planner, score
 from hbni_infra.streams import stream_seed
 from hbni_pyro import binomial_stderr

@@ -42,13 +42,13 @@ from classifiers import FrameClassifier, class_columns
 from classifiers.data import ImageFolder, get_conditions
 from classifiers.photos import PHOTOS, photo_sequence, photo_snapshots
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments import noise_models_report as report
-from experiments.artifacts import save_artifact
-from experiments.common import save_figure
-from experiments.report import write_report
+from experiments.reports import noise_models_report as report
+from experiments.runs.artifacts import save_artifact
+from experiments.runs.outputs import save_figure
+from experiments.runs.outputs import write_report
 from hbni_infra.cache import cached, source_identity
+from experiments.steps.classification import sequence_outputs, train_classifier
 from experiments.steps.noise import fit_labelled, stop_folds
-from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_pyro import binomial_stderr, noise_model, sample_outputs, stream_reliability, threshold_checks
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream

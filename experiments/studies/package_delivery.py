@@ -32,11 +32,11 @@ from omegaconf import DictConfig
 
 from decpomdp.search import PlannerConfig
 from decpomdp.domains.package_delivery import greedy_controller
-from experiments.common import save_figure
-from experiments.report import write_report
+from experiments.reports.planning_figures import bar_figure, comparison_table
+from experiments.runs.outputs import save_figure
+from experiments.runs.outputs import write_report
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning import paper_comparison, run_planner
-from experiments.steps.planning_figures import bar_figure, comparison_table
 from hbni_infra.threads import set_threads
 from hbni_infra.streams import stream_seed
 

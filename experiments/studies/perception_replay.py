@@ -31,10 +31,10 @@ from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
 from classifiers.data import get_conditions
-from experiments.artifacts import save_artifact
-from experiments.common import save_figure
+from experiments.runs.artifacts import save_artifact
+from experiments.runs.outputs import save_figure
+from experiments.steps.classification import sequence_outputs, train_classifier
 from experiments.steps.noise import fit_labelled
-from experiments.steps.perception import sequence_outputs, train_classifier
 from hbni_infra.streams import stream_seed
 
 

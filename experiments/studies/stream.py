@@ -38,8 +38,8 @@ from classifiers.bags import is_bag
 from classifiers.sources import FrameSource, open_source
 from classifiers.stamped import classify_stamped
 from decpomdp import ControllerExecutor, JointController
-from experiments.artifacts import latest_run, load_run
-from experiments.common import save_figure
+from experiments.runs.artifacts import latest_run, load_run
+from experiments.runs.outputs import save_figure
 from experiments.steps.annotate import AnnotatedVideo, FrameAnnotator, max_confidence, strip_figure, thumbnail
 from hbni_infra.files import atomic_write_text
 
@@ -100,7 +100,7 @@ def read_settings(cfg: DictConfig) -> Settings:
     """The stream's settings from its config (already checked against its schema, ``experiments.schemas``).
 
     ``stream.run=latest`` is the newest completed mission run under the project's ``outputs/mission`` (from any
-    working directory, :mod:`experiments.paths`); it is not read
+    working directory, :mod:`experiments.runs.paths`); it is not read
     when both ``stream.classifier`` and ``stream.posterior`` are given.
     """
     st = cfg.stream

@@ -22,7 +22,7 @@ from decpomdp import ControllerExecutor, JointController, simulate
 from decpomdp.domains import DisasterRelief
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import ros_node
-from experiments.stream import Settings, load_models
+from experiments.studies.stream import Settings, load_models
 from hbni_pyro import HBNIPosterior, MacroObservationModel, live_macro_observations, macro_observations
 
 ALPHABETICAL = ["a_crate", "b_car", "c_copter"]

@@ -250,7 +250,7 @@ class Block:
             raise ImportError(f"No module named {{name!r}} (blocked)")
 sys.meta_path.insert(0, Block())
 import classifiers, classifiers.bags, classifiers.sources, hbni_pyro, hbni_pyro.runtime.ros_messages, hbni_pyro.runtime.live, hbni_infra.ros
-import experiments.stream
+import experiments.studies.stream
 try:
     classifiers.sources.open_source({str(path)!r})
 except ImportError as exc:

@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.paths import project_root
+from experiments.runs.paths import project_root
 from experiments.steps import closed_loop
 from experiments.steps.planning import score
 from hbni_pyro import sample_outputs

@@ -13,8 +13,8 @@ from omegaconf import OmegaConf
 from decpomdp import JointController
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
-from experiments.dpomdp_benchmarks import build_rows, fraction_of_optimum
 from experiments.schemas import gdice_node
+from experiments.studies.dpomdp_benchmarks import build_rows, fraction_of_optimum
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")

@@ -10,9 +10,9 @@ import torch
 import yaml
 from experiment_runs import run_experiment
 
-from experiments.filtering_error import first_crossing, wilson_bounds
 from experiments.schemas import compose_config
-from experiments.filtering_error import run as run_filtering
+from experiments.studies.filtering_error import first_crossing, wilson_bounds
+from experiments.studies.filtering_error import run as run_filtering
 from hbni_pyro import HBNIPosterior, MacroObservationModel
 
 TINY_FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40", "progress=false"]

@@ -12,7 +12,7 @@ import torch
 from experiment_runs import run_experiment
 
 from classifiers.data import render_images, render_sequence
-from experiments.artifacts import load_run
+from experiments.runs.artifacts import load_run
 from experiments.schemas import check_config, compose_config
 from experiments.steps.noise import fit_labelled
 from hbni_pyro import HBNIPosterior

@@ -5,7 +5,7 @@ import os
 from pathlib import Path
 
 from experiments import latest_run
-from experiments.paths import project_root
+from experiments.runs.paths import project_root
 from experiments.schemas import check_config, compose_config
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -166,7 +166,7 @@ def test_a_wrong_type_fails_while_composing(saved):
 
 
 def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path, monkeypatch):
-    from experiments.stream import read_settings
+    from experiments.studies.stream import read_settings
 
     cfg = compose_config(_args(saved, "unused")[:-2] + ["stream.classifier=null"])
     check_config(cfg)  # run=latest is found when the stream starts

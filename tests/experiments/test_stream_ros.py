@@ -154,7 +154,7 @@ def _check_with_mcap(path, records, expected):
 
 
 def test_a_wrong_topic_fails_naming_the_bags_image_topics(tmp_path, saved, recorded):  # noqa: F811
-    from experiments.stream import run
+    from experiments.studies.stream import run
 
     cfg = _compose(saved, [f"stream.source={recorded['bag']}", "stream.topic=/camera/depth"])
     check_config(cfg)

@@ -14,7 +14,7 @@ import pytest
 
 from classifiers.bags import BagSource
 from experiments import ros_node
-from experiments.stream import run
+from experiments.studies.stream import run
 from hbni_infra import ros
 from hbni_pyro.runtime import typestore
 from test_stream import CLASSES, saved  # noqa: F401 (saved is a fixture)
