@@ -24,7 +24,7 @@ import scipy.special
 import scipy.stats
 import torch
 
-from experiments.schemas import compose_config
+from experiments.schemas import compose_settings
 from experiments.studies.filtering_error import run as run_study
 from hbni_pyro import HBNIFilter, HBNIPosterior, sample_outputs
 from hbni_infra.streams import torch_generator
@@ -55,17 +55,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    cfg = compose_config(["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
-    s = cfg.study
+    settings = compose_settings(["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
+    s, fit = settings.study, settings.hbni.fit
     print(
         f"filtering_error study: {s.num_trials} trials x N = 1..{s.max_len} x 5 methods x training sizes "
-        f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {cfg.hbni.fit.num_chains} chains, "
-        f"{cfg.hbni.fit.warmup_steps} + {cfg.hbni.fit.num_samples} steps), HBNI mode {cfg.hbni.filter.mode}, "
+        f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {fit.num_chains} chains, "
+        f"{fit.warmup_steps} + {fit.num_samples} steps), HBNI mode {settings.hbni.filter.mode}, "
         f"torch threads {torch.get_num_threads()}"
     )
     with tempfile.TemporaryDirectory() as tmp:
         start, cpu = time.perf_counter(), time.process_time()
-        metrics = run_study(cfg, Path(tmp))
+        metrics = run_study(settings, Path(tmp))
         study_seconds, study_cpu = time.perf_counter() - start, time.process_time() - cpu
         fit_seconds = sum(f["seconds"] for f in metrics["fits"].values())
         posterior = HBNIPosterior.load(Path(tmp) / "posterior_train15_set0.safetensors")

@@ -55,13 +55,16 @@ def check_sweep(config: DictConfig, jobs: list[list[str]]) -> None:
     reads."""
     from hydra.core.global_hydra import GlobalHydra
 
-    from experiments.schemas import check_overrides
+    from experiments.schemas import check_overrides, typed_settings
 
     loader = GlobalHydra.instance().config_loader()
     for num, job in enumerate(jobs):
-        cfg = loader.load_sweep_config(config, list(job))
         try:
-            check_overrides(cfg, job)
+            settings = typed_settings(loader.load_sweep_config(config, list(job)))
+        except ValueError:  # a job whose config fails its types fails as it starts, and the report lists it
+            continue
+        try:
+            check_overrides(settings, job)
         except ValueError as exc:
             raise ValueError(f"{exc} (job {num}: {' '.join(job)})") from None
 

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import matplotlib.pyplot as plt
 import numpy as np
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.reports import figures
-from experiments.reports.scores import beats
+from experiments.reports.scores import beats, ratio
 
 LABELS = figures.LABELS
 
@@ -231,3 +233,23 @@ def curves_figure(histories: dict[str, dict], offsets: dict[str, float] | None =
     ax.set_title("Planner learning curves")
     ax.legend(fontsize=8)
     return fig
+
+
+def acceptance(results: dict[str, dict]) -> dict[str, Any]:
+    """HBNI's policy against perfect perception and every other variant's (their values in standard errors, wrong
+    deliveries against SSBF's)."""
+    out: dict[str, Any] = {}
+    if "hbni" not in results:
+        return out
+    h = results["hbni"]
+    out["hbni_over_perfect"] = ratio(h["value"], results["perfect"]["value"])
+    for other in ("calibrated", "ssbf", "max_of_mean"):
+        if other in results:
+            o = results[other]
+            out[f"hbni_beats_{other}_outside_stderr"] = beats(h, o)
+            out[f"hbni_minus_{other}_in_stderr"] = ratio(
+                h["value"] - o["value"], (h["stderr"] ** 2 + o["stderr"] ** 2) ** 0.5
+            )
+    if "ssbf" in results:
+        out["hbni_wrong_rate_below_ssbf"] = h["wrong_rate"] < results["ssbf"]["wrong_rate"]
+    return out

@@ -1,14 +1,14 @@
-"""Perception steps: train the frame classifier on rendered snapshots, classify rendered sequences."""
+"""Classification steps: train the frame classifier on rendered snapshots, classify rendered sequences."""
 
 from __future__ import annotations
 
 import contextlib
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 from classifiers import FrameClassifier, class_columns
@@ -24,7 +24,7 @@ def _workers(clf: FrameClassifier) -> int:
 
 
 def train_classifier(
-    classifier: DictConfig,
+    classifier: Any,
     classes: list[str],
     per_class: int,
     augment: int,
@@ -32,7 +32,7 @@ def train_classifier(
     progress: bool,
     workers: int | None = None,
 ) -> FrameClassifier:
-    """Instantiate the frame classifier and train it on ``per_class`` training-condition snapshots
+    """Instantiate the frame classifier from its settings (the ``classifier`` block) and train it on ``per_class`` training-condition snapshots
     of each class (plus ``augment`` random crop + mirror copies of each), embedded by ``workers`` threads side by side
     (``None``: :func:`hbni_infra.threads.worker_threads`, or one for a classifier set to several torch threads; the
     same classifier for any ``workers``)."""

@@ -20,23 +20,22 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 from decpomdp.domains.disaster_relief import greedy_controller
 from experiments.reports.planning_figures import bar_figure, comparison_table
 from experiments.reports.scores import beats
-from experiments.runs.outputs import save_figure
-from experiments.runs.outputs import write_report
+from experiments.runs.outputs import save_figure, write_report
+from experiments.schemas.planning_studies import DisasterReliefExperiment
 from experiments.steps.planner_comparison import compare_planners
 from hbni_infra.threads import set_threads
 
 COUNTS = ("delivered", "wrong", "inferences", "inference_frames", "repairs")
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    set_threads(int(cfg.study.threads))  # torch and the rollout engine
-    env = instantiate(cfg.domain)
-    entries, metrics = compare_planners(cfg, env, greedy_controller(env.num_agents), "disaster relief", run_dir)
+def run(settings: DisasterReliefExperiment, run_dir: Path) -> dict:
+    set_threads(settings.study.threads)  # torch and the rollout engine
+    env = instantiate(settings.domain)
+    entries, metrics = compare_planners(settings, env, greedy_controller(env.num_agents), "disaster relief", run_dir)
     save_figure(bar_figure(entries, "Disaster relief: re-evaluated values"), run_dir / "comparison.png")
     write_report(
         run_dir / "report.md",

@@ -30,29 +30,27 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import matplotlib.pyplot as plt
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
 
 from decpomdp import solve
-from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, problem_names
+from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
 from decpomdp.search.cross_entropy import layered_mask, sample_controllers
 from experiments.runs.outputs import save_figure
+from experiments.schemas.planning_studies import BenchmarkStudy, DPOMDPBenchmarks
 from hbni_infra.files import atomic_write_text
 from hbni_infra.threads import set_threads
 from hbni_infra.streams import stream_seed, torch_stream
 
-_EVALUATORS = ("exact", "monte_carlo")
-_ROW_KEYS = {"problem", "gamma", "horizon", "optimum", "source", "evaluator", "rollouts", "restarts", "gdice"}
-
 
 @dataclass(frozen=True)
 class Row:
-    """One benchmark row, checked when built (``study.rows.<name>`` in the config)."""
+    """One benchmark row (``study.rows.<name>`` in the config, checked there): its horizon ``inf`` when infinite."""
 
     name: str
     problem: str
@@ -60,69 +58,46 @@ class Row:
     horizon: float
     optimum: float | None
     source: str
-    evaluator: str = "exact"
-    rollouts: int = 200
-    restarts: int = 1
+    evaluator: str
+    rollouts: int
+    restarts: int
     gdice: dict = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        where = f"study.rows.{self.name}"
-        if self.problem not in problem_names():
-            raise ValueError(f"{where}.problem: expected one of {problem_names()}, got {self.problem!r}")
-        if not 0.0 < self.gamma <= 1.0:
-            raise ValueError(f"{where}.gamma: expected a discount in (0, 1], got {self.gamma}")
-        if self.horizon == math.inf and self.gamma >= 1.0:
-            raise ValueError(f"{where}.horizon: null (infinite) needs gamma < 1")
-        if self.horizon != math.inf and not (float(self.horizon).is_integer() and self.horizon >= 1):
-            raise ValueError(f"{where}.horizon: expected a whole number >= 1 or null, got {self.horizon}")
-        if self.evaluator not in _EVALUATORS:
-            raise ValueError(f"{where}.evaluator: expected one of {_EVALUATORS}, got {self.evaluator!r}")
-        if self.evaluator == "monte_carlo" and self.horizon == math.inf:
-            raise ValueError(f"{where}.evaluator: monte_carlo rollouts need a finite horizon")
-        if self.rollouts < 2 or self.restarts < 1:
-            raise ValueError(f"{where}: rollouts must be >= 2 and restarts >= 1, got {self.rollouts}, {self.restarts}")
-        if self.optimum is not None and not self.source:
-            raise ValueError(f"{where}.source: a published optimum needs its source")
 
-
-def build_rows(study: DictConfig, planner: DictConfig) -> list[tuple[Row, PlannerConfig, PlannerConfig]]:
-    """Every row, its G-DICE settings (the planner overridden by the row, then capped) and the same at the
-    paper's budget, checked up front."""
+def build_rows(study: BenchmarkStudy, planner: Any) -> list[tuple[Row, PlannerConfig, PlannerConfig]]:
+    """Every row, its G-DICE settings (the ``planner`` block overridden by the row, then capped) and the same at the
+    paper's budget, built up front: a row's planner settings that do not make a planner fail here, naming it."""
+    base: PlannerConfig = instantiate(planner)
+    budget = dataclasses.asdict(study.paper_budget)
     rows = []
     for name, spec in study.rows.items():
-        unknown = set(spec) - _ROW_KEYS
-        if unknown:
-            raise ValueError(f"study.rows.{name}: unknown keys {sorted(unknown)} (known: {sorted(_ROW_KEYS)})")
-        plain = OmegaConf.to_container(spec, resolve=True)
-        horizon = math.inf if plain.get("horizon") is None else float(plain["horizon"])
+        horizon = math.inf if spec.horizon is None else float(spec.horizon)
         row = Row(
-            name=str(name),
-            problem=plain["problem"],
-            gamma=float(plain["gamma"]),
-            horizon=horizon,
-            optimum=plain.get("optimum"),
-            source=plain.get("source", ""),
-            evaluator=plain.get("evaluator", "exact"),
-            rollouts=int(plain.get("rollouts", 200)),
-            restarts=int(plain.get("restarts", 1)),
-            gdice=plain.get("gdice", {}),
+            name,
+            spec.problem,
+            spec.gamma,
+            horizon,
+            spec.optimum,
+            spec.source,
+            spec.evaluator,
+            spec.rollouts,
+            spec.restarts,
+            dict(spec.gdice),
         )
-        # plain containers (schemas stay apart), unresolved: start_nodes follows a row's num_nodes
-        defaults = {f.name: getattr(PlannerConfig(), f.name) for f in dataclasses.fields(PlannerConfig)}
-        settings = {**defaults, **OmegaConf.to_container(planner, resolve=False), **row.gdice}
-        merged = OmegaConf.create(settings)
-        paper = OmegaConf.create({**settings, **OmegaConf.to_container(study.paper_budget, resolve=True)})
-        cfgs = []
-        for settings in (merged, paper):
+        configs = []
+        for changes in (dict(row.gdice), {**row.gdice, **budget}):
             for key in ("iterations", "samples"):
-                if study.caps[key] is not None:
-                    settings[f"ce_{key}"] = min(int(settings[f"ce_{key}"]), int(study.caps[key]))
-            settings.ce_elites = min(int(settings.ce_elites), int(settings.ce_samples))
-            try:
-                cfgs.append(instantiate(settings))
+                cap = getattr(study.caps, key)
+                if cap is not None:
+                    changes[f"ce_{key}"] = min(changes.get(f"ce_{key}", getattr(base, f"ce_{key}")), cap)
+            changes["ce_elites"] = min(
+                changes.get("ce_elites", base.ce_elites), changes.get("ce_samples", base.ce_samples)
+            )
+            try:  # a graph that starts at full size (G-DICE's) follows the row's num_nodes (PlannerConfig.replace)
+                configs.append(base.replace(**changes))
             except Exception as exc:  # noqa: BLE001  (re-raised with the row's name)
                 raise ValueError(f"study.rows.{name}.gdice: {exc}") from None
-        rows.append((row, *cfgs))
+        rows.append((row, *configs))
     return rows
 
 
@@ -132,25 +107,25 @@ def fraction_of_optimum(value: float, optimum: float, random_mean: float) -> flo
     return 1.0 - (optimum - value) / scale if scale > 0 else float(value >= optimum)
 
 
-def uniform_controllers(cfg: PlannerConfig, env: TabularDecPOSMDP, count: int, generator: torch.Generator):
+def uniform_controllers(config: PlannerConfig, env: TabularDecPOSMDP, count: int, generator: torch.Generator):
     """Controllers from G-DICE's initial (uniform) distributions: the random baseline of the same graph."""
-    a, nn = env.num_agents, cfg.num_nodes
-    mask = layered_mask(nn, cfg.layer_width).to(torch.float64)
+    a, nn = env.num_agents, config.num_nodes
+    mask = layered_mask(nn, config.layer_width).to(torch.float64)
     nxt = (mask / mask.sum(-1, keepdim=True))[None, :, None, :].expand(a, nn, env.num_obs, nn).contiguous()
     act = torch.full((a, nn, env.num_actions), 1.0 / env.num_actions, dtype=torch.float64)
     return sample_controllers(act, nxt, count, generator)
 
 
-def _search(row: Row, cfg: PlannerConfig, env: TabularDecPOSMDP, restarts: int, seed: int, progress: bool) -> dict:
+def _search(row: Row, config: PlannerConfig, env: TabularDecPOSMDP, restarts: int, seed: int, progress: bool) -> dict:
     """Run G-DICE ``restarts`` times (scores: exact, or ``row.rollouts`` rollouts with ``ce_rollouts`` set to it);
     the best controller by exact value, with wall and CPU seconds per run."""
     scorer = ExactScorer(env) if row.evaluator == "exact" else RolloutScorer(env)
     if row.evaluator != "exact":
-        cfg = dataclasses.replace(cfg, ce_rollouts=row.rollouts)
+        config = dataclasses.replace(config, ce_rollouts=row.rollouts)
     runs, values, walls, cpus = [], [], [], []
     for r in range(restarts):
         wall, cpu = time.perf_counter(), time.process_time()
-        res = plan(scorer, cfg, seed=stream_seed(seed, "restart", r), progress=progress)
+        res = plan(scorer, config, seed=stream_seed(seed, "restart", r), progress=progress)
         walls.append(time.perf_counter() - wall)
         cpus.append(time.process_time() - cpu)
         runs.append(res)
@@ -160,24 +135,25 @@ def _search(row: Row, cfg: PlannerConfig, env: TabularDecPOSMDP, restarts: int, 
 
 
 def _solve(
-    row: Row, env: TabularDecPOSMDP, study: DictConfig, seed: int, optimum: float | None, random_mean: float
+    row: Row, env: TabularDecPOSMDP, study: BenchmarkStudy, seed: int, optimum: float | None, random_mean: float
 ) -> tuple[dict, object]:
     """``solve`` on the row with ``study.solve`` (capped by ``study.caps``): its table entry and controller."""
-    kwargs = OmegaConf.to_container(study.solve, resolve=True)
+    kwargs = dict(study.solve)
     defaults = PlannerConfig()
     for cap, keys in (
         ("iterations", ("ce_iterations",)),
         ("samples", ("ce_samples",)),
         ("restarts", ("restarts", "layered_restarts", "jesp_restarts", "ascent_starts")),
     ):
-        if study.caps[cap] is not None:
+        limit = getattr(study.caps, cap)
+        if limit is not None:
             for key in keys:
                 current = kwargs.get(key, getattr(defaults, key, None))
-                kwargs[key] = int(study.caps[cap]) if current is None else min(int(current), int(study.caps[cap]))
+                kwargs[key] = limit if current is None else min(int(current), limit)
     if "ce_samples" in kwargs:
         kwargs["ce_elites"] = min(kwargs.get("ce_elites", defaults.ce_elites), kwargs["ce_samples"])
     cpu = time.process_time()
-    found = solve(env, row.horizon, row.gamma, seed=stream_seed(seed, "solve"), threads=int(study.threads), **kwargs)
+    found = solve(env, row.horizon, row.gamma, seed=stream_seed(seed, "solve"), threads=study.threads, **kwargs)
     cpu = time.process_time() - cpu
     frac = None if optimum is None else fraction_of_optimum(found.value, optimum, random_mean)
     return {
@@ -197,17 +173,17 @@ def _solve(
 
 
 def solve_row(
-    row: Row, cfg: PlannerConfig, paper: PlannerConfig, study: DictConfig, seed: int, progress: bool
+    row: Row, config: PlannerConfig, paper: PlannerConfig, study: BenchmarkStudy, seed: int, progress: bool
 ) -> tuple[dict, object, list, object]:
     """One row of the table, G-DICE's best controller and its learning curve, and solve's controller."""
     env = TabularDecPOSMDP.from_problem(row.problem, gamma=row.gamma, horizon=row.horizon)
-    restarts = row.restarts if study.caps.restarts is None else min(row.restarts, int(study.caps.restarts))
-    found = _search(row, cfg, env, restarts, seed, progress)
+    restarts = row.restarts if study.caps.restarts is None else min(row.restarts, study.caps.restarts)
+    found = _search(row, config, env, restarts, seed, progress)
     at_paper = _search(
         row, paper, env, 1, stream_seed(seed, "paper settings"), progress
     )  # one run at N_s = 100, N_k = 100, timed
     value = exact_value(env, found["best"].best).item()
-    rand = exact_value(env, uniform_controllers(cfg, env, int(study.random_controllers), torch_stream(seed, "random")))
+    rand = exact_value(env, uniform_controllers(config, env, study.random_controllers, torch_stream(seed, "random")))
     rand_mean = rand.mean().item()
     exhaustive, searched = (None, None)
     if row.horizon == 2:
@@ -236,8 +212,8 @@ def solve_row(
         "random_controller_stderr": (rand.std() / math.sqrt(rand.numel())).item(),
         "seconds_per_run": found["wall"],
         "cpu_seconds_per_run": found["cpu"],
-        "controllers_per_run": cfg.ce_iterations * cfg.ce_samples,
-        "settings": {**dataclasses.asdict(cfg), "restarts": restarts},
+        "controllers_per_run": config.ce_iterations * config.ce_samples,
+        "settings": {**dataclasses.asdict(config), "restarts": restarts},
         "paper_budget": {
             "samples": paper.ce_samples,
             "iterations": paper.ce_iterations,
@@ -250,14 +226,15 @@ def solve_row(
     return table, found["best"].best, found["best"].history["best_sampled"], solved_controller
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    rows = build_rows(cfg.study, cfg.planner)  # every row checked before any work
-    if cfg.study.only is not None:
-        rows = [r for r in rows if r[0].name in set(cfg.study.only)]
-    set_threads(int(cfg.study.threads))  # torch and the rollout engine
+def run(settings: DPOMDPBenchmarks, run_dir: Path) -> dict:
+    study = settings.study
+    rows = build_rows(study, settings.planner)  # every row's planner built before any work
+    if study.only is not None:
+        rows = [r for r in rows if r[0].name in set(study.only)]
+    set_threads(study.threads)  # torch and the rollout engine
     table, curves = {}, {}
-    for row, gcfg, paper in rows:
-        entry, controller, curve, solved = solve_row(row, gcfg, paper, cfg.study, int(cfg.seed), bool(cfg.progress))
+    for row, config, paper in rows:
+        entry, controller, curve, solved = solve_row(row, config, paper, study, settings.seed, settings.progress)
         controller.save(run_dir / "controllers" / f"{row.name}.safetensors")
         solved.save(run_dir / "controllers" / f"{row.name}_solve.safetensors")
         table[row.name], curves[row.name] = entry, curve

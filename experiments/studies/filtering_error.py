@@ -22,12 +22,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 from torch import Tensor
 from tqdm.auto import tqdm
 
 import hbni_pyro
 from experiments.runs.outputs import save_figure
+from experiments.schemas.blocks import HBNIBlock
+from experiments.schemas.noise_studies import FilteringError
 from hbni_pyro import decide, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.stats import wilson_interval
@@ -80,11 +81,11 @@ def first_crossing(error: Tensor, target: float) -> int | None:
     return int(hit[0]) + 1 if hit.numel() else None
 
 
-def _settings(cfg: DictConfig) -> dict[str, Any]:
-    s = cfg.study
-    theta = torch.tensor(list(s.true_theta), dtype=DTYPE)
-    sizes = [int(n) for n in s.training_sizes]
-    sets, trials = int(s.num_training_sets), int(s.num_trials)
+def _settings(settings: FilteringError) -> dict[str, Any]:
+    s = settings.study
+    theta = torch.tensor(s.true_theta, dtype=DTYPE)
+    sizes = list(s.training_sizes)
+    sets, trials = s.num_training_sets, s.num_trials
     if trials % sets:
         raise ValueError(f"study.num_trials ({trials}) must be a multiple of study.num_training_sets ({sets})")
     bad = [n for n in sizes if n % len(theta) or n < len(theta)]
@@ -95,17 +96,16 @@ def _settings(cfg: DictConfig) -> dict[str, Any]:
         "sizes": sizes,
         "sets": sets,
         "trials": trials,
-        "max_len": int(s.max_len),
-        "draws": int(s.filter_draws),
-        "targets": [float(t) for t in s.targets],
-        "mode": str(cfg.hbni.filter.mode),
+        "max_len": s.max_len,
+        "draws": s.filter_draws,
+        "targets": list(s.targets),
+        "mode": settings.hbni.filter.mode,
     }
 
 
-def _fit_sets(train: Tensor, cfg: DictConfig, seed: int) -> list[hbni_pyro.HBNIPosterior]:
-    fit = dict(cfg.hbni.fit)
-    method = fit.pop("method")
-    hyperprior = instantiate(cfg.hbni.hyperprior)
+def _fit_sets(train: Tensor, hbni: HBNIBlock, seed: int) -> list[hbni_pyro.HBNIPosterior]:
+    fit, method = hbni.fit.sizes(), hbni.fit.method
+    hyperprior = instantiate(hbni.hyperprior)
     if method == "mh":
         return hbni_pyro.fit_many(train, **fit, seed=seed, progress=False, hyperprior=hyperprior)
     return [
@@ -114,10 +114,10 @@ def _fit_sets(train: Tensor, cfg: DictConfig, seed: int) -> list[hbni_pyro.HBNIP
     ]
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    s = _settings(cfg)
+def run(settings: FilteringError, run_dir: Path) -> dict:
+    s = _settings(settings)
     theta, M, T, trials, sets = s["theta"], len(s["theta"]), s["max_len"], s["trials"], s["sets"]
-    g = torch_stream(int(cfg.seed), "streams")
+    g = torch_stream(settings.seed, "streams")
     truth = torch.randint(M, (trials,), generator=g)
     obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
 
@@ -131,10 +131,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     per_set = trials // sets
     wrong: dict[int, dict[str, Tensor]] = {}
     fits: dict[int, dict[str, Any]] = {}
-    for k, size in enumerate(tqdm(s["sizes"], desc="training sizes", disable=not cfg.progress)):
+    for k, size in enumerate(tqdm(s["sizes"], desc="training sizes", disable=not settings.progress)):
         classes = torch.arange(M).repeat_interleave(size // M).expand(sets, size)
         train = sample_outputs(theta, classes, g)
-        posteriors = _fit_sets(train, cfg, seed=stream_seed(int(cfg.seed), "fit", size))
+        posteriors = _fit_sets(train, settings.hbni, seed=stream_seed(settings.seed, "fit", size))
         posteriors[0].save(run_dir / f"posterior_train{size}_set0.safetensors")
         hbni, peer = torch.zeros(T, dtype=torch.long), torch.zeros(T, dtype=torch.long)
         for d, post in enumerate(posteriors):

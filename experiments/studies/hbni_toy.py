@@ -13,35 +13,36 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 import hbni_pyro
 from experiments.runs.artifacts import save_artifact
 from experiments.runs.outputs import save_figure
+from experiments.schemas.noise_studies import HBNIToy
 from hbni_pyro import gamma_log_prob, sample_outputs
 from hbni_pyro.models.paper.program import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    theta_true = torch.tensor(list(cfg.toy.theta), dtype=DTYPE)
-    classes = torch.arange(len(theta_true)).repeat_interleave(int(cfg.toy.per_class))
-    obs = sample_outputs(theta_true, classes, torch_stream(int(cfg.seed), "outputs"))
-    fit_kw = dict(cfg.hbni.fit)
+def run(settings: HBNIToy, run_dir: Path) -> dict:
+    toy, seed = settings.toy, settings.seed
+    theta_true = torch.tensor(toy.theta, dtype=DTYPE)
+    classes = torch.arange(len(theta_true)).repeat_interleave(toy.per_class)
+    obs = sample_outputs(theta_true, classes, torch_stream(seed, "outputs"))
+    fit_kw = settings.hbni.fit.kwargs()
     posterior = hbni_pyro.fit(
         obs,
         **fit_kw,
-        hyperprior=instantiate(cfg.hbni.hyperprior),
-        seed=stream_seed(int(cfg.seed), "fit"),
-        progress=cfg.progress,
+        hyperprior=instantiate(settings.hbni.hyperprior),
+        seed=stream_seed(seed, "fit"),
+        progress=settings.progress,
     )
     confident = hbni_pyro.fit(
         obs,
         **fit_kw,
-        hyperprior=instantiate(cfg.toy.near_perfect_hyperprior),
-        seed=stream_seed(int(cfg.seed), "fit", "near perfect"),
-        progress=cfg.progress,
+        hyperprior=instantiate(toy.near_perfect_hyperprior),
+        seed=stream_seed(seed, "fit", "near perfect"),
+        progress=settings.progress,
     )
     save_artifact(run_dir, "posterior", posterior)
     save_artifact(run_dir, "posterior_near_perfect", confident)

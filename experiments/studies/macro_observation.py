@@ -17,10 +17,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 import hbni_pyro
 from experiments.runs.outputs import save_figure
+from experiments.schemas.noise_studies import MacroObservation, MacroStudy
 from hbni_pyro import MacroObservationModel, MacroObservationProcess, characterize, make_filter, sample_outputs
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
@@ -30,18 +30,18 @@ PEER_CALIBRATION = "temperature"
 """The calibrated peer's per-frame map on the toy: 15 training outputs are too few for the matrix form."""
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    s = cfg.study
-    theta = torch.tensor(list(s.true_theta), dtype=DTYPE)
-    M, seed = len(theta), int(cfg.seed)
-    classes = torch.arange(M).repeat_interleave(int(s.training_per_class))
+def run(settings: MacroObservation, run_dir: Path) -> dict:
+    s, hbni, progress = settings.study, settings.hbni, settings.progress
+    theta = torch.tensor(s.true_theta, dtype=DTYPE)
+    M, seed = len(theta), settings.seed
+    classes = torch.arange(M).repeat_interleave(s.training_per_class)
     train = sample_outputs(theta, classes, torch_stream(seed, "train"))
     posterior = hbni_pyro.fit(
-        train, **cfg.hbni.fit, hyperprior=instantiate(cfg.hbni.hyperprior), seed=seed, progress=cfg.progress
+        train, **hbni.fit.kwargs(), hyperprior=instantiate(hbni.hyperprior), seed=seed, progress=progress
     )
     posterior.save(run_dir / "posterior.safetensors")
     filters = {
-        "hbni": make_filter("hbni", posterior, mode=str(cfg.hbni.filter.mode), num_draws=int(s.filter_draws)),
+        "hbni": make_filter("hbni", posterior, mode=hbni.filter.mode, num_draws=s.filter_draws),
         # the calibrated peer, given the training outputs' labels (HBNI is fitted without them); i.i.d. frames need
         # no evidence weight
         "calibrated": make_filter(
@@ -52,15 +52,15 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     sources = {"true_theta": theta, "posterior_predictive": posterior}
     models: dict[str, dict[str, MacroObservationModel]] = {}
     for name, f in filters.items():
-        process = MacroObservationProcess(f, threshold=float(s.threshold), max_frames=int(s.max_frames))
+        process = MacroObservationProcess(f, threshold=s.threshold, max_frames=s.max_frames)
         models[name] = {}
         for k, (source, generative) in enumerate(sources.items()):
             model = characterize(
                 process,
                 generative,
-                int(s.num_streams),
+                s.num_streams,
                 seed=stream_seed(seed, "characterize", k),
-                progress=cfg.progress,
+                progress=progress,
             )
             model.save(run_dir / f"macro_{name}_{source}.safetensors")
             models[name][source] = model
@@ -69,11 +69,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "settings": {
             "true_theta": theta,
             "training_outputs": len(classes),
-            "threshold": float(s.threshold),
-            "max_frames": int(s.max_frames),
-            "num_streams_per_class": int(s.num_streams),
-            "hbni_filter_mode": str(cfg.hbni.filter.mode),
-            "hbni_filter_draws": int(s.filter_draws),
+            "threshold": s.threshold,
+            "max_frames": s.max_frames,
+            "num_streams_per_class": s.num_streams,
+            "hbni_filter_mode": hbni.filter.mode,
+            "hbni_filter_draws": s.filter_draws,
         },
         "theta_posterior_mean": posterior.theta_draws().mean(0),
         "processes": {name: {src: _describe(m) for src, m in per.items()} for name, per in models.items()},
@@ -94,8 +94,8 @@ def _describe(model: MacroObservationModel) -> dict[str, Any]:
     }
 
 
-def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Tensor, s: DictConfig) -> plt.Figure:
-    M, T = len(theta), int(s.max_frames)
+def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Tensor, s: MacroStudy) -> plt.Figure:
+    M, T = len(theta), s.max_frames
     columns = max(M, len(models) + 1)
     fig, axes = plt.subplots(2, columns, figsize=(4.3 * columns, 7.2))
     frames = np.arange(1, T + 1)
@@ -134,8 +134,8 @@ def _figure(models: dict[str, dict[str, MacroObservationModel]], theta: torch.Te
         ax.axis("off")
     _mean_frames_bars(axes[1, len(models)], models, M)
     fig.suptitle(
-        f"Macro-observations at threshold {float(s.threshold):g} (true θ = {theta.tolist()}, "
-        f"{int(s.num_streams)} streams per class)",
+        f"Macro-observations at threshold {s.threshold:g} (true θ = {theta.tolist()}, "
+        f"{s.num_streams} streams per class)",
         y=1.0,
     )
     fig.tight_layout()

@@ -5,12 +5,11 @@
 1. :func:`toy_study`: the paper's toy (true theta, unlabelled training sets, i.i.d. trial
    streams): classification error against the number of outputs for every model, and the
    smallest N with error at most ``study.toy.target``.
-2. :func:`mission_outputs`: render the disaster-relief objects, train the frame classifier and
-   classify labelled calibration and held-out sequences under each imaging condition
+2. :mod:`experiments.steps.condition_outputs`: render the disaster-relief objects, train the frame classifier
+   and classify labelled calibration and held-out sequences under each imaging condition
    (``study.conditions``: the default mission conditions and the in-flight preset), and from
-   a user's image folder (``study.images``). :func:`photo_outputs` does the same for real
-   photographs under a moving, dim, blurred and occluded camera (``study.photos``,
-   :mod:`classifiers.photos`). Outputs are cached on disk by their inputs.
+   a user's image folder (``study.images``); the same for real photographs under a moving, dim, blurred and
+   occluded camera (``study.photos``, :mod:`classifiers.photos`). Outputs are cached on disk by their inputs.
 3. :func:`evaluate_condition`, per condition: fit every model on the calibration sequences (the
    paper's and the confusion-aware model also with the temper fitted on them), then on the
    held-out sequences score each filter: held-out log score (the mean log posterior of the
@@ -27,27 +26,24 @@ Writes ``metrics.json``, ``report.md`` (a table per condition), ``toy_error.png`
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from functools import partial
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 import hbni_pyro
-from classifiers import FrameClassifier, class_columns
-from classifiers.data import ImageFolder, get_conditions
-from classifiers.photos import PHOTOS, photo_sequence, photo_snapshots
+from classifiers.photos import PHOTOS
 from decpomdp.domains.disaster_relief import CLASSES
 from experiments.reports import noise_models_report as report
 from experiments.runs.artifacts import save_artifact
-from experiments.runs.outputs import save_figure
-from experiments.runs.outputs import write_report
-from hbni_infra.cache import cached, source_identity
-from experiments.steps.classification import sequence_outputs, train_classifier
+from experiments.runs.clock import StageClock
+from experiments.runs.outputs import save_figure, write_report
+from experiments.schemas.noise_studies import NoiseModels
+from experiments.steps.condition_outputs import folder_outputs, mission_outputs, photo_outputs
 from experiments.steps.noise import fit_labelled, stop_folds
 from hbni_pyro import binomial_stderr, noise_model, sample_outputs, stream_reliability, threshold_checks
 from hbni_pyro.validation import DTYPE
@@ -59,30 +55,23 @@ DEFAULT_MODEL = "sequence"
 promise allows (:func:`hbni_pyro.fit_stop_threshold` on calibration sequences held out of the fit)."""
 
 
-class Settings(NamedTuple):
-    seed: int
-    progress: bool
-    models: list[str]
-    thresholds: list[float]
-    curve: list[float]
-    cache_dir: str | None
-
-
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    s = read_settings(cfg)
-    toy = toy_study(cfg, s, run_dir)
-    data = mission_outputs(cfg, s, run_dir)
-    if cfg.study.images:
-        data["images"] = folder_outputs(cfg, s)
-    if cfg.study.photos:
-        data["photos"] = photo_outputs(cfg, s, run_dir)
-    conditions = {name: evaluate_condition(name, calib, held, cfg, s, run_dir) for name, (calib, held) in data.items()}
+def run(settings: NoiseModels, run_dir: Path) -> dict:
+    clock = StageClock("noise_models", settings.progress)
+    toy = toy_study(settings, run_dir)
+    data = mission_outputs(settings, clock, run_dir)
+    if settings.study.images:
+        data["images"] = folder_outputs(settings, clock)
+    if settings.study.photos:
+        data["photos"] = photo_outputs(settings, clock, run_dir)
+    conditions = {
+        name: evaluate_condition(name, calib, held, settings, clock, run_dir) for name, (calib, held) in data.items()
+    }
     metrics = {
         "toy": toy,
         "conditions": conditions,
-        "acceptance": acceptance(toy, conditions, s),
+        "acceptance": acceptance(toy, conditions, settings.study.models),
         "honesty": {name: honesty(cond) for name, cond in conditions.items()},
-        "settings": OmegaConf.to_container(cfg.study),
+        "settings": dataclasses.asdict(settings.study),
     }
     figures = {
         "toy_error.png": report.toy_figure(toy),
@@ -92,27 +81,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     for file, fig in figures.items():
         save_figure(fig, run_dir / file)
     write_report(run_dir / "report.md", report.markdown(metrics, list(figures)))
-    if s.progress:
-        tqdm.write(f"[noise_models] wrote {run_dir / 'report.md'}, metrics.json and the figures")
+    clock.say(f"wrote {run_dir / 'report.md'}, metrics.json and the figures")
     return metrics
-
-
-def read_settings(cfg: DictConfig) -> Settings:
-    st = cfg.study
-    return Settings(
-        int(cfg.seed),
-        bool(cfg.progress),
-        list(st.models),
-        [float(t) for t in st.thresholds],
-        [float(t) for t in st.curve_thresholds],
-        None if st.cache_dir is None else str(st.cache_dir),
-    )
 
 
 # -- 1. the paper's toy ---------------------------------------------------------------------------
 
 
-def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
+def toy_study(settings: NoiseModels, run_dir: Path) -> dict[str, Any]:
     """Error against N on the paper's toy for every model and baseline (common random trials).
 
     Each of ``num_training_sets`` unlabelled training sets (``training_size`` outputs, balanced)
@@ -120,16 +96,10 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
     trials. The sequence model is told which outputs came from one object: each class's outputs
     of a training set are one sequence (the classes themselves stay unknown).
     """
-    t = cfg.study.toy
-    theta = torch.tensor(list(t.theta), dtype=DTYPE)
-    M, T, trials, sets, size = (
-        len(theta),
-        int(t.max_len),
-        int(t.num_trials),
-        int(t.num_training_sets),
-        int(t.training_size),
-    )
-    g = torch_stream(s.seed, "toy")
+    t, seed, hbni = settings.study.toy, settings.seed, settings.hbni
+    theta = torch.tensor(t.theta, dtype=DTYPE)
+    M, T, trials, sets, size = len(theta), t.max_len, t.num_trials, t.num_training_sets, t.training_size
+    g = torch_stream(seed, "toy")
     truth = torch.randint(M, (trials,), generator=g)
     obs = sample_outputs(theta, truth.unsqueeze(1).expand(trials, T), g)
     classes = torch.arange(M).repeat_interleave(size // M)
@@ -139,26 +109,25 @@ def toy_study(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
         name: (hbni_pyro.decide(hbni_pyro.make_filter(name, num_classes=M).run(obs)) != truth[:, None]).sum(0)
         for name in ("ssbf", "max_of_mean")
     }
-    for k, model in enumerate(s.models):
-        fit_kw = {key: v for key, v in OmegaConf.to_container(cfg.hbni.fit).items() if key != "method"}
+    for k, model in enumerate(settings.study.models):
         posts = hbni_pyro.fit_many(
             train,
             model=model,
             sequence_ids=classes,
-            **fit_kw,
-            seed=stream_seed(s.seed, "fit", model, k),
+            **hbni.fit.sizes(),
+            seed=stream_seed(seed, "fit", model, k),
             progress=False,
-            hyperprior=instantiate(cfg.hbni.hyperprior),
+            hyperprior=instantiate(hbni.hyperprior),
         )
         save_artifact(run_dir, f"toy_posterior_{model}", posts[0])
         counts = torch.zeros(T, dtype=torch.long)
         for d, post in enumerate(posts):
             rows = slice(d * per_set, (d + 1) * per_set)
-            probs = hbni_pyro.HBNIFilter(post, cfg.hbni.filter.mode, num_draws=int(t.filter_draws)).run(obs[rows])
+            probs = hbni_pyro.HBNIFilter(post, hbni.filter.mode, num_draws=t.filter_draws).run(obs[rows])
             counts += (hbni_pyro.decide(probs) != truth[rows, None]).sum(0)
         wrong[model] = counts
     error = {k: v.to(DTYPE) / trials for k, v in wrong.items()}
-    target = float(t.target)
+    target = t.target
     crossing = {k: _first_at_most(e, target) for k, e in error.items()}
     return {
         "error": error,
@@ -179,178 +148,25 @@ def _first_at_most(error: torch.Tensor, target: float) -> int | None:
 # -- 2. classifier outputs ------------------------------------------------------------------------
 
 
-def mission_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
-    """``(calibration, held-out)`` classifier outputs ``(C, S, F, C)`` per imaging condition, from the
-    cache when a run with the same inputs stored them (the classifier is trained only if needed)."""
-    m = cfg.study.mission
-    # everything that decides the outputs: the classifier's settings and code, the renderer's code, seeds and sizes
-    base = {
-        "classes": list(CLASSES),
-        "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
-        "code": source_identity("classifiers"),
-        "seed": s.seed,
-        "train_per_class": int(m.train_per_class),
-        "augment": int(m.augment),
-        "frames": int(m.frames),
-        "calib_sequences": int(m.calib_sequences),
-        "test_sequences": int(m.test_sequences),
-    }
-    clf: list[FrameClassifier] = []
-
-    def classifier() -> FrameClassifier:
-        if not clf:
-            _step(s, "training the frame classifier on training-condition snapshots")
-            clf.append(
-                train_classifier(cfg.classifier, CLASSES, int(m.train_per_class), int(m.augment), s.seed, s.progress)
-            )
-            save_artifact(run_dir, "classifier", clf[0])
-        return clf[0]
-
-    out = {}
-    for name, overrides in OmegaConf.to_container(cfg.study.conditions).items():
-        conditions = get_conditions("mission", **(overrides or {}))
-        compute = partial(_classify_condition, classifier, name, conditions, m, s)
-        tensors, path, hit = cached(
-            s.cache_dir, f"noise_models_{name}", {**base, "conditions": conditions.to_dict()}, compute
-        )
-        if hit:
-            _step(s, f"{name}: classifier outputs from the cache {path}")
-        out[name] = (tensors["calibration"], tensors["held_out"])
-    return out
-
-
-def _classify_condition(
-    classifier: Any, name: str, conditions: Any, m: DictConfig, s: Settings
-) -> dict[str, torch.Tensor]:
-    """Render and classify one condition's calibration and held-out sequences (their own random streams)."""
-    _step(s, f"classifying {name} sequences")
-    f = classifier()
-    calib = sequence_outputs(
-        f,
-        CLASSES,
-        int(m.calib_sequences),
-        int(m.frames),
-        conditions,
-        stream_seed(s.seed, "calibration"),
-        s.progress,
-        f"{name} calibration",
-    )[0]
-    held = sequence_outputs(
-        f,
-        CLASSES,
-        int(m.test_sequences),
-        int(m.frames),
-        conditions,
-        stream_seed(s.seed, "held-out"),
-        s.progress,
-        f"{name} held-out",
-    )[0]
-    return {"calibration": calib.double(), "held_out": held.double()}
-
-
-def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Tensor]:
-    """Outputs of a user's image folder: the classifier trained on ``<images>/train/<class>/*``, then
-    every sequence ``<images>/sequences/<class>/<sequence>/*`` (frames in name order, the first
-    ``study.mission.frames`` of each) classified; each class's first ``images_calibration`` share
-    of sequences (in name order) is the calibration set, the rest held out."""
-    root = Path(str(cfg.study.images))
-    frames = int(cfg.study.mission.frames)
-    _step(s, f"training the frame classifier on {root / 'train'}")
-    train = ImageFolder(root / "train")
-    images, idx = train.load()
-    clf: FrameClassifier = instantiate(cfg.classifier)
-    clf.fit(images, [train.classes[i] for i in idx], augment=int(cfg.study.mission.augment), progress=s.progress)
-    seq_root = root / "sequences"
-    classes = sorted(p.name for p in seq_root.iterdir() if p.is_dir()) if seq_root.is_dir() else []
-    if classes != train.classes:
-        raise ValueError(
-            f"study.images: {str(seq_root)!r} must hold one folder per class of {train.classes}, found {classes}"
-        )
-    order = class_columns(clf, classes)
-    per_class = []
-    for name in classes:
-        seqs = sorted(p for p in (seq_root / name).iterdir() if p.is_dir())
-        outs = []
-        for p in tqdm(seqs, desc=f"images {name}", disable=not s.progress):
-            frames_img = ImageFolder(p).load()[0]
-            if len(frames_img) < frames:
-                raise ValueError(
-                    f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}"
-                )
-            outs.append(clf.predict_proba(frames_img[:frames])[:, order].double())
-        per_class.append(torch.stack(outs) if outs else torch.empty(0))
-    counts = {len(p) for p in per_class}
-    if len(counts) != 1 or 0 in counts or min(counts) < 2:
-        raise ValueError(
-            f"study.images: expected the same number (>= 2) of sequences per class, got {[len(p) for p in per_class]}"
-        )
-    outputs = torch.stack(per_class)  # (C, S, F, C)
-    split = max(1, min(outputs.shape[1] - 1, round(float(cfg.study.images_calibration) * outputs.shape[1])))
-    return outputs[:, :split], outputs[:, split:]
-
-
-def photo_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(calibration, held-out)`` outputs ``(C, S, F, C)`` on the photographs of :data:`classifiers.photos.PHOTOS`:
-    the classifier trained on ``"training"``-preset snapshots, the sequences in the ``"degraded"`` preset
-    (calibration and held-out on their own random streams); cached like the rendered conditions."""
-    p = cfg.study.photos
-    key = {
-        "classes": list(PHOTOS),
-        "classifier": OmegaConf.to_container(cfg.classifier, resolve=True),
-        "code": source_identity("classifiers"),
-        "seed": s.seed,
-        **{k: int(v) for k, v in p.items()},
-    }
-
-    def compute() -> dict[str, torch.Tensor]:
-        _step(s, "photos: training the frame classifier on training-preset snapshots")
-        clf: FrameClassifier = instantiate(cfg.classifier)
-        images = [im for name in PHOTOS for im in photo_snapshots(name, int(p.train_per_class), "training", s.seed)]
-        clf.fit(
-            images,
-            [name for name in PHOTOS for _ in range(int(p.train_per_class))],
-            augment=int(p.augment),
-            progress=s.progress,
-        )
-        save_artifact(run_dir, "classifier_photos", clf)
-        order = class_columns(clf, list(PHOTOS))
-        out = {}
-        for part, count in (("calibration", int(p.calib_sequences)), ("held_out", int(p.test_sequences))):
-            seed = stream_seed(s.seed, "photos", part)
-            seqs = [
-                [
-                    clf.predict_proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
-                    for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not s.progress)
-                ]
-                for name in PHOTOS
-            ]
-            out[part] = torch.stack([torch.stack(row) for row in seqs]).double()
-        return out
-
-    tensors, path, hit = cached(s.cache_dir, "noise_models_photos", key, compute)
-    if hit:
-        _step(s, f"photos: classifier outputs from the cache {path}")
-    return tensors["calibration"], tensors["held_out"]
-
-
 # -- 3. per condition -----------------------------------------------------------------------------
 
 
 def evaluate_condition(
-    name: str, calib: torch.Tensor, held: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path
+    name: str, calib: torch.Tensor, held: torch.Tensor, settings: NoiseModels, clock: StageClock, run_dir: Path
 ) -> dict[str, Any]:
     """Fit every model on the calibration sequences and score every filter on the held-out ones."""
-    _step(s, f"{name}: fitting {', '.join(s.models)} on {calib.shape[1]} calibration sequences per class")
+    study = settings.study
+    clock.say(f"{name}: fitting {', '.join(study.models)} on {calib.shape[1]} calibration sequences per class")
     C, _, F, M = calib.shape
-    filters = fitted_filters(name, calib, cfg, s, run_dir)
+    filters = fitted_filters(name, calib, settings, run_dir)
     streams, truth = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
     stops: dict[str, dict[float, float]] = {}
     if DEFAULT_MODEL in filters:  # the default: the sequence model stopping as early as its promise allows
         filters[f"{DEFAULT_MODEL}_stopped"] = filters[DEFAULT_MODEL]
-        stops[f"{DEFAULT_MODEL}_stopped"] = held_out_stops(calib, cfg, s)
+        stops[f"{DEFAULT_MODEL}_stopped"] = held_out_stops(calib, settings)
     rows = {}
-    for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not s.progress):
-        rows[fname] = score_filter(f, streams, truth, s, stops.get(fname))
+    for fname, f in tqdm(filters.items(), desc=f"{name} filters", disable=not settings.progress):
+        rows[fname] = score_filter(f, streams, truth, study.thresholds, study.curve_thresholds, stops.get(fname))
     frame_acc = float((held.argmax(-1) == torch.arange(C).view(-1, 1, 1)).to(DTYPE).mean())
     return {
         "filters": rows,
@@ -365,21 +181,21 @@ def evaluate_condition(
     }
 
 
-def held_out_stops(calib: torch.Tensor, cfg: DictConfig, s: Settings) -> dict[float, float]:
+def held_out_stops(calib: torch.Tensor, settings: NoiseModels) -> dict[float, float]:
     """The default model's stopping confidence per threshold, chosen on calibration sequences held out of its fit
     (:func:`hbni_pyro.cross_fit`: each fold's labels come from a model fitted on the other folds)."""
-    folds = stop_folds(calib, cfg.hbni, s.seed, model=DEFAULT_MODEL)
-    return {t: hbni_pyro.fit_stop_threshold(folds, None, None, t).stop for t in s.thresholds}
+    folds = stop_folds(calib, settings.hbni, settings.seed, model=DEFAULT_MODEL)
+    return {t: hbni_pyro.fit_stop_threshold(folds, None, None, t).stop for t in settings.study.thresholds}
 
 
-def fitted_filters(name: str, calib: torch.Tensor, cfg: DictConfig, s: Settings, run_dir: Path) -> dict[str, Any]:
+def fitted_filters(name: str, calib: torch.Tensor, settings: NoiseModels, run_dir: Path) -> dict[str, Any]:
     """Every model's filter (and the tempered frame-level ones), then the baselines."""
     C, _, F, M = calib.shape
     calib_streams, calib_truth = calib.reshape(-1, F, M), torch.arange(C).repeat_interleave(calib.shape[1])
-    mode = cfg.hbni.filter.mode
+    mode = settings.hbni.filter.mode
     filters: dict[str, Any] = {}
-    for model in s.models:
-        post = fit_labelled(calib, cfg.hbni, s.seed, False, model=model, class_names=_class_names(name))
+    for model in settings.study.models:
+        post = fit_labelled(calib, settings.hbni, settings.seed, False, model=model, class_names=_class_names(name))
         save_artifact(run_dir, f"posterior_{name}_{model}", post)
         filters[model] = hbni_pyro.make_filter("hbni", post, mode=mode)
         if not noise_model(
@@ -403,7 +219,12 @@ def _class_names(condition: str) -> list[str] | None:
 
 
 def score_filter(
-    f: Any, streams: torch.Tensor, truth: torch.Tensor, s: Settings, stops: dict[float, float] | None = None
+    f: Any,
+    streams: torch.Tensor,
+    truth: torch.Tensor,
+    thresholds: list[float],
+    curve: list[float],
+    stops: dict[float, float] | None = None,
 ) -> dict[str, Any]:
     """Held-out log score, final accuracy, reliability and the macro-observation checks of one filter (stopping at
     ``stops[t]`` for threshold ``t`` where given)."""
@@ -418,19 +239,19 @@ def score_filter(
         "final_stderr": binomial_stderr(final, len(truth)),
         "ece": rel.ece,
         "reliability": {"confidence": rel.confidence, "accuracy": rel.accuracy, "count": rel.count},
-        "thresholds": threshold_checks(f, streams, truth, s.thresholds, stops=stops),
-        "curve": threshold_checks(f, streams, truth, s.curve),
+        "thresholds": threshold_checks(f, streams, truth, thresholds, stops=stops),
+        "curve": threshold_checks(f, streams, truth, curve),
     }
 
 
 # -- 4. acceptance --------------------------------------------------------------------------------
 
 
-def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> dict[str, Any]:
+def acceptance(toy: dict[str, Any], conditions: dict[str, Any], models: list[str]) -> dict[str, Any]:
     """The issue's floors for the best model of each condition (highest held-out log score)."""
     out: dict[str, Any] = {"toy": {}}
     paper_n = toy["crossing_n"].get("paper")
-    for model in s.models:
+    for model in models:
         n = toy["crossing_n"][model]
         out["toy"][model] = {
             "n": n,
@@ -439,7 +260,7 @@ def acceptance(toy: dict[str, Any], conditions: dict[str, Any], s: Settings) -> 
         }
     for name, cond in conditions.items():
         rows = cond["filters"]
-        best = max(s.models, key=lambda m: rows[m]["log_score"])
+        best = max(models, key=lambda m: rows[m]["log_score"])
         b, ssbf = rows[best], rows["ssbf"]
         entry: dict[str, Any] = {"best_model": best}
         for t, row in b["thresholds"].items():
@@ -518,8 +339,3 @@ def honesty(condition: dict[str, Any]) -> dict[str, dict[str, bool]]:
         name: {t: v["emitted"] > 0 and v["emitted_accuracy"] >= float(t) - 0.03 for t, v in row["thresholds"].items()}
         for name, row in condition["filters"].items()
     }
-
-
-def _step(s: Settings, message: str) -> None:
-    if s.progress:
-        tqdm.write(f"[noise_models] {message}")

@@ -28,13 +28,12 @@ from typing import Any
 
 import matplotlib.pyplot as plt
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 from decpomdp.search import PlannerConfig
 from decpomdp.domains.package_delivery import greedy_controller
 from experiments.reports.planning_figures import bar_figure, comparison_table
-from experiments.runs.outputs import save_figure
-from experiments.runs.outputs import write_report
+from experiments.runs.outputs import save_figure, write_report
+from experiments.schemas.planning_studies import PackageDeliveryExperiment
 from experiments.steps.planner_comparison import compare_planners
 from experiments.steps.planning import paper_comparison, run_planner
 from hbni_infra.threads import set_threads
@@ -43,32 +42,32 @@ from hbni_infra.streams import stream_seed
 PAPER = {"gdice_best_sampled": 14.44, "mmcs": 4.53, "monte_carlo_search": 2.07}
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    study, seed = cfg.study, int(cfg.seed)
-    set_threads(int(study.threads))  # torch and the rollout engine
-    env = instantiate(cfg.domain)
-    config: PlannerConfig = instantiate(cfg.planners.gdice)
-    reeval = int(study.reeval_rollouts)
-    entries, metrics = compare_planners(cfg, env, greedy_controller(), "package delivery", run_dir)
+def run(settings: PackageDeliveryExperiment, run_dir: Path) -> dict:
+    study, seed, progress = settings.study, settings.seed, settings.progress
+    set_threads(study.threads)  # torch and the rollout engine
+    env = instantiate(settings.domain)
+    config: PlannerConfig = instantiate(settings.planners.gdice)
+    reeval = study.reeval_rollouts
+    entries, metrics = compare_planners(settings, env, greedy_controller(), "package delivery", run_dir)
 
     sweep = {}
     for k, alpha in enumerate(study.alpha_sweep):
-        sweep_cfg = dataclasses.replace(config, ce_alpha=float(alpha), ce_iterations=int(study.sweep_iterations))
+        swept = dataclasses.replace(config, ce_alpha=alpha, ce_iterations=study.sweep_iterations)
         res, _, entry = run_planner(
-            env, sweep_cfg, bool(study.shared_controller), stream_seed(seed, "sweep", k), bool(cfg.progress), reeval
+            env, swept, study.shared_controller, stream_seed(seed, "sweep", k), progress, reeval
         )
-        sweep[str(alpha)] = {"alpha": float(alpha), "history_best": res.history["best_sampled"], **entry}
+        sweep[str(alpha)] = {"alpha": alpha, "history_best": res.history["best_sampled"], **entry}
     save_figure(_sweep_figure(sweep), run_dir / "alpha_sweep.png")
 
-    ref = cfg.reference
+    ref = settings.reference
     paper = paper_comparison(
         env,
         instantiate(ref.domain),
         instantiate(ref.planner),
-        int(ref.runs),
+        ref.runs,
         stream_seed(seed, "preset"),
         reeval,
-        bool(cfg.progress),
+        progress,
     )
     save_figure(
         bar_figure(

@@ -21,18 +21,17 @@ one HBNI ends right on and SSBF wrong, else sequence 0; its index is in the metr
 from __future__ import annotations
 
 from pathlib import Path
-
 from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
 from classifiers.data import get_conditions
 from experiments.runs.artifacts import save_artifact
 from experiments.runs.outputs import save_figure
+from experiments.schemas.noise_studies import PerceptionReplay
 from experiments.steps.classification import sequence_outputs, train_classifier
 from experiments.steps.noise import fit_labelled
 from hbni_infra.streams import stream_seed
@@ -45,42 +44,42 @@ def _frames_to_reach(post: torch.Tensor, true: int, threshold: float) -> torch.T
     return torch.where(hit.any(-1), first.float(), torch.tensor(float("nan")))
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    st = cfg.study
+def run(settings: PerceptionReplay, run_dir: Path) -> dict:
+    st = settings.study
     classes = list(st.classes)
-    seed, progress = int(cfg.seed), bool(cfg.progress)
-    mission = get_conditions("mission", **OmegaConf.to_container(st.mission))
+    seed, progress = settings.seed, settings.progress
+    mission = get_conditions("mission", **st.mission)
 
     # 1. Train the head on training-condition snapshots (+ crops and mirrors).
-    clf = train_classifier(cfg.classifier, classes, int(st.train_per_class), int(st.augment), seed, progress)
+    clf = train_classifier(settings.classifier, classes, st.train_per_class, st.augment, seed, progress)
     save_artifact(run_dir, "classifier", clf)
 
     # 2. Fit HBNI on labelled mission-condition outputs.
-    frames = int(st.frames)
+    frames = st.frames
     calib, _ = sequence_outputs(
         clf,
         classes,
-        int(st.calib_sequences),
+        st.calib_sequences,
         frames,
         mission,
         stream_seed(seed, "calibration"),
         progress,
         "calibration",
     )
-    posterior = fit_labelled(calib, cfg.hbni, seed, progress, class_names=list(classes))
+    posterior = fit_labelled(calib, settings.hbni, seed, progress, class_names=list(classes))
     save_artifact(run_dir, "hbni_posterior", posterior)
 
     # 3. SSBF vs HBNI on held-out sequences.
     test, thumbs = sequence_outputs(
-        clf, classes, int(st.test_sequences), frames, mission, stream_seed(seed, "test"), progress, "test"
+        clf, classes, st.test_sequences, frames, mission, stream_seed(seed, "test"), progress, "test"
     )
     test = test.double()
     filters = {
-        name: hbni_pyro.make_filter(name, posterior, **({"mode": cfg.hbni.filter.mode} if name == "hbni" else {}))
+        name: hbni_pyro.make_filter(name, posterior, **({"mode": settings.hbni.filter.mode} if name == "hbni" else {}))
         for name in ("ssbf", "hbni")
     }
     posts = {k: f.run(test.reshape(-1, frames, len(classes))).view(test.shape) for k, f in filters.items()}
-    per_class = _per_class(test, posts, classes, float(st.threshold))
+    per_class = _per_class(test, posts, classes, st.threshold)
     hardest = min(classes, key=lambda n: per_class[n]["frame_accuracy"])
     overall = {k: float(np.mean([per_class[n][k]["end_accuracy"] for n in classes])) for k in posts}
     gap = per_class[hardest]["hbni"]["end_accuracy"] - per_class[hardest]["ssbf"]["end_accuracy"]
@@ -89,7 +88,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     disagree = ((posts["hbni"][h, :, -1].argmax(-1) == h) & (posts["ssbf"][h, :, -1].argmax(-1) != h)).nonzero()
     shown = int(disagree[0]) if len(disagree) else 0
     save_figure(
-        _sequence_figure(test[h, shown], posts, h, shown, classes, thumbs[h, shown], float(st.threshold)),
+        _sequence_figure(test[h, shown], posts, h, shown, classes, thumbs[h, shown], st.threshold),
         run_dir / "replay_sequence.png",
     )
     save_figure(_accuracy_figure(per_class, classes), run_dir / "accuracy_vs_frames.png")
@@ -103,9 +102,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "theta_summary": {k: v for k, v in posterior.summary().items() if k.startswith("theta")},
         "figure_sequence": {"class": hardest, "index": shown},
         "sizes": {
-            "train_images": len(classes) * int(st.train_per_class) * (1 + int(st.augment)),
+            "train_images": len(classes) * st.train_per_class * (1 + st.augment),
             "calibration_frames": int(calib[..., 0].numel()),
-            "test_sequences_per_class": int(st.test_sequences),
+            "test_sequences_per_class": st.test_sequences,
             "frames_per_sequence": frames,
         },
         "mission_conditions": mission.to_dict(),

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 import hbni_pyro
@@ -40,12 +39,13 @@ from classifiers.stamped import classify_stamped
 from decpomdp import ControllerExecutor, JointController
 from experiments.runs.artifacts import latest_run, load_run
 from experiments.runs.outputs import save_figure
+from experiments.schemas.noise_studies import Stream
 from experiments.steps.annotate import AnnotatedVideo, FrameAnnotator, max_confidence, strip_figure, thumbnail
 from hbni_infra.files import atomic_write_text
 
 
 class Settings(NamedTuple):
-    """The stream's validated settings."""
+    """The stream's settings resolved for the run: the source, the files (``stream.run=latest`` found), tuples."""
 
     source: str | int
     max_input_frames: int | None
@@ -65,6 +65,7 @@ class Settings(NamedTuple):
     controller: Path | None = None  # a saved JointController, its robot and the class -> observation names
     agent: int = 0
     observations: dict[str, str] | None = None
+    mode: str | None = None  # the HBNI filter's mode (None: HBNIFilter's default)
 
 
 class Models(NamedTuple):
@@ -88,22 +89,23 @@ class Streamed(NamedTuple):
     bag: MacroObservationBag | None
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    settings = read_settings(cfg)
-    models = load_models(settings, cfg)
-    controller = load_controller(settings)
-    streamed = stream_frames(settings, models, run_dir, controller)
-    return write_outputs(settings, models, streamed, run_dir)
+def run(settings: Stream, run_dir: Path) -> dict:
+    resolved = read_settings(settings)
+    models = load_models(resolved)
+    controller = load_controller(resolved)
+    streamed = stream_frames(resolved, models, run_dir, controller)
+    return write_outputs(resolved, models, streamed, run_dir)
 
 
-def read_settings(cfg: DictConfig) -> Settings:
-    """The stream's settings from its config (already checked against its schema, ``experiments.schemas``).
+def read_settings(settings: Stream) -> Settings:
+    """The stream's settings resolved from the typed ``settings`` (checked against their schema,
+    :mod:`experiments.schemas`).
 
     ``stream.run=latest`` is the newest completed mission run under the project's ``outputs/mission`` (from any
     working directory, :mod:`experiments.runs.paths`); it is not read
     when both ``stream.classifier`` and ``stream.posterior`` are given.
     """
-    st = cfg.stream
+    st = settings.stream
     source = st.source if isinstance(st.source, int) else str(st.source)
     run = st.run
     if run == "latest":
@@ -118,18 +120,19 @@ def read_settings(cfg: DictConfig) -> Settings:
         _path(st.classifier),
         _path(st.posterior),
         None if st.classes is None else [str(c) for c in st.classes],
-        None if st.temper is None else float(st.temper),
-        float(st.threshold),
-        int(st.max_frames),
-        int(st.batch),
+        st.temper,
+        st.threshold,
+        st.max_frames,
+        st.batch,
         tuple(st.annotate),
-        bool(cfg.progress),
+        settings.progress,
         topic=st.topic,
         window=None if st.window is None else tuple(None if t is None else float(t) for t in st.window),
         bag=is_bag(source) if st.bag is None and not isinstance(source, int) else bool(st.bag),
         controller=_path(st.controller),
-        agent=int(st.agent),
+        agent=st.agent,
         observations=None if st.observations is None else {str(k): str(v) for k, v in st.observations.items()},
+        mode=settings.hbni.filter.mode,
     )
 
 
@@ -137,7 +140,7 @@ def _path(value: Any) -> Path | None:
     return None if value is None else Path(str(value))
 
 
-def load_models(settings: Settings, cfg: DictConfig) -> Models:
+def load_models(settings: Settings) -> Models:
     """The classifier, the HBNI process and the class order (a mission run's, overridden by explicit files)."""
     finished = load_run(settings.run) if settings.run is not None else None
     if finished is not None:
@@ -159,7 +162,8 @@ def load_models(settings: Settings, cfg: DictConfig) -> Models:
     temper = settings.temper
     if temper is None:
         temper = float(finished.metrics["hbni_temper"]["value"]) if finished is not None else 1.0
-    filt = hbni_pyro.HBNIFilter(posterior, mode=cfg.hbni.filter.mode, temper=temper)
+    mode = {} if settings.mode is None else {"mode": settings.mode}
+    filt = hbni_pyro.HBNIFilter(posterior, **mode, temper=temper)
     process = hbni_pyro.MacroObservationProcess(filt, threshold=settings.threshold, max_frames=settings.max_frames)
     return Models(clf, process, classes, temper)
 

@@ -26,7 +26,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from hbni_pyro.filters.streaming import StreamingFilter, decide
-from hbni_pyro.models.paper.sampler import sample_outputs
+from hbni_pyro.models import noise_model
 from hbni_pyro.validation import DTYPE, check_same_classes, has_values
 from hbni_infra.checks import as_int, as_names, as_probability
 from hbni_infra.tensorfile import load_tensors, save_tensors
@@ -417,8 +417,8 @@ def _stream_sampler(generative: Any, num_classes: int) -> tuple[StreamSampler, s
     theta, source = _generative_theta(generative, num_classes)
 
     def theta_streams(c: int, n: int, T: int, g: torch.Generator) -> Tensor:
-        draws = theta[torch.randint(theta.shape[0], (n,), generator=g, device=theta.device)].unsqueeze(1)
-        return sample_outputs(draws, torch.full((n, T), c, dtype=torch.long, device=theta.device), g)
+        draws = theta[torch.randint(theta.shape[0], (n,), generator=g, device=theta.device)]
+        return noise_model("paper").sample_streams({"theta": draws}, c, T, g)
 
     return theta_streams, source, theta.device
 

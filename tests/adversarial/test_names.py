@@ -13,7 +13,6 @@ import re
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 import hbni_pyro
 from classifiers import FrameClassifier, class_columns, classify_frames
@@ -86,7 +85,7 @@ def stream_models(files, posterior_file: str, classes=None):
     settings = Settings(
         "clip.mp4", None, None, files["classifier"], files[posterior_file], classes, 1.0, 0.95, 10, 4, (), False
     )
-    return load_models(settings, OmegaConf.create({"hbni": {"filter": {"mode": "marginal"}}}))
+    return load_models(settings)
 
 
 def test_the_stream_reads_the_classifier_in_the_posteriors_order(files):

@@ -21,7 +21,7 @@ from decpomdp import (
 )
 from decpomdp import simulate, solve
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.schemas import check_config, compose_config
+from experiments.schemas import build_settings, compose_config
 from hbni_infra.checks import as_generator, as_seed
 from hbni_infra.counter_random import draw_seed
 from hbni_infra.streams import torch_generator
@@ -236,4 +236,4 @@ def _compose(*overrides: str):
 )
 def test_a_config_with_a_non_finite_theta_is_refused_when_composed(experiment, override, key):
     with pytest.raises(ValueError, match=rf"^{key}: expected at least 2 noise levels > 0, all finite"):
-        check_config(_compose(f"experiment={experiment}", override))
+        build_settings(_compose(f"experiment={experiment}", override))
