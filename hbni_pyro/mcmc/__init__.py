@@ -3,12 +3,14 @@
 - :mod:`.base`: :class:`BatchedKernel`, the ``MCMCKernel`` protocol over many chains in one tensor program (the
   datasets x chains layout, step-size adaptation in warm-up, acceptance bookkeeping), and its random walks.
 - :mod:`.class_moves`: the class move of the frame-level models (the paper's and the confusion-aware one),
-  their state and data (:class:`FrameData`), compiled on the CPU by :mod:`.class_move_numba`.
+  their state and data (:class:`FrameData`), compiled on the CPU by :mod:`.class_move_numba`;
+  :mod:`.hyper_move`: their move of ``(kappa, gamma)``.
 
 Each model's own kernel and steps live in its room (:mod:`hbni_pyro.models`).
 """
 
 from hbni_pyro.mcmc.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
+from hbni_pyro.mcmc.hyper_move import update_hyper
 from hbni_pyro.mcmc.class_moves import (
     FrameData,
     MHData,
@@ -34,4 +36,5 @@ __all__ = [
     "frame_data",
     "sufficient_stats",
     "update_classes",
+    "update_hyper",
 ]

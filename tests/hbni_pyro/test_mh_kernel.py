@@ -9,7 +9,8 @@ from pyro.infer import MCMC
 from hbni_pyro import HBNIMetropolis, HyperPrior, as_outputs, sample_outputs
 from hbni_pyro.distributions import gamma_variates
 from hbni_pyro.mcmc import MHState, alias_draw, alias_tables, frame_data, update_classes
-from hbni_pyro.models.paper.steps import update_hyper, update_theta
+from hbni_pyro.mcmc import update_hyper
+from hbni_pyro.models.paper.steps import update_theta
 
 
 def _toy_obs(seed=0):

@@ -30,7 +30,7 @@ from hbni_pyro.models.confusion.steps import (
     update_beta_scale,
     update_concentrations,
 )
-from hbni_pyro.models.paper.steps import update_hyper
+from hbni_pyro.mcmc.hyper_move import update_hyper
 from hbni_pyro.validation import DTYPE
 from hbni_infra.checks import as_float
 

@@ -24,7 +24,8 @@ from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.distributions.sampling import gamma_variates
 from hbni_pyro.mcmc.base import AdaptiveWalk, AdaptiveWalk2D, BatchedKernel, flatten_chains, fraction
 from hbni_pyro.mcmc.class_moves import FrameData, MHState, update_classes
-from hbni_pyro.models.paper.steps import update_hyper, update_theta
+from hbni_pyro.mcmc.hyper_move import update_hyper
+from hbni_pyro.models.paper.steps import update_theta
 from hbni_infra.checks import as_float
 
 
