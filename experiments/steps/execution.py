@@ -84,7 +84,7 @@ def execute_closed_loop(
             entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
     for name, replay in on_pool.items():
-        results[name]["held_out_process"] = held_out_checks(replay, settings.mission.threshold)
+        results[name]["held_out_process"] = held_out_summary(replay, settings.mission.threshold)
     return (
         honesty.reliability_figure(
             processes, *closed_loop.as_streams(bank), mission_report.LABELS, settings.mission.threshold
@@ -94,7 +94,7 @@ def execute_closed_loop(
     )
 
 
-def held_out_checks(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
+def held_out_summary(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
     """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
     and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
     emitted labels that are right with its binomial s.e., its mean frames (a timeout counting the budget) with
@@ -202,7 +202,7 @@ def _executed(name: str, controller: JointController, pool: hbni_pyro.StreamRepl
     entry = closed_loop.summarise(results[name], executed, replay, on_table, on_bank)
     entry["sequences_per_class"] = fresh
     table_streams = held if empirical else settings.mission.generative_streams
-    entry["distribution_check"] = honesty.distribution_check(
+    entry["distribution_check"] = honesty.distribution_test(
         models[name], replay, table_streams, stream_seed(settings.seed, "honesty", name)
     )
     entry["value_test"] = honesty.value_test(results[name], entry, fresh)

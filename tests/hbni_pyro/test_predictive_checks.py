@@ -160,8 +160,8 @@ def test_false_alarms_at_most_alpha_over_seeds(paper):
 
 
 def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
-    """Each Python block of docs/checks.md runs alone in a fresh interpreter."""
-    blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "checks.md").read_text(), re.S)
+    """Each Python block of docs/predictive_checks.md runs alone in a fresh interpreter."""
+    blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "predictive_checks.md").read_text(), re.S)
     assert len(blocks) == 2
     for block in blocks:
         proc = subprocess.run(
@@ -172,7 +172,9 @@ def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
             env=os.environ | {"PYTHONPATH": str(repo_root)},
             timeout=300,
         )
-        assert proc.returncode == 0, f"this block of docs/checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
+        assert proc.returncode == 0, (
+            f"this block of docs/predictive_checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
+        )
     assert (tmp_path / "check.png").stat().st_size > 1000
 
 
