@@ -22,16 +22,16 @@ more than most rules):
 
 With two agents, each kind of event runs in its own copy of the rules, with ``agents`` the constant tuple
 ``ONLY_0``, ``ONLY_1`` (one agent completes alone) or ``BOTH`` (they complete together, as after a joint MA):
-the rules' tests of ``agents[a]``, coin flips for the branch predictor, fold away (package delivery's loop runs
-1.5x faster with the first two, 6 % faster again with the third). Rules therefore read ``agents`` (a bool array
-or such a tuple) and count agents with ``len``.
+the rules' tests of ``agents[a]``, coin flips for the branch predictor, fold away (each of the three makes
+package delivery's loop faster). Rules therefore read ``agents`` (a bool array or such a tuple) and count agents
+with ``len``.
 
 The small helpers the rules call at many sites (an index into the state, a table lookup) are plain ``@njit``
 functions, which LLVM inlines: numba's own inlining copies a helper's IR at every call site of every copy of the
-rules, and typing and SSA passes then run over the whole copy. Package delivery's loop compiled in 65 s with its
-helpers inlined by numba and in 29 s without, at the same speed and with the same returns (disaster relief's: 16.5
-and 8.6 CPU s). The random stream's helpers (:mod:`hbni_infra.counter_random`) stay inlined by numba: HBNI's
-compiled MH class move runs 3 % faster so, for 1.5 s more of package delivery's first compile.
+rules, and typing and SSA passes then run over the whole copy: a domain's loop compiles in about half the time
+without, at the same speed and with the same returns. The random stream's helpers
+(:mod:`hbni_infra.counter_random`) stay inlined by numba: HBNI's compiled MH class move runs faster so, for a
+slightly longer first compile of package delivery.
 
 :func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
 long, which :func:`decpomdp.engine.runner.run` calls on chunks of rollouts in parallel::
@@ -105,9 +105,9 @@ def chunk_function(fn):
     passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.runner.run` checks it).
 
     It uses numpy's error model: a division by zero gives inf or nan instead of raising, so the loop carries no
-    checks for it (package delivery's loop runs 8 % faster; no rule divides by a value that may be zero). Lookups
-    whose index is never negative are faster with an unsigned index, which numba does not wrap around (the
-    controller step here, package delivery's start-table index; together about 10 %).
+    checks for it (the loop runs faster; no rule divides by a value that may be zero). Lookups whose index is
+    never negative are faster with an unsigned index, which numba does not wrap around (the controller step here,
+    package delivery's start-table index).
 
     It compiles without numba's reference counting (``_nrt=False``): every array the loop and the rules touch
     comes from the caller, and with counting on, each array or tuple of arrays handed to an inlined rule costs an

@@ -59,15 +59,14 @@ def _executor(threads: int) -> ThreadPoolExecutor:
 
 def table_dtype(num_nodes: int, num_actions: int) -> type:
     """The integer type the compiled loop reads controllers in: int16 where every node and action index fits (a
-    quarter of int64's cache footprint: 8000 of package delivery's controllers take 5 MB, not 20, and a call of
-    8000 x 8 rollouts ran 4 % faster than on int32, 7-11 % faster than on int64, the copy included), else int32."""
+    quarter of int64's cache footprint, so a call runs faster than on int32 or int64, the copy included), else
+    int32."""
     return np.int16 if max(num_nodes, num_actions) <= np.iinfo(np.int16).max + 1 else np.int32
 
 
 def _narrow(table: Tensor, dtype: type, threads: int) -> np.ndarray:
     """A contiguous copy of the long ``table`` (K, ...) in ``dtype``, its rows split among ``threads`` threads of
-    the pool (numpy's copy releases the GIL): package delivery's 8000 controllers take about 1 ms to convert, 5 %
-    of a call at two threads."""
+    the pool (numpy's copy releases the GIL): converting a call's controllers is a small share of the call."""
     source = table.numpy()
     if threads == 1 or source.shape[0] < 2 * threads:
         return np.ascontiguousarray(source, dtype=dtype)
@@ -99,8 +98,8 @@ def _initial(
 def chunk_bounds(batch: int, threads: int) -> list[int]:
     """Bounds of the chunks of ``batch`` rollouts handed to ``threads`` threads, largest first (guided scheduling):
     each chunk takes ``1 / (2 * threads)`` of the rollouts left (at least ``_MIN_CHUNK``), so that the threads,
-    taking chunks as they finish, end within one small chunk of each other (equal chunks of 1/32 of the call left
-    one thread idle for about 6 % of the call)."""
+    taking chunks as they finish, end within one small chunk of each other (equal chunks left one thread idle for
+    part of the call)."""
     bounds = [0]
     while True:  # at least one chunk, empty for an empty batch
         left = batch - bounds[-1]

@@ -24,8 +24,8 @@ class HyperPrior:
     with ``beta_loc ~ N(0, offdiag_loc_sd^2)`` and ``beta_scale ~ HalfNormal(offdiag_scale_sd)``.
     The prior is centred on the paper's ``beta_cj = 1`` and shrinks all confusions towards one
     shared level; its defaults (0.5, 0.5) keep the model within one frame of the paper's on the
-    paper's toy (15 unlabelled outputs: N to 1 % error 4, as the paper's), where the wider 2 and 1
-    let some training sets explain a noisy class by confusions (error stuck near 2 %).
+    paper's toy (15 unlabelled outputs), where wider ones (2, 1) let some training sets explain a noisy
+    class by confusions and the error stalls above the paper's (``experiment=noise_models``).
 
     Sequence-aware model, on the ``d = M - 1`` log-ratio coordinates of an output:
     class means ``m_c ~ N(look_vertex * u_c, look_sd^2 I)`` (``u_c`` the unit direction of vertex
@@ -38,8 +38,8 @@ class HyperPrior:
     The defaults expect looks to differ little between sequences (``between_scale`` 0.2 against
     ``within_scale`` 0.5) and class means near their vertex (``look_sd`` 1): with the toy's three
     unlabelled training sequences the data cannot tell these apart, and a wider prior (0.5, 2)
-    both swaps classes in some fits and lets the evidence saturate too early (N to 1 % error never
-    reached). Mission data (tens of labelled sequences per class) outweigh them.
+    both swaps classes in some fits and lets the evidence saturate too early (the toy's error target is
+    never reached). Mission data (tens of labelled sequences per class) outweigh them.
     """
 
     beta: float = 2.0

@@ -262,8 +262,8 @@ class HBNIFilter(StreamingFilter):
             covariances for the sequence model. Marginal is the default because it is the Bayesian
             answer and the better calibrated one: with few training outputs theta is uncertain, and
             the plug-in's certainty about theta makes its class posteriors overconfident, so a
-            macro-observation process that stops at 0.95 stops sooner and is right less often (on
-            the paper's toy with 15 training outputs: 98.2 % vs 96.1 % right on the noisiest class).
+            macro-observation process that stops at 0.95 stops sooner and is right less often (the
+            ``macro_observation`` study measures both modes on the paper's toy).
             The price: on a long stream the average is dominated by the few draws that fit that
             stream best, so after an unlucky fit a handful of streams stay misclassified that the
             plug-in gets right (see the ``filtering_error`` study, ``hbni.filter.mode=plugin``).
@@ -271,7 +271,8 @@ class HBNIFilter(StreamingFilter):
         num_draws: marginal mode uses at most this many draws, evenly spaced over the pooled
             draws; its cost is ``O(draws)`` per frame and class. ``None`` = the model's
             spec's ``filter_draws`` (:mod:`hbni_pyro.models`): all draws, except at most 2000 under the
-            sequence model, whose cost per draw is ``M - 1`` times the paper's (2000 draws keep a frame under 2 ms).
+            sequence model, whose cost per draw is ``M - 1`` times the paper's (``benchmarks/bench_fit_scale.py``
+            times a frame's update against its 2 ms floor).
         temper: power ``tau`` in ``(0, 1]`` on every frame's likelihood (all statistics scaled by
             ``tau``). The frame-level models treat outputs as i.i.d.; the frames of one camera
             sequence are not (the same view, light and background persist), so ``N`` of them carry

@@ -274,11 +274,11 @@ class FrameData:
         """``(D, Cp, N_free)`` initial classes: each unknown output's largest entry (given labels kept).
 
         Every chain starts its classes there (its parameters start dispersed, drawn from the prior). Classes drawn
-        from the proposal weights instead put 3 in 4 outputs of the 200 000 x 10 benchmark data in a wrong class (the
-        largest entry: 1 in 9), and a chain whose first ``theta`` was small then drifted to a state of near-uniform
-        classes and ``theta`` near 0 that it did not leave: a tiny share of the posterior, yet one of 4 chains of a
-        200 000 x 10 unlabelled fit and one of 16 of a 20 000 x 10 fit settled there (split R-hat of ``theta`` 181
-        and 26)."""
+        from the proposal weights instead put most outputs of a large noisy dataset in a wrong class (many more than
+        the largest entry does), and a chain whose first ``theta`` was small then drifted to a state of near-uniform
+        classes and ``theta`` near 0 that it did not leave: a tiny share of the posterior in which some chains of
+        large unlabelled fits settled (``benchmarks/bench_fit_scale.py`` fits such data; their split R-hat says
+        so)."""
         d = self.data
         c0 = d.log_proposal.argmax(-1).expand(batch + d.labels.shape[-1:])
         return torch.where(d.labels >= 0, d.labels, c0)

@@ -116,7 +116,7 @@ NOISE_MODEL = NoiseModel(
     sample_streams=sample_streams,
     sequences=True,
     correlated_frames=True,
-    filter_draws=2000,  # a draw costs M - 1 times the paper's; 2000 keep a frame under 2 ms
+    filter_draws=2000,  # a draw costs M - 1 times the paper's (benchmarks/bench_fit_scale.py: a frame within its 2 ms floor)
     point_estimate=lambda draws: {k: v.mean(0, keepdim=True) for k, v in draws.items()},
     free_entry=lambda site, index: site not in COVARIANCES or index[-2] <= index[-1],
     positive_sites=("between_pooling",),

@@ -1,9 +1,9 @@
 """How a camera's consecutive frames resemble each other: an AR(1) correlation of frames around their look.
 
 The sequence model treats a sequence's frames as exchangeable given its look: i.i.d. scatter ``W``
-around ``mu_k``. A moving camera's frames are closer to their neighbours than that (the mission's
-held-out streams: lag-1 correlation of the scatter about 0.7, lag-2 about 0.5, lag-5 about 0.1, an
-AR(1) decay). The filter keeps the exchangeable model; streams simulated from a fitted posterior
+around ``mu_k``. A moving camera's frames are closer to their neighbours than that: in the mission's
+held-out streams the correlation of the scatter decays with the lag as an AR(1) series does (the fitted
+``rho`` is reported as ``metrics.json``'s ``hbni_frame_correlation``). The filter keeps the exchangeable model; streams simulated from a fitted posterior
 (the generative planning tables, posterior predictive checks) use the AR(1) scatter
 
     y_t = mu_k + e_t,   e_1 = L z_1,   e_t = rho e_{t-1} + sqrt(1 - rho^2) L z_t   (L L^T = W, z ~ N(0, I))

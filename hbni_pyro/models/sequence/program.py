@@ -14,8 +14,8 @@ Frames of one sequence share ``mu_k``: given the class they are exchangeable, no
 and the evidence in their mean look saturates once the look is known (``B_c + W / n -> B_c``).
 The frames' scatter around the look is the same for every class, so it carries no evidence
 about the class: a class-specific ``W_c`` lets evidence from that scatter grow with every frame,
-and frames of a moving camera are correlated in time, so it grows too fast (held-out log score
-of the mission's in-flight sequences -0.43 against -0.21 with one ``W``).
+and frames of a moving camera are correlated in time, so it grows too fast (a lower held-out log score on the
+mission's in-flight sequences than with one ``W``).
 The fit keeps the frames exchangeable given the look; the filter and the predictive streams add
 the AR(1) correlation of frames about it that the fit estimates apart (:mod:`hbni_pyro.models.sequence.correlation`).
 A class's mean look is a full vector, so the model is confusion-aware as well: the looks of

@@ -30,7 +30,8 @@ def normals(key: np.uint64, B: int, K: int, d: int) -> np.ndarray:
 @njit(cache=True, nogil=True, _nrt=False)
 def _fill_normals(key: np.uint64, out: np.ndarray, rng: np.ndarray) -> None:
     """Fill ``out (B, K, d)`` as :func:`normals` returns it. Compiled without reference counting, which would
-    cost about 9 ns a draw around the ziggurat's out-of-line rare path (see :func:`hbni_infra.counter_random.normal`)."""
+    cost several times a draw around the ziggurat's out-of-line rare path (see
+    :func:`hbni_infra.counter_random.normal`)."""
     B, K, d = out.shape
     for b in range(B):
         rng[0] = stream_key(key, b, 0)
