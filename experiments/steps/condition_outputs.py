@@ -36,16 +36,23 @@ Outputs = tuple[torch.Tensor, torch.Tensor]
 """``(calibration, held-out)`` classifier outputs ``(C, S, F, C)``: ``S`` sequences of ``F`` frames per class."""
 
 
+def _cache_key(classes: Any, settings: NoiseModels) -> dict[str, Any]:
+    """What decides a condition's outputs besides its sizes: the classes, the classifier's settings and code (the
+    renderer's included) and the seed."""
+    return {
+        "classes": list(classes),
+        "classifier": dataclasses.asdict(settings.classifier),
+        "code": source_identity("classifiers"),
+        "seed": settings.seed,
+    }
+
+
 def mission_outputs(settings: NoiseModels, clock: StageClock, run_dir: Path) -> dict[str, Outputs]:
     """The outputs of every rendered imaging condition, from the cache when a run with the same inputs stored them
     (the classifier is trained only if needed)."""
     m, seed, progress = settings.study.mission, settings.seed, settings.progress
-    # everything that decides the outputs: the classifier's settings and code, the renderer's code, seeds and sizes
     base = {
-        "classes": list(CLASSES),
-        "classifier": dataclasses.asdict(settings.classifier),
-        "code": source_identity("classifiers"),
-        "seed": seed,
+        **_cache_key(CLASSES, settings),
         "train_per_class": m.train_per_class,
         "augment": m.augment,
         "frames": m.frames,
@@ -150,13 +157,7 @@ def photo_outputs(settings: NoiseModels, clock: StageClock, run_dir: Path) -> Ou
     ``"training"``-preset snapshots, the sequences in the ``"degraded"`` preset (calibration and held-out on their
     own random streams); cached like the rendered conditions."""
     p, seed, progress = settings.study.photos, settings.seed, settings.progress
-    key = {
-        "classes": list(PHOTOS),
-        "classifier": dataclasses.asdict(settings.classifier),
-        "code": source_identity("classifiers"),
-        "seed": seed,
-        **dataclasses.asdict(p),
-    }
+    key = {**_cache_key(PHOTOS, settings), **dataclasses.asdict(p)}
 
     def compute() -> dict[str, torch.Tensor]:
         clock.say("photos: training the frame classifier on training-preset snapshots")

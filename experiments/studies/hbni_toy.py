@@ -19,7 +19,7 @@ from experiments.runs.artifacts import save_artifact
 from experiments.runs.outputs import save_figure
 from experiments.schemas.noise_studies import HBNIToy
 from hbni_pyro import gamma_log_prob, sample_outputs
-from hbni_pyro.models.paper.program import prior_theta_log_density
+from hbni_pyro.models.paper import prior_theta_log_density
 from hbni_pyro.validation import DTYPE
 from hbni_infra.streams import stream_seed, torch_stream
 
