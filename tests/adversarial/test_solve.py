@@ -32,7 +32,9 @@ def test_a_long_horizon_ends_with_its_time_budget_and_keeps_a_valid_policy():
 
 
 def test_an_endless_horizon_is_refused_naming_the_limit_and_the_infinite_horizon():
-    with pytest.raises(ValueError, match=rf"horizon: expected a whole number of steps in \[1, {MAX_HORIZON}\].*math.inf"):
+    with pytest.raises(
+        ValueError, match=rf"horizon: expected a whole number of steps in \[1, {MAX_HORIZON}\].*math.inf"
+    ):
         solve("dectiger", 10**9)
 
 
