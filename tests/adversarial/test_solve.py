@@ -108,3 +108,16 @@ def test_every_argument_is_checked_before_any_work(kwargs, error, name):
 def test_the_infinite_horizon_needs_a_discount_below_one():
     with pytest.raises(ValueError, match=r"an infinite horizon needs gamma < 1.*got gamma 1 \(the file discount\)"):
         solve("dectiger", math.inf)
+
+
+@pytest.mark.parametrize("index", [5, 1, -2])
+def test_indexing_a_joint_controller_out_of_range_names_the_index_and_the_range(index):
+    """``greedy_controller(2)[5]`` said "every dimension must be >= 1, got (0, 2, 8, 30)"."""
+    from decpomdp.domains.disaster_relief import greedy_controller
+
+    controller = greedy_controller(2)
+    with pytest.raises(
+        IndexError, match=rf"index: {index} is out of range for 1 joint controller\(s\): expected -1 to 0"
+    ):
+        controller[index]
+    assert torch.equal(controller[0].action, controller[-1].action) and controller[0].num_controllers == 1
