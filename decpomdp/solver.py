@@ -347,7 +347,7 @@ def _exact_and_search(
     shorter = []  # the optimum of the longest shorter horizon the exact search proves at once, and its loop-back
     h = int(env.horizon)
     for k in range(h - 1, max(0, h - 1 - SHORTER_HORIZONS), -1) if exact is not None else ():
-        check()
+        budget.phase(f"exact search at horizon {k}")
         short = GMAA(TabularDecPOSMDP(env.model, env.gamma, horizon=k)).run(SHORTER_EXACT_SECONDS)
         if short.finished and short.controller is not None:
             shorter = [short.controller, loop_back(short.controller)]
