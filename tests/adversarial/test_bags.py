@@ -93,3 +93,23 @@ def test_macro_observation_bags_carry_chunk_crcs_too(tmp_path, frames):
         struct.unpack_from("<I", data, c.chunk_start_offset + ros.MCAP_CHUNK_CRC_OFFSET)[0] for c in chunks
     )
     assert _crc_checked_messages(mcap_file) == 6
+
+
+def test_a_live_stream_whose_stamps_jump_back_is_warned_about_by_frame():
+    """The live node's path (a robot replaying a bag with ``ros2 bag play``): not refused, but never silent."""
+    from types import SimpleNamespace
+
+    import torch
+
+    import hbni_pyro
+    from hbni_pyro.live import live_macro_observations
+
+    stamps = [START + i * 10**8 for i in range(6)] + [START - 10**9 + i * 10**8 for i in range(6)]
+    frames_ = [SimpleNamespace(stamp=s, received=START + i, frame_id=f"cam{i}") for i, s in enumerate(stamps)]
+    outputs = torch.full((12, 2), 0.5, dtype=torch.float64)
+    process = hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(2), threshold=0.99, max_frames=4)
+    with pytest.warns(
+        RuntimeWarning, match=r"frame 6 \(frame id 'cam6'\) is stamped .* 1\.5 s before .* run backwards"
+    ):
+        live = list(live_macro_observations(zip(frames_, outputs), process, ["a", "b"]))
+    assert sum(o.segment.frames_used for o in live) == 12
