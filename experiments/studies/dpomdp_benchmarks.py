@@ -168,6 +168,7 @@ def _solve(
         "cpu_seconds": cpu,
         "nodes": found.controller.num_nodes,
         "restarts": found.restarts,
+        "budget_ended": found.budget_ended,
         "settings": kwargs,
     }, found.controller
 

@@ -12,6 +12,7 @@ classifier's nor the controller's.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -115,9 +116,13 @@ def live_macro_observations(
             observation that completes its current MA; one cut short by the end of the stream is not.
         observations: class name -> controller observation name (:func:`observation_names`).
         keep_frames: keep each segment's frames (for annotation).
+
+    A frame stamped before the frame before it (a clock jump: a replayed bag restarting, a simulation reset) is
+    warned about (``RuntimeWarning`` naming the frame and both stamps): the macro-observation spanning it has its
+    ``first_stamp`` after its ``last_stamp``. A bag read with :class:`classifiers.bags.BagSource` refuses such stamps.
     """
     names = None if controller is None else observation_names(classes, controller.obs_names, observations)
-    for segment in macro_observations(items, process, classes, keep_frames=True):
+    for segment in macro_observations(_watch_stamps(items), process, classes, keep_frames=True):
         first, last = segment.frames[0], segment.frames[-1]
         if not all(hasattr(first, name) for name in ("stamp", "received", "frame_id")):
             raise TypeError(
@@ -141,3 +146,20 @@ def live_macro_observations(
             str(last.frame_id),
             decision,
         )
+
+
+def _watch_stamps(items: Iterable[tuple[Any, Tensor]]) -> Iterator[tuple[Any, Tensor]]:
+    """``items`` unchanged, with a ``RuntimeWarning`` for every frame stamped before the frame before it."""
+    previous = None
+    for index, (frame, output) in enumerate(items):
+        stamp = getattr(frame, "stamp", None)
+        if previous is not None and stamp is not None and stamp < previous:
+            warnings.warn(
+                f"items: frame {index} (frame id {getattr(frame, 'frame_id', '')!r}) is stamped {stamp} ns, "
+                f"{(previous - stamp) / 1e9:g} s before the frame before it ({previous} ns): the stamps run backwards "
+                "(a clock jump), so the macro-observation spanning it ends before it starts",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        previous = stamp if stamp is not None else previous
+        yield frame, output

@@ -176,12 +176,9 @@ class MacroObservationBag:
         self.path, self.classes = Path(path), [str(c) for c in classes]
         self.topics = topic_names(namespace)
         self._store = typestore()
-        rosbag2 = ros.require("rosbags.rosbag2")
         self._stack = contextlib.ExitStack()
         staged = self._stack.enter_context(atomic_path(self.path))
-        self._writer = self._stack.enter_context(
-            rosbag2.Writer(staged, version=rosbag2.Writer.VERSION_LATEST, storage_plugin=rosbag2.StoragePlugin.MCAP)
-        )
+        self._writer = self._stack.enter_context(ros.rosbag2_writer(staged))
         self._connections: dict[str, Any] = {}
         self.counts = {role: 0 for role in TOPICS}
 

@@ -198,3 +198,13 @@ def test_a_waiter_gets_the_entry_the_live_builder_writes(tmp_path):
     out = _ends(lambda: cached(tmp_path, "k", key, lambda: pytest.fail("the waiter must not compute"), timeout=LIMIT))
     tensors, _, hit = out["value"]
     assert hit and torch.equal(tensors["x"], torch.zeros(3))
+
+
+def test_a_wait_says_what_it_waits_for_and_what_bounds_it(tmp_path, caplog):
+    """A wait on a live lock (up to STALE_SECONDS for a lock whose holder is gone) said nothing until it ended."""
+    _, lock = _lock_file(tmp_path, "robot-7 4242")
+    with caplog.at_level("WARNING", logger="hbni_infra.cache"):
+        _refused(lambda: cached(tmp_path, "k", {}, _compute, timeout=0.3), TimeoutError, "robot-7")
+    said = [r.getMessage() for r in caplog.records if r.name == "hbni_infra.cache"]
+    assert len(said) == 1 and str(lock.path) in said[0] and "process 4242 on host 'robot-7'" in said[0], said
+    assert "at most 0.3 s (timeout of hbni_infra.cache.cached" in said[0] and "STALE_SECONDS" in said[0]

@@ -118,8 +118,8 @@ def test_the_bag_reads_back_with_the_mcap_ros2_decoder(tmp_path):
     from mcap_ros2.decoder import DecoderFactory
 
     _write(tmp_path / "out")
-    with open(tmp_path / "out" / "out.mcap", "rb") as fh:
-        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+    with open(tmp_path / "out" / "out.mcap", "rb") as fh:  # with its chunk CRCs checked
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()], validate_crcs=True)
         rows = [
             (ch.topic, schema.name, schema.encoding, m.log_time, d)
             for schema, ch, m, d in reader.iter_decoded_messages()
