@@ -12,7 +12,7 @@ import pytest
 from classifiers.bags import BagSource, write_image_bag
 from classifiers.data import render_sequence
 from hbni_infra import ros
-from hbni_pyro.ros import MacroObservationBag
+from hbni_pyro.runtime import MacroObservationBag
 
 START = 1_700_000_000 * ros.NS_PER_S
 
@@ -102,7 +102,7 @@ def test_a_live_stream_whose_stamps_jump_back_is_warned_about_by_frame():
     import torch
 
     import hbni_pyro
-    from hbni_pyro.live import live_macro_observations
+    from hbni_pyro.runtime import live_macro_observations
 
     stamps = [START + i * 10**8 for i in range(6)] + [START - 10**9 + i * 10**8 for i in range(6)]
     frames_ = [SimpleNamespace(stamp=s, received=START + i, frame_id=f"cam{i}") for i, s in enumerate(stamps)]
