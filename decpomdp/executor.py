@@ -153,15 +153,47 @@ class ControllerExecutor:
             TypeError: ``observation`` is neither an integer nor a string.
             ValueError: an index out of range or an unknown name.
         """
-        if isinstance(observation, str):
-            if observation not in self._obs_index:
-                raise ValueError(f"observation: unknown name {observation!r}; expected one of {self.obs_names}")
-            obs = self._obs_index[observation]
-        else:
-            obs = _index(observation, "observation", self.num_obs)
-        self.node = int(self._next[self.node, obs])
+        self.node = int(self._next[self.node, self._observation(observation, "observation")])
         self.steps += 1
         return self.action
+
+    def reachable(
+        self, observations: Sequence[int | str], through: Sequence[str] | None = None
+    ) -> dict[int, tuple[MacroAction, tuple[str, ...]]]:
+        """The nodes the controller can reach from node 0 when each MA completes with one of ``observations``.
+
+        Args:
+            observations: the observations (indices or names) the MAs may complete with.
+            through: the MAs that complete with them (names; ``None``: every MA). A node whose MA is not one of
+                them is reached but not left: what it completes with is not among ``observations``.
+
+        Returns:
+            node -> (its MA, the observation names of the shortest way there), in the order found (node 0 first).
+        """
+        obs = [self._observation(o, "observations") for o in observations]
+        found = {0: ()}
+        todo = [0]
+        while todo:
+            node = todo.pop(0)
+            if through is not None and self.action_names[int(self._action[node])] not in through:
+                continue
+            for o in obs:
+                nxt = int(self._next[node, o])
+                if nxt not in found:
+                    found[nxt] = (*found[node], self.obs_names[o])
+                    todo.append(nxt)
+        return {
+            node: (MacroAction(int(self._action[node]), self.action_names[int(self._action[node])]), path)
+            for node, path in found.items()
+        }
+
+    def _observation(self, observation: int | str | Any, name: str) -> int:
+        """The index of ``observation`` (an index or a name)."""
+        if isinstance(observation, str):
+            if observation not in self._obs_index:
+                raise ValueError(f"{name}: unknown name {observation!r}; expected one of {self.obs_names}")
+            return self._obs_index[observation]
+        return _index(observation, name, self.num_obs)
 
     def reset(self) -> MacroAction:
         """Back to node 0 (a new mission); returns the first MA."""

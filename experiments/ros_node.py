@@ -1,23 +1,31 @@
 """A live ROS 2 node: camera images in; HBNI macro-observations and a robot controller's decisions out.
 
-    python -m experiments.ros_node --classifier classifier.safetensors --posterior posterior.safetensors \\
-        --controller controller.safetensors --topic /camera/image_raw
+    hbni-ros-node --ros-args -p classifier:=classifier.safetensors -p posterior:=posterior.safetensors \\
+        -p controller:=controller.safetensors -r camera/image_raw:=/front/image_raw -r __ns:=/robot1
+    ros2 launch $(hbni-ros-node --launch-file) classifier:=... posterior:=...
 
-It subscribes to an image topic (``sensor_msgs/msg/Image``, or ``CompressedImage`` with ``--compressed``) and
-publishes, under ``--namespace`` (``/hbni``), the messages ``experiment=stream`` writes to its output bag
-(:mod:`hbni_pyro.runtime.ros_messages`): ``classification`` (``vision_msgs/msg/Classification``), ``macro_observation`` and,
-with a controller, ``decision`` (``hbni_msgs``). It loads the same three files as the README's robot loop.
+It follows ROS 2's conventions: ``--ros-args`` go to ``rclpy`` (remaps, ``__ns``, ``__node``, ``-p`` parameters,
+``--params-file``, ``use_sim_time``); every setting is a declared, read-only parameter with a description and a
+range (:data:`PARAMETERS`), whose default is the command-line option of the same name (``--threshold 0.9``) so the
+node also runs without ROS arguments. It subscribes to ``camera/image_raw`` (``sensor_msgs/msg/Image``; with
+``compressed``, ``camera/image_raw/compressed``, ``CompressedImage``) with the sensor-data QoS and publishes, under
+its own name (``~``: ``/hbni`` by default, ``/robot1/hbni`` in namespace ``/robot1``), the messages
+``experiment=stream`` writes to its output bag (:mod:`hbni_pyro.runtime.ros_messages`): ``classification``
+(``vision_msgs/msg/Classification``), ``macro_observation`` and, with a controller, ``decision`` (``hbni_msgs``),
+reliable, depth 10. Every topic's QoS is settable the ROS 2 way, ``-p qos_overrides.<topic>.<subscription|publisher>
+.<history|depth|reliability>:=...``. Messages carry the header stamps of the source frames; a frame's receive time is
+the node's clock (``use_sim_time``: the simulation's).
 
-The per-frame work is the tested library code: :func:`stamped_frame` (a message to a
+The per-frame work is tested library code: :func:`stamped_frame` (a message to a
 :class:`~classifiers.stamped.StampedFrame`), :func:`process_frames` (:func:`~classifiers.stamped.classify_stamped`,
-:func:`~hbni_pyro.live_macro_observations`, :func:`~hbni_pyro.runtime.ros_messages.messages`) and :func:`to_rclpy`; the
-frames go from the subscription's callback to a worker thread through a :class:`FrameQueue` that drops the
-oldest frame when the classifier falls behind. Only :func:`run_node`, the ``rclpy`` glue, is not exercised by
-the test suite (no ROS 2 on the machines it runs on).
+:func:`~hbni_pyro.live_macro_observations`, :func:`~hbni_pyro.runtime.ros_messages.messages`) and :func:`to_rclpy`;
+the frames go from the subscription's callback to a worker thread through a :class:`FrameQueue` that drops the
+oldest frame when the classifier falls behind. :func:`run_node` is the ``rclpy`` glue.
 
 Needs a ROS 2 installation (``rclpy``; ``vision_msgs``: ``apt install ros-$ROS_DISTRO-vision-msgs``) and the
 ``hbni_msgs`` package built in a workspace (``--write-interface-package ~/ros2_ws/src``, then ``colcon build``).
-This module imports neither ``rclpy`` nor Hydra until the node starts.
+This module imports neither ``rclpy`` nor Hydra until the node starts, nor the classifier (OpenCV) until it loads
+the models, so ``--help`` runs anywhere.
 """
 
 from __future__ import annotations
@@ -27,26 +35,118 @@ import array
 import collections
 import functools
 import importlib
+import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 import hbni_pyro
-from classifiers import FrameClassifier, class_columns
-from classifiers.stamped import StampedFrame, classify_stamped
-from decpomdp import ControllerExecutor, JointController
 from hbni_infra import ros
 from hbni_pyro import live_macro_observations
-from hbni_pyro.runtime import TOPICS, messages, observation_names, topic_names, typestore, write_interface_package
+from experiments.launch import EXECUTABLE, IMAGE_TOPIC, NODE_NAME, PARAMETERS
+from hbni_pyro.runtime import TOPICS, check_controller, messages, typestore, write_interface_package
+
+if TYPE_CHECKING:
+    from classifiers import FrameClassifier
+    from classifiers.stamped import StampedFrame
+    from decpomdp import ControllerExecutor
 
 ROS2_MISSING = (
     "the live node needs a ROS 2 installation: source /opt/ros/<distro>/setup.bash (rclpy), install vision_msgs "
     "(apt install ros-$ROS_DISTRO-vision-msgs) and build hbni_msgs in a workspace "
     "(python -m experiments.ros_node --write-interface-package ~/ros2_ws/src; colcon build; source install/setup.bash)"
 )
+PUBLISHED = ("classification", "macro_observation", "decision")
+"""The roles of :data:`hbni_pyro.runtime.TOPICS` the node publishes, each on ``~/<role>``."""
+OUTPUT_DEPTH = 10
+"""Depth of the published topics' (reliable, keep-last) QoS."""
+LAUNCH_FILE = Path(__file__).with_name("launch") / "hbni.launch.py"
+"""The launch file shipped with the package (``hbni-ros-node --launch-file`` prints its path)."""
+STOP_SECONDS = 60.0
+"""How long the node waits, when stopped, for the worker to finish the frames it has queued."""
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's settings, from the command line (:func:`parse_args`) or its declared parameters
+    (:meth:`from_parameters`); :data:`PARAMETERS` says what each means."""
+
+    classifier: Path | None
+    posterior: Path | None
+    controller: Path | None
+    agent: int
+    classes: list[str] | None
+    observations: dict[str, str]
+    completes: list[str]
+    threshold: float
+    max_frames: int
+    temper: float
+    mode: str
+    batch: int
+    queue: int
+    compressed: bool
+
+    def parameters(self) -> dict[str, Any]:
+        """Parameter name -> its value as ROS holds it (paths and lists as strings)."""
+        return {
+            "classifier": _text(self.classifier),
+            "posterior": _text(self.posterior),
+            "controller": _text(self.controller),
+            "agent": self.agent,
+            "classes": ",".join(self.classes or []),
+            "observations": ",".join(f"{c}={o}" for c, o in self.observations.items()),
+            "completes": ",".join(self.completes),
+            "threshold": self.threshold,
+            "max_frames": self.max_frames,
+            "temper": self.temper,
+            "mode": self.mode,
+            "batch": self.batch,
+            "queue": self.queue,
+            "compressed": self.compressed,
+        }
+
+    @classmethod
+    def from_parameters(cls, values: dict[str, Any]) -> NodeSettings:
+        """The settings from parameter values (:meth:`parameters`' form); a malformed list is a ``ValueError``."""
+        return cls(
+            classifier=_path(values["classifier"]),
+            posterior=_path(values["posterior"]),
+            controller=_path(values["controller"]),
+            agent=int(values["agent"]),
+            classes=_names(values["classes"]) or None,
+            observations=dict(_observation(item) for item in _names(values["observations"])),
+            completes=_names(values["completes"]),
+            threshold=float(values["threshold"]),
+            max_frames=int(values["max_frames"]),
+            temper=float(values["temper"]),
+            mode=str(values["mode"]),
+            batch=int(values["batch"]),
+            queue=int(values["queue"]),
+            compressed=bool(values["compressed"]),
+        )
+
+
+def _text(path: Path | None) -> str:
+    return "" if path is None else str(path)
+
+
+def _path(text: str) -> Path | None:
+    return Path(text) if str(text).strip() else None
+
+
+def _names(text: str) -> list[str]:
+    return [part.strip() for part in str(text).split(",") if part.strip()]
+
+
+def _observation(text: str) -> tuple[str, str]:
+    name, sep, observation = text.partition("=")
+    if not sep or not name.strip() or not observation.strip():
+        raise ValueError(f"observations: expected CLASS=OBSERVATION, got {text!r}")
+    return name.strip(), observation.strip()
 
 
 class Pipeline(NamedTuple):
@@ -57,23 +157,31 @@ class Pipeline(NamedTuple):
     classes: list[str]
     controller: ControllerExecutor | None
     observations: dict[str, str]
+    completes: list[str]
 
 
-def load_pipeline(args: argparse.Namespace) -> Pipeline:
-    """The classifier, the HBNI process and the controller's executor from the files ``args`` names."""
-    clf = FrameClassifier.load(args.classifier)
-    posterior = hbni_pyro.HBNIPosterior.load(args.posterior)
-    posterior = posterior.match_names(args.classes or None, "--classes")
+def load_pipeline(settings: NodeSettings) -> Pipeline:
+    """The classifier, the HBNI process and the controller's executor from the files ``settings`` names; the
+    controller is checked (:func:`hbni_pyro.runtime.check_controller`) before the classifier loads."""
+    from classifiers import FrameClassifier, class_columns
+    from decpomdp import ControllerExecutor, JointController
+
+    for name in ("classifier", "posterior"):
+        if getattr(settings, name) is None:
+            raise ValueError(f"{name}: expected a saved file (--{name} PATH, or -p {name}:=PATH after --ros-args)")
+    posterior = hbni_pyro.HBNIPosterior.load(settings.posterior)
+    posterior = posterior.match_names(settings.classes, "classes")
     classes = list(posterior.class_names)
-    class_columns(clf, classes, "--classifier")  # its columns are read in the posterior's order
-    filt = hbni_pyro.HBNIFilter(posterior, mode=args.mode, temper=args.temper)
-    process = hbni_pyro.MacroObservationProcess(filt, threshold=args.threshold, max_frames=args.max_frames)
-    controller, observations = None, dict(args.observation or [])
-    if args.controller is not None:
-        joint = JointController.load(args.controller)
-        controller = ControllerExecutor(joint, args.agent, joint.action_names, joint.obs_names)
-        observation_names(classes, controller.obs_names, observations)  # refused now, not at the first frame
-    return Pipeline(clf, process, classes, controller, observations)
+    controller = None
+    if settings.controller is not None:
+        joint = JointController.load(settings.controller)
+        controller = ControllerExecutor(joint, settings.agent, joint.action_names, joint.obs_names)
+        check_controller(controller, classes, settings.observations, settings.completes)  # now, not at a frame
+    clf = FrameClassifier.load(settings.classifier)
+    class_columns(clf, classes, "classifier")  # its columns are read in the posterior's order
+    filt = hbni_pyro.HBNIFilter(posterior, mode=settings.mode, temper=settings.temper)
+    process = hbni_pyro.MacroObservationProcess(filt, threshold=settings.threshold, max_frames=settings.max_frames)
+    return Pipeline(clf, process, classes, controller, dict(settings.observations), list(settings.completes))
 
 
 class FrameQueue:
@@ -116,7 +224,10 @@ class FrameQueue:
 
 
 def stamped_frame(msg: Any, index: int, received: int) -> StampedFrame:
-    """An ``Image`` or ``CompressedImage`` message (``rclpy``'s or ``rosbags``') received at ``received`` (ns)."""
+    """An ``Image`` or ``CompressedImage`` message (``rclpy``'s or ``rosbags``') received at ``received`` (ns): its
+    image, its header stamp and frame id."""
+    from classifiers.stamped import StampedFrame
+
     return StampedFrame(
         ros.image_from_message(msg), ros.nanoseconds(msg.header.stamp), int(received), msg.header.frame_id, index
     )
@@ -127,10 +238,12 @@ def process_frames(
 ) -> None:
     """Run the pipeline on stamped frames and ``publish(role, message)`` each macro-observation's messages
     (``rosbags`` dataclasses; roles as in :data:`hbni_pyro.runtime.ros_messages.TOPICS`), until the frames end."""
+    from classifiers.stamped import classify_stamped
+
     store = typestore()
     items = classify_stamped(frames, pipeline.classifier, pipeline.classes, batch)
     for obs in live_macro_observations(
-        items, pipeline.process, pipeline.classes, pipeline.controller, pipeline.observations
+        items, pipeline.process, pipeline.classes, pipeline.controller, pipeline.observations, False, pipeline.completes
     ):
         for role, message in messages(obs, pipeline.classes, store).items():
             publish(role, message)
@@ -166,106 +279,148 @@ def rclpy_class(msgtype: str) -> type:
         raise ImportError(f"{msgtype} is not importable ({exc}); {ROS2_MISSING}") from exc
 
 
-def run_node(args: argparse.Namespace) -> None:  # the rclpy glue: not exercised by the test suite
-    """Start the node and spin until Ctrl-C."""
+def _ros_module(name: str) -> Any:
     try:
-        rclpy = importlib.import_module("rclpy")
-        qos = importlib.import_module("rclpy.qos")
-        executors = importlib.import_module("rclpy.executors")
+        return importlib.import_module(name)
     except ImportError as exc:
-        raise ImportError(f"rclpy is not importable ({exc}); {ROS2_MISSING}") from exc
-    pipeline = load_pipeline(args)
-    names = topic_names(args.namespace)
-    image_type = rclpy_class(ros.COMPRESSED_IMAGE if args.compressed else ros.IMAGE)
-    rclpy.init()
-    node = rclpy.create_node(args.name)
-    publishers = {role: node.create_publisher(rclpy_class(t), names[role], 10) for role, (_, t) in TOPICS.items()}
-    frames = FrameQueue(args.queue)
-    counter = iter(range(1 << 62))
+        raise ImportError(f"{name.split('.')[0]} is not importable ({exc}); {ROS2_MISSING}") from exc
 
-    def on_image(msg: Any) -> None:
-        frames.put(stamped_frame(msg, next(counter), node.get_clock().now().nanoseconds))
 
-    def publish(role: str, message: Any) -> None:
-        publishers[role].publish(to_rclpy(message, rclpy_class))
+def declare_parameters(node: Any, settings: NodeSettings) -> NodeSettings:
+    """Declare :data:`PARAMETERS` on ``node`` (read-only, described, ranged; ``settings`` the defaults, which
+    ``-p`` overrides replace) and return the settings their values give."""
+    msg = _ros_module("rcl_interfaces.msg")
+    kinds = {
+        "string": msg.ParameterType.PARAMETER_STRING,
+        "double": msg.ParameterType.PARAMETER_DOUBLE,
+        "integer": msg.ParameterType.PARAMETER_INTEGER,
+        "bool": msg.ParameterType.PARAMETER_BOOL,
+    }
+    defaults = settings.parameters()
+    values = {}
+    for p in PARAMETERS:
+        descriptor = msg.ParameterDescriptor(name=p.name, type=kinds[p.kind], description=p.description, read_only=True)
+        if p.kind == "double":
+            descriptor.floating_point_range = [msg.FloatingPointRange(from_value=p.bounds[0], to_value=p.bounds[1])]
+        elif p.kind == "integer":
+            low, high = p.bounds
+            descriptor.integer_range = [msg.IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        values[p.name] = node.declare_parameter(p.name, defaults[p.name], descriptor).value
+    return NodeSettings.from_parameters(values)
 
-    def work() -> None:
-        try:
-            process_frames(frames, pipeline, publish, args.batch)
-        except Exception as exc:  # a failed worker stops the node instead of dying silently
-            node.get_logger().error(f"{type(exc).__name__}: {exc}")
-            rclpy.try_shutdown()
 
-    node.create_subscription(image_type, args.topic, on_image, qos.qos_profile_sensor_data)
-    worker = threading.Thread(target=work, daemon=True)
-    worker.start()
-    node.get_logger().info(f"classifying {args.topic}; publishing under {args.namespace}")
+def run_node(settings: NodeSettings, ros_args: Sequence[str] = ()) -> None:
+    """Start the node with ``ros_args`` (the command line, ``--ros-args`` included) and spin until Ctrl-C or
+    shutdown; the command-line ``settings`` are the parameters' defaults."""
+    rclpy = _ros_module("rclpy")
+    qos = _ros_module("rclpy.qos")
+    executors = _ros_module("rclpy.executors")
+    overriding = _ros_module("rclpy.qos_overriding_options").QoSOverridingOptions.with_default_policies
+    rclpy.init(args=[EXECUTABLE, *ros_args])
+    node = rclpy.create_node(NODE_NAME)
+    frames, worker = None, None
     try:
+        settings = declare_parameters(node, settings)
+        pipeline = load_pipeline(settings)
+        frames = FrameQueue(settings.queue)
+        publishers = {
+            role: node.create_publisher(
+                rclpy_class(TOPICS[role][1]),
+                f"~/{TOPICS[role][0]}",
+                qos.QoSProfile(depth=OUTPUT_DEPTH),
+                qos_overriding_options=overriding(),
+            )
+            for role in PUBLISHED
+        }
+        image_type = rclpy_class(ros.COMPRESSED_IMAGE if settings.compressed else ros.IMAGE)
+        counter = iter(range(1 << 62))
+        clock = node.get_clock()  # ROS time: the simulation's when use_sim_time is true
+
+        def on_image(msg: Any) -> None:
+            frames.put(stamped_frame(msg, next(counter), clock.now().nanoseconds))
+
+        def publish(role: str, message: Any) -> None:
+            publishers[role].publish(to_rclpy(message, rclpy_class))
+
+        def work() -> None:
+            try:
+                process_frames(frames, pipeline, publish, settings.batch)
+            except Exception as exc:  # a failed worker stops the node instead of dying silently
+                node.get_logger().error(f"{type(exc).__name__}: {exc}")
+                rclpy.try_shutdown()
+
+        topic = f"{IMAGE_TOPIC}/compressed" if settings.compressed else IMAGE_TOPIC
+        subscription = node.create_subscription(
+            image_type, topic, on_image, qos.qos_profile_sensor_data, qos_overriding_options=overriding()
+        )
+        worker = threading.Thread(target=work, daemon=True)
+        worker.start()
+        node.get_logger().info(
+            f"classifying {subscription.topic_name}; publishing {', '.join(p.topic_name for p in publishers.values())}"
+        )
         rclpy.spin(node)
     except (KeyboardInterrupt, executors.ExternalShutdownException):
         pass
     finally:
-        frames.close()
-        worker.join(timeout=5.0)
-        node.get_logger().info(f"stopped; {frames.dropped} frames dropped while the classifier was busy")
+        if frames is not None:
+            frames.close()
+        if worker is not None:
+            worker.join(timeout=STOP_SECONDS)
+            if worker.is_alive():
+                node.get_logger().warning(f"stopped with frames still queued after {STOP_SECONDS:g} s")
+            node.get_logger().info(f"stopped; {frames.dropped} frames dropped while the classifier was busy")
         node.destroy_node()
         rclpy.try_shutdown()
 
 
-def _observation(text: str) -> tuple[str, str]:
-    name, sep, observation = text.partition("=")
-    if not sep or not name or not observation:
-        raise argparse.ArgumentTypeError(f"expected CLASS=OBSERVATION, got {text!r}")
-    return name, observation
-
-
-def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m experiments.ros_node", description=__doc__.split("\n\n")[0])
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=EXECUTABLE,
+        description=__doc__.split("\n\n")[0]
+        + " Options set the parameters' defaults; --ros-args -p NAME:=VALUE overrides them.",
+    )
     parser.add_argument(
         "--write-interface-package",
         type=Path,
         metavar="WORKSPACE_SRC",
         help="write the hbni_msgs package into a ROS 2 workspace's src folder and exit",
     )
-    parser.add_argument("--classifier", type=Path, help="a saved FrameClassifier (classifier.safetensors)")
-    parser.add_argument("--posterior", type=Path, help="a saved HBNIPosterior (posterior.safetensors)")
-    parser.add_argument("--controller", type=Path, help="a saved JointController (optional)")
-    parser.add_argument("--agent", type=int, default=0, help="which robot's controller (default 0)")
-    parser.add_argument(
-        "--observation",
-        type=_observation,
-        action="append",
-        metavar="CLASS=OBSERVATION",
-        help="the controller's observation for a class (repeat; default: the class name)",
-    )
-    parser.add_argument(
-        "--classes",
-        type=lambda s: s.split(","),
-        help="the posterior's classes in column order, a,b,c (for a posterior without names; else its names)",
-    )
-    parser.add_argument("--topic", default="/camera/image_raw", help="the image topic (default /camera/image_raw)")
-    parser.add_argument("--compressed", action="store_true", help="the topic carries CompressedImage messages")
-    parser.add_argument("--namespace", default="/hbni", help="namespace of the published topics (default /hbni)")
-    parser.add_argument("--name", default="hbni", help="the node's name (default hbni)")
-    parser.add_argument("--threshold", type=float, default=0.95, help="macro-observation threshold (default 0.95)")
-    parser.add_argument("--max-frames", type=int, default=30, help="frame budget per macro-observation (30)")
-    parser.add_argument("--temper", type=float, default=1.0, help="HBNI temper of a frame-level model (1)")
-    parser.add_argument("--mode", default="marginal", choices=hbni_pyro.HBNIFilter.MODES, help="HBNI filter mode")
-    parser.add_argument("--batch", type=int, default=1, help="frames per classifier call (default 1)")
-    parser.add_argument("--queue", type=int, default=2, help="frames waiting at most; older ones dropped (2)")
-    args = parser.parse_args(argv)
-    if args.write_interface_package is None and (args.classifier is None or args.posterior is None):
-        parser.error("--classifier and --posterior are required (or --write-interface-package)")
-    return args
+    parser.add_argument("--launch-file", action="store_true", help="print the path of the launch file and exit")
+    for p in PARAMETERS:
+        flag = f"--{p.name.replace('_', '-')}"
+        if p.kind == "bool":
+            parser.add_argument(flag, action="store_true", help=p.description)
+            continue
+        kind = {"string": str, "double": float, "integer": int}[p.kind]
+        parser.add_argument(flag, type=kind, default=p.default, help=f"{p.description} (default {p.default!r})")
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None = None) -> NodeSettings:
+    """The settings from a command line without ROS arguments (``--classes a,b`` or ``--observations c=o,...``)."""
+    args = _parser().parse_args(argv)
+    try:
+        return NodeSettings.from_parameters({p.name: getattr(args, p.name) for p in PARAMETERS})
+    except ValueError as exc:
+        _parser().error(str(exc))
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    args = parse_args(argv)
+    """The command: ``--ros-args`` are ``rclpy``'s, the rest the node's options."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    own = argv
+    if "--ros-args" in argv:
+        remove_ros_args = _ros_module("rclpy.utilities").remove_ros_args
+        own = remove_ros_args(args=[EXECUTABLE, *argv])[1:]
+    args = _parser().parse_args(own)
     if args.write_interface_package is not None:
         package = write_interface_package(args.write_interface_package)
         print(f"[ros_node] wrote {package}; build it with colcon build --packages-select hbni_msgs")
         return
-    run_node(args)
+    if args.launch_file:
+        print(LAUNCH_FILE)
+        return
+    run_node(parse_args(own), argv)
 
 
 if __name__ == "__main__":

@@ -229,7 +229,8 @@ ROOM_ARROWS: dict[str, set[str]] = {
     "hbni_pyro.runtime": {"hbni_pyro.validation", "hbni_pyro.posterior", "hbni_pyro.filters"},
     "hbni_pyro": {"hbni_pyro.*"},
     # experiments, bottom up: run folders, then the typed settings and the reports, the shared steps, the entry
-    # points; beside them the command, a sweep's guard and the live ROS node (which imports none of them)
+    # points; beside them the command, a sweep's guard and the live ROS node (which imports none of them but its
+    # interface, the room its launch file shares)
     "experiments.runs": set(),
     "experiments.schemas": {"experiments.runs"},
     "experiments.reports": {"experiments.runs"},
@@ -237,7 +238,8 @@ ROOM_ARROWS: dict[str, set[str]] = {
     "experiments.studies": {"experiments.runs", "experiments.schemas", "experiments.reports", "experiments.steps"},
     "experiments.sweep": {"experiments.runs", "experiments.schemas", "experiments.reports"},
     "experiments.run": {"experiments.runs", "experiments.schemas", "experiments.sweep"},
-    "experiments.ros_node": set(),
+    "experiments.launch": set(),
+    "experiments.ros_node": {"experiments.launch"},
     "experiments": {"experiments.runs"},
 }
 """Room -> the rooms (or single modules; ``x.*``: every room below ``x``) it may import. A module's room is the

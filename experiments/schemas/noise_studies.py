@@ -122,6 +122,7 @@ class StreamBlock:
     controller: Optional[str] = MISSING  # a saved JointController
     agent: int = count(0)
     observations: Any = MISSING  # class name -> controller observation name (null: the class names)
+    completes: list[str] = MISSING  # the controller's MAs that a macro-observation completes
 
     @property
     def is_bag(self) -> bool:
@@ -186,6 +187,11 @@ class StreamBlock:
             )
         if self.observations and self.controller is None:
             raise ValueError("observations: maps classes to a controller's observations; give stream.controller")
+        if not self.completes or not all(isinstance(name, str) and name for name in self.completes):
+            raise ValueError(
+                f"completes: expected a list of the controller's MAs that a macro-observation completes, got "
+                f"{list(self.completes)}"
+            )
 
 
 @dataclass
@@ -200,6 +206,7 @@ class Stream(Root):
             out["stream.run"] = "stream.classifier and stream.posterior are both given"
         if self.stream.controller is None:
             out["stream.agent"] = "stream.controller is null: no robot's controller runs"
+            out["stream.completes"] = out["stream.agent"]
         return out
 
     def noise_models(self) -> tuple[str, ...]:

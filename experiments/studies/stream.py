@@ -4,10 +4,12 @@
 
 1. :func:`read_settings`: the settings, checked before anything is loaded (the source and the
    saved models exist, every range holds: ``experiments.schemas``).
-2. :func:`load_models`: the saved :class:`~classifiers.FrameClassifier` and
-   :class:`~hbni_pyro.HBNIPosterior` (from a finished mission run, ``stream.run``, or from files),
-   the posterior's class order and the HBNI temper; the macro-observation process built on them.
-   :func:`load_controller`: a saved controller's executor, when ``stream.controller`` is given.
+2. :func:`load_posterior`: the saved :class:`~hbni_pyro.HBNIPosterior` (from a finished mission run,
+   ``stream.run``, or from a file) and its class order; then :func:`load_controller`: a saved controller's
+   executor, when ``stream.controller`` is given, checked against the classes and ``stream.completes`` (every MA
+   it can pick must be one a macro-observation completes) before the classifier loads;
+   then :func:`load_models`: the saved :class:`~classifiers.FrameClassifier`, the HBNI temper and the
+   macro-observation process.
 3. :func:`stream_frames`: every stamped frame through the classifier (batches of ``stream.batch``) and
    the process, which restarts after each macro-observation (:func:`hbni_pyro.live_macro_observations`,
    the per-frame code of the ROS 2 node too); each complete one is the observation that completes the
@@ -31,7 +33,7 @@ from tqdm.auto import tqdm
 
 import hbni_pyro
 from hbni_pyro import live_macro_observations, noise_model
-from hbni_pyro.runtime import MacroObservationBag
+from hbni_pyro.runtime import MacroObservationBag, check_controller
 from classifiers import FrameClassifier, class_columns
 from classifiers.bags import is_bag
 from classifiers.sources import FrameSource, open_source
@@ -66,6 +68,7 @@ class Settings(NamedTuple):
     agent: int = 0
     observations: dict[str, str] | None = None
     mode: str | None = None  # the HBNI filter's mode (None: HBNIFilter's default)
+    completes: tuple[str, ...] = ("infer",)  # the controller's MAs a macro-observation completes
 
 
 class Models(NamedTuple):
@@ -91,8 +94,9 @@ class Streamed(NamedTuple):
 
 def run(settings: Stream, run_dir: Path) -> dict:
     resolved = read_settings(settings)
-    models = load_models(resolved)
-    controller = load_controller(resolved)
+    posterior, finished = load_posterior(resolved)
+    controller = load_controller(resolved, list(posterior.class_names))  # refused before the classifier loads
+    models = load_models(resolved, posterior, finished)
     streamed = stream_frames(resolved, models, run_dir, controller)
     return write_outputs(resolved, models, streamed, run_dir)
 
@@ -133,6 +137,7 @@ def read_settings(settings: Stream) -> Settings:
         agent=st.agent,
         observations=None if st.observations is None else {str(k): str(v) for k, v in st.observations.items()},
         mode=settings.hbni.filter.mode,
+        completes=tuple(str(name) for name in st.completes),
     )
 
 
@@ -140,8 +145,8 @@ def _path(value: Any) -> Path | None:
     return None if value is None else Path(str(value))
 
 
-def load_models(settings: Settings) -> Models:
-    """The classifier, the HBNI process and the class order (a mission run's, overridden by explicit files)."""
+def load_posterior(settings: Settings) -> tuple[hbni_pyro.HBNIPosterior, Any]:
+    """The posterior, named (a mission run's, overridden by an explicit file), and the finished run (or ``None``)."""
     finished = load_run(settings.run) if settings.run is not None else None
     if finished is not None:
         lacking = [name for name in ("classifier", "posterior") if not hasattr(finished, name)]
@@ -151,12 +156,16 @@ def load_models(settings: Settings) -> Models:
                 f"stream.run: {str(settings.run)!r} is not a mission run (it lacks {', '.join(lacking)}); "
                 "expected a run of experiment=mission, or give stream.classifier and stream.posterior"
             )
-    clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     posterior = hbni_pyro.HBNIPosterior.load(settings.posterior) if settings.posterior else finished.posterior
     given = settings.classes
     if given is None and posterior.class_names is None and finished is not None and not settings.posterior:
         given = list(finished.metrics["classes"])  # a run's posterior saved before posteriors kept their names
-    posterior = posterior.match_names(given, "stream.classes")
+    return posterior.match_names(given, "stream.classes"), finished
+
+
+def load_models(settings: Settings, posterior: hbni_pyro.HBNIPosterior, finished: Any) -> Models:
+    """The classifier, the HBNI process and the class order (a mission run's, overridden by explicit files)."""
+    clf = FrameClassifier.load(settings.classifier) if settings.classifier else finished.classifier
     classes = list(posterior.class_names)
     class_columns(clf, classes, "stream.classifier")  # its columns are read in the posterior's order
     temper = settings.temper
@@ -168,13 +177,19 @@ def load_models(settings: Settings) -> Models:
     return Models(clf, process, classes, temper)
 
 
-def load_controller(settings: Settings) -> ControllerExecutor | None:
+def load_controller(settings: Settings, classes: list[str]) -> ControllerExecutor | None:
     """The executor of robot ``stream.agent``'s controller in ``stream.controller`` (``None`` without one), named
-    after the domain the controller was planned for."""
+    after the domain the controller was planned for, once :func:`hbni_pyro.runtime.check_controller` has found
+    that each class maps to one of its observations and that every MA it can pick is one of ``stream.completes``."""
     if settings.controller is None:
         return None
     controller = JointController.load(settings.controller)
-    return ControllerExecutor(controller, settings.agent, controller.action_names, controller.obs_names)
+    executor = ControllerExecutor(controller, settings.agent, controller.action_names, controller.obs_names)
+    try:
+        check_controller(executor, classes, settings.observations, settings.completes)
+    except ValueError as exc:
+        raise ValueError(f"stream.{exc}") from None
+    return executor
 
 
 def stream_frames(
@@ -193,11 +208,12 @@ def stream_frames(
     bag = MacroObservationBag(run_dir / "macro_observations", models.classes) if settings.bag else None
     items = classify_stamped(source.stamped(), models.classifier, models.classes, settings.batch)
     live = live_macro_observations(
-        items, models.process, models.classes, controller, settings.observations, keep_frames=True
+        items, models.process, models.classes, controller, settings.observations, True, settings.completes
     )
     segments, records, beliefs, thumbs = [], [], [], []
     bar = tqdm(total=total, desc="stream", unit="frame", disable=not settings.progress)
     tic, cpu = time.perf_counter(), time.process_time()
+    complete = False
     try:
         for obs in live:
             seg = obs.segment
@@ -216,15 +232,17 @@ def stream_frames(
             thumbs.append(thumbnail(images[-1]))
             bar.update(seg.frames_used)
             bar.set_postfix(macro=len(segments), label=seg.name)
+        complete = True
     except KeyboardInterrupt:  # a camera runs until stopped: keep what was seen
         tqdm.write("[stream] interrupted: writing the macro-observations so far")
+        complete = True
     finally:
         seconds, cpu_seconds = time.perf_counter() - tic, time.process_time() - cpu
         bar.close()
         source.close()
         written = video.close() if video is not None else None
         if bag is not None:
-            bag.close()
+            bag.close() if complete and segments else bag.discard()  # a failed run leaves no bag
     count = sum(s.frames_used for s in segments)
     if not count:
         raise ValueError(f"stream.source: {settings.source!r} gave no frames")

@@ -9,7 +9,13 @@ replayed as perception, the live loop with stamps and a controller, and the ROS 
   extra, imported on first use).
 """
 
-from hbni_pyro.runtime.live import Decision, LiveMacroObservation, live_macro_observations, observation_names
+from hbni_pyro.runtime.live import (
+    Decision,
+    LiveMacroObservation,
+    check_controller,
+    live_macro_observations,
+    observation_names,
+)
 from hbni_pyro.runtime.replay import StreamReplay
 from hbni_pyro.runtime.ros_messages import (
     DEFINITIONS,
@@ -30,6 +36,7 @@ __all__ = [
     "MacroObservationBag",
     "Segment",
     "StreamReplay",
+    "check_controller",
     "live_macro_observations",
     "macro_observations",
     "messages",

@@ -4,8 +4,9 @@ the filter's posterior and, given a controller, the macro-action (MA) it picks n
 :func:`live_macro_observations` runs :func:`~hbni_pyro.macro_observations` on ``(frame, output)`` pairs whose
 frames carry their times (``stamp``, ``received`` and ``frame_id`` attributes, integer nanoseconds:
 :class:`classifiers.stamped.StampedFrame`), and hands each completed macro-observation to a robot's
-controller (an object with ``action``, ``observe(observation)``, ``obs_names``, ``node`` and ``agent``:
-:class:`decpomdp.ControllerExecutor`). It is the per-frame code of ``experiment=stream``, of its ROS output
+controller (an object with ``action``, ``observe(observation)``, ``action_names``, ``obs_names``, ``reachable``,
+``node`` and ``agent``: :class:`decpomdp.ControllerExecutor`), which must pick only MAs that a macro-observation
+completes (:func:`check_controller`). It is the per-frame code of ``experiment=stream``, of its ROS output
 bag (:mod:`hbni_pyro.runtime.ros_messages`) and of the live ROS 2 node; this package imports neither the
 classifier's nor the controller's.
 """
@@ -98,6 +99,50 @@ def observation_names(
     return names
 
 
+def check_controller(
+    controller: Any, classes: Sequence[str], observations: Mapping[str, str] | None, completes: Sequence[str] | None
+) -> list[str]:
+    """The controller observation each class is reported as (:func:`observation_names`), once the controller is
+    known to pick only MAs that a macro-observation completes.
+
+    A macro-observation is what a camera MA (disaster relief's ``infer``) completes with; the MAs after it (pick up,
+    go to the hospital, ...) complete with what the robot's other sensors report, which a stream of frames does not
+    hold. So every MA the controller can pick, from node 0 on, while each MA completes with a class's observation,
+    must be one of ``completes``.
+
+    Args:
+        controller: a robot's controller executor (``action_names``, ``obs_names``, ``reachable``:
+            :meth:`decpomdp.ControllerExecutor.reachable`).
+        classes, observations: as in :func:`observation_names`.
+        completes: the controller's MAs a macro-observation completes (names).
+
+    Raises:
+        ValueError: a name in ``completes`` that is not one of the controller's MAs, or an MA the controller can
+            pick that is not in ``completes`` (naming it, its node and the observations that lead there).
+    """
+    names = observation_names(classes, controller.obs_names, observations)
+    if completes is None or isinstance(completes, str) or not len(completes):
+        raise ValueError(
+            f"completes: expected the controller's MAs that a macro-observation completes (some of "
+            f"{list(controller.action_names)}), got {completes!r}"
+        )
+    unknown = [name for name in completes if name not in controller.action_names]
+    if unknown:
+        raise ValueError(
+            f"completes: {unknown} are not MAs of the controller; its MAs are {list(controller.action_names)}"
+        )
+    for node, (action, path) in controller.reachable(names, list(completes)).items():
+        if action.name not in completes:
+            when = "at the start" if not path else f"after the macro-observations {list(path)}"
+            raise ValueError(
+                f"completes: robot {controller.agent}'s controller picks {action.name!r} (node {node}) {when}, an MA "
+                f"that no macro-observation completes (they complete {list(completes)}), so every decision after it "
+                "would answer the wrong question; list in completes every MA the camera's macro-observations "
+                "complete, or run this controller where each MA reports its own completion (the README's robot loop)"
+            )
+    return names
+
+
 def live_macro_observations(
     items: Iterable[tuple[Any, Tensor]],
     process: MacroObservationProcess,
@@ -105,6 +150,7 @@ def live_macro_observations(
     controller: Any = None,
     observations: Mapping[str, str] | None = None,
     keep_frames: bool = False,
+    completes: Sequence[str] | None = None,
 ) -> Iterator[LiveMacroObservation]:
     """Consecutive macro-observations of a classified stream of stamped frames, with the controller's decisions.
 
@@ -116,12 +162,14 @@ def live_macro_observations(
             observation that completes its current MA; one cut short by the end of the stream is not.
         observations: class name -> controller observation name (:func:`observation_names`).
         keep_frames: keep each segment's frames (for annotation).
+        completes: with a controller, its MAs that a macro-observation completes; a controller that can pick
+            another one is refused before the first frame (:func:`check_controller`).
 
     A frame stamped before the frame before it (a clock jump: a replayed bag restarting, a simulation reset) is
     warned about (``RuntimeWarning`` naming the frame and both stamps): the macro-observation spanning it has its
     ``first_stamp`` after its ``last_stamp``. A bag read with :class:`classifiers.bags.BagSource` refuses such stamps.
     """
-    names = None if controller is None else observation_names(classes, controller.obs_names, observations)
+    names = None if controller is None else check_controller(controller, classes, observations, completes)
     for segment in macro_observations(_watch_stamps(items), process, classes, keep_frames=True):
         first, last = segment.frames[0], segment.frames[-1]
         if not all(hasattr(first, name) for name in ("stamp", "received", "frame_id")):

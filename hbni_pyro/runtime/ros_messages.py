@@ -157,7 +157,7 @@ class MacroObservationBag:
     The topics of :data:`TOPICS` under ``namespace``: each :meth:`write` logs the classification and the
     macro-observation (and the decision, if any) at the last frame's receive time; :meth:`write_frame` logs an
     annotated frame on ``<ns>/annotated``. The bag is written to a staging directory and moved to ``path`` by
-    :meth:`close`; leaving the ``with`` block on an error removes it.
+    :meth:`close`; :meth:`discard`, or leaving the ``with`` block on an error, removes it.
 
     Args:
         path: the bag directory to create (its storage file is ``<name>.mcap`` inside).
@@ -202,6 +202,11 @@ class MacroObservationBag:
         """Finish the bag and move it into place; returns its path."""
         self._stack.close()
         return self.path
+
+    def discard(self) -> None:
+        """Remove what was written (a failed run leaves no bag); ``path`` is not created."""
+        error = RuntimeError("bag discarded")
+        self._stack.__exit__(type(error), error, None)
 
     def __enter__(self) -> MacroObservationBag:
         return self

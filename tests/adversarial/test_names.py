@@ -8,7 +8,6 @@ features, tables written by hand.
 
 from __future__ import annotations
 
-import argparse
 import re
 
 import pytest
@@ -21,7 +20,7 @@ from decpomdp import ControllerExecutor, JointController, simulate
 from decpomdp.domains import DisasterRelief
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import ros_node
-from experiments.studies.stream import Settings, load_models
+from experiments.studies.stream import Settings, load_models, load_posterior
 from hbni_pyro import HBNIPosterior, MacroObservationModel, live_macro_observations, macro_observations
 
 ALPHABETICAL = ["a_crate", "b_car", "c_copter"]
@@ -85,7 +84,7 @@ def stream_models(files, posterior_file: str, classes=None):
     settings = Settings(
         "clip.mp4", None, None, files["classifier"], files[posterior_file], classes, 1.0, 0.95, 10, 4, (), False
     )
-    return load_models(settings)
+    return load_models(settings, *load_posterior(settings))
 
 
 def test_the_stream_reads_the_classifier_in_the_posteriors_order(files):
@@ -116,7 +115,7 @@ def test_the_stream_refuses_names_that_do_not_meet(files, case):
         stream_models(files, posterior_file, classes)
 
 
-def node_args(files, posterior_file: str, classes=None) -> argparse.Namespace:
+def node_args(files, posterior_file: str, classes=None) -> ros_node.NodeSettings:
     argv = ["--classifier", str(files["classifier"]), "--posterior", str(files[posterior_file])]
     return ros_node.parse_args(argv + ([f"--classes={','.join(classes)}"] if classes else []))
 
@@ -128,9 +127,9 @@ def test_the_node_reads_the_classifier_in_the_posteriors_order(files):
 @pytest.mark.parametrize(
     "posterior_file, classes, message",
     [
-        ("unnamed", None, ("--classes", "has no class names")),
-        ("named", DOMAIN_ORDER[::-1], ("--classes", str(DOMAIN_ORDER), str(DOMAIN_ORDER[::-1]))),
-        ("foreign", None, ("--classifier", str(ALPHABETICAL), "['x', 'y', 'z']")),
+        ("unnamed", None, ("classes: ", "has no class names")),
+        ("named", DOMAIN_ORDER[::-1], ("classes: ", str(DOMAIN_ORDER), str(DOMAIN_ORDER[::-1]))),
+        ("foreign", None, ("classifier: ", str(ALPHABETICAL), "['x', 'y', 'z']")),
     ],
 )
 def test_the_node_refuses_names_that_do_not_meet(files, posterior_file, classes, message):

@@ -178,3 +178,42 @@ def test_names_travel_with_the_controller_and_are_checked(tmp_path):
         ControllerExecutor.for_domain(loaded.named(env.action_names, swapped), agent=0, env=env)
     with pytest.raises(ValueError, match="obs_names: expected .* distinct names"):
         loaded.named(env.action_names, env.obs_names[:-1])
+
+
+def test_reachable_nodes_match_every_observation_sequence_replayed():
+    """Brute force: every sequence of up to 6 observations replayed through a fresh executor reaches exactly the
+    nodes ``reachable`` lists, and each listed way there leads to its node; a node whose MA is not in ``through``
+    is reached but not left."""
+    import itertools
+
+    controller = random_controllers(
+        1, num_agents=1, num_nodes=7, num_actions=4, num_obs=5, generator=torch.Generator().manual_seed(3)
+    )
+    executor = ControllerExecutor(controller, 0)
+    allowed = [1, 3]
+    found = executor.reachable(allowed)
+    replayed = set()
+    for length in range(7):
+        for path in itertools.product(allowed, repeat=length):
+            executor.reset()
+            replayed.add(executor.node)
+            for obs in path:
+                executor.observe(obs)
+                replayed.add(executor.node)
+    assert set(found) == replayed and next(iter(found)) == 0
+    for node, (action, path) in found.items():
+        executor.reset()
+        for name in path:
+            executor.observe(name)
+        assert executor.node == node and executor.action == action
+    stop = executor.action_names[0]
+    through = [name for name in executor.action_names if name != stop]
+    limited = executor.reachable(allowed, through)
+    assert set(limited) <= set(found)
+    for node, (action, path) in limited.items():
+        executor.reset()
+        for name in path[:-1]:  # every node on the way has an MA of `through`
+            assert executor.action.name in through
+            executor.observe(name)
+    with pytest.raises(ValueError, match="observations: unknown name 'nope'"):
+        executor.reachable(["nope"])

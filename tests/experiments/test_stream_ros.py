@@ -24,7 +24,8 @@ FPS = 15.0
 START = 1_710_000_000 * ros.NS_PER_S
 LATENCY = 4_000_000
 NEXT = [[1, 2, 3], [0, 0, 0], [0, 0, 0], [0, 0, 0]]  # node 0 infers; class c sends it to node 1 + c; then back
-ACTIONS = ("infer", *(f"go_{c}" for c in CLASSES))
+ACTIONS = ("infer", *(f"track_{c}" for c in CLASSES))  # camera MAs: each completes with a macro-observation
+COMPLETES = f"stream.completes=[{','.join(ACTIONS)}]"
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +56,7 @@ def test_a_bag_streams_like_its_frames_and_records_a_ros_bag(tmp_path, saved, re
             f"stream.source={recorded['bag']}",
             f"stream.controller={recorded['controller']}",
             f"stream.observations={{{mapping}}}",
+            COMPLETES,
             "stream.annotate=[bag]",
         ),
         repo_root,
@@ -77,12 +79,14 @@ def test_a_bag_streams_like_its_frames_and_records_a_ros_bag(tmp_path, saved, re
     for r in from_bag:
         assert r["first_stamp"] == frames[r["start_frame"]].stamp == START + round(r["start_frame"] * 1e9 / FPS)
         assert r["last_stamp"] == frames[r["end_frame"]].stamp and r["received"] == frames[r["end_frame"]].received
-    # the controller's decisions: a replay of its table on the labels (none for a macro-observation cut short)
+    # the controller's decisions: a replay of its table on the labels (none for a macro-observation cut short);
+    # each macro-observation completes the MA the controller chose at the one before
     node = 0
     for r in from_bag:
         if r["stream_ended"]:
             assert "decision" not in r
             continue
+        assert r["decision"]["completed"] == ACTIONS[node]
         node = NEXT[node][r["label_index"]]
         assert r["decision"]["observation"] == f"saw_{r['label']}" and r["decision"]["action"] == ACTIONS[node]
     decided = [r for r in from_bag if "decision" in r]
@@ -164,6 +168,60 @@ def test_a_wrong_topic_fails_naming_the_bags_image_topics(tmp_path, saved, recor
     assert not (tmp_path / "macro_observations").exists()
 
 
+def test_a_controller_whose_mas_the_stream_cannot_complete_is_refused_before_the_classifier_loads(
+    tmp_path, saved, recorded, monkeypatch
+):  # noqa: F811
+    """Disaster relief's controller picks pick_up after infer: pick_up completes with what the robot carries and
+    its health reading, which no macro-observation says. The run is refused with that MA, after the posterior's class
+    names are read and before the classifier loads, and it leaves no output bag."""
+    from classifiers import FrameClassifier
+    from decpomdp.domains.disaster_relief import greedy_controller
+    from experiments.studies.stream import run
+
+    controller = greedy_controller(2).save(tmp_path / "mission_controller.safetensors")
+    mapping = ",".join(f"{c}:saw_hospital_high" for c in CLASSES)
+    settings = build_settings(
+        _compose(
+            saved,
+            [
+                f"stream.source={recorded['bag']}",
+                f"stream.controller={controller}",
+                f"stream.observations={{{mapping}}}",
+            ],
+        )
+    )
+
+    def never(*args, **kwargs):
+        raise AssertionError("the classifier was loaded before the controller was checked")
+
+    monkeypatch.setattr(FrameClassifier, "load", never)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    with pytest.raises(
+        ValueError,
+        match=r"stream.completes: robot 0's controller picks 'pick_up' \(node \d+\) after "
+        r"the macro-observations \['saw_hospital_high'\], an MA that no macro-observation completes",
+    ):
+        run(settings, run_dir)
+    assert list(run_dir.iterdir()) == []  # no empty bag, nothing else
+
+
+def test_a_failed_stream_leaves_no_bag(tmp_path, saved, recorded, monkeypatch):  # noqa: F811
+    """An error after the output bag was opened (here: the classifier fails on the first batch) removes the bag."""
+    from classifiers import FrameClassifier
+    from experiments.studies.stream import run
+
+    def broken(self, images):
+        raise RuntimeError("the camera driver died")
+
+    monkeypatch.setattr(FrameClassifier, "proba", broken, raising=False)
+    monkeypatch.setattr(FrameClassifier, "predict_proba", broken)
+    settings = build_settings(_compose(saved, [f"stream.source={recorded['bag']}", "stream.annotate=[]"]))
+    with pytest.raises(RuntimeError, match="the camera driver died"):
+        run(settings, tmp_path)
+    assert not [p.name for p in tmp_path.iterdir() if "macro_observations" in p.name]
+
+
 def _compose(saved, extra):  # noqa: F811
     return compose_config(_args(saved, "unused")[:-2] + ["progress=false", *extra])
 
@@ -180,6 +238,7 @@ def _compose(saved, extra):  # noqa: F811
         (["stream.controller=/no/such.safetensors"], "stream.controller: no such file or directory"),
         (["stream.observations={a:b}"], "stream.observations: maps classes to a controller's observations"),
         (["stream.controller=CONTROLLER", "stream.agent=-1"], "stream.agent: expected an int >= 0"),
+        (["stream.controller=CONTROLLER", "stream.completes=[]"], "stream.completes: expected a list of the"),
     ],
 )
 def test_bad_ros_settings_are_clear_errors(saved, recorded, extra, message):  # noqa: F811

@@ -9,7 +9,7 @@ import torch
 import hbni_pyro
 from decpomdp import ControllerExecutor, JointController
 from hbni_pyro import live_macro_observations, sample_outputs
-from hbni_pyro.runtime import observation_names
+from hbni_pyro.runtime import check_controller, observation_names
 
 NAMES = ("ambulance", "food_crate", "police_car")
 THETA = torch.tensor([3.0, 4.0, 5.0], dtype=torch.float64)
@@ -31,12 +31,12 @@ def _process():
     return hbni_pyro.MacroObservationProcess(hbni_pyro.StaticStateBayesFilter(3), threshold=0.99, max_frames=5)
 
 
-def _controller():
-    """One robot: node 0 runs 'infer'; a macro-observation of class c sends it to node 1 + c ('go_<c>'), any
+def _controller(then="track"):
+    """One robot: node 0 runs 'infer'; a macro-observation of class c sends it to node 1 + c ('<then>_<c>'), any
     observation there back to node 0."""
     next_node = torch.tensor([[1, 2, 3], [0, 0, 0], [0, 0, 0], [0, 0, 0]])
     action = torch.tensor([0, 1, 2, 3])
-    names = ("infer", *(f"go_{c}" for c in NAMES))
+    names = ("infer", *(f"{then}_{c}" for c in NAMES))
     obs = tuple(f"saw_{c}" for c in NAMES)
     return JointController(action[None, None], next_node[None, None], names, obs)
 
@@ -71,13 +71,14 @@ def test_the_controller_decides_on_every_complete_macro_observation():
     items = items[: plain[-2].end + 2]  # the stream ends one frame into a macro-observation
     executor = ControllerExecutor(_controller(), 0, _controller().action_names, _controller().obs_names)
     mapping = {c: f"saw_{c}" for c in NAMES}
-    live = list(live_macro_observations(items, _process(), NAMES, executor, mapping))
+    camera = executor.action_names  # every MA of this controller ends with what the camera saw
+    live = list(live_macro_observations(items, _process(), NAMES, executor, mapping, completes=camera))
     assert live[-1].segment.stream_ended and live[-1].decision is None  # cut short by the stream's end: no decision
     node = 0
     for obs in live[:-1]:
         d = obs.decision
         assert d.agent == 0 and d.observation == f"saw_{obs.segment.name}"
-        assert d.completed == ("infer", "go_ambulance", "go_food_crate", "go_police_car")[node]
+        assert d.completed == ("infer", "track_ambulance", "track_food_crate", "track_police_car")[node]
         node = [[1, 2, 3], [0, 0, 0], [0, 0, 0], [0, 0, 0]][node][obs.segment.label]
         assert d.node == node and d.action_index == node and d.action == _controller().action_names[node]
         assert obs.record()["decision"] == d._asdict()
@@ -99,7 +100,31 @@ def test_observation_names_are_checked_against_the_controller():
         observation_names(NAMES, obs, {"truck": "saw_ambulance"})
     executor = ControllerExecutor(_controller(), 0, _controller().action_names, _controller().obs_names)
     with pytest.raises(ValueError, match="but it has no observation"):
-        next(live_macro_observations(_items(), _process(), NAMES, executor))
+        next(live_macro_observations(_items(), _process(), NAMES, executor, completes=["infer"]))
     plain = [(None, output) for _, output in _items()]
     with pytest.raises(TypeError, match="items: expected frames with stamp, received and frame_id attributes"):
         next(live_macro_observations(plain, _process(), NAMES))
+
+
+def test_a_controller_that_picks_an_ma_no_macro_observation_completes_is_refused_before_the_first_frame():
+    """After 'infer' the robot goes somewhere: that MA completes with what its other sensors report, not with a
+    macro-observation, so deciding on the next macro-observation as its completion would be meaningless."""
+    going = _controller(then="go")
+    executor = ControllerExecutor(going, 0)
+    mapping = {c: f"saw_{c}" for c in NAMES}
+    frames = iter(_items())
+    live = live_macro_observations(frames, _process(), NAMES, executor, mapping, completes=["infer"])
+    with pytest.raises(
+        ValueError,
+        match=r"completes: robot 0's controller picks 'go_ambulance' \(node 1\) after the macro-observations "
+        r"\['saw_ambulance'\], an MA that no macro-observation completes \(they complete \['infer'\]\)",
+    ):
+        next(live)
+    assert len(list(frames)) == len(_items())  # refused before a frame was read
+    with pytest.raises(ValueError, match=r"completes: \['look'\] are not MAs of the controller; its MAs are \['infer'"):
+        check_controller(executor, NAMES, mapping, ["infer", "look"])
+    with pytest.raises(ValueError, match="completes: expected the controller's MAs that a macro-observation completes"):
+        check_controller(executor, NAMES, mapping, None)
+    with pytest.raises(ValueError, match=r"picks 'infer' \(node 0\) at the start"):
+        check_controller(executor, NAMES, mapping, ["go_ambulance"])
+    assert check_controller(executor, NAMES, mapping, going.action_names) == [f"saw_{c}" for c in NAMES]
