@@ -71,7 +71,8 @@ def fit(
         model: the noise model's name, ``"paper"`` (default), ``"confusion"``, ``"sequence"`` or
             another registered one (:func:`hbni_pyro.models.register`), or its spec.
         sequence_ids: ``(N,)`` integer id of each output's sequence (required by a sequence
-            model, ignored by the others); a sequence's outputs in time order, from which a model with
+            model; the others fit frames alone, and keep the ids as the units of their pointwise likelihood,
+            :meth:`~HBNIPosterior.to_arviz`); a sequence's outputs in time order, from which a model with
             ``correlated_frames`` estimates :attr:`~HBNIPosterior.frame_correlation`.
         method: ``"mh"`` (the vectorised kernels) or ``"nuts"`` (Pyro NUTS on the Pyro model with
             the classes enumerated out, labels recovered by ``infer_discrete``).
@@ -101,6 +102,7 @@ def fit(
     where = _fit_device(device, x, method)
     x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
     ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0), where)
+    kept = ids if ids is not None or sequence_ids is None else as_sequence_ids(sequence_ids, x.shape[0]).to(where)
     names = as_names("class_names", class_names, x.shape[1])
     settings = dict(
         chains=chains, num_samples=num_samples, warmup_steps=warmup_steps, seed=seed, progress=progress, hp=hp, p=p
@@ -109,7 +111,7 @@ def fit(
         posterior = _fit_mh(spec, x.unsqueeze(0), None if y is None else y.unsqueeze(0), ids, **settings)[0]
     else:
         posterior = _fit_nuts(spec, x, y, ids, jit=jit, **settings)
-    return _finish(posterior, spec, names, x, ids)
+    return _finish(posterior, spec, names, x, y, kept)
 
 
 def fit_many(
@@ -154,17 +156,25 @@ def fit_many(
     where = _fit_device(device, x, "mh", name="obs_sets")
     x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
     ids = _sequence_ids(spec, sequence_ids, x.shape[1], y, where)
+    kept = ids if ids is not None or sequence_ids is None else as_sequence_ids(sequence_ids, x.shape[1]).to(where)
     names = as_names("class_names", class_names, x.shape[2])
     posteriors = _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p)
-    return [_finish(posterior, spec, names, x[d], ids) for d, posterior in enumerate(posteriors)]
+    return [
+        _finish(posterior, spec, names, x[d], None if y is None else y[d], kept)
+        for d, posterior in enumerate(posteriors)
+    ]
 
 
-def _finish(posterior: HBNIPosterior, spec: NoiseModel, names: Any, x: Tensor, ids: Tensor | None) -> HBNIPosterior:
-    """``posterior`` of the outputs ``x (N, M)`` with its class names and, under a model with ``correlated_frames``,
-    the frame correlation of its sequences."""
+def _finish(
+    posterior: HBNIPosterior, spec: NoiseModel, names: Any, x: Tensor, y: Tensor | None, ids: Tensor | None
+) -> HBNIPosterior:
+    """``posterior`` of the outputs ``x (N, M)`` (labels ``y``, sequence ids ``ids``), which it keeps, with its class
+    names and, under a model with ``correlated_frames``, the frame correlation of its sequences."""
     posterior.class_names = names
     if spec.correlated_frames:
         posterior.frame_correlation = estimate_frame_correlation(x, ids)
+    posterior.outputs, posterior.sequence_ids = x, ids
+    posterior.labels = torch.full(x.shape[:1], -1, dtype=torch.long, device=x.device) if y is None else y
     return posterior
 
 

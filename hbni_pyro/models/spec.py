@@ -61,6 +61,15 @@ class NoiseModel:
         simulate: ``(params, classes, num_frames, generator) -> (N, M)`` outputs of one dataset, for SBC.
         rank_statistics: draws ``(n, ...)`` -> name -> ``(n,)``, the scalars whose ranks SBC checks.
         hyperprior_fields: the :class:`~hbni_pyro.HyperPrior` fields the model reads (it ignores the others).
+        unit_log_lik: ``(draws (S, ...), outputs (N, M), sequence ids (N,) in [0, K)) -> (S, U, M)``: the log density of
+            each unit's outputs under each class hypothesis, without the class prior (``U = N`` frames for a
+            frame-level model, which ignores the ids; ``U = K`` sequences, their looks integrated out, for a model
+            with ``sequences``), densities over the simplex's ``M - 1`` free coordinates, as the Dirichlet's
+            (``None``: no pointwise likelihood, so no LOO).
+        log_prior: ``(draws (S, ...), hyperprior) -> (S,)`` the prior log density of each draw, over the sites as
+            stored.
+        mh_sites: the sites the MH kernel moves by Metropolis-Hastings (the others by Gibbs): a draw equal to the one
+            before it is a rejected move.
     """
 
     name: str
@@ -83,6 +92,9 @@ class NoiseModel:
     simulate: Callable | None = None
     rank_statistics: Callable[[Draws], dict[str, Tensor]] | None = None
     hyperprior_fields: tuple[str, ...] = ()
+    unit_log_lik: Callable[[Draws, Tensor, Tensor | None], Tensor] | None = None
+    log_prior: Callable | None = None
+    mh_sites: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.correlated_frames and not self.sequences:

@@ -19,7 +19,6 @@ from hbni_pyro.models import NoiseModel, model_names, noise_model
 from hbni_pyro.validation import DTYPE, as_class_prior, has_values
 from hbni_infra.checks import as_device, as_float, as_generator, as_int, as_names
 from hbni_infra.tensorfile import load_tensors, save_tensors
-from hbni_infra.optional import require
 from hbni_infra.streams import torch_generator
 
 _KIND = "hbni_pyro.HBNIPosterior"
@@ -43,6 +42,9 @@ class HBNIPosterior:
         frame_correlation: the lag-1 correlation in ``(-1, 1)`` of a stream's frames about its look, used by the
             filter and the predictive streams (:mod:`hbni_pyro.models.sequence.correlation`); fits of a model with
             ``correlated_frames`` estimate it from their sequences, and it must be 0 under other models.
+        outputs, labels, sequence_ids: the data the posterior was fitted on (``(N, M)`` outputs, ``(N,)`` labels with
+            -1 unknown, ``(N,)`` sequence ids in ``[0, K)`` or ``None``); :meth:`to_arviz` takes its observed data and
+            pointwise likelihood from them. ``None`` for a posterior built otherwise (or saved before they were kept).
     """
 
     samples: dict[str, Tensor]
@@ -53,6 +55,9 @@ class HBNIPosterior:
     model: str = "paper"
     class_names: tuple[str, ...] | None = None
     frame_correlation: float = 0.0
+    outputs: Tensor | None = None
+    labels: Tensor | None = None
+    sequence_ids: Tensor | None = None
 
     def __post_init__(self) -> None:
         self.model = self.noise_model.name
@@ -82,6 +87,15 @@ class HBNIPosterior:
             if has_values(x) and k in self.noise_model.positive_sites and bool((x <= 0).any()):
                 raise ValueError(f"samples[{k!r}]: expected draws > 0, got {float(x.min()):g}")
         as_class_prior(self.class_prior, self.num_classes)
+        if self.outputs is not None:
+            n = self.outputs.shape[0]
+            if tuple(self.outputs.shape) != (n, self.num_classes) or self.labels is None or self.labels.shape != (n,):
+                raise ValueError(
+                    f"outputs, labels: expected (N, {self.num_classes}) outputs and (N,) labels, got "
+                    f"{tuple(self.outputs.shape)} and {None if self.labels is None else tuple(self.labels.shape)}"
+                )
+            if self.sequence_ids is not None and self.sequence_ids.shape != (n,):
+                raise ValueError(f"sequence_ids: expected shape ({n},), got {tuple(self.sequence_ids.shape)}")
 
     def named(self, class_names: Any) -> "HBNIPosterior":
         """A copy whose classes are called ``class_names`` (``M`` distinct names, in the outputs' column order):
@@ -129,13 +143,19 @@ class HBNIPosterior:
         """A copy with every tensor on ``device`` (filters, tables and predictive draws then run there)."""
         device = as_device("device", device)
         moved = {k: v.to(device) for k, v in self.samples.items()}
+        data = {k: None if v is None else v.to(device) for k, v in self.fitted_data().items()}
         return dataclasses.replace(
             self,
             samples=moved,
             class_prior=self.class_prior.to(device),
             label_probs=None if self.label_probs is None else self.label_probs.to(device),
             info=dict(self.info),
+            **data,
         )
+
+    def fitted_data(self) -> dict[str, Tensor | None]:
+        """``outputs``, ``labels``, ``sequence_ids``: the data the posterior was fitted on (``None`` where unknown)."""
+        return {"outputs": self.outputs, "labels": self.labels, "sequence_ids": self.sequence_ids}
 
     @property
     def num_classes(self) -> int:
@@ -265,6 +285,7 @@ class HBNIPosterior:
         tensors["class_prior"] = self.class_prior.cpu()
         if self.label_probs is not None:
             tensors["label_probs"] = self.label_probs.cpu()
+        tensors.update({f"data.{k}": v.cpu().clone() for k, v in self.fitted_data().items() if v is not None})
         meta = {
             "model": self.model,
             "hyperprior": self.hyperprior.as_dict(),
@@ -298,24 +319,22 @@ class HBNIPosterior:
                 model=model,
                 class_names=meta.get("class_names"),
                 frame_correlation=meta.get("frame_correlation", 0.0),
+                **{k: tensors.get(f"data.{k}") for k in ("outputs", "labels", "sequence_ids")},
             )
         except KeyError as exc:
             raise ValueError(f"path: {str(path)!r} is an incomplete saved {_KIND} (missing {exc})") from None
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
-    def to_arviz(self) -> Any:
-        """An ``arviz.InferenceData`` with the draws (needs ArviZ: the ``analysis`` extra)."""
-        arviz = require("arviz", "analysis", "HBNIPosterior.to_arviz()")
-        return arviz.from_dict(
-            posterior={k: v.numpy() for k, v in self.samples.items()},
-            dims=self.noise_model.arviz_dims,
-            coords={
-                "class": list(range(self.num_classes)),
-                "class_to": list(range(self.num_classes)),
-                "coord": list(range(self.num_classes - 1)),
-            },
-        )
+    def to_arviz(self, predictive_draws: int = 200, seed: int = 0) -> Any:
+        """An ``arviz.InferenceData`` (needs ArviZ: the ``analysis`` extra): ``posterior`` (named dims, class names as
+        coordinates), ``sample_stats`` and, for a fitted posterior, ``observed_data``, the pointwise
+        ``log_likelihood`` (one entry per sequence, or per frame without sequence ids: ``az.loo``, ``az.compare``)
+        and ``posterior_predictive`` (``predictive_draws`` draws spread over the chains, 0: none; ``az.plot_ppc``).
+        :func:`hbni_pyro.posterior.arviz.inference_data` says what each holds."""
+        from hbni_pyro.posterior.arviz import inference_data
+
+        return inference_data(self, predictive_draws, seed)
 
     def __repr__(self) -> str:
         head = f"HBNIPosterior(model={self.model!r}, M={self.num_classes}, chains={self.num_chains}, draws={self.num_draws}"

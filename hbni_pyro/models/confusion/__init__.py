@@ -19,7 +19,13 @@ from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.distributions.sampling import sample_dirichlet
 from hbni_pyro.models.confusion.evidence import ConfusionEvidence
 from hbni_pyro.models.confusion.kernel import ConfusionMetropolis
-from hbni_pyro.models.confusion.program import confusion_log_joint, confusion_model, off_diagonal
+from hbni_pyro.models.confusion.program import (
+    confusion_draws_log_prior,
+    confusion_frame_log_lik,
+    confusion_log_joint,
+    confusion_model,
+    off_diagonal,
+)
 from hbni_pyro.models.paper import PAPER_HYPERPRIOR, concentration_prior, concentration_statistics
 from hbni_pyro.models.spec import Draws, NoiseModel
 from hbni_pyro.validation import DTYPE
@@ -83,11 +89,14 @@ NOISE_MODEL = NoiseModel(
     max_plate_nesting=2,
     free_entry=lambda site, index: site != "beta" or index[0] != index[1],
     positive_sites=("theta", "beta", "kappa", "gamma", "beta_scale"),
-    arviz_dims={"theta": ["class"], "beta": ["class", "class_to"]},
+    arviz_dims={"theta": ["class"], "beta": ["class", "class_to"], "beta_loc": [], "beta_scale": []},
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
     hyperprior_fields=(*PAPER_HYPERPRIOR, "offdiag_loc_sd", "offdiag_scale_sd"),
+    unit_log_lik=confusion_frame_log_lik,
+    log_prior=confusion_draws_log_prior,
+    mh_sites=("theta", "beta", "kappa", "gamma", "beta_scale"),
 )
 
 __all__ = ["NOISE_MODEL", "ConfusionEvidence", "ConfusionMetropolis", "confusion_log_joint", "confusion_model"]

@@ -90,6 +90,18 @@ def confusion_prior_log_prob(
     return lp
 
 
+def confusion_draws_log_prior(draws: dict[str, Tensor], hyperprior: HyperPrior) -> Tensor:
+    """:func:`confusion_prior_log_prob` of draws as a posterior stores them (site -> ``(S, ...)``)."""
+    keys = ("theta", "beta", "kappa", "gamma", "beta_loc", "beta_scale")
+    return confusion_prior_log_prob(*(draws[k] for k in keys), hyperprior)
+
+
+def confusion_frame_log_lik(draws: dict[str, Tensor], obs: Tensor, sequence_ids: Tensor | None = None) -> Tensor:
+    """``(S, N, M)``: ``log Dir(o_i; theta_m e_m + beta_m)`` of each output ``obs (N, M)`` under each class, for draws
+    ``theta (S, M)``, ``beta (S, M, M)`` (the frames are independent given them)."""
+    return class_log_lik(1.0, obs.log(), draws["theta"], draws["beta"])
+
+
 def confusion_log_joint(
     obs: Tensor,
     params: dict[str, Tensor],

@@ -16,7 +16,13 @@ from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.distributions.sampling import gamma_variates
 from hbni_pyro.models.paper.evidence import PaperEvidence
 from hbni_pyro.models.paper.kernel import HBNIMetropolis
-from hbni_pyro.models.paper.program import hbni_model, log_joint, prior_theta_log_density
+from hbni_pyro.models.paper.program import (
+    frame_log_lik,
+    hbni_model,
+    log_joint,
+    paper_prior_log_prob,
+    prior_theta_log_density,
+)
 from hbni_pyro.models.paper.sampler import sample_outputs
 from hbni_pyro.models.spec import Draws, NoiseModel
 
@@ -74,6 +80,9 @@ NOISE_MODEL = NoiseModel(
     simulate=simulate,
     rank_statistics=concentration_statistics,
     hyperprior_fields=PAPER_HYPERPRIOR,
+    unit_log_lik=frame_log_lik,
+    log_prior=paper_prior_log_prob,
+    mh_sites=SITES,
 )
 
 __all__ = [

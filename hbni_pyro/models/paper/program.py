@@ -93,9 +93,7 @@ def log_joint(
     """
     num_obs, num_classes = obs.shape
     p = class_prior if class_prior is not None else obs.new_full((num_classes,), 1.0 / num_classes)
-    h = hyperprior
-    lp = gamma_log_prob(kappa, h.beta, h.eta) + gamma_log_prob(gamma, h.nu, h.omega)
-    lp = lp + gamma_log_prob(theta, kappa.unsqueeze(-1), gamma.unsqueeze(-1)).sum(-1)
+    lp = paper_prior_log_prob({"theta": theta, "kappa": kappa, "gamma": gamma}, hyperprior)
     per_class = lifted_dirichlet_log_prob(obs, theta.unsqueeze(-2)) + p.log()
     if labels is None:
         labels = torch.full((num_obs,), -1, dtype=torch.long)
@@ -103,6 +101,19 @@ def log_joint(
     marg = torch.logsumexp(per_class[..., ~known, :], -1).sum(-1)
     fixed = per_class[..., known, :].gather(-1, labels[known].expand(per_class.shape[:-2] + (-1,)).unsqueeze(-1))
     return lp + marg + fixed.squeeze(-1).sum(-1)
+
+
+def paper_prior_log_prob(draws: dict[str, Tensor], hyperprior: HyperPrior) -> Tensor:
+    """``log p(theta, kappa, gamma)`` of draws ``theta (..., M)``, ``kappa``, ``gamma`` ``(...)``."""
+    h, kappa, gamma = hyperprior, draws["kappa"], draws["gamma"]
+    lp = gamma_log_prob(kappa, h.beta, h.eta) + gamma_log_prob(gamma, h.nu, h.omega)
+    return lp + gamma_log_prob(draws["theta"], kappa.unsqueeze(-1), gamma.unsqueeze(-1)).sum(-1)
+
+
+def frame_log_lik(draws: dict[str, Tensor], obs: Tensor, sequence_ids: Tensor | None = None) -> Tensor:
+    """``(S, N, M)``: ``log Dir(o_i; theta_m e_m + 1)`` of each output ``obs (N, M)`` under each class, for draws
+    ``theta (S, M)`` (the frames are independent given theta: ``sequence_ids`` are not needed)."""
+    return lifted_dirichlet_log_prob(obs, draws["theta"].unsqueeze(-2))
 
 
 def prior_theta_log_density(theta: Tensor, hyperprior: HyperPrior, num_mc: int = 4000, seed: int = 0) -> Tensor:

@@ -25,7 +25,9 @@ from hbni_pyro.models.sequence.program import (
     look_prior_mean,
     sequence_log_joint,
     sequence_model,
+    sequence_prior_log_prob,
     sequence_stats,
+    sequence_unit_log_lik,
 )
 from hbni_pyro.models.sequence.wishart import sample_wishart
 from hbni_pyro.models.spec import Draws, NoiseModel
@@ -120,7 +122,12 @@ NOISE_MODEL = NoiseModel(
     point_estimate=lambda draws: {k: v.mean(0, keepdim=True) for k, v in draws.items()},
     free_entry=lambda site, index: site not in COVARIANCES or index[-2] <= index[-1],
     positive_sites=("between_pooling",),
-    arviz_dims={"loc": ["class", "coord"]},
+    arviz_dims={
+        "loc": ["class", "coord"],
+        "between": ["class", "coord", "coord_to"],
+        "between_mean": ["coord", "coord_to"],
+        "within": ["coord", "coord_to"],
+    },
     draw_prior=draw_prior,
     simulate=simulate,
     rank_statistics=rank_statistics,
@@ -134,6 +141,9 @@ NOISE_MODEL = NoiseModel(
         "within_scale",
         "within_df",
     ),
+    unit_log_lik=sequence_unit_log_lik,
+    log_prior=sequence_prior_log_prob,
+    mh_sites=("between_pooling",),
 )
 
 __all__ = [

@@ -244,6 +244,21 @@ def sequence_log_lik(stats: SequenceStats, params: dict[str, Tensor], class_prio
     return look + rest + class_prior.log()
 
 
+def sequence_unit_log_lik(draws: dict[str, Tensor], obs: Tensor, sequence_ids: Tensor | None) -> Tensor:
+    """``(S, K, M)``: the log density of each sequence's outputs (the simplex's, not the log-ratio coordinates') under
+    each class, its look integrated out, for draws ``(S, ...)``; ``sequence_ids (N,)`` in ``[0, K)``."""
+    if sequence_ids is None:
+        raise ValueError("sequence_ids: the sequence model's units are sequences; expected the ids of the outputs")
+    num_seq = int(sequence_ids.max()) + 1
+    unknown = torch.full_like(sequence_ids, -1)
+    stats = sequence_stats(obs, sequence_ids, unknown, num_seq)
+    jacobian = torch.zeros(num_seq, dtype=obs.dtype, device=obs.device).index_add_(
+        0, sequence_ids, ilr_log_jacobian(obs)
+    )
+    no_prior = obs.new_ones(obs.shape[-1])
+    return sequence_log_lik(stats, draws, no_prior) + jacobian[:, None]
+
+
 def sequence_log_joint(
     stats: SequenceStats, params: dict[str, Tensor], class_prior: Tensor, hyperprior: HyperPrior = HyperPrior()
 ) -> Tensor:
