@@ -189,11 +189,9 @@ def test_each_library_has_the_distributions_version():
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> Path:
-    """A fresh virtual environment with the project's wheel installed (no network: its dependencies are the ones
-    this interpreter has, seen through a path file); returns its ``bin`` folder."""
-    work = tmp_path_factory.mktemp("install")
-    source = work / "source"
+def source(tmp_path_factory) -> Path:
+    """A copy of the checkout's tracked files (what a clean clone holds)."""
+    source = tmp_path_factory.mktemp("source") / "source"
     tracked = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
     for name in filter(None, tracked.decode().split("\0")):
         target = source / name
@@ -202,6 +200,14 @@ def installed(tmp_path_factory) -> Path:
             target.symlink_to(os.readlink(ROOT / name))
         elif (ROOT / name).is_file():
             shutil.copy2(ROOT / name, target)
+    return source
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory, source) -> Path:
+    """A fresh virtual environment with the project's wheel installed (no network: its dependencies are the ones
+    this interpreter has, seen through a path file); returns its ``bin`` folder."""
+    work = tmp_path_factory.mktemp("install")
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
     subprocess.run(
         [*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(work / "dist"), str(source)],
@@ -273,3 +279,85 @@ def test_the_console_script_runs_an_experiment_from_an_empty_directory(installed
     assert loaded.returncode == 0, loaded.stderr
     assert loaded.stdout.split()[0] == str(run_dir) and "[1.0, 6.0, 20.0]" in loaded.stdout
     assert not list(installed.parent.rglob("outputs"))  # nothing was written into the environment
+
+
+@pytest.mark.slow
+def test_pytest_runs_from_an_unpacked_sdist_with_its_docs_and_license_metadata(source, tmp_path):
+    """The sdist holds the docs the README links, every test with its helpers (``conftest.py``, data) and
+    ``py.typed``; pytest runs a few test files from it, on the unpacked packages; its metadata carries an SPDX
+    license expression and both licence files, and the build warns about no license table."""
+    import tarfile
+
+    build = subprocess.run(
+        [sys.executable, "-c", "import setuptools.build_meta as b; print(b.build_sdist('dist'))"],
+        cwd=source,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert build.returncode == 0, build.stderr
+    assert "project.license" not in build.stdout + build.stderr  # no deprecated license table
+    with tarfile.open(source / "dist" / build.stdout.strip().splitlines()[-1]) as tar:
+        tar.extractall(tmp_path, filter="data")
+    (unpacked,) = tmp_path.iterdir()
+    links = re.findall(r"\]\(((?:docs)/[^)]+)\)", (unpacked / "README.md").read_text())
+    assert links and all((unpacked / link).exists() for link in links)
+    tracked_tests = {p.relative_to(source) for p in (source / "tests").rglob("*") if p.is_file()}
+    assert {p.relative_to(unpacked) for p in (unpacked / "tests").rglob("*") if p.is_file()} >= tracked_tests
+    assert all((unpacked / package / "py.typed").is_file() for package in (*LIBRARIES, "experiments"))
+    meta = (unpacked / "PKG-INFO").read_text()
+    assert "License-Expression: MIT AND GPL-3.0-only" in meta
+    assert "License-File: LICENSE" in meta and "License-File: decpomdp/dpomdp/problems/COPYING" in meta
+    files = ["tests/hbni_infra/test_checks.py", "tests/decpomdp/test_executor.py", "tests/hbni_pyro/test_live.py"]
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "HBNI_PYRO_ROOT")}
+    ran = subprocess.run(
+        [sys.executable, "-m", "pytest", "-n", "0", "-p", "no:randomly", "-m", "not slow", "-q", *files],
+        cwd=unpacked,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert ran.returncode == 0 and "[100%]" in ran.stdout, ran.stdout[-3000:] + ran.stderr[-3000:]
+    where = subprocess.run(
+        [sys.executable, "-c", "import hbni_pyro; print(hbni_pyro.__file__)"],
+        cwd=unpacked,
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert where.stdout.strip() == str(unpacked / "hbni_pyro" / "__init__.py")  # the sdist's code was tested
+
+
+def _readme_section_scripts(title: str) -> str:
+    """The Python blocks of the README's section ``title``, joined as a reader runs them (one continues the other)."""
+    section = re.split(r"^## ", (ROOT / "README.md").read_text(), flags=re.M)
+    (text,) = [s for s in section if s.startswith(title)]
+    return "\n\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
+
+
+@pytest.mark.slow
+def test_the_readme_robot_install_runs_the_robot_blocks_from_the_wheel(installed, tmp_path):
+    """The README's robot install is the core install plus the ``opencv`` extra: from the wheel, without OpenCV the
+    robot blocks stop at ``classifiers`` with an error naming the extra; with it (the extra's wheel, seen through the
+    environment's path file) they run, without Hydra or matplotlib; and the node's console script answers ``--help``
+    without OpenCV or ROS 2."""
+    readme = (ROOT / "README.md").read_text()
+    assert 'pip install ".[opencv]"         # robot' in readme
+    robot = _readme_section_scripts("Run a saved policy on a robot")
+    without = _run([installed / "python", *core_only_script(robot, (*EXPERIMENTS_ONLY, "cv2"))], tmp_path)
+    assert without.returncode != 0 and "hbni-pyro[opencv]" in without.stderr, without.stderr[-2000:]
+    ran = _run([installed / "python", *core_only_script(robot)], tmp_path)
+    assert ran.returncode == 0, ran.stderr[-3000:]
+    assert "frames 0-" in ran.stdout and "-> " in ran.stdout
+    helped = _run(
+        [
+            installed / "python",
+            *core_only_script(
+                "from experiments.ros_node import main\nmain(['--help'])", (*EXPERIMENTS_ONLY, "cv2", "rclpy")
+            ),
+        ],
+        tmp_path,
+    )
+    assert helped.returncode == 0 and "--ros-args -p NAME:=VALUE" in " ".join(helped.stdout.split()), helped.stderr
+    assert (installed / "hbni-ros-node").is_file()
