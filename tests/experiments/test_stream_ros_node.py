@@ -360,24 +360,14 @@ def test_bad_node_arguments(saved, recorded, capsys):  # noqa: F811
     with pytest.raises(SystemExit):
         ros_node.parse_args(["--classifier", "c", "--posterior", "p", "--observations", "ambulance"])
     assert "observations: expected CLASS=OBSERVATION, got 'ambulance'" in capsys.readouterr().err
-    args = ros_node.parse_args(
-        [
-            f"--classifier={saved['classifier']}",
-            f"--posterior={saved['posterior']}",
-            f"--controller={recorded['controller']}",
-            f"--completes={','.join(ACTIONS)}",
-        ]
-    )
+    files = [
+        f"--{name}={path}" for name, path in (("classifier", saved["classifier"]), ("posterior", saved["posterior"]))
+    ]
+    files.append(f"--controller={recorded['controller']}")
+    args = ros_node.parse_args([*files, f"--completes={','.join(ACTIONS)}"])
     with pytest.raises(ValueError, match="observations: the classes .* its observations are \\['saw_police_car'"):
         ros_node.load_pipeline(args)  # the controller's observations are not the class names: refused at load
-    mission_like = ros_node.parse_args(
-        [
-            f"--classifier={saved['classifier']}",
-            f"--posterior={saved['posterior']}",
-            f"--controller={recorded['controller']}",
-            f"--observations={','.join(f'{c}=saw_{c}' for c in CLASSES)}",
-        ]
-    )
+    mission_like = ros_node.parse_args([*files, f"--observations={','.join(f'{c}=saw_{c}' for c in CLASSES)}"])
     with pytest.raises(ValueError, match="completes: robot 0's controller picks 'track_"):
         ros_node.load_pipeline(mission_like)  # completes=infer: the controller's track_* MAs are refused
 
