@@ -19,6 +19,7 @@ import venv
 from pathlib import Path
 
 import pytest
+from test_readme import ON_THE_WHEEL, SECTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -27,9 +28,9 @@ LIBRARIES = ("hbni_infra", "hbni_pyro", "classifiers", "decpomdp")
 OURS = {*LIBRARIES, "experiments", "benchmarks"}  # benchmarks: the checkout's own scripts, never installed
 EXPERIMENTS_ONLY = ("hydra", "omegaconf", "hydra_plugins", "submitit", "matplotlib", "skimage", "arviz", "sklearn")
 """Modules only the experiments (or optional library features) use: the libraries import without them."""
-MODULE_TO_DIST = {"torchvision": "torchvision", "rclpy": None, "paynt": "paynt"}
+MODULE_TO_DIST = {"torchvision": "torchvision", "rclpy": None, "launch": None, "launch_ros": None, "paynt": "paynt"}
 """Import names that the running environment may not have installed (None: not on PyPI, a ROS 2 system
-package)."""
+package: the node's ``rclpy``, its launch file's ``launch`` and ``launch_ros``)."""
 
 
 def _requirement_name(spec: str) -> tuple[str, list[str]]:
@@ -329,13 +330,6 @@ def test_pytest_runs_from_an_unpacked_sdist_with_its_docs_and_license_metadata(s
     assert where.stdout.strip() == str(unpacked / "hbni_pyro" / "__init__.py")  # the sdist's code was tested
 
 
-def _readme_section_scripts(title: str) -> str:
-    """The Python blocks of the README's section ``title``, joined as a reader runs them (one continues the other)."""
-    section = re.split(r"^## ", (ROOT / "README.md").read_text(), flags=re.M)
-    (text,) = [s for s in section if s.startswith(title)]
-    return "\n\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
-
-
 @pytest.mark.slow
 def test_the_readme_robot_install_runs_the_robot_blocks_from_the_wheel(installed, tmp_path):
     """The README's robot install is the core install plus the ``opencv`` extra: from the wheel, without OpenCV the
@@ -344,7 +338,7 @@ def test_the_readme_robot_install_runs_the_robot_blocks_from_the_wheel(installed
     without OpenCV or ROS 2."""
     readme = (ROOT / "README.md").read_text()
     assert 'pip install ".[opencv]"         # robot' in readme
-    robot = _readme_section_scripts("Run a saved policy on a robot")
+    (robot,) = SECTIONS[ON_THE_WHEEL]  # the section's blocks, one continuing the other (tests/test_readme.py)
     without = _run([installed / "python", *core_only_script(robot, (*EXPERIMENTS_ONLY, "cv2"))], tmp_path)
     assert without.returncode != 0 and "hbni-pyro[opencv]" in without.stderr, without.stderr[-2000:]
     ran = _run([installed / "python", *core_only_script(robot)], tmp_path)

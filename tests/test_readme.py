@@ -3,7 +3,8 @@ whose first line is a comment starting ``# continues`` runs after the block befo
 
 The blocks that load a finished run need one: the test first runs the main job (the mission) with
 the small settings the mission tests use, into ``outputs/mission/`` of a scratch directory made the project
-root (``HBNI_PYRO_ROOT``), and runs the blocks there.
+root (``HBNI_PYRO_ROOT``), and runs the blocks there. The robot section's blocks run from the installed wheel
+instead (tests/test_packaging.py).
 """
 
 import os
@@ -31,6 +32,15 @@ def groups(blocks: list[str]) -> list[str]:
 
 
 SCRIPTS = groups(BLOCKS)
+SECTIONS = {
+    section.splitlines()[0]: groups(re.findall(r"```python\n(.*?)```", section, re.S))
+    for section in re.split(r"^## ", (ROOT / "README.md").read_text(), flags=re.M)
+}
+"""Section title -> its scripts."""
+ON_THE_WHEEL = "Run a saved policy on a robot"
+"""The section whose scripts tests/test_packaging.py runs from the installed wheel, on the README's robot install (in
+a fresh interpreter outside the checkout); they do not run here a second time."""
+HERE = [script for title, scripts in SECTIONS.items() if title != ON_THE_WHEEL for script in scripts]
 DOC_SCRIPTS = [
     (name, script)
     for name in DOCS
@@ -58,15 +68,16 @@ def finished_run(tiny_mission_run) -> Path:
 
 def test_readme_has_python_blocks():
     assert len(BLOCKS) >= 4 and len(SCRIPTS) >= 3  # the robot loop continues the block that writes its files
+    assert len(SECTIONS[ON_THE_WHEEL]) == 1 and len(HERE) == len(SCRIPTS) - 1  # the robot's, run from the wheel
     assert any("latest_run(" in s for s in SCRIPTS) and any("print(process.run(" in s for s in SCRIPTS)
     assert len(DOC_SCRIPTS) >= 4
 
 
 @pytest.mark.parametrize(
-    "index", [pytest.param(i, marks=[pytest.mark.slow] if "latest_run(" in s else []) for i, s in enumerate(SCRIPTS)]
+    "index", [pytest.param(i, marks=[pytest.mark.slow] if "latest_run(" in s else []) for i, s in enumerate(HERE)]
 )
 def test_readme_python_blocks_run_as_written(index, tmp_path, request):
-    script = SCRIPTS[index]
+    script = HERE[index]
     root = request.getfixturevalue("finished_run") if "latest_run(" in script else tmp_path
     proc = run_script(script, root)
     assert proc.returncode == 0, f"this block fails alone:\n{script}\n{proc.stderr[-3000:]}"
