@@ -279,7 +279,7 @@ def folder_outputs(cfg: DictConfig, s: Settings) -> tuple[torch.Tensor, torch.Te
                 raise ValueError(
                     f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}"
                 )
-            outs.append(clf.predict_proba(frames_img[:frames])[:, order].double())
+            outs.append(clf.proba(frames_img[:frames])[:, order].double())
         per_class.append(torch.stack(outs) if outs else torch.empty(0))
     counts = {len(p) for p in per_class}
     if len(counts) != 1 or 0 in counts or min(counts) < 2:
@@ -321,7 +321,7 @@ def photo_outputs(cfg: DictConfig, s: Settings, run_dir: Path) -> tuple[torch.Te
             seed = stream_seed(s.seed, "photos", part)
             seqs = [
                 [
-                    clf.predict_proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
+                    clf.proba(photo_sequence(name, int(p.frames), "degraded", seed, index=i))[:, order]
                     for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not s.progress)
                 ]
                 for name in PHOTOS

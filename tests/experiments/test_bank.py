@@ -53,9 +53,7 @@ def test_bank_is_the_classified_rendered_sequences_and_is_reused(tmp_path, class
     assert outputs.shape == (3, 2, 3, 3) and first.path.is_file()
     order = [clf.classes_.index(n) for n in CLASSES]
     police = class_seed(7, "police_car")
-    expect = clf.predict_proba(
-        render_sequence("police_car", 3, get_conditions("mission"), seed=police, index=1, shape=SHAPE)
-    )
+    expect = clf.proba(render_sequence("police_car", 3, get_conditions("mission"), seed=police, index=1, shape=SHAPE))
     torch.testing.assert_close(outputs[1, 1], expect[:, order])  # row = class, columns in CLASSES order
     assert len({class_seed(7, name) for name in CLASSES} | {7}) == len(CLASSES) + 1  # each class its own conditions
     again = BankBuild(_spec(), clf, path, tmp_path, workers=0)

@@ -1,0 +1,120 @@
+"""The 8-bit backbone against float32: CPU time per frame on one thread, and the classifier's accuracy on mission frames.
+
+Two frame classifiers are trained as the mission trains its own (``experiments.steps.perception.train_classifier``
+on the mission's training snapshots, crops and mirrors, seed 0), one with ``precision="float"`` and one with
+``precision="int8"`` (calibrated on its training crops). Both classify the same rendered mission-condition
+sequences (the mission's imaging conditions, a seed no training saw); a frame is right when its most probable
+class is the object's. Accuracies carry standard errors over sequences (frames of one sequence are correlated);
+the difference is paired by sequence. Then the CPU time per frame of the backbone alone and of the whole classifier
+(:meth:`~classifiers.FrameClassifier.proba`: crop, backbone, head) on one torch thread, at batch 1 (a live camera) and at the classifier's
+batch (4, what the experiments run), float32 and 8-bit interleaved in rounds in this process (the median round).
+
+    .venv/bin/python -m benchmarks.bench_int8 [--sequences 40] [--frames 30] [--rounds 5] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from classifiers import FrameClassifier, center_crop, class_columns
+from classifiers.data import get_conditions, render_sequence
+from decpomdp.domains.disaster_relief import CLASSES
+from experiments.schemas import compose_config
+from experiments.steps.perception import train_classifier
+from hbni_infra.streams import stream_seed
+
+PRECISIONS = ("float", "int8")
+
+
+def train(precision: str, seed: int) -> FrameClassifier:
+    """The mission's classifier (its settings from the composed ``experiment=mission`` config) in ``precision``."""
+    cfg = compose_config([f"seed={seed}"])
+    block = OmegaConf.merge(cfg.classifier, {"precision": precision})
+    st = cfg.mission
+    return train_classifier(
+        block, CLASSES, int(st.train_per_class), int(st.augment), stream_seed(seed, "train"), progress=False
+    )
+
+
+def accuracy(classifiers: dict[str, FrameClassifier], sequences: int, frames: int, seed: int) -> None:
+    """Per-frame accuracy of each classifier on the same mission sequences, with standard errors over sequences."""
+    cfg = compose_config([f"seed={seed}"])
+    conditions = get_conditions("mission", **OmegaConf.to_container(cfg.mission.conditions))
+    hits = {p: np.zeros((len(CLASSES), sequences)) for p in classifiers}  # per-sequence accuracy
+    agree = np.zeros((len(CLASSES), sequences))
+    for c, name in enumerate(CLASSES):
+        for s in range(sequences):
+            seq = render_sequence(name, frames, conditions, seed=stream_seed(seed, "bench_int8", name), index=s)
+            labels = {}
+            for p, clf in classifiers.items():
+                labels[p] = clf.proba(seq)[:, class_columns(clf, CLASSES)].argmax(-1).numpy()
+                hits[p][c, s] = float((labels[p] == c).mean())
+            agree[c, s] = float((labels["float"] == labels["int8"]).mean())
+    n = len(CLASSES) * sequences
+    print(
+        f"mission frames: {n * frames} ({len(CLASSES)} classes x {sequences} sequences x {frames} frames), seed {seed}"
+    )
+    for p, h in hits.items():
+        print(f"  {p:>5s} accuracy {h.mean():.4f} +- {h.std(ddof=1) / np.sqrt(n):.4f} (s.e. over sequences)")
+    diff = (hits["int8"] - hits["float"]).ravel()
+    print(f"  int8 - float {diff.mean():+.4f} +- {diff.std(ddof=1) / np.sqrt(n):.4f} (paired by sequence)")
+    print(f"  same label on {agree.mean():.4f} of the frames")
+    for c, name in enumerate(CLASSES):
+        print(f"    {name:>14s}: float {hits['float'][c].mean():.3f}  int8 {hits['int8'][c].mean():.3f}")
+
+
+def cpu_ms(run, count: int) -> float:
+    """CPU milliseconds per frame of ``run()`` over ``count`` frames."""
+    start = time.process_time()
+    run()
+    return (time.process_time() - start) * 1e3 / count
+
+
+def latency(classifiers: dict[str, FrameClassifier], rounds: int, seed: int) -> None:
+    """CPU ms per frame on one thread, float32 and 8-bit interleaved; the median of ``rounds`` rounds."""
+    frames = render_sequence(CLASSES[0], 16, "mission", seed=seed)
+    some = classifiers["float"]
+    crops = np.stack([center_crop(im, some.backbone_.input_size, some.padding) for im in frames])
+    networks = {p: clf._network() for p, clf in classifiers.items()}
+    times: dict[tuple[str, str, int], list[float]] = {}
+    for _ in range(rounds):
+        for batch in (1, some.batch_size):
+            chunks = [frames[i : i + batch] for i in range(0, len(frames), batch)]
+            for p, clf in classifiers.items():
+                net = networks[p]
+                times.setdefault(("backbone", p, batch), []).append(
+                    cpu_ms(lambda: net.scores(crops, batch, threads=1), len(crops))  # noqa: B023
+                )
+                times.setdefault(("classifier", p, batch), []).append(
+                    cpu_ms(lambda: [clf.proba(chunk) for chunk in chunks], len(frames))  # noqa: B023
+                )
+    print(f"CPU ms per frame on one thread (median of {rounds} interleaved rounds, {len(frames)} frames each)")
+    print("  backbone: uint8 crops to ImageNet scores; classifier: frames to probabilities (crop, backbone, head)")
+    print(f"  {'what':>10s} {'batch':>5s} {'float32':>8s} {'int8':>8s} {'ratio':>6s}")
+    for what in ("backbone", "classifier"):
+        for batch in (1, some.batch_size):
+            f, q = (float(np.median(times[(what, p, batch)])) for p in PRECISIONS)
+            print(f"  {what:>10s} {batch:5d} {f:8.2f} {q:8.2f} {q / f:5.2f}x")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sequences", type=int, default=40, help="mission sequences per class")
+    parser.add_argument("--frames", type=int, default=30, help="frames per sequence")
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds; the median is reported")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    classifiers = {p: train(p, args.seed) for p in PRECISIONS}
+    print(f"CPU: {torch.backends.cpu.get_cpu_capability()} kernels; 8-bit backbone: {classifiers['int8'].precision_}")
+    latency(classifiers, args.rounds, args.seed)
+    accuracy(classifiers, args.sequences, args.frames, args.seed)
+
+
+if __name__ == "__main__":
+    main()
