@@ -6,8 +6,11 @@ on the mission's training snapshots, crops and mirrors, seed 0), one with ``prec
 sequences (the mission's imaging conditions, a seed no training saw); a frame is right when its most probable
 class is the object's. Accuracies carry standard errors over sequences (frames of one sequence are correlated);
 the difference is paired by sequence. Then the CPU time per frame of the backbone alone and of the whole classifier
-(:meth:`~classifiers.FrameClassifier.proba`: crop, backbone, head) on one torch thread, at batch 1 (a live camera) and at the classifier's
-batch (4, what the experiments run), float32 and 8-bit interleaved in rounds in this process (the median round).
+(:meth:`~classifiers.FrameClassifier.proba`: crop, backbone, head) on one torch thread, at batch 1 (a live camera)
+and at the classifier's batch (4, what the experiments run), float32 and 8-bit interleaved in rounds in one process
+(the median round); on a CPU beyond AVX2, once more in a child process whose oneDNN, MKL and ATen kernels are capped
+at AVX2 (``ONEDNN_MAX_CPU_ISA``, ``MKL_ENABLE_INSTRUCTIONS``, ``ATEN_CPU_CAPABILITY``), the code a CPU without
+AVX-512 runs (on this CPU's cores and caches).
 
     .venv/bin/python -m benchmarks.bench_int8 [--sequences 40] [--frames 30] [--rounds 5] [--seed 0]
 """
@@ -15,7 +18,12 @@ batch (4, what the experiments run), float32 and 8-bit interleaved in rounds in 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -29,6 +37,7 @@ from experiments.steps.perception import train_classifier
 from hbni_infra.streams import stream_seed
 
 PRECISIONS = ("float", "int8")
+AVX2 = {"ONEDNN_MAX_CPU_ISA": "AVX2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "ATEN_CPU_CAPABILITY": "avx2"}
 
 
 def train(precision: str, seed: int) -> FrameClassifier:
@@ -102,17 +111,46 @@ def latency(classifiers: dict[str, FrameClassifier], rounds: int, seed: int) -> 
             print(f"  {what:>10s} {batch:5d} {f:8.2f} {q:8.2f} {q / f:5.2f}x")
 
 
+def cpu_features() -> str:
+    """The x86 features the kernels choose among, as this CPU reports them."""
+    flags = set()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        flags = set(next((ln for ln in cpuinfo.read_text().splitlines() if ln.startswith("flags")), "").split())
+    found = [f for f in ("avx2", "avx512f", "avx512_vnni", "amx_int8") if f in flags]
+    return ", ".join(found) or "none of avx2, avx512f, avx512_vnni, amx_int8"
+
+
+def latency_on_avx2(classifiers: dict[str, FrameClassifier], rounds: int, seed: int) -> None:
+    """:func:`latency` of the same saved classifiers in a child process whose kernels are capped at AVX2."""
+    with tempfile.TemporaryDirectory() as folder:
+        for p, clf in classifiers.items():
+            clf.save(Path(folder) / f"{p}.safetensors")
+        args = [sys.executable, "-m", "benchmarks.bench_int8", "--saved", folder, "--rounds", str(rounds)]
+        out = subprocess.run(args, env=os.environ | AVX2, check=True, capture_output=True, text=True).stdout
+    print("with the kernels capped at AVX2 (" + ", ".join(f"{k}={v}" for k, v in AVX2.items()) + "):")
+    print("\n".join("  " + line for line in out.strip().splitlines()))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", type=int, default=40, help="mission sequences per class")
     parser.add_argument("--frames", type=int, default=30, help="frames per sequence")
     parser.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds; the median is reported")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--saved", type=Path, help="time the classifiers saved in this folder, nothing else")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.saved is not None:
+        saved = {p: FrameClassifier.load(args.saved / f"{p}.safetensors") for p in PRECISIONS}
+        print(f"ATen kernels: {torch.backends.cpu.get_cpu_capability()}")
+        latency(saved, args.rounds, args.seed)
+        return
     classifiers = {p: train(p, args.seed) for p in PRECISIONS}
-    print(f"CPU: {torch.backends.cpu.get_cpu_capability()} kernels; 8-bit backbone: {classifiers['int8'].precision_}")
+    print(f"CPU features: {cpu_features()}; ATen kernels: {torch.backends.cpu.get_cpu_capability()}")
     latency(classifiers, args.rounds, args.seed)
+    if torch.backends.cpu.get_cpu_capability() == "AVX512":
+        latency_on_avx2(classifiers, args.rounds, args.seed)
     accuracy(classifiers, args.sequences, args.frames, args.seed)
 
 

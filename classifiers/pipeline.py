@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from classifiers.backbone import BACKBONES, Backbone, _device_and_dtype, load_backbone
 from classifiers.preprocess import as_image_batch, augment, center_crop
-from classifiers.quantize import Calibration, Calibrator, Int8Backbone, int8_unavailable, point_names
+from classifiers.quantize import Calibration, Calibrator, Int8Backbone, int8_unavailable
 from classifiers.svm import OneVsOneSVC
 from hbni_infra.checks import as_choice, as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
@@ -483,17 +483,13 @@ class FrameClassifier:
 
 def _read_calibration(tensors: dict[str, Tensor], backbone: Backbone, path: str | os.PathLike) -> Calibration:
     """The 8-bit activation grids saved in a classifier file, checked against ``backbone``."""
-    expected = len(point_names(backbone.fused_network))
     try:
         grids = Calibration(tensors["calibration.scales"], tensors["calibration.zero_points"])
-    except (KeyError, ValueError) as exc:
-        raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} (calibration: {exc})") from None
-    if grids.scales.shape != (expected,):
-        raise ValueError(
-            f"path: {str(path)!r} holds an invalid {_KIND} (calibration: expected {expected} activation grids, "
-            f"got {grids.scales.shape[0]})"
-        )
-    return grids
+        return grids.check(backbone.fused_network)
+    except KeyError as exc:
+        raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} (calibration: missing {exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
 
 _PARAMS = {

@@ -6,8 +6,9 @@ The float network (batch norms folded into the convolutions) becomes:
 - activations: uint8, one affine range per tensor, measured on calibration images (:func:`calibrate`): the
   inputs of the dense convolutions (the stem, every 1x1) are kept in 7 bits (``0..127``), the inputs of the
   depthwise convolutions in 8 bits (see "CPUs" below);
-- ReLU6 as the convolution's clip, the residual sum as its ``sum`` post-op, the head convolution written in
-  float32; the global average pool and the 1000-way linear layer run in float32 on its output.
+- ReLU6 and the activation grid's range as the convolution's clip, the residual sum as its ``sum`` post-op (then
+  clipped to the grid's levels), the head convolution written in float32; the global average pool and the
+  1000-way linear layer run in float32 on its output.
 
 The convolutions are oneDNN's integer kernels (``torch.ops.onednn``, the ones torch's x86 inductor path
 lowers to) on plain ``uint8``/``int8`` tensors with explicit scales: no quantized tensor dtypes.
@@ -33,8 +34,7 @@ import math
 import platform
 import threading
 from dataclasses import dataclass
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -92,7 +92,7 @@ def _levels(layers: list[_Layer], i: int) -> int:
     return _DEPTHWISE_LEVELS if layers[i + 1].conv.groups > 1 else _DENSE_LEVELS
 
 
-def _float_forward(net: EfficientNetLite0, x: Tensor, seen: Any = None) -> Tensor:
+def _float_forward(net: EfficientNetLite0, x: Tensor, seen: Callable[[str, Tensor], None] | None = None) -> Tensor:
     """``net(x)`` written layer by layer, passing every activation of :func:`point_names` to ``seen(name, t)``."""
     h = block_in = x
     for layer in _layers(net):
@@ -130,6 +130,19 @@ class Calibration:
             raise ValueError(f"calibration: expected float64 scales and int64 zero points, got {s.dtype}, {z.dtype}")
         if not bool(torch.isfinite(s).all() and (s > 0).all()) or not bool(((z >= 0) & (z <= 255)).all()):
             raise ValueError("calibration: scales must be finite and > 0, zero points within 0..255")
+
+    def check(self, net: EfficientNetLite0) -> Calibration:
+        """``self`` when it holds a grid for every activation of ``net`` with the zero point within that
+        activation's levels (7 bits where a dense convolution reads it), else ``ValueError``."""
+        layers = _layers(net)
+        if self.scales.shape != (len(layers) - 1,):
+            raise ValueError(f"calibration: expected {len(layers) - 1} activation grids, got {self.scales.shape[0]}")
+        for i, (layer, zero) in enumerate(zip(layers, self.zero_points.tolist())):
+            if zero > _levels(layers, i):
+                raise ValueError(
+                    f"calibration: {layer.name}'s zero point {zero} is beyond its {_levels(layers, i)} levels"
+                )
+        return self
 
 
 def _grid(lo: float, hi: float, levels: int) -> tuple[float, int]:
@@ -318,11 +331,7 @@ class Int8Backbone:
             raise ValueError(f"precision: {reason}")
         net = backbone.fused_network
         layers = _layers(net)
-        if calibration.scales.shape != (len(layers) - 1,):
-            raise ValueError(
-                f"calibration: expected {len(layers) - 1} activation grids for {backbone.name}, "
-                f"got {calibration.scales.shape[0]}"
-            )
+        calibration.check(net)
         self.name, self.weights_path = backbone.name, backbone.weights_path
         self.input_size, self.mean, self.std = backbone.input_size, backbone.mean, backbone.std
         self.num_features = backbone.num_features

@@ -196,9 +196,14 @@ def test_a_damaged_calibration_is_refused(tmp_path, int8_classifier):
     negative = tensors | {"calibration.scales": -tensors["calibration.scales"]}
     with pytest.raises(ValueError, match="calibration.*scales must be finite and > 0"):
         FrameClassifier.load(save_tensors(tmp_path / "c.safetensors", "classifiers.FrameClassifier", negative, meta))
-    shifted = {k: v for k, v in tensors.items() if k != "calibration.zero_points"}
-    with pytest.raises(ValueError, match="calibration"):
-        FrameClassifier.load(save_tensors(tmp_path / "d.safetensors", "classifiers.FrameClassifier", shifted, meta))
+    missing = {k: v for k, v in tensors.items() if k != "calibration.zero_points"}
+    with pytest.raises(ValueError, match="calibration: missing 'calibration.zero_points'"):
+        FrameClassifier.load(save_tensors(tmp_path / "d.safetensors", "classifiers.FrameClassifier", missing, meta))
+    eight_bit = tensors | {"calibration.zero_points": torch.full_like(tensors["calibration.zero_points"], 200)}
+    with pytest.raises(
+        ValueError, match="0.depthwise's zero point 200 is beyond its 127 levels"
+    ):  # AVX2 would overflow
+        FrameClassifier.load(save_tensors(tmp_path / "e.safetensors", "classifiers.FrameClassifier", eight_bit, meta))
 
 
 def test_precision_settings(int8_classifier):
