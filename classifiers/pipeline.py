@@ -153,6 +153,11 @@ class FrameClassifier:
         _check_params(params)
         self.__dict__.update(params)
 
+    def __getstate__(self) -> dict[str, Any]:
+        """The state without the loaded networks (rebuilt at first use: the 8-bit one's packed weights cannot be
+        copied), so pickle and ``copy.deepcopy`` work; files are :meth:`save`'s business."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("backbone_", "_int8_backbone")}
+
     def __setattr__(self, name: str, value: Any) -> None:
         """Assigning a constructor argument checks it as the constructor does (:meth:`set_params`)."""
         if name in _PARAMS:

@@ -89,7 +89,7 @@ def test_kernels_compute_the_exact_integer_arithmetic(int8_classifier, mission):
     or one step off where float rounding of the rescale lands on a half (no saturation, padding or layout error)."""
     net = int8_classifier._network()
     convs = [layer.conv for layer in quantize._layers(int8_classifier.backbone_.fused_network)]
-    for layer, conv, (q, skip, y) in zip(net._plan, convs, _layer_outputs(net, mission[1][:2])):
+    for layer, conv, (q, skip, y) in zip(net._plan, convs, _layer_outputs(net, mission[1][:1])):
         w = conv.weight.detach().float().flip(2, 3)
         weight = torch.round(w / layer.weight_scales[:, None, None, None]).clamp(-127, 127)
         ref = _exact(layer, weight, q, skip)
@@ -117,7 +117,7 @@ def test_mirrored_plan_is_tensorflows_same_padding(int8_classifier):
     g = torch.Generator().manual_seed(0)
     for layer in quantize._layers(int8_classifier.backbone_.fused_network):
         conv = layer.conv
-        x = torch.randn(1, conv.in_channels, 28, 28, generator=g)
+        x = torch.randn(1, conv.in_channels, 14, 14, generator=g)
         k, s = conv.kernel_size[0], conv.stride[0]
         with torch.inference_mode():
             same = conv(x).flip(2, 3)
@@ -156,13 +156,6 @@ def test_deterministic_across_calls_threads_and_batches(int8_classifier, mission
     assert torch.equal(int8_classifier.proba(frames), int8_classifier.proba(frames))
 
 
-def test_fit_with_workers_is_the_same_fit(training, int8_classifier, mission):
-    again = FrameClassifier(cv=2, seed=1).fit(*training, augment=1, workers=2)
-    assert torch.equal(again.calibration_.scales, int8_classifier.calibration_.scales)
-    assert torch.equal(again.calibration_.zero_points, int8_classifier.calibration_.zero_points)
-    assert torch.equal(again.proba(mission[0]), int8_classifier.proba(mission[0]))
-
-
 def test_save_load_round_trip_is_bit_exact(tmp_path, int8_classifier, mission):
     path = int8_classifier.save(tmp_path / "clf.safetensors")
     tensors, meta = load_tensors(path, "classifiers.FrameClassifier")
@@ -171,6 +164,16 @@ def test_save_load_round_trip_is_bit_exact(tmp_path, int8_classifier, mission):
     assert loaded.precision == "int8" and loaded.precision_ == "int8"
     assert torch.equal(loaded.proba(mission[0]), int8_classifier.proba(mission[0]))
     assert torch.equal(loaded._network()(mission[1]), int8_classifier._network()(mission[1]))
+
+
+def test_copies_rebuild_the_packed_network(int8_classifier, mission):
+    """oneDNN's packed weights cannot be copied: pickle and deepcopy leave them out, and the copy rebuilds them."""
+    import copy
+    import pickle
+
+    expected = int8_classifier.proba(mission[0])
+    for twin in (pickle.loads(pickle.dumps(int8_classifier)), copy.deepcopy(int8_classifier)):
+        assert "_int8_backbone" not in twin.__dict__ and torch.equal(twin.proba(mission[0]), expected)
 
 
 def test_a_file_from_before_8_bit_loads_as_float(tmp_path, int8_classifier, mission):
