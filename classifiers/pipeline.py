@@ -103,9 +103,9 @@ class FrameClassifier:
     loaded at first use (:attr:`backbone_`), shared through :func:`~classifiers.backbone.load_backbone`.
 
     Precision: on an x86-64 CPU the backbone runs in 8-bit integers by default (:mod:`classifiers.quantize`):
-    ``fit`` calibrates it on its own training crops, then trains the head on its features. It classifies mission
-    frames as accurately as float32 (within a point) at about a third of the CPU time per frame
-    (``docs/benchmarks.md``). On CUDA, and on CPUs without the kernels (not x86-64, no AVX2), it runs in float.
+    ``fit`` calibrates it on its own training crops, whose float32 scores train the head. It classifies mission
+    frames as accurately as float32 (within a point) in about 0.4 of its CPU time per frame (``docs/benchmarks.md``,
+    ``docs/devices.md``). On CUDA, and on CPUs without the kernels (not x86-64, no AVX2), it runs in float.
 
     Args:
         backbone: backbone name (``"efficientnet_lite0"`` or ``"alexnet"``).
