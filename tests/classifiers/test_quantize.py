@@ -69,9 +69,11 @@ def _layer_outputs(net: Int8Backbone, x: torch.Tensor) -> list[tuple[torch.Tenso
 
 
 def _exact(layer: quantize._Packed, weight: torch.Tensor, q: torch.Tensor, skip: torch.Tensor | None) -> torch.Tensor:
-    """What ``layer`` means, in float64 on integers (exact sums): conv, rescale, bias, ReLU6 or sum, round to grid."""
+    """What ``layer`` means, on integers summed exactly (in float32 while no sum can pass 2**24, else float64): conv,
+    rescale, bias, ReLU6 or sum, round to the grid."""
     (xs, xz), k = layer.x_grid, layer.padding
-    acc = F.conv2d(q.double() - xz, weight.double(), None, layer.stride, k, 1, layer.groups)
+    exact = torch.float32 if weight[0].numel() * 255 * 127 < 2**24 else torch.float64
+    acc = F.conv2d(q.to(exact) - xz, weight.to(exact), None, layer.stride, k, 1, layer.groups).double()
     y = acc * xs * layer.weight_scales.double()[None, :, None, None] + layer.bias.double()[None, :, None, None]
     if layer.act == "relu6":
         y = y.clamp(0, 6)
