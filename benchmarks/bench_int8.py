@@ -1,6 +1,6 @@
 """The 8-bit backbone against float32: CPU time per frame on one thread, and the classifier's accuracy on mission frames.
 
-Two frame classifiers are trained as the mission trains its own (``experiments.steps.perception.train_classifier``
+Two frame classifiers are trained as the mission trains its own (``experiments.steps.classification.train_classifier``
 on the mission's training snapshots, crops and mirrors, seed 0), one with ``precision="float"`` and one with
 ``precision="int8"`` (calibrated on its training crops). Both classify the same rendered mission-condition
 sequences (the mission's imaging conditions, a seed no training saw); a frame is right when its most probable
@@ -27,13 +27,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
 
 from classifiers import FrameClassifier, center_crop, class_columns
 from classifiers.data import get_conditions, render_sequence
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments.schemas import compose_config
-from experiments.steps.perception import train_classifier
+from experiments.schemas import compose_settings
+from experiments.steps.classification import train_classifier
 from hbni_infra.streams import stream_seed
 
 PRECISIONS = ("float", "int8")
@@ -41,19 +40,17 @@ AVX2 = {"ONEDNN_MAX_CPU_ISA": "AVX2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "ATEN_C
 
 
 def train(precision: str, seed: int) -> FrameClassifier:
-    """The mission's classifier (its settings from the composed ``experiment=mission`` config) in ``precision``."""
-    cfg = compose_config([f"seed={seed}"])
-    block = OmegaConf.merge(cfg.classifier, {"precision": precision})
-    st = cfg.mission
+    """The mission's classifier (its settings those of ``experiment=mission``) in ``precision``."""
+    settings = compose_settings([f"seed={seed}", f"classifier.precision={precision}"])
+    st = settings.mission
     return train_classifier(
-        block, CLASSES, int(st.train_per_class), int(st.augment), stream_seed(seed, "train"), progress=False
+        settings.classifier, CLASSES, st.train_per_class, st.augment, stream_seed(seed, "train"), progress=False
     )
 
 
 def accuracy(classifiers: dict[str, FrameClassifier], sequences: int, frames: int, seed: int) -> None:
     """Per-frame accuracy of each classifier on the same mission sequences, with standard errors over sequences."""
-    cfg = compose_config([f"seed={seed}"])
-    conditions = get_conditions("mission", **OmegaConf.to_container(cfg.mission.conditions))
+    conditions = get_conditions("mission", **compose_settings([f"seed={seed}"]).mission.overrides)
     hits = {p: np.zeros((len(CLASSES), sequences)) for p in classifiers}  # per-sequence accuracy
     agree = np.zeros((len(CLASSES), sequences))
     for c, name in enumerate(CLASSES):

@@ -39,7 +39,7 @@ def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
 def torch_threads(threads: int | None) -> Iterator[None]:
     """Run torch on ``threads`` intra-op threads, and NumPy's BLAS and OpenCV on as many, inside the block
     (``None``: unchanged), then restore them (OpenCV's setting is the process's: on one thread, the renderer's
-    frames cost about 14 % less CPU time than on two, and are the same).
+    frames cost less CPU time than on two, and are the same).
 
     Inside a block of this thread that set the same count, a nested block changes nothing (a frame classified
     alone passes through several: each would pay for threadpoolctl's limit and OpenCV's pool again).

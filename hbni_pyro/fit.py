@@ -3,11 +3,11 @@
 ``fit`` fits one dataset; ``fit_many`` fits many same-sized datasets in one vectorised MH
 program (one block of chains per dataset), which is how a study that refits the model on
 dozens of training sets, or a simulation-based calibration, stays fast. ``model`` picks the
-variant (a name of :data:`hbni_pyro.variants.NOISE_MODELS`); a sequence model needs ``sequence_ids``.
+variant (a name of :data:`hbni_pyro.models.NOISE_MODELS`); a sequence model needs ``sequence_ids``.
 
 MH runs on the device of the data, or of ``device=``: the data, every state tensor and the
 kernel's ``torch.Generator`` live there, and so does the returned posterior. On the CPU the
-paper's class move is the compiled one (:mod:`hbni_pyro.kernels.class_move_numba`), so a seed
+paper's class move is the compiled one (:mod:`hbni_pyro.mcmc.class_move_numba`), so a seed
 gives the same draws as ever; another device draws another random stream (the same law).
 NUTS runs on the CPU only.
 """
@@ -25,18 +25,12 @@ from pyro import poutine
 from pyro.infer import MCMC, NUTS, infer_discrete
 from torch import Tensor
 
-from hbni_pyro.frame_correlation import estimate_frame_correlation
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.posterior import HBNIPosterior, posterior_from_samples
-from hbni_pyro.sequence_model import SequenceStats, sequence_stats
-from hbni_pyro.validation import (
-    DTYPE,
-    as_class_prior,
-    as_labels,
-    as_outputs,
-    as_sequence_ids,
-)
-from hbni_pyro.variants import NoiseModel, noise_model
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.models import NoiseModel, noise_model
+from hbni_pyro.models.sequence.correlation import estimate_frame_correlation
+from hbni_pyro.models.sequence.program import SequenceStats, sequence_stats
+from hbni_pyro.posterior.posterior import HBNIPosterior, posterior_from_samples
+from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs, as_sequence_ids
 from hbni_infra.checks import SEED_LIMIT, as_device, as_int, as_names, as_seed
 from hbni_infra.threads import single_thread
 
@@ -75,7 +69,7 @@ def fit(
         labels: ``(N,)`` true classes, ``-1`` where unknown; ``None`` means all unknown. Under the
             sequence model a sequence's outputs share one label.
         model: the noise model's name, ``"paper"`` (default), ``"confusion"``, ``"sequence"`` or
-            another registered one (:func:`hbni_pyro.variants.register`), or its spec.
+            another registered one (:func:`hbni_pyro.models.register`), or its spec.
         sequence_ids: ``(N,)`` integer id of each output's sequence (required by a sequence
             model, ignored by the others); a sequence's outputs in time order, from which a model with
             ``correlated_frames`` estimates :attr:`~HBNIPosterior.frame_correlation`.

@@ -6,19 +6,20 @@ import pytest
 import torch
 from hbni_stubs import DT, THETA, DrawsPosterior
 
-from hbni_pyro.calibration import (
+from hbni_pyro import (
     Fold,
+    HBNIFilter,
+    MacroObservationProcess,
+    StaticStateBayesFilter,
     binomial_stderr,
     cross_fit,
     fit_stop_threshold,
     reliability,
+    sample_outputs,
     stream_reliability,
     threshold_checks,
 )
-from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import MacroObservationProcess
-from hbni_pyro.testing import assert_calibrated
+from hbni_pyro.diagnostics import assert_calibrated
 
 
 def test_reliability_by_hand():
