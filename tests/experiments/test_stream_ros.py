@@ -214,8 +214,7 @@ def test_a_failed_stream_leaves_no_bag(tmp_path, saved, recorded, monkeypatch): 
     def broken(self, images):
         raise RuntimeError("the camera driver died")
 
-    monkeypatch.setattr(FrameClassifier, "proba", broken, raising=False)
-    monkeypatch.setattr(FrameClassifier, "predict_proba", broken)
+    monkeypatch.setattr(FrameClassifier, "proba", broken)
     settings = build_settings(_compose(saved, [f"stream.source={recorded['bag']}", "stream.annotate=[]"]))
     with pytest.raises(RuntimeError, match="the camera driver died"):
         run(settings, tmp_path)
