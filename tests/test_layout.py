@@ -236,7 +236,9 @@ ROOM_ARROWS: dict[str, set[str]] = {
     "experiments.steps": {"experiments.runs", "experiments.schemas", "experiments.reports"},
     "experiments.studies": {"experiments.runs", "experiments.schemas", "experiments.reports", "experiments.steps"},
     "experiments.sweep": {"experiments.runs", "experiments.schemas", "experiments.reports"},
-    "experiments.run": {"experiments.runs", "experiments.schemas", "experiments.sweep"},
+    "experiments.run": {"experiments.runs", "experiments.schemas", "experiments.sweep", "experiments.reports"},
+    "experiments.guard": {"experiments.runs", "experiments.schemas", "experiments.sweep"},
+    "experiments.cli": {"experiments.runs", "experiments.run"},
     "experiments.ros_node": set(),
     "experiments": {"experiments.runs"},
 }

@@ -37,7 +37,7 @@ from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read
 from decpomdp.controller import JointController
 from decpomdp.identity import describe
 from decpomdp.search import cross_entropy, local_search, lookahead
-from decpomdp.search.config import PHASES, PlannerConfig
+from decpomdp.search.config import NO_BUDGET, PHASES, PlannerConfig
 from decpomdp.search.racing import duel
 from decpomdp.search.scoring import Scorer
 from hbni_infra.streams import torch_generator
@@ -393,8 +393,13 @@ def plan(
         run = _Run()
         run.incumbent = None if init is None else JointController(init.action.clone(), init.next_node.clone())
     steps = {"ce": _ce_step, "ls": _ls_step}
+    steps = cfg.fixed_steps()  # a run of a fixed number of steps (G-DICE) counts them, any other its rollouts
     bar = tqdm(
-        total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout"
+        total=steps if steps is not None else None if cfg.budget >= NO_BUDGET else cfg.budget,
+        initial=len(run.history["phase"]) if steps is not None else min(run.used, cfg.budget),
+        disable=not progress,
+        desc="planner",
+        unit="step" if steps is not None else "rollout",
     )
     while (
         run.used < cfg.budget and run.idle_cycles < cfg.patience and not (cfg.cycles and run.cycles_done >= cfg.cycles)
@@ -419,7 +424,7 @@ def plan(
                 run.idle_cycles = 0 if run.gained else run.idle_cycles + 1
                 run.gained = 0
                 run.cycles_done += 1
-        bar.update(min(spent, max(cfg.budget - bar.n, 0)))
+        bar.update(1 if steps is not None else min(spent, max(cfg.budget - bar.n, 0)))
         bar.set_postfix(phase=phase, value=f"{run.value:.4g}", nodes=run.incumbent.num_nodes if run.incumbent else 0)
         if path is not None and (len(run.history["phase"]) % checkpoint_every == 0):
             run.save(path, fingerprint, generator)

@@ -129,5 +129,8 @@ def test_a_signal_to_a_single_run_marks_it_failed(tmp_path, signum):
     assert proc.returncode != 0
     assert not [p for p in tree if _alive(p)], "a process of the run outlived it"
     entry = _status(run_dir)
-    expected = "stopped by SIGTERM" if signum == signal.SIGTERM else "KeyboardInterrupt"
-    assert entry is not None and entry["status"] == "failed" and expected in entry["error"], (entry, stderr)
+    name = signal.Signals(signum).name
+    assert entry == {"status": "failed", "error": f"Stopped: stopped by {name}"}, (entry, stderr)
+    line = stderr.strip().splitlines()[-1]  # one line: where the run was marked failed, no traceback
+    assert proc.returncode == -signum and "Traceback" not in stderr, stderr
+    assert line.startswith(f"experiment hbni_toy stopped by {name} after") and line.endswith(str(run_dir)), stderr
