@@ -96,10 +96,12 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
     if case != "compile":
         time.sleep(max(0.0, delay - (time.monotonic() - start) if case in ("toy", "sweep") else delay))
         sent_at = time.monotonic() - start
+        kernels = len(list(Path(env["NUMBA_CACHE_DIR"]).rglob("*.nbi")))
+        started = bool(statuses(folder))
         if proc.poll() is None:
             (os.killpg if group else os.kill)(proc.pid, signum)
     else:
-        sent_at = float("nan")
+        sent_at, kernels, started = float("nan"), 0, True
     signalled = time.monotonic()
     hang_at = signalled + (HANG_S if case != "compile" else 120.0 + HANG_S)
     while session(proc.pid) and time.monotonic() < hang_at:
@@ -124,7 +126,15 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
             problems.append(f"status of {job}: {entry}")
     if locks:
         problems.append(f"lock files left: {locks}")
+    phase = (
+        "in the compiler's callback"
+        if case == "compile"
+        else "before the run"
+        if not started
+        else (f"during the run, {kernels} kernels in the numba cache")
+    )
     return {
+        "phase": phase,
         "case": case,
         "signal": signame + (" (group)" if group else ""),
         "entry": "hbni-pyro" if script else "python -m",
@@ -169,7 +179,8 @@ def main() -> int:
         verdict = "ok" if not result["problems"] else "FAIL: " + "; ".join(result["problems"])
         print(
             f"{k:2d} {case:8s} {result['signal']:16s} {result['entry']:10s} sent at {result['sent_s']:6.2f} s, "
-            f"ended {result['ended_s']:5.2f} s later, status {result['statuses'] or 'no run folder'}: {verdict}",
+            f"({result['phase']}), ended {result['ended_s']:5.2f} s later, status "
+            f"{result['statuses'] or 'no run folder'}: {verdict}",
             flush=True,
         )
     hangs = sum(any(p.startswith("hang") for p in r["problems"]) for r in results)

@@ -1,6 +1,8 @@
 """The signal boundary: SIGTERM or SIGINT to a ``-m`` sweep's parent ends the whole process tree, marks every job
-failed (those that never started too) and writes the sweep report; a single run marks itself failed. Real
-subprocesses of the cheapest experiment (``hbni_toy``), its fit made long so that the signal finds it running."""
+failed (those that never started too) and writes the sweep report; a single run marks itself failed, also when
+the signal lands while numba compiles (where the handler's exception is lost) or during the imports; code that
+swallows the stop is ended by the watchdog, or at once by a second signal. Real subprocesses of the cheapest
+experiment (``hbni_toy``), its fit made long so that the signal finds it running."""
 
 import json
 import os
@@ -11,6 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from experiments.runs.signals import GRACE_S
 
 ROOT = Path(__file__).resolve().parents[2]
 # a fit that runs for minutes: the signal always comes while the jobs run
@@ -134,3 +138,100 @@ def test_a_signal_to_a_single_run_marks_it_failed(tmp_path, signum):
     line = stderr.strip().splitlines()[-1]  # one line: where the run was marked failed, no traceback
     assert proc.returncode == -signum and "Traceback" not in stderr, stderr
     assert line.startswith(f"experiment hbni_toy stopped by {name} after") and line.endswith(str(run_dir)), stderr
+
+
+def _caught(pid: int, signum: int) -> bool:
+    """Whether process ``pid`` has a handler for ``signum`` (``SigCgt`` in /proc)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = next((line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), "0")
+    return bool(int(caught, 16) >> (signum - 1) & 1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_while_numba_compiles_ends_the_run(tmp_path, signum):
+    # the signal arrives inside the callback numba's compiler makes into Python, whose exception C code ignores:
+    # the run must still end within seconds and be marked failed (an empty numba cache: the run compiles)
+    run_dir = tmp_path / "run"
+    env = {
+        **os.environ,
+        "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+        "STOP_SIGNAL": signal.Signals(signum).name,
+        "STOP_RUN_DIR": str(run_dir),
+    }
+    driver = Path(__file__).with_name("stop_while_compiling.py")
+    proc = subprocess.Popen(
+        [sys.executable, str(driver), "experiment=hbni_toy", *SLOW, f"hydra.run.dir={run_dir}"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _, stderr = proc.communicate(timeout=120)  # imports and the first kernel's compile, then seconds
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise AssertionError("the run outlived a signal sent while numba compiled") from None
+    name = signal.Signals(signum).name
+    assert "signal sent from the compiler's callback" in stderr, stderr
+    assert proc.returncode == -signum, stderr
+    assert _status(run_dir) == {"status": "failed", "error": f"Stopped: stopped by {name}"}
+    assert not (run_dir / ".run.lock").exists()
+
+
+def test_ctrl_c_during_the_imports_ends_the_command_with_one_line(tmp_path):
+    script = Path(sys.executable).with_name("hbni-pyro")
+    proc = subprocess.Popen(
+        [str(script), "experiment=hbni_toy", f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    # the handlers are set first thing (SIGHUP's last; Python catches SIGINT from its start); Hydra, torch and numba
+    # take seconds to import after them
+    _wait_for(lambda: _caught(proc.pid, signal.SIGHUP), proc, "the command's signal handlers")
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == -signal.SIGINT and (out, err) == ("", "stopped by SIGINT\n")
+    assert not (tmp_path / "run").exists()
+
+
+STUCK = """
+import sys, time
+from experiments.runs import signals
+signals.install()
+signals.begin(lambda error: print("marked failed:", error, flush=True))
+print("ready", flush=True)
+while True:  # code that swallows every exception, the stop included
+    try:
+        time.sleep(0.05)
+    except BaseException:
+        pass
+"""
+
+
+@pytest.mark.parametrize("second", [False, True], ids=["watchdog", "second signal"])
+def test_a_stop_that_code_swallows_still_ends_the_process(second):
+    proc = subprocess.Popen(
+        [sys.executable, "-c", STUCK], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline() == "ready\n"
+    start = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.stdout.readline() == "marked failed: Stopped: stopped by SIGTERM\n"  # at once, by the handler
+    if second:
+        proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    took = time.monotonic() - start
+    if second:  # at once, by the second signal
+        assert proc.returncode == -signal.SIGINT and took < GRACE_S, (took, err)
+        assert err == "stopped by SIGINT (a second signal): ended at once\n"
+    else:  # by the watchdog, the grace period after the signal
+        assert proc.returncode == 128 + signal.SIGTERM and GRACE_S - 0.5 < took < GRACE_S + 10, (took, err)
+        assert err.endswith(f"stopped by SIGTERM: the run did not end within {GRACE_S:g} s of the signal; ended it\n")
+    assert out == ""  # marked failed once

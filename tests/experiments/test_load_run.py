@@ -135,3 +135,12 @@ def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root
     run_experiment(args, repo_root)
     first, second = (json.loads((d / "metrics.json").read_text()) for d in (toy_run, tmp_path))
     assert json.dumps(_without_timings(first)) == json.dumps(_without_timings(second))
+
+
+def test_every_run_writes_the_report_the_help_promises(toy_run):
+    from experiments.run import help_text
+
+    assert "each run writes metrics.json, report.md" in help_text()
+    report = (toy_run / "report.md").read_text()  # hbni_toy writes no report of its own: the summary one
+    assert report.startswith("# hbni_toy: run report") and "| label_accuracy |" in report
+    assert "![theta_posterior.png](theta_posterior.png)" in report and "| posterior | HBNIPosterior |" in report
