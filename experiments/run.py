@@ -78,6 +78,8 @@ def main() -> None:
         run()
     except signals.Stopped as stop:  # stopped before the run's own code started
         signals.die(stop.signum, str(stop))
+    finally:  # a sweep whose job failed ends here without Hydra's end-of-sweep callbacks: its folder's claim too
+        release_all()
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")

@@ -1,6 +1,6 @@
 """Signals at many points of real runs: each must end the run within seconds and mark it failed.
 
-``python scripts/signal_stress.py [--tries N] [--seed S] [--out DIR]`` starts real runs of the command, each in its own
+``python scripts/signal_stress.py [--tries N] [--seed S] [--cases CASE ...]`` starts real runs of the command, each in its own
 session (so that SIGINT can go to the whole process group, as Ctrl-C in a terminal sends it), and sends a signal:
 
 * ``toy``: ``hbni_toy`` with an empty numba cache, the signal from 0.2 to 20 s after the start: the imports, the
@@ -9,7 +9,8 @@ session (so that SIGINT can go to the whole process group, as Ctrl-C in a termin
   exceptions C code ignores: tests/adversarial/stop_while_compiling.py);
 * ``sampler``: ``hbni_toy`` with a warm numba cache, the signal 0.5 to 4 s after the run started (status running);
 * ``planner``: ``package_delivery`` with a warm cache, 1 to 8 s after the run started;
-* ``sweep``: a two-job ``hbni_toy`` sweep (joblib workers) with an empty cache, 2 to 20 s after the start.
+* ``sweep``: a two-job ``hbni_toy`` sweep (joblib workers) with an empty cache, 0 to 15 s after its first job
+  started (the workers compile, then sample), the signal to the sweep's parent.
 
 It alternates SIGINT to the process group, SIGTERM and SIGHUP to the command, and ``python -m experiments.run``
 with the ``hbni-pyro`` console script. A try passes when every process of the session has ended within
@@ -93,8 +94,11 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
     if case in ("sampler", "planner"):  # the delay counts from the run's start
         while (statuses(folder).get(".") or {}).get("status") != "running" and proc.poll() is None:
             time.sleep(0.05)
+    if case == "sweep":  # from its first job's start
+        while not statuses(folder) and proc.poll() is None:
+            time.sleep(0.05)
     if case != "compile":
-        time.sleep(max(0.0, delay - (time.monotonic() - start) if case in ("toy", "sweep") else delay))
+        time.sleep(max(0.0, delay - (time.monotonic() - start) if case == "toy" else delay))
         sent_at = time.monotonic() - start
         kernels = len(list(Path(env["NUMBA_CACHE_DIR"]).rglob("*.nbi")))
         started = bool(statuses(folder))
@@ -142,7 +146,7 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
         "ended_s": round(ended_s, 2),
         "statuses": {k: (v or {}).get("status") for k, v in found.items()},
         "problems": problems,
-        "stderr": stderr.strip().splitlines()[-1:] if stderr.strip() else [],
+        "stderr": stderr.strip().splitlines()[-(30 if problems else 1) :],
     }
 
 
@@ -154,12 +158,15 @@ def warm_up() -> None:
         subprocess.run([sys.executable, "-P", str(script), part], cwd=ROOT, env=env, check=True, capture_output=True)
 
 
-def schedule(tries: int, rng: random.Random) -> list[tuple[str, float]]:
-    """``(case, delay)`` for each try: 60 % ``toy``, then ``sweep``, ``sampler``, ``planner`` and ``compile``."""
+def schedule(tries: int, rng: random.Random, only: list[str] | None = None) -> list[tuple[str, float]]:
+    """``(case, delay)`` for each try: 60 % ``toy``, then ``sweep``, ``sampler``, ``planner`` and ``compile`` (or the
+    cases ``only``, in equal shares)."""
     shares = [("toy", 0.6), ("sweep", 0.15), ("sampler", 0.1), ("planner", 0.1), ("compile", 0.05)]
+    if only:
+        shares = [(case, 1 / len(only)) for case in only]
     cases = [case for case, share in shares for _ in range(max(1, round(share * tries)))][:tries]
-    cases += ["toy"] * (tries - len(cases))
-    delays = {"toy": (0.2, 20.0), "sweep": (2.0, 20.0), "sampler": (0.5, 4.0), "planner": (1.0, 8.0), "compile": (0, 0)}
+    cases += [shares[0][0]] * (tries - len(cases))
+    delays = {"toy": (0.2, 20.0), "sweep": (0.0, 15.0), "sampler": (0.5, 4.0), "planner": (1.0, 8.0), "compile": (0, 0)}
     return [(case, rng.uniform(*delays[case])) for case in cases]
 
 
@@ -167,16 +174,23 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tries", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
+    cases = ["toy", "sweep", "sampler", "planner", "compile"]
+    parser.add_argument("--cases", nargs="+", choices=cases, help="only these cases, in equal shares (default: all)")
     args = parser.parse_args()
+    for signame, _ in SIGNALS:  # a signal ignored here (a background job's SIGINT) would be ignored by the runs too
+        if signal.getsignal(getattr(signal, signame)) == signal.SIG_IGN:
+            signal.signal(getattr(signal, signame), signal.SIG_DFL)
     rng = random.Random(args.seed)
     warm_up()
     results = []
-    for k, (case, delay) in enumerate(schedule(args.tries, rng)):
+    for k, (case, delay) in enumerate(schedule(args.tries, rng, args.cases)):
         signame, group = SIGNALS[k % len(SIGNALS)]
         with tempfile.TemporaryDirectory(prefix="signal-stress-") as work:
             result = one_try(case, signame, group, delay, script=k % 2 == 1, work=Path(work))
         results.append(result)
         verdict = "ok" if not result["problems"] else "FAIL: " + "; ".join(result["problems"])
+        if result["problems"]:  # what the command said
+            verdict += "".join(f"\n    | {line}" for line in result["stderr"])
         print(
             f"{k:2d} {case:8s} {result['signal']:16s} {result['entry']:10s} sent at {result['sent_s']:6.2f} s, "
             f"({result['phase']}), ended {result['ended_s']:5.2f} s later, status "

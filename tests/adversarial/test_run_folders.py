@@ -12,6 +12,8 @@ import sys
 import threading
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from experiment_runs import run_experiment
 
@@ -38,11 +40,18 @@ def toy_run(tmp_path_factory, repo_root):
     return run_dir
 
 
-def test_a_run_into_a_completed_runs_folder_is_refused_and_changes_nothing(toy_run, tmp_path, repo_root):
+@pytest.mark.parametrize("experiment", ["hbni_toy", "stream"])
+def test_a_run_into_a_completed_runs_folder_is_refused_and_changes_nothing(toy_run, tmp_path, repo_root, experiment):
+    # a stream run once marked the completed run it was refused by failed: any experiment is refused before it starts
     folder = tmp_path / "run"
     shutil.copytree(toy_run, folder)
     before = snapshot(folder)
-    proc = run_experiment([*TOY, "seed=1", f"hydra.run.dir={folder}"], repo_root, check=False)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "0.png"), np.zeros((32, 32, 3), np.uint8))
+    args = [*TOY, "seed=1"] if experiment == "hbni_toy" else ["experiment=stream", f"stream.source={frames}"]
+    env = {**os.environ, "HBNI_PYRO_ROOT": str(tmp_path)}
+    proc = run_experiment([*args, f"hydra.run.dir={folder}"], repo_root, env=env, check=False)
     assert proc.returncode == 2 and proc.stdout == "", proc.stderr
     assert proc.stderr == (
         f"run folder error: {folder}: holds a completed run; set run.overwrite=true to replace it, or run into "
@@ -141,19 +150,27 @@ def test_what_an_earlier_run_left_is_named(tmp_path):
     assert previous_run(tmp_path) == "an earlier run whose status.json cannot be read"
 
 
-def test_a_sweep_into_an_earlier_sweeps_folder_is_refused_and_a_sweep_leaves_no_lock(tmp_path, repo_root):
+def test_a_sweep_into_an_earlier_sweeps_folder_is_refused_and_overwrite_replaces_it(tmp_path, repo_root):
+    # an earlier sweep's folder as a sweep leaves it (tests/experiments/test_sweep_report.py runs one in worker
+    # processes and checks that it leaves no lock file)
     sweep = tmp_path / "sweep"
-    args = ["-m", *TOY, f"hydra.sweep.dir={sweep}"]
-    run_experiment([*args, "seed=0,1", "hydra.launcher.n_jobs=2"], repo_root)  # jobs in worker processes
-    assert (sweep / "report.md").read_text().count("| completed |") == 2
-    assert not list(sweep.rglob("*.lock"))  # neither the jobs' folder locks nor the report's
+    for job in ("0", "1", "2"):
+        (sweep / job / ".hydra").mkdir(parents=True)
+        (sweep / job / "status.json").write_text(json.dumps({"status": "completed"}))
+    (sweep / "multirun.yaml").write_text("hydra: {}\n")
+    (sweep / "report.md").write_text("# the earlier sweep\n")
     before = snapshot(sweep)
-    proc = run_experiment([*args, "seed=0,1"], repo_root, check=False)
-    assert proc.returncode == 2 and proc.stderr.startswith(f"run folder error: {sweep}: holds an earlier sweep")
+    args = ["-m", *TOY, f"hydra.sweep.dir={sweep}", "seed=5,6", "hydra.launcher.n_jobs=1"]  # jobs in the parent
+    proc = run_experiment(args, repo_root, check=False)
+    assert proc.returncode == 2 and proc.stderr == (
+        f"run folder error: {sweep}: holds an earlier sweep (3 job folders); set run.overwrite=true to replace it, or "
+        "run into another folder (hydra.run.dir=..., or hydra.sweep.dir=... for a sweep)\n"
+    )
     assert snapshot(sweep) == before
-    run_experiment([*args, "seed=5,6", "hydra.launcher.n_jobs=1", "run.overwrite=true"], repo_root)  # in the parent
+    run_experiment([*args, "run.overwrite=true"], repo_root)
     jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert jobs == ["0", "1"] and "seed=5" in (sweep / "0" / ".hydra" / "overrides.yaml").read_text()
+    assert (sweep / "report.md").read_text().count("| completed |") == 2 and not list(sweep.rglob("*.lock"))
 
 
 def test_latest_run_skips_damaged_siblings_and_names_them(tmp_path):

@@ -15,28 +15,12 @@ import numpy as np
 import pytest
 from experiment_runs import run_experiment
 
+from experiments.runs.processes import children, start_time
+
 from mission_tiny import TINY_MISSION
 
+pytestmark = pytest.mark.usefixtures("signals_delivered")  # a test started in the background too
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _children(pid: int) -> set[int]:
-    """The live child processes of ``pid`` (Linux /proc)."""
-    out: set[int] = set()
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            out |= {int(c) for c in (task / "children").read_text().split()}
-        except OSError:
-            pass
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().split()[2]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
@@ -60,8 +44,8 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
     workers: set[int] = set()
     while time.time() < deadline and not workers:  # wait for the bank's worker to start
         workers = (
-            {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()}
-            if _alive(proc.pid)
+            {c for c in children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()}
+            if start_time(proc.pid) is not None
             else set()
         )
         time.sleep(0.2)
@@ -72,7 +56,7 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
     entry = json.loads(status.read_text())
     assert entry["status"] == "failed" and f"stopped by {signal.Signals(signum).name}" in entry["error"], stderr
     time.sleep(2)
-    assert not [w for w in workers if _alive(w)], "a bank worker outlived the run"
+    assert not [w for w in workers if start_time(w) is not None], "a bank worker outlived the run"
     assert not list((tmp_path / "cache").glob("*.lock"))  # the bank's lock released
 
 
