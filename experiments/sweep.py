@@ -142,10 +142,20 @@ class SweepGuard(Callback):
             self._claim.release()
 
     def _stop(self, signum: int, frame: object) -> None:
-        """End every job, mark the unfinished ones failed, write the report, then die by ``signum``. A second
-        signal cuts the wait for the jobs short: what is left is killed at once."""
+        """End every job, mark the unfinished ones failed, write the report, then die by ``signum`` (also when one of
+        these steps fails: it is reported in one line). A second signal cuts the wait for the jobs short: what is
+        left is killed at once."""
         for name in SIGNALS:
             signal.signal(getattr(signal, name), self._cut_short)
+        try:
+            self._end_jobs(signum)
+        except Exception as exc:
+            print(f"sweep stopped by {signal.Signals(signum).name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        logging.shutdown()
+        signals.die(signum)
+
+    def _end_jobs(self, signum: int) -> None:
+        """:meth:`_stop`'s work before the process dies."""
         name = signal.Signals(signum).name
         assert self._config is not None
         sweep_dir = Path(str(self._config.hydra.sweep.dir))
@@ -174,8 +184,8 @@ class SweepGuard(Callback):
         self._mark_failed(sweep_dir, name)
         if sweep_dir.is_dir():
             update_sweep_report(sweep_dir)
-        logging.shutdown()
-        signals.die(signum)
+        for pid in descendants(os.getpid()):  # a worker the pool started meanwhile in place of a killed one
+            kill(pid, start_time(pid), signal.SIGKILL)
 
     def _cut_short(self, signum: int, frame: object) -> None:
         self._hurry = True

@@ -53,6 +53,14 @@ def session(pid: int) -> list[int]:
     return out
 
 
+def command_line(pid: int) -> str:
+    """The command line of process ``pid`` (``"?"`` when it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()[:200]
+    except OSError:
+        return "?"
+
+
 def statuses(folder: Path) -> dict[str, dict | None]:
     """``status.json`` of the run folder ``folder`` or of each job of a sweep folder (``None``: unreadable)."""
     found = {}
@@ -108,10 +116,18 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
         sent_at, kernels, started = float("nan"), 0, True
     signalled = time.monotonic()
     hang_at = signalled + (HANG_S if case != "compile" else 120.0 + HANG_S)
-    while session(proc.pid) and time.monotonic() < hang_at:
+    ended_s = None  # when the session was last seen to empty; it must stay empty for a second
+    while time.monotonic() < hang_at:
+        if session(proc.pid):
+            ended_s = None
+        elif ended_s is None:
+            ended_s = time.monotonic() - signalled
+        elif time.monotonic() - signalled - ended_s >= 1.0:
+            break
         time.sleep(0.05)
     left = session(proc.pid)
-    ended_s = time.monotonic() - signalled
+    ended_s = time.monotonic() - signalled if left or ended_s is None else ended_s
+    commands = [command_line(pid) for pid in left]
     for pid in left:
         os.kill(pid, signal.SIGKILL)
     stderr = proc.communicate()[1]
@@ -119,7 +135,7 @@ def one_try(case: str, signame: str, group: bool, delay: float, script: bool, wo
     locks = [str(p.relative_to(work)) for p in work.rglob("*.lock")]
     problems = []
     if left:
-        problems.append(f"hang: {len(left)} processes alive {HANG_S:g} s after the signal")
+        problems.append(f"hang: {len(left)} processes alive {HANG_S:g} s after the signal: {commands}")
     if proc.returncode != -signum and not left:
         problems.append(f"exit status {proc.returncode}, expected death by {signame}")
     for job, entry in found.items():

@@ -23,10 +23,14 @@ def start_time(pid: int) -> str | None:
 
 def children(pid: int) -> list[int]:
     """The live child processes of ``pid``."""
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:  # gone (also while it is being listed)
+        return []
     out: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
+    for task in tasks:
         try:
-            out += [int(c) for c in (task / "children").read_text().split()]
+            out += [int(c) for c in Path(f"/proc/{pid}/task/{task}/children").read_text().split()]
         except OSError:
             pass
     return [c for c in dict.fromkeys(out) if start_time(c) is not None]
