@@ -7,7 +7,8 @@ Rooms: :mod:`experiments.studies` (the entry points, one per ``conf/experiment/*
 :mod:`experiments.sweep` (a ``-m`` sweep's checks and signals) and :mod:`experiments.ros_node` (the live ROS 2 node).
 
 The package's configs ship inside it (``experiments/conf``, the repository's ``conf/``). Importing the
-package imports nothing heavy: Hydra and OmegaConf load when a name below is first used. See
+package imports nothing but the standard library (the command handles signals from its first instruction:
+:mod:`experiments.runs.signals`): the project, Hydra and OmegaConf load when a name below is first used. See
 ``docs/architecture.md`` for the layout and the shared steps.
 """
 
@@ -15,15 +16,18 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from hbni_infra.version import __version__
-
 if TYPE_CHECKING:
     from experiments.runs.artifacts import Run, latest_run, load_run
+    from hbni_infra.version import __version__
 
 __all__ = ["Run", "__version__", "latest_run", "load_run"]
 
 
 def __getattr__(name: str) -> Any:
+    if name == "__version__":
+        from hbni_infra.version import __version__
+
+        return __version__
     if name in ("Run", "latest_run", "load_run"):
         from experiments.runs import artifacts
 

@@ -2,13 +2,16 @@
 
 :class:`SweepGuard` is a Hydra callback (registered in ``conf/config.yaml``). When a sweep starts it composes
 every job's config and refuses the sweep, before any job runs, if a job sets a key its experiment never reads
-(:func:`experiments.schemas.check_overrides`): the message names the key and the experiment.
+(:func:`experiments.schemas.check_overrides`): the message names the key and the experiment. Then it claims the
+sweep's folder as a single run claims its own (:mod:`experiments.runs.claim`): a folder that a live sweep or run
+holds, or that holds an earlier sweep or run while ``run.overwrite`` is false, refuses the sweep with one line and
+exit status 2, changing nothing there; each job then holds its own folder while it runs.
 
 While the sweep runs, SIGTERM, SIGINT and SIGHUP to the parent stop every job: the parent sends SIGTERM to its
 child processes (the joblib/loky workers, submitit's local jobs; on Slurm it cancels the sweep's jobs with
 ``scancel``), whose running job marks itself failed and ends its own background workers
 (:mod:`experiments.run`); after at most :data:`GRACE_S` seconds every process of the tree still alive gets
-SIGKILL. Then every job that did not complete is marked failed in its ``status.json`` (a job that never started
+SIGKILL (a second signal kills them at once). Then every job that did not complete is marked failed in its ``status.json`` (a job that never started
 gets a folder with its overrides and that status), the sweep report is written (:mod:`experiments.reports.sweep_report`), and
 the parent dies by the signal it got.
 """
@@ -23,21 +26,26 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from experiments.reports.sweep_report import update_sweep_report
+from experiments.runs import signals
+from experiments.runs.claim import LOCK, Claim, FolderTaken, claim, remove_stale_lock
+from experiments.runs.processes import children, descendants, kill, start_time
 from experiments.runs.status import read_status, write_status
 
 log = logging.getLogger("experiments")
 
 #: environment variable naming the sweep parent's process id (a job in another process is a sweep worker)
 SWEEP_PARENT = "HBNI_PYRO_SWEEP_PARENT"
-#: seconds the parent waits for its jobs to mark themselves failed and exit before it kills what is left
-GRACE_S = 20.0
+#: seconds the parent waits for its jobs to mark themselves failed and exit before it kills what is left (a job
+#: ends within experiments.runs.signals.GRACE_S of its signal)
+GRACE_S = signals.GRACE_S + 5.0
 SIGNALS = ("SIGTERM", "SIGINT", "SIGHUP")
 
 
@@ -69,43 +77,9 @@ def check_sweep(config: DictConfig, jobs: list[list[str]]) -> None:
             raise ValueError(f"{exc} (job {num}: {' '.join(job)})") from None
 
 
-def in_sweep_worker() -> bool:
-    """Whether this process runs a job for a sweep parent in another process (joblib, submitit, Slurm)."""
-    parent = os.environ.get(SWEEP_PARENT)
-    return parent is not None and parent != str(os.getpid())
-
-
-def _start_time(pid: int) -> str | None:
-    """The start time of process ``pid`` (``/proc/<pid>/stat``), ``None`` when it is gone or a zombie."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = stat.rsplit(")", 1)[1].split()
-    return None if fields[0] in ("Z", "X") else fields[19]
-
-
-def children(pid: int) -> list[int]:
-    """The live child processes of ``pid`` (Linux ``/proc``)."""
-    out: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            out += [int(c) for c in (task / "children").read_text().split()]
-        except OSError:
-            pass
-    return [c for c in dict.fromkeys(out) if _start_time(c) is not None]
-
-
-def descendants(pid: int) -> list[int]:
-    """Every live process below ``pid``."""
-    out: list[int] = []
-    todo = children(pid)
-    while todo:
-        child = todo.pop()
-        if child not in out:
-            out.append(child)
-            todo += children(child)
-    return out
+def in_sweep_parent() -> bool:
+    """Whether this process is a running sweep's parent (a job run here is one of its jobs, in its process)."""
+    return os.environ.get(SWEEP_PARENT) == str(os.getpid())
 
 
 def _ignores_sigterm(pid: int) -> bool:
@@ -117,23 +91,42 @@ def _ignores_sigterm(pid: int) -> bool:
     return bool(int(ignored, 16) >> (signal.SIGTERM - 1) & 1)
 
 
+def refuse(kind: str, exc: Exception) -> NoReturn:
+    """Print ``<kind>: <exc>`` (one line) and exit with status 2; raise ``exc`` under ``HYDRA_FULL_ERROR=1``."""
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":
+        raise exc
+    print(f"{kind}: {exc}", file=sys.stderr)
+    sys.exit(2)
+
+
 class SweepGuard(Callback):
-    """Hydra callback: check every job of a sweep before any starts, and stop the whole sweep on a signal."""
+    """Hydra callback: check every job of a sweep and claim its folder before any job starts, and stop the whole
+    sweep on a signal."""
 
     def __init__(self) -> None:
         self._config: DictConfig | None = None
         self._jobs: list[list[str]] = []
         self._previous: dict[int, Any] = {}
+        self._claim: Claim | None = None
+        self._hurry = False
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         jobs = sweep_jobs(config)
         try:
             check_sweep(config, jobs)
         except ValueError as exc:
-            if os.environ.get("HYDRA_FULL_ERROR") == "1":
-                raise
-            print(f"config error: {exc}", file=sys.stderr)
-            sys.exit(2)
+            refuse("config error", exc)
+        try:
+            sweep_dir = Path(str(config.hydra.sweep.dir))
+        except OmegaConfBaseException as exc:
+            from experiments.schemas import config_error
+
+            refuse("config error", config_error(exc))
+        try:
+            with signals.deferred():
+                self._claim = claim(sweep_dir, overwrite=bool(config.run.overwrite))
+        except (FolderTaken, ValueError) as exc:
+            refuse("run folder error", exc)
         self._config, self._jobs = config, jobs
         os.environ[SWEEP_PARENT] = str(os.getpid())
         for name in SIGNALS:
@@ -145,39 +138,57 @@ class SweepGuard(Callback):
             signal.signal(signum, handler)
         self._previous.clear()
         os.environ.pop(SWEEP_PARENT, None)
+        if self._claim is not None:
+            self._claim.release()
 
     def _stop(self, signum: int, frame: object) -> None:
-        """End every job, mark the unfinished ones failed, write the report, then die by ``signum``."""
+        """End every job, mark the unfinished ones failed, write the report, then die by ``signum`` (also when one of
+        these steps fails: it is reported in one line). A second signal cuts the wait for the jobs short: what is
+        left is killed at once."""
         for name in SIGNALS:
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
+            signal.signal(getattr(signal, name), self._cut_short)
+        try:
+            self._end_jobs(signum)
+        except Exception as exc:
+            print(f"sweep stopped by {signal.Signals(signum).name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        logging.shutdown()
+        signals.die(signum)
+
+    def _end_jobs(self, signum: int) -> None:
+        """:meth:`_stop`'s work before the process dies."""
         name = signal.Signals(signum).name
         assert self._config is not None
         sweep_dir = Path(str(self._config.hydra.sweep.dir))
-        print(f"sweep stopped by {name}: ending its jobs (at most {GRACE_S:.0f} s)", file=sys.stderr)
-        seen = {pid: _start_time(pid) for pid in descendants(os.getpid())}
+        print(
+            f"sweep stopped by {name}: ending its jobs (at most {GRACE_S:.0f} s; again to kill them now)",
+            file=sys.stderr,
+        )
+        seen = {pid: start_time(pid) for pid in descendants(os.getpid())}
         for pid in children(os.getpid()):
-            _kill(pid, seen.get(pid), signal.SIGTERM)
+            kill(pid, seen.get(pid), signal.SIGTERM)
         self._cancel_slurm_jobs(sweep_dir)
         deadline = time.monotonic() + GRACE_S
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not self._hurry:
             for pid in children(os.getpid()):  # a worker started since
                 if pid not in seen:
-                    seen[pid] = _start_time(pid)
-                    _kill(pid, seen[pid], signal.SIGTERM)
-            seen.update({pid: _start_time(pid) for pid in descendants(os.getpid()) if pid not in seen})
-            waiting = [p for p, t in seen.items() if t is not None and _start_time(p) == t and not _ignores_sigterm(p)]
+                    seen[pid] = start_time(pid)
+                    kill(pid, seen[pid], signal.SIGTERM)
+            seen.update({pid: start_time(pid) for pid in descendants(os.getpid()) if pid not in seen})
+            waiting = [p for p, t in seen.items() if t is not None and start_time(p) == t and not _ignores_sigterm(p)]
             if not waiting:
                 break
             time.sleep(0.1)
-        seen.update({pid: _start_time(pid) for pid in descendants(os.getpid()) if pid not in seen})
+        seen.update({pid: start_time(pid) for pid in descendants(os.getpid()) if pid not in seen})
         for pid, started in seen.items():
-            _kill(pid, started, signal.SIGKILL)
+            kill(pid, started, signal.SIGKILL)
         self._mark_failed(sweep_dir, name)
         if sweep_dir.is_dir():
             update_sweep_report(sweep_dir)
-        logging.shutdown()
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
+        for pid in descendants(os.getpid()):  # a worker the pool started meanwhile in place of a killed one
+            kill(pid, start_time(pid), signal.SIGKILL)
+
+    def _cut_short(self, signum: int, frame: object) -> None:
+        self._hurry = True
 
     def _cancel_slurm_jobs(self, sweep_dir: Path) -> None:
         """``scancel`` the sweep's Slurm jobs (submitit names its job folders by job id); Slurm sends them SIGTERM."""
@@ -215,13 +226,5 @@ class SweepGuard(Callback):
                 else f"not started: the sweep was stopped by {signal_name}"
             )
             write_status(folder, "failed", error=error)
-
-
-def _kill(pid: int, started: str | None, signum: int) -> None:
-    """Send ``signum`` to ``pid`` if it is still the process that started at ``started``."""
-    if started is None or _start_time(pid) != started:
-        return
-    try:
-        os.kill(pid, signum)
-    except (ProcessLookupError, PermissionError):
-        pass
+        for lock in sweep_dir.glob(f"*/{LOCK}"):
+            remove_stale_lock(lock.parent)  # a killed job's

@@ -71,9 +71,10 @@ def fit(
         model: the noise model's name, ``"paper"`` (default), ``"confusion"``, ``"sequence"`` or
             another registered one (:func:`hbni_pyro.models.register`), or its spec.
         sequence_ids: ``(N,)`` integer id of each output's sequence (required by a sequence
-            model; the others fit frames alone, and keep the ids as the units of their pointwise likelihood,
-            :meth:`~HBNIPosterior.to_arviz`); a sequence's outputs in time order, from which a model with
-            ``correlated_frames`` estimates :attr:`~HBNIPosterior.frame_correlation`.
+            model; the others do not fit on them but check them as the sequence model does, so that switching
+            ``model`` never hides ids that do not fit the outputs, and keep them as the units of their pointwise
+            likelihood, :meth:`~HBNIPosterior.to_arviz`); a sequence's outputs in time order, from which a model
+            with ``correlated_frames`` estimates :attr:`~HBNIPosterior.frame_correlation`.
         method: ``"mh"`` (the vectorised kernels) or ``"nuts"`` (Pyro NUTS on the Pyro model with
             the classes enumerated out, labels recovered by ``infer_discrete``).
         num_chains: chains (``None`` = ``DEFAULT_CHAINS[method]``).
@@ -192,9 +193,12 @@ def _fit_device(device: Any, data: Tensor, method: str, name: str = "obs") -> to
 def _sequence_ids(
     spec: NoiseModel, sequence_ids: Any, num_obs: int, labels: Tensor | None, device: torch.device
 ) -> Tensor | None:
-    """Validated ids remapped to ``0..K-1`` on ``device`` (``None`` for frame-level models); ``labels`` (on
-    ``device``) must agree within a sequence."""
+    """Validated ids remapped to ``0..K-1`` on ``device`` (``None`` for frame-level models, which still check ids
+    they are given: ids that do not fit the outputs are a mistake in the data, whichever model reads them);
+    ``labels`` (on ``device``) must agree within a sequence."""
     if not spec.sequences:
+        if sequence_ids is not None:
+            as_sequence_ids(sequence_ids, num_obs)
         return None
     if sequence_ids is None:
         raise ValueError(f"sequence_ids: the {spec.name!r} model needs the sequence id of every output, got None")

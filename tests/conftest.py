@@ -6,9 +6,10 @@ from __future__ import annotations
 import functools
 import inspect
 import os
+import signal
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,19 @@ def _runs_an_experiment(function: Callable) -> bool:
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return REPO_ROOT
+
+
+@pytest.fixture
+def signals_delivered() -> Iterator[None]:
+    """The stop signals (SIGINT, SIGTERM, SIGHUP) handled by default in the processes the test starts, also when
+    pytest itself was started ignoring them (a shell's background job ignores SIGINT, ``nohup`` SIGHUP): an ignored
+    signal stays ignored across ``exec``, and a run leaves a signal it was started ignoring ignored."""
+    ignored = [s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP) if signal.getsignal(s) == signal.SIG_IGN]
+    for signum in ignored:
+        signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    yield
+    for signum in ignored:
+        signal.signal(signum, signal.SIG_IGN)
 
 
 @pytest.fixture(scope="session")

@@ -17,6 +17,7 @@ from __future__ import annotations
 import atexit
 import multiprocessing
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -26,6 +27,9 @@ from pathlib import Path
 
 READ_AT_IMPORT = ("NUMBA_", "OMP_", "MKL_", "OPENBLAS_", "TORCH", "PYTHON", "XDG_CACHE_HOME")
 """Prefixes of environment variables read when the project is imported: a run that changes one starts afresh."""
+
+PROMISED = ("status.json", "metrics.json", "report.md")
+"""The files ``--help`` says every run writes."""
 
 TESTS = Path(__file__).resolve().parent
 """The tests' directory, which pytest puts on ``sys.path``: a run does not see it (its folders would shadow the
@@ -46,12 +50,16 @@ def run_experiment(
     """``python -m experiments.run *args`` in ``cwd`` with ``env`` (default: this process's), as
     ``subprocess.run(..., capture_output=True, text=True)`` would return it; ``check`` raises
     :class:`subprocess.CalledProcessError` on a non-zero exit, ``timeout`` (seconds) kills the run and raises
-    :class:`subprocess.TimeoutExpired`."""
+    :class:`subprocess.TimeoutExpired`.
+
+    A single run that completes must do what ``--help`` says every run does (:func:`check_promised_outputs`)."""
     args = [str(a) for a in args]
     env = dict(os.environ if env is None else env)
     command = [sys.executable, "-m", "experiments.run", *args]
     if _changes_import_settings(env):
-        return subprocess.run(command, cwd=cwd, env=env, check=check, timeout=timeout, capture_output=True, text=True)
+        done = subprocess.run(command, cwd=cwd, env=env, check=check, timeout=timeout, capture_output=True, text=True)
+        check_promised_outputs(args, cwd, done)
+        return done
     with tempfile.TemporaryDirectory(prefix="experiment-run-") as streams:
         out, err = Path(streams, "stdout"), Path(streams, "stderr")
         process = _server.Process(target=_run_main, args=(args, str(cwd), env, str(out), str(err)), name="experiment")
@@ -64,7 +72,20 @@ def run_experiment(
         done = subprocess.CompletedProcess(command, process.exitcode, out.read_text(), err.read_text())
     if check:
         done.check_returncode()
+    check_promised_outputs(args, cwd, done)
     return done
+
+
+def check_promised_outputs(args: Sequence[str], cwd: str | os.PathLike, done: subprocess.CompletedProcess[str]) -> None:
+    """What ``--help`` promises of every run (:func:`experiments.run.help_text`), checked on a completed single run:
+    it says where it wrote its outputs, and that folder holds the files of :data:`PROMISED`."""
+    if done.returncode != 0 or "-m" in args or "--multirun" in args or {"-h", "--help"} & set(args):
+        return
+    said = re.findall(r"done in [0-9.]+ s; outputs in (.+)$", done.stdout, flags=re.MULTILINE)
+    assert said, f"the run did not say where it wrote its outputs: {done.stdout[-2000:]}"
+    folder = Path(cwd, said[-1])
+    missing = [name for name in PROMISED if not (folder / name).is_file()]
+    assert not missing, f"{folder} lacks {missing}, which --help says every run writes"
 
 
 def _changes_import_settings(env: Mapping[str, str]) -> bool:

@@ -130,7 +130,12 @@ def mixed_signatures(root: Path) -> dict[str, list[str]]:
 
 
 def test_the_entry_points_are_the_modules_hydra_calls():
-    assert entry_points(ROOT) == {"experiments/run.py", "experiments/sweep.py", "experiments/reports/sweep_report.py"}
+    assert entry_points(ROOT) == {
+        "experiments/run.py",
+        "experiments/guard.py",
+        "experiments/sweep.py",
+        "experiments/reports/sweep_report.py",
+    }
 
 
 def test_no_raw_config_is_read_below_the_entry_points():

@@ -13,6 +13,10 @@ RESULTS = ("duel", "best_sampled")
 THRESHOLD_RULES = ("none", "paper", "capped")
 
 
+NO_BUDGET = 2**62
+"""A rollout budget that bounds nothing (a run bounded by its ``cycles``, as G-DICE's is)."""
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Settings of the planner; defaults are the tuned cold-start planner (``docs/planner.md``), and
@@ -206,6 +210,14 @@ class PlannerConfig:
             changes["start_nodes"] = changes["num_nodes"]
         return dataclasses.replace(self, **changes)
 
+    def fixed_steps(self) -> int | None:
+        """The steps of a run that does only cross-entropy phases for a set number of ``cycles`` (G-DICE:
+        ``ce_iterations`` of them), at most (the budget or ``patience`` may end it sooner); ``None`` for a run whose
+        length its budget alone bounds."""
+        if self.cycles and set(self.phases) == {"ce"}:
+            return self.cycles * len(self.phases) * self.ce_iterations
+        return None
+
     @property
     def paper_budget(self) -> int:
         """G-DICE's rollouts at the paper's package-delivery settings: 100 iterations x 100 samples x 80."""
@@ -222,7 +234,7 @@ def gdice_config(**overrides) -> PlannerConfig:
     paper = dict(
         phases=("ce",),
         cycles=1,
-        budget=2**62,
+        budget=NO_BUDGET,
         num_nodes=13,
         start_nodes=13,
         grow_nodes=0,

@@ -37,7 +37,7 @@ from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read
 from decpomdp.controller import JointController
 from decpomdp.identity import describe
 from decpomdp.search import cross_entropy, local_search, lookahead
-from decpomdp.search.config import PHASES, PlannerConfig
+from decpomdp.search.config import NO_BUDGET, PHASES, PlannerConfig
 from decpomdp.search.racing import duel
 from decpomdp.search.scoring import Scorer
 from hbni_infra.streams import torch_generator
@@ -367,7 +367,8 @@ def plan(
         checkpoint: file written every ``checkpoint_every`` steps and at the end; if it exists, the run
             resumes from it. It records what produced it (sizes, scorer and problem, config, seed);
             resuming it with any of them different raises a ``ValueError`` naming the fields.
-        progress: show a progress bar over the rollout budget.
+        progress: show a progress bar: over the steps of a run of a fixed number of them (G-DICE's iterations,
+            :meth:`PlannerConfig.fixed_steps`), else over the rollout budget.
         init: the first incumbent (K = 1, the searched agents, at most ``config.num_nodes`` nodes), for
             instance a plan of a related problem; ``None`` starts from no controller. Its first phase is
             then warm: cross-entropy starts from it with weight ``ce_init_weight``, local search edits it.
@@ -393,8 +394,13 @@ def plan(
         run = _Run()
         run.incumbent = None if init is None else JointController(init.action.clone(), init.next_node.clone())
     steps = {"ce": _ce_step, "ls": _ls_step}
+    fixed = cfg.fixed_steps()  # a run of a fixed number of steps (G-DICE) counts them, any other its rollouts
     bar = tqdm(
-        total=cfg.budget, initial=min(run.used, cfg.budget), disable=not progress, desc="planner", unit="rollout"
+        total=fixed if fixed is not None else None if cfg.budget >= NO_BUDGET else cfg.budget,
+        initial=len(run.history["phase"]) if fixed is not None else min(run.used, cfg.budget),
+        disable=not progress,
+        desc="planner",
+        unit="step" if fixed is not None else "rollout",
     )
     while (
         run.used < cfg.budget and run.idle_cycles < cfg.patience and not (cfg.cycles and run.cycles_done >= cfg.cycles)
@@ -419,7 +425,7 @@ def plan(
                 run.idle_cycles = 0 if run.gained else run.idle_cycles + 1
                 run.gained = 0
                 run.cycles_done += 1
-        bar.update(min(spent, max(cfg.budget - bar.n, 0)))
+        bar.update(1 if fixed is not None else min(spent, max(cfg.budget - bar.n, 0)))
         bar.set_postfix(phase=phase, value=f"{run.value:.4g}", nodes=run.incumbent.num_nodes if run.incumbent else 0)
         if path is not None and (len(run.history["phase"]) % checkpoint_every == 0):
             run.save(path, fingerprint, generator)

@@ -5,7 +5,7 @@
 ends: one row per job, the swept keys as columns, then the experiment's headline metrics (the
 ``headline`` list of its config: dotted paths into ``metrics.json``, ``*`` matching any key).
 Failed jobs are listed with their error. Writing at each job's end means the report exists even
-when a failing job stops the sweep; a lock file serialises the jobs' rewrites.
+when a failing job stops the sweep; a lock on the sweep's folder serialises the jobs' rewrites.
 """
 
 from __future__ import annotations
@@ -109,14 +109,15 @@ def multirun_report(sweep_dir: str | os.PathLike) -> str:
 
 
 def update_sweep_report(sweep_dir: str | os.PathLike) -> Path:
-    """Rewrite ``<sweep_dir>/report.md`` under an exclusive lock (jobs of a sweep end concurrently)."""
+    """Rewrite ``<sweep_dir>/report.md`` under an exclusive lock on the folder itself (jobs of a sweep end
+    concurrently; locking the folder leaves no lock file behind)."""
     sweep_dir = Path(sweep_dir)
-    with open(sweep_dir / ".report.lock", "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            return write_report(sweep_dir / "report.md", multirun_report(sweep_dir))
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+    fd = os.open(sweep_dir, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        return write_report(sweep_dir / "report.md", multirun_report(sweep_dir))
+    finally:
+        os.close(fd)
 
 
 class MultirunReport(Callback):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -166,13 +167,28 @@ def latest_run(name: str, root: str | os.PathLike | None = None) -> Path:
     """The newest completed run directory of experiment ``name`` under ``root/<name>/`` (default root: the
     project's ``outputs``, :func:`experiments.runs.paths.outputs_root`, from any working directory).
 
+    A sibling whose ``status.json`` cannot be read is skipped with a warning naming it (one damaged folder does not
+    hide every other run).
+
     Raises:
         FileNotFoundError: no completed run of ``name`` under ``root``.
     """
     root = outputs_root() if root is None else Path(root)
-    runs = sorted(
-        p for p in (root / name).glob("*") if p.is_dir() and (read_status(p) or {}).get("status") == "completed"
-    )
+    runs, damaged = [], []
+    for folder in sorted(p for p in (root / name).glob("*") if p.is_dir()):
+        try:
+            status = read_status(folder)
+        except (OSError, ValueError) as exc:
+            damaged.append(str(exc))
+            continue
+        if (status or {}).get("status") == "completed":
+            runs.append(folder)
+    if damaged:
+        warnings.warn(
+            f"latest_run: skipped {len(damaged)} run folder(s) of {name!r} with a damaged status: "
+            + "; ".join(damaged),
+            stacklevel=2,
+        )
     if not runs:
         raise FileNotFoundError(
             f"name: no completed {name!r} run under {str(Path(root) / name)!r}; run `hbni-pyro experiment={name}` first"

@@ -17,9 +17,20 @@ ROOT_VARIABLE = "HBNI_PYRO_ROOT"
 
 
 def project_root() -> Path:
-    """The root every default path is relative to (absolute): ``HBNI_PYRO_ROOT``, else the working directory."""
+    """The root every default path is relative to (absolute): ``HBNI_PYRO_ROOT``, else the working directory.
+
+    Raises:
+        NotADirectoryError: ``HBNI_PYRO_ROOT`` names a file (a folder not there yet is made by the first run).
+    """
     override = os.environ.get(ROOT_VARIABLE)
-    return Path(override).expanduser().resolve() if override else Path.cwd().resolve()
+    if not override:
+        return Path.cwd().resolve()
+    root = Path(override).expanduser().resolve()
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(
+            f"{ROOT_VARIABLE}: expected the folder that holds runs, sweeps and caches, got the file {str(root)!r}"
+        )
+    return root
 
 
 def outputs_root() -> Path:

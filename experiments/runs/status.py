@@ -30,7 +30,7 @@ def read_status(run_dir: str | os.PathLike) -> dict[str, Any] | None:
         return None
     try:
         entry = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: corrupt status file ({exc})") from None
     if not isinstance(entry, dict) or entry.get("status") not in STATES:
         raise ValueError(f"{path}: expected a status in {list(STATES)}, got {entry!r}")

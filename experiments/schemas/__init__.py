@@ -51,6 +51,7 @@ __all__ = [
     "check_settings",
     "compose_config",
     "compose_settings",
+    "config_error",
     "gdice_node",
     "register",
     "typed_settings",
@@ -118,16 +119,25 @@ def typed_settings(cfg: DictConfig) -> Root:
     """
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
-    plain = OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
-    name = plain.get("name")
-    if name not in SCHEMAS:
-        raise ValueError(f"name: unknown experiment {name!r}; expected one of {sorted(SCHEMAS)}")
     try:
+        plain = OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
+        name = plain.get("name")
+        if name not in SCHEMAS:
+            raise ValueError(f"name: unknown experiment {name!r}; expected one of {sorted(SCHEMAS)}")
         return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(SCHEMAS[name]), plain))
     except OmegaConfBaseException as exc:
-        key = getattr(exc, "full_key", None)
-        message = str(exc).split("\n")[0]
-        raise ValueError(f"{key}: {message}" if key else message) from None
+        raise config_error(exc) from None
+
+
+def config_error(exc: OmegaConfBaseException) -> ValueError:
+    """``exc`` (raised while typing or resolving a config) as one line naming the key; a resolver that failed on a
+    file or folder (``HBNI_PYRO_ROOT`` naming a file) is quoted in its own words."""
+    key = getattr(exc, "full_key", None)
+    cause: BaseException | None = exc
+    while cause is not None and not isinstance(cause, OSError):
+        cause = cause.__cause__ or cause.__context__
+    message = str(cause) if cause is not None else str(exc).split("\n")[0]
+    return ValueError(f"{key}: {message}" if key else message)
 
 
 def check_settings(settings: Root) -> Root:

@@ -20,10 +20,18 @@ class Paths:
 
 
 @dataclass
+class RunBlock:
+    """``run``: what a run may do to its folder (:mod:`experiments.runs.claim`)."""
+
+    overwrite: bool = False  # replace an earlier run or sweep found in the run's folder (its files are removed first)
+
+
+@dataclass
 class Root:
     """Keys every experiment has."""
 
     paths: Paths = field(default_factory=Paths)
+    run: RunBlock = field(default_factory=RunBlock)
     name: str = MISSING
     entry: str = MISSING
     headline: list[str] = MISSING  # metrics a sweep report shows (paths into metrics.json)

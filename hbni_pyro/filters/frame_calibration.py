@@ -145,6 +145,14 @@ def fit_frame_calibration(
     if torch.as_tensor(labels).numel() != x.shape[0]:
         raise ValueError(f"labels: expected one per output ({x.shape[0]}), got {torch.as_tensor(labels).numel()}")
     y = y.to(x.device)
+    empty = (torch.bincount(y, minlength=M) == 0).nonzero().flatten().tolist()
+    if empty:
+        names = as_names("class_names", class_names, M)
+        which = [names[m] for m in empty] if names is not None else empty
+        raise ValueError(
+            f"labels: no frames of class(es) {which} (of {M}); a calibration fitted without them would map every frame "
+            "away from them: give frames of every class"
+        )
 
     def nll(logits: Tensor) -> Tensor:
         return torch.nn.functional.cross_entropy(logits, y)

@@ -21,7 +21,7 @@ from torch import Tensor
 
 from hbni_pyro.filters.macro import MacroObservationProcess
 from hbni_pyro.filters.streaming import StreamingFilter
-from hbni_pyro.validation import DTYPE
+from hbni_pyro.validation import DTYPE, as_labels
 from hbni_infra.checks import as_float, as_int, as_probability
 from hbni_infra.stats import wilson_interval
 
@@ -52,8 +52,8 @@ def threshold_checks(
     ``overall_accuracy`` (the label at the stop, timeouts included, against the truth).
     """
     thresholds = [as_probability(f"thresholds[{i}]", t, allow_zero=False) for i, t in enumerate(thresholds)]
+    streams, truth = labelled_streams(filter, streams, truth)
     max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
-    truth = torch.as_tensor(truth).long().to(filter.device)
     out: dict[str, dict[str, Any]] = {}
     stop_at = [float((stops or {}).get(t, t)) for t in thresholds]
     process = MacroObservationProcess(filter, max_frames=max_frames)
@@ -76,6 +76,26 @@ def threshold_checks(
         if stops is not None:
             out[f"{t:g}"]["stop"] = stop
     return out
+
+
+def _listed(names: Sequence[str] | None) -> str:
+    return str(list(names)) if names else "(unnamed)"
+
+
+def labelled_streams(filter: StreamingFilter, streams: Any, truth: Any, where: str = "") -> tuple[Tensor, Tensor]:
+    """``streams (B, N, M)`` of ``filter``'s ``M`` classes and their classes ``truth (B,)`` in ``[0, M)``, checked;
+    ``truth`` as int64 on the filter's device. ``where`` prefixes the argument names in errors (``"folds[1]."``)."""
+    if not isinstance(streams, Tensor) or streams.dim() != 3:
+        got = tuple(streams.shape) if isinstance(streams, Tensor) else type(streams).__name__
+        raise ValueError(f"{where}streams: expected a tensor (B, N, M) of labelled streams, got {got}")
+    if streams.shape[2] != filter.num_classes:
+        raise ValueError(
+            f"{where}streams: expected outputs of the filter's {filter.num_classes} classes, got {streams.shape[2]}"
+        )
+    truth = as_labels(truth, streams.shape[0], filter.num_classes, name=f"{where}truth")
+    if (truth < 0).any():
+        raise ValueError(f"{where}truth: expected the class of every stream, got -1 (unknown)")
+    return streams, truth.to(filter.device)
 
 
 DEFAULT_STOPS = (0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
@@ -153,7 +173,17 @@ def fit_stop_threshold(
         folds = list(filter)
         if not folds or not all(isinstance(f, Fold) for f in folds) or streams is not None or truth is not None:
             raise TypeError("filter: expected a StreamingFilter, or a non-empty list of Fold with streams=truth=None")
-    low = 1.0 / folds[0].filter.num_classes
+    num_classes, names = folds[0].filter.num_classes, folds[0].filter.class_names
+    for k, fold in enumerate(folds):
+        classes = fold.filter.class_names
+        if fold.filter.num_classes != num_classes or (classes and names and tuple(classes) != tuple(names)):
+            raise ValueError(
+                f"filter: fold {k}'s filter has {fold.filter.num_classes} classes {_listed(classes)}, fold 0's "
+                f"{num_classes} {_listed(names)}: the folds pooled into one stop must share their classes"
+            )
+        where = "" if isinstance(filter, StreamingFilter) else f"filter[{k}]."
+        folds[k] = Fold(fold.filter, *labelled_streams(fold.filter, fold.streams, fold.truth, where))
+    low = 1.0 / num_classes
     grid = [float(t) for t in (DEFAULT_STOPS if grid is None else grid) if float(t) > low]
     if not grid:
         raise ValueError(f"grid: expected candidate stops in ({low:g}, 1], got none")

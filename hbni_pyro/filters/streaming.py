@@ -43,6 +43,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
+from hbni_pyro.filters.frame_calibration import FrameCalibration
 from hbni_pyro.models import noise_model
 from hbni_pyro.validation import DTYPE, as_class_prior, as_outputs, check_same_classes, has_values
 from hbni_infra.checks import as_device, as_float, as_int
@@ -424,6 +425,12 @@ def _checked_draws(posterior: Any) -> dict[str, Tensor]:
 FILTERS = ("hbni", "calibrated", "ssbf", "max_of_mean", "voting")
 
 
+def _names(model: Any) -> str:
+    """``['a', 'b']`` for a posterior or calibration with class names, else ``(unnamed)``."""
+    names = getattr(model, "class_names", None)
+    return str(list(names)) if names is not None else "(unnamed)"
+
+
 def make_filter(
     name: str,
     posterior: Any = None,
@@ -452,12 +459,30 @@ def make_filter(
         calibration = options.get("calibration")
         if calibration is None:
             raise ValueError("calibration: the 'calibrated' filter needs a fitted FrameCalibration, got None")
-        if num_classes is None:
-            num_classes = getattr(calibration, "num_classes", None)
+        if not isinstance(calibration, FrameCalibration):
+            hint = (
+                "; load a saved one with hbni_pyro.FrameCalibration.load(path)" if isinstance(calibration, str) else ""
+            )
+            raise TypeError(f"calibration: expected a FrameCalibration, got {type(calibration).__name__}{hint}")
+        if num_classes is not None and num_classes != calibration.num_classes:
+            raise ValueError(
+                f"num_classes: the calibration maps {calibration.num_classes} classes, got num_classes={num_classes}"
+            )
+        num_classes = calibration.num_classes
     if num_classes is None:
         if posterior is None:
             raise ValueError(f"num_classes: the {name!r} filter needs num_classes or a posterior")
         num_classes = posterior.num_classes
+    if posterior is not None and posterior.num_classes != num_classes:
+        source = (
+            f"the calibration maps {num_classes} classes {_names(calibration)}"
+            if name == "calibrated"
+            else f"num_classes is {num_classes}"
+        )
+        raise ValueError(
+            f"posterior: it has {posterior.num_classes} classes {_names(posterior)}, but {source}; "
+            "the filter's classes must be the posterior's"
+        )
     allowed = {"ssbf": {"class_prior"}, "calibrated": {"class_prior", "calibration", "temper"}}.get(name, set())
     unknown = sorted(set(options) - allowed)
     if unknown:
@@ -471,7 +496,7 @@ def make_filter(
             num_classes, device=device, **options
         )
     names = getattr(posterior, "class_names", None)
-    if names is not None and len(names) == baseline.num_classes:
+    if names is not None:
         check_same_classes(baseline.class_names, names, "the calibration", "posterior")
         baseline.class_names = tuple(names)
     return baseline

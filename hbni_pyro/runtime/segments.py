@@ -91,8 +91,9 @@ def macro_observations(
         first = next(it, None)
         if first is None:
             return
+        first = _pair(first, start)
         used: list[tuple[Any, Tensor]] = [first]
-        result = process.run(_outputs(first, it, used))
+        result = process.run(_outputs(first, it, used, start))
         frames = [frame for frame, _ in used] if keep_frames else []
         ended = result.timed_out and result.frames_used < process.max_frames
         yield Segment(
@@ -111,12 +112,27 @@ def macro_observations(
         start += result.frames_used
 
 
-def _outputs(first: tuple[Any, Tensor], rest: Iterator, used: list) -> Iterator[Tensor]:
-    """The outputs of ``first`` then of ``rest``, recording every pair handed out in ``used``.
+def _outputs(first: tuple[Any, Tensor], rest: Iterator, used: list, start: int) -> Iterator[Tensor]:
+    """The outputs of ``first`` (item ``start`` of the stream) then of ``rest``, recording every pair handed out in
+    ``used``.
 
     The process stops pulling as soon as it decides, so ``rest`` is left at the next segment's first frame.
     """
     yield first[1]
     for item in rest:
+        item = _pair(item, start + len(used))
         used.append(item)
         yield item[1]
+
+
+def _pair(item: Any, index: int) -> tuple[Any, Tensor]:
+    """``item`` (its output as a tensor) if it is a ``(frame, output)`` pair whose output is a row (not a number),
+    else a ``TypeError``."""
+    output = item[1] if isinstance(item, (tuple, list)) and len(item) == 2 else None
+    if output is None or isinstance(output, (int, float)) or getattr(output, "ndim", 1) == 0:
+        raise TypeError(
+            f"items: expected (frame, output) pairs, the output a row of class probabilities; item {index} is "
+            f"{type(item).__name__} {str(item)[:60]}; pair outputs with their frames: zip(frames, outputs), or "
+            "((None, o) for o in outputs)"
+        )
+    return item[0], output if isinstance(output, Tensor) else torch.as_tensor(output)

@@ -12,14 +12,15 @@ import torch
 
 from decpomdp import JointController
 from decpomdp.dpomdp import exact_value
-from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, plan
+from decpomdp.search import ExactScorer, PlannerConfig, RolloutScorer, gdice_config, plan
 from decpomdp.search import local_search, lookahead
+from decpomdp.search.config import NO_BUDGET
 from decpomdp.search.cross_entropy import iterate, start_state
 from decpomdp.search.moves import Neighbourhood, grow
 from decpomdp.search.racing import duel, race
 from decpomdp.search.scoring import reachable
 
-from planner_settings import exact, tiny
+from planner_settings import TINY, exact, tiny
 from tiny_problems import DEC_TIGER_OPTIMUM, dec_tiger
 
 
@@ -606,3 +607,14 @@ def test_composite_move_lands_independent_improvements_at_once(compose, gain):
     # 6 single edits move an entry to the target (2 MAs, 4 edges), each gaining 1 on its own entry: merged, they
     # land in one step; the 2 other survivors gain nothing
     assert out.accepted and scorer(out.controller, 2, None)[0].item() == scorer(start, 2, None)[0].item() + gain
+
+
+def test_the_progress_bar_counts_what_bounds_the_run(capsys, toy_env):
+    # G-DICE's run is its iterations (its rollout budget bounds nothing); the cold planner's, its rollout budget
+    gdice = gdice_config(ce_iterations=3, ce_samples=6, ce_elites=2, ce_rollouts=2, num_nodes=2)
+    assert gdice.fixed_steps() == 3 and TINY.fixed_steps() is None
+    plan(toy_scorer(toy_env), gdice, seed=0, progress=True)
+    bar = capsys.readouterr().err
+    assert "3/3" in bar and str(NO_BUDGET) not in bar, bar
+    plan(toy_scorer(toy_env), TINY, seed=0, progress=True)
+    assert f"/{TINY.budget}" in capsys.readouterr().err

@@ -6,7 +6,7 @@ import shutil
 
 import pytest
 import torch
-from experiment_runs import run_experiment
+from experiment_runs import PROMISED, run_experiment
 
 from experiments import load_run
 from hbni_pyro import HBNIPosterior
@@ -135,3 +135,14 @@ def test_the_same_seed_gives_byte_identical_metrics(toy_run, tmp_path, repo_root
     run_experiment(args, repo_root)
     first, second = (json.loads((d / "metrics.json").read_text()) for d in (toy_run, tmp_path))
     assert json.dumps(_without_timings(first)) == json.dumps(_without_timings(second))
+
+
+def test_every_run_writes_the_report_the_help_promises(toy_run):
+    from experiments.run import help_text
+
+    # every completed single run of the suite is checked for these (tests/experiment_runs.py); help names them
+    words = " ".join(help_text().split())
+    assert f"each run writes {', '.join(PROMISED)} and its figures to its run folder" in words
+    report = (toy_run / "report.md").read_text()  # hbni_toy writes no report of its own: the summary one
+    assert report.startswith("# hbni_toy: run report") and "| label_accuracy |" in report
+    assert "![theta_posterior.png](theta_posterior.png)" in report and "| posterior | HBNIPosterior |" in report

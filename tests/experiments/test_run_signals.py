@@ -1,5 +1,6 @@
-"""The entry point under signals and bad configs: SIGTERM and SIGHUP mark the run failed and end its background
-workers; a config that fails its check prints one line and leaves no run folder."""
+"""The entry point under signals and errors: SIGTERM and SIGHUP mark the run failed and end its background
+workers; a config that fails its check prints one line and leaves no run folder; an error inside the run prints one
+line, its traceback in run.log."""
 
 import json
 import os
@@ -9,31 +10,17 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from experiment_runs import run_experiment
 
+from experiments.runs.processes import children, start_time
+
 from mission_tiny import TINY_MISSION
 
+pytestmark = pytest.mark.usefixtures("signals_delivered")  # a test started in the background too
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _children(pid: int) -> set[int]:
-    """The live child processes of ``pid`` (Linux /proc)."""
-    out: set[int] = set()
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            out |= {int(c) for c in (task / "children").read_text().split()}
-        except OSError:
-            pass
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().split()[2]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
@@ -57,8 +44,8 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
     workers: set[int] = set()
     while time.time() < deadline and not workers:  # wait for the bank's worker to start
         workers = (
-            {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()}
-            if _alive(proc.pid)
+            {c for c in children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()}
+            if start_time(proc.pid) is not None
             else set()
         )
         time.sleep(0.2)
@@ -69,7 +56,7 @@ def test_a_signal_marks_the_run_failed_and_stops_its_workers(tmp_path, signum):
     entry = json.loads(status.read_text())
     assert entry["status"] == "failed" and f"stopped by {signal.Signals(signum).name}" in entry["error"], stderr
     time.sleep(2)
-    assert not [w for w in workers if _alive(w)], "a bank worker outlived the run"
+    assert not [w for w in workers if start_time(w) is not None], "a bank worker outlived the run"
     assert not list((tmp_path / "cache").glob("*.lock"))  # the bank's lock released
 
 
@@ -92,3 +79,24 @@ def test_a_planner_setting_the_planner_ignores_is_refused_at_the_start(tmp_path)
         proc.returncode == 2 and "config error: warm_planner.ce_alpha: experiment mission never reads it" in proc.stderr
     )
     assert not (tmp_path / "run").exists()
+
+
+def test_a_runs_own_error_is_one_line_and_its_traceback_goes_to_run_log(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "0.png"), np.zeros((32, 32, 3), np.uint8))
+    run_dir = tmp_path / "run"
+    args = ["experiment=stream", f"stream.source={frames}", f"hydra.run.dir={run_dir}", "progress=false"]
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"} | {"HBNI_PYRO_ROOT": str(tmp_path)}
+    proc = run_experiment(args, ROOT, env=env, check=False)  # no mission run under the root to stream with
+    assert proc.returncode == 1 and len(proc.stderr.splitlines()) == 1, proc.stderr
+    assert proc.stderr.startswith("error: experiment stream failed after ") and "FileNotFoundError: stream.run" in (
+        proc.stderr
+    )
+    assert f"traceback in {run_dir / 'run.log'}; HYDRA_FULL_ERROR=1 prints it" in proc.stderr
+    assert "Traceback (most recent call last)" in (run_dir / "run.log").read_text()
+    assert json.loads((run_dir / "status.json").read_text())["status"] == "failed"
+    full = run_experiment(
+        [*args[:-2], f"hydra.run.dir={tmp_path / 'again'}"], ROOT, env={**env, "HYDRA_FULL_ERROR": "1"}, check=False
+    )
+    assert full.returncode == 1 and "Traceback (most recent call last)" in full.stderr

@@ -1,4 +1,5 @@
-"""Sweep reports: swept keys as columns, the experiment's headline metrics, failed jobs with their error."""
+"""Sweep reports: swept keys as columns, the experiment's headline metrics, failed jobs with their error; no lock
+file left behind."""
 
 import json
 
@@ -25,6 +26,7 @@ def test_a_sweep_with_a_failing_job_still_writes_its_report(tmp_path, repo_root)
     assert "Every job: " in report and "`hbni.fit.num_chains=2`" in report
     theta = json.loads((tmp_path / "0" / "metrics.json").read_text())["summary"]["theta[0]"]["mean"]
     assert f"| {theta:.4g} |" in rows[0]
+    assert not list(tmp_path.rglob("*.lock"))  # the jobs' folder locks (in joblib's workers) and the report's
 
 
 def test_headline_values_format_and_expand():
