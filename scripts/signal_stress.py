@@ -24,13 +24,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
+
+from hbni_infra.streams import numpy_generator
 
 ROOT = Path(__file__).resolve().parents[1]
 HANG_S = 15.0
@@ -174,7 +177,7 @@ def warm_up() -> None:
         subprocess.run([sys.executable, "-P", str(script), part], cwd=ROOT, env=env, check=True, capture_output=True)
 
 
-def schedule(tries: int, rng: random.Random, only: list[str] | None = None) -> list[tuple[str, float]]:
+def schedule(tries: int, rng: np.random.Generator, only: list[str] | None = None) -> list[tuple[str, float]]:
     """``(case, delay)`` for each try: 60 % ``toy``, then ``sweep``, ``sampler``, ``planner`` and ``compile`` (or the
     cases ``only``, in equal shares)."""
     shares = [("toy", 0.6), ("sweep", 0.15), ("sampler", 0.1), ("planner", 0.1), ("compile", 0.05)]
@@ -196,7 +199,7 @@ def main() -> int:
     for signame, _ in SIGNALS:  # a signal ignored here (a background job's SIGINT) would be ignored by the runs too
         if signal.getsignal(getattr(signal, signame)) == signal.SIG_IGN:
             signal.signal(getattr(signal, signame), signal.SIG_DFL)
-    rng = random.Random(args.seed)
+    rng = numpy_generator(args.seed)
     warm_up()
     results = []
     for k, (case, delay) in enumerate(schedule(args.tries, rng, args.cases)):

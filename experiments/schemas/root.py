@@ -23,7 +23,7 @@ class Paths:
 class RunBlock:
     """``run``: what a run may do to its folder (:mod:`experiments.runs.claim`)."""
 
-    overwrite: bool = False  # replace an earlier run or sweep found in the run's folder (its files are removed first)
+    overwrite: bool = MISSING  # replace an earlier run or sweep found in the run's folder (its files are removed first)
 
 
 @dataclass

@@ -158,7 +158,7 @@ def test_fit_temper_weighs_the_peers_correlated_frames():
 def test_make_filter_calibrated_errors():
     with pytest.raises(ValueError, match="calibration: the 'calibrated' filter needs"):
         make_filter("calibrated", num_classes=3)
-    with pytest.raises(ValueError, match="calibration: expected a map of 4 classes"):
+    with pytest.raises(ValueError, match="num_classes: the calibration maps 3 classes, got num_classes=4"):
         make_filter("calibrated", num_classes=4, calibration=FrameCalibration(torch.eye(3), torch.zeros(3)))
     with pytest.raises(TypeError, match="calibration: expected a FrameCalibration"):
         StaticStateBayesFilter(3, calibration="matrix")
