@@ -12,6 +12,7 @@ also gives the machine's speed beside the absolute times: one core's float32 mat
 thread), and the load average after each run (other work on the machine slows the runs it overlaps).
 
     python -m benchmarks.bench_jobs [--base d04ec89] [--jobs mission mission_full suite] [--seed 0] [--repeats 1]
+        [--keep DIR]
 """
 
 from __future__ import annotations
@@ -36,11 +37,13 @@ DEPENDENCIES = ("pyproject.toml", "constraints.txt")
 
 
 class Timing(NamedTuple):
-    """One run of a job: wall and CPU seconds (its own and its children's), and the 1-minute load average after it."""
+    """One run of a job: wall and CPU seconds (its own and its children's), the 1-minute load average after it and
+    its exit status (a failed run is timed and reported, not retried)."""
 
     wall: float
     cpu: float
     load: float
+    status: int = 0
 
 
 def matmul_gflops(size: int = 1024, repeats: int = 20) -> float:
@@ -60,17 +63,16 @@ def matmul_gflops(size: int = 1024, repeats: int = 20) -> float:
     return 2 * size**3 / best / 1e9
 
 
-def timed(command: Sequence[str], cwd: Path, env: dict[str, str]) -> Timing:
-    """Run ``command`` to completion (raising ``CalledProcessError`` with its output's tail if it fails)."""
+def timed(command: Sequence[str], cwd: Path, env: dict[str, str], log: Path | None = None) -> Timing:
+    """Run ``command`` to completion, its output into ``log`` (default: discarded)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    proc = subprocess.run(list(command), cwd=cwd, env=env, capture_output=True, text=True)
+    with open(os.devnull if log is None else log, "w") as out:
+        status = subprocess.run(list(command), cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if proc.returncode:
-        raise subprocess.CalledProcessError(proc.returncode, command, proc.stdout[-3000:], proc.stderr[-3000:])
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return Timing(wall, cpu, os.getloadavg()[0])
+    return Timing(wall, cpu, os.getloadavg()[0], status)
 
 
 def clone(commit: str, into: Path) -> Path:
@@ -111,20 +113,20 @@ def short(commit: str) -> str:
     ).stdout.strip()
 
 
-def run_job(name: str, version: Version, seed: int, scratch: Path) -> dict[str, Timing]:
-    """One cold run of job ``name`` at ``version``: ``{name: timing}``, and for ``suite`` also its install
-    (``suite install``) and its pytest alone (``suite pytest``)."""
-    with tempfile.TemporaryDirectory(dir=scratch) as tmp:
-        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp, "numba"))}
-        if name != "suite":
-            env.update(HBNI_PYRO_ROOT=str(Path(tmp, "root")), PYTHONPATH=str(version.tree))
-            command = [version.python, "-m", "experiments.run", f"experiment={name}", f"seed={seed}", "progress=false"]
-            return {name: timed(command, version.tree, env)}
-        tree = clone(short(version.label), Path(tmp, "clone"))
-        install = timed(["scripts/bootstrap.sh"], tree, env)
-        tests = timed([".venv/bin/python", "-m", "pytest"], tree, env)
-        both = Timing(install.wall + tests.wall, install.cpu + tests.cpu, tests.load)
-        return {name: both, "suite install": install, "suite pytest": tests}
+def run_job(name: str, version: Version, seed: int, folder: Path) -> dict[str, Timing]:
+    """One cold run of job ``name`` at ``version`` in the new folder ``folder`` (its project root, numba cache, clone
+    and ``log``): ``{name: timing}``, and for ``suite`` also its install (``suite install``) and its pytest alone
+    (``suite pytest``)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder / "numba")}
+    if name != "suite":
+        env.update(HBNI_PYRO_ROOT=str(folder / "root"), PYTHONPATH=str(version.tree))
+        command = [version.python, "-m", "experiments.run", f"experiment={name}", f"seed={seed}", "progress=false"]
+        return {name: timed(command, version.tree, env, folder / "log")}
+    tree = clone(version.label, folder / "clone")
+    install = timed(["scripts/bootstrap.sh"], tree, env, folder / "install.log")
+    tests = timed([".venv/bin/python", "-m", "pytest"], tree, env, folder / "log")
+    both = Timing(install.wall + tests.wall, install.cpu + tests.cpu, tests.load, install.status or tests.status)
+    return {name: both, "suite install": install, "suite pytest": tests}
 
 
 def minutes(seconds: float) -> str:
@@ -154,26 +156,35 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--jobs", nargs="+", choices=JOBS, default=["mission", "mission_full"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=1, help="interleaved runs of each job per commit")
+    parser.add_argument("--keep", help="keep every run's folder (project root, log) under this new folder")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats: expected an int >= 1, got {args.repeats}")
+    if args.keep and Path(args.keep).exists():
+        parser.error(f"--keep: expected a new folder, {args.keep} exists")
     print(f"one core: {matmul_gflops():.1f} GFLOP/s (float32 matmul 1024 x 1024, one thread)", flush=True)
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as scratch:
+        keep = Path(args.keep or scratch)
         old, new = prepare(args.base, Path(scratch))
         how = "this interpreter" if old.python == sys.executable else "its own environment"
         print(f"older: {old.label} (a clean clone, {how}); this: {new.label}, seed {args.seed}", flush=True)
         print(f"{'job':<14} {'commit':<9} {'wall':>13} {'CPU s':>7} {'load after':>10}", flush=True)
         runs: dict[str, dict[str, list[Timing]]] = {}
         for job in args.jobs:
-            for _ in range(args.repeats):
+            for repeat in range(args.repeats):
                 for version in (old, new):
-                    for name, t in run_job(job, version, args.seed, Path(scratch)).items():
+                    folder = keep / f"{job}-{version.label}-{repeat}"
+                    folder.mkdir(parents=True)
+                    for name, t in run_job(job, version, args.seed, folder).items():
                         runs.setdefault(name, {}).setdefault(version.label, []).append(t)
+                        failed = f"  failed (exit {t.status}; {folder / 'log'})" if t.status else ""
                         print(
-                            f"{name:<14} {version.label:<9} {minutes(t.wall):>13} {t.cpu:>7.0f} {t.load:>10.2f}",
+                            f"{name:<14} {version.label:<9} {minutes(t.wall):>13} {t.cpu:>7.0f} {t.load:>10.2f}{failed}",
                             flush=True,
                         )
     print("\n".join(["", *table(old.label, new.label, runs)]))
+    if any(t.status for by in runs.values() for ts in by.values() for t in ts):
+        sys.exit("some runs failed (see their lines)")
 
 
 if __name__ == "__main__":
