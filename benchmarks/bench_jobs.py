@@ -1,7 +1,8 @@
 """Wall and CPU time of the main job, ``mission_full`` and the test suite at an older commit and at this one, side by side.
 
-Both commits run on the same machine in one invocation, interleaved (older, this, older, this, ... for
-``--repeats``), so that a loaded or slower machine slows both alike; the ratios this / older are the figures.
+Both commits run on the same machine in one invocation, interleaved (older, this, then this, older, ... for
+``--repeats``), or with ``--together`` both at the same time (on a machine others share, both then see the same
+load), so that a loaded or slower machine slows both alike; the ratios this / older are the figures.
 Each job starts cold: ``mission`` and ``mission_full`` run as a user runs them (``python -m experiments.run
 experiment=<name> seed=<seed>``) with ``HBNI_PYRO_ROOT`` and ``NUMBA_CACHE_DIR`` new empty folders; ``suite`` is
 the README's test command (``scripts/bootstrap.sh && .venv/bin/python -m pytest``) in a fresh clone, its pytest
@@ -12,19 +13,19 @@ also gives the machine's speed beside the absolute times: one core's float32 mat
 thread), and the load average after each run (other work on the machine slows the runs it overlaps).
 
     python -m benchmarks.bench_jobs [--base d04ec89] [--jobs mission mission_full suite] [--seed 0] [--repeats 1]
-        [--keep DIR]
+        [--together] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
@@ -64,15 +65,15 @@ def matmul_gflops(size: int = 1024, repeats: int = 20) -> float:
 
 
 def timed(command: Sequence[str], cwd: Path, env: dict[str, str], log: Path | None = None) -> Timing:
-    """Run ``command`` to completion, its output into ``log`` (default: discarded)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    """Run ``command`` to completion, its output into ``log`` (default: discarded). Its CPU time is its own and its
+    waited-for descendants' (``wait4``), so runs side by side are timed apart."""
     start = time.perf_counter()
     with open(os.devnull if log is None else log, "w") as out:
-        status = subprocess.run(list(command), cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
+        proc = subprocess.Popen(list(command), cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return Timing(wall, cpu, os.getloadavg()[0], status)
+    return Timing(wall, usage.ru_utime + usage.ru_stime, os.getloadavg()[0], proc.returncode)
 
 
 def clone(commit: str, into: Path) -> Path:
@@ -156,6 +157,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--jobs", nargs="+", choices=JOBS, default=["mission", "mission_full"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=1, help="interleaved runs of each job per commit")
+    parser.add_argument(
+        "--together", action="store_true", help="run both commits' runs of a job at the same time (a busy machine)"
+    )
     parser.add_argument("--keep", help="keep every run's folder (project root, log) under this new folder")
     args = parser.parse_args(argv)
     if args.repeats < 1:
@@ -172,16 +176,23 @@ def main(argv: Sequence[str] | None = None) -> None:
         runs: dict[str, dict[str, list[Timing]]] = {}
         for job in args.jobs:
             for repeat in range(args.repeats):
-                for version in (old, new):
-                    folder = keep / f"{job}-{version.label}-{repeat}"
+                folders = {v.label: keep / f"{job}-{v.label}-{repeat}" for v in (old, new)}
+                for folder in folders.values():
                     folder.mkdir(parents=True)
-                    for name, t in run_job(job, version, args.seed, folder).items():
-                        runs.setdefault(name, {}).setdefault(version.label, []).append(t)
-                        failed = f"  failed (exit {t.status}; {folder / 'log'})" if t.status else ""
-                        print(
-                            f"{name:<14} {version.label:<9} {minutes(t.wall):>13} {t.cpu:>7.0f} {t.load:>10.2f}{failed}",
-                            flush=True,
-                        )
+                with ThreadPoolExecutor(2 if args.together else 1) as pool:
+                    done = [
+                        (v, pool.submit(run_job, job, v, args.seed, folders[v.label]))
+                        for v in ((old, new) if repeat % 2 == 0 else (new, old))
+                    ]
+                    for version, future in done:
+                        for name, t in future.result().items():
+                            runs.setdefault(name, {}).setdefault(version.label, []).append(t)
+                            failed = f"  failed (exit {t.status}; {folders[version.label] / 'log'})" if t.status else ""
+                            print(
+                                f"{name:<14} {version.label:<9} {minutes(t.wall):>13} {t.cpu:>7.0f} "
+                                f"{t.load:>10.2f}{failed}",
+                                flush=True,
+                            )
     print("\n".join(["", *table(old.label, new.label, runs)]))
     if any(t.status for by in runs.values() for ts in by.values() for t in ts):
         sys.exit("some runs failed (see their lines)")

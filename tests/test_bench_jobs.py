@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
@@ -27,6 +28,9 @@ def test_timed_counts_the_child_cpu_and_reports_a_failure(tmp_path):
     spin = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass"
     t = bench_jobs.timed([sys.executable, "-c", spin], tmp_path, {})
     assert t.cpu >= 0.3 and t.wall >= 0.3 and t.load >= 0 and t.status == 0
+    with ThreadPoolExecutor(2) as pool:  # side by side, each run's CPU time is its own
+        both = list(pool.map(lambda _: bench_jobs.timed([sys.executable, "-c", spin], tmp_path, {}), range(2)))
+    assert all(0.3 <= b.cpu < 0.3 + t.cpu for b in both)
     log = tmp_path / "log"
     t = bench_jobs.timed([sys.executable, "-c", "import sys; print('no'); sys.exit(3)"], tmp_path, {}, log)
     assert t.status == 3 and log.read_text() == "no\n"
