@@ -44,10 +44,7 @@ def _models(seed: int) -> Models:
     clf = FrameClassifier(seed=seed, threads=1).fit(images, [name for name in CLASSES for _ in range(10)])
     order = class_columns(clf, CLASSES)
     calib = torch.cat(
-        [
-            clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order]
-            for n in CLASSES
-        ]
+        [clf.proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order] for n in CLASSES]
     )
     posterior = hbni_pyro.fit(
         calib.double(),

@@ -43,10 +43,7 @@ def _models(seed: int) -> tuple[FrameClassifier, hbni_pyro.HBNIPosterior]:
     clf = FrameClassifier(seed=seed).fit(images, [name for name in CLASSES for _ in range(10)])
     order = class_columns(clf, CLASSES)
     calib = torch.cat(
-        [
-            clf.predict_proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order]
-            for n in CLASSES
-        ]
+        [clf.proba(render_sequence(n, 10, "mission", seed=stream_seed(seed, "calibration")))[:, order] for n in CLASSES]
     )
     posterior = hbni_pyro.fit(
         calib.double(),

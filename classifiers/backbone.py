@@ -21,9 +21,11 @@ from __future__ import annotations
 import copy
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -270,6 +272,13 @@ class Backbone:
         self._cpu_runner = runner.to(memory_format=torch.channels_last)
         self._runner = self._placed(self._cpu_runner)
 
+    def scores(self, crops: np.ndarray | Sequence[np.ndarray], batch_size: int = 4, threads: int | None = 1) -> Tensor:
+        """ImageNet scores ``(B, 1000)`` float32 of uint8 BGR crops ``(B, S, S, 3)``: normalised
+        (:func:`~classifiers.preprocess.normalize`), then :meth:`__call__`."""
+        from classifiers.preprocess import normalize
+
+        return self(normalize(crops, self.mean, self.std), batch_size, threads)
+
     def _placed(self, runner: nn.Module) -> nn.Module:
         if self.device.type == "cpu" and self.dtype == torch.float32:
             return runner
@@ -278,6 +287,11 @@ class Backbone:
     @property
     def num_features(self) -> int:
         return 1000
+
+    @property
+    def fused_network(self) -> nn.Module:
+        """The CPU float32 network this backbone runs, batch norms folded into the convolutions (read-only)."""
+        return self._cpu_runner
 
     def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> Backbone:
         """This backbone on ``device`` (in ``dtype``, default float32): ``self`` when already there, else a new

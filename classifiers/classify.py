@@ -66,5 +66,5 @@ def classify_frames(
 def _classified(
     frames: list[np.ndarray], clf: FrameClassifier, order: list[int]
 ) -> Iterator[tuple[np.ndarray, Tensor]]:
-    probs = clf.predict_proba(frames)[:, order].double()
+    probs = clf.proba(frames)[:, order].double()
     yield from zip(frames, probs)

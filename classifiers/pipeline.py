@@ -30,9 +30,10 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from classifiers.backbone import BACKBONES, Backbone, _device_and_dtype, load_backbone
-from classifiers.preprocess import as_image_batch, augment, center_crop, normalize
+from classifiers.preprocess import as_image_batch, augment, center_crop
+from classifiers.quantize import Calibration, Calibrator, Int8Backbone, int8_unavailable
 from classifiers.svm import OneVsOneSVC
-from hbni_infra.checks import as_float, as_int
+from hbni_infra.checks import as_choice, as_float, as_int
 from hbni_infra.tensorfile import load_tensors, save_tensors
 from hbni_infra.threads import torch_threads
 from hbni_infra.streams import numpy_generator
@@ -40,6 +41,7 @@ from hbni_infra.streams import numpy_generator
 __all__ = ["FrameClassifier"]
 
 _KIND = "classifiers.FrameClassifier"
+PRECISIONS = ("auto", "int8", "float")
 
 
 def _check_params(params: dict[str, Any]) -> None:
@@ -65,7 +67,24 @@ def _check_params(params: dict[str, Any]) -> None:
         raise TypeError(f"half: expected a bool, got {params['half']!r}")
     if params["dtype"] is not None and not isinstance(params["dtype"], torch.dtype):
         raise TypeError(f"dtype: expected a torch.dtype or None, got {params['dtype']!r}")
-    _device_and_dtype(params["device"], params["dtype"], params["half"])
+    device, dtype = _device_and_dtype(params["device"], params["dtype"], params["half"])
+    if not isinstance(params["precision"], str):
+        raise TypeError(f"precision: expected one of {list(PRECISIONS)}, got {params['precision']!r}")
+    as_choice("precision", params["precision"], PRECISIONS)
+    if params["precision"] == "int8":
+        reason = _int8_refusal(params["backbone"], device, dtype)
+        if reason is not None:
+            raise ValueError(f"precision: 'int8' {reason}")
+
+
+def _int8_refusal(backbone: str, device: torch.device, dtype: torch.dtype) -> str | None:
+    """Why a classifier with these settings cannot run its backbone in 8 bits (``None``: it can)."""
+    if backbone != "efficientnet_lite0":
+        return f"is written for efficientnet_lite0, not {backbone!r}"
+    if dtype != torch.float32:
+        return f"replaces float32, not dtype={dtype}"
+    reason = int8_unavailable(device)
+    return None if reason is None else f"cannot run here: {reason}"
 
 
 def _same(value: Any, default: Any) -> bool:
@@ -80,8 +99,13 @@ class FrameClassifier:
     :meth:`set_params` checks what it sets, so :func:`sklearn.base.clone`, ``is_classifier`` and
     ``cross_val_score`` work; ``X`` is a batch of images (anything :func:`~classifiers.preprocess.as_image_batch`
     reads), not a feature matrix. Unlike scikit-learn's own estimators, bad arguments are refused at once,
-    in ``__init__`` and :meth:`set_params`, not at ``fit``. The backbone is loaded at first use
-    (:attr:`backbone_`), shared through :func:`~classifiers.backbone.load_backbone`.
+    in ``__init__``, :meth:`set_params` and on assignment (``clf.padding = ...``), not at ``fit``. The backbone is
+    loaded at first use (:attr:`backbone_`), shared through :func:`~classifiers.backbone.load_backbone`.
+
+    Precision: on an x86-64 CPU the backbone runs in 8-bit integers by default (:mod:`classifiers.quantize`):
+    ``fit`` calibrates it on its own training crops, whose float32 scores train the head. It classifies mission
+    frames as accurately as float32 (within a point) in about 0.4 of its CPU time per frame (``docs/benchmarks.md``,
+    ``docs/devices.md``). On CUDA, and on CPUs without the kernels (not x86-64, no AVX2), it runs in float.
 
     Args:
         backbone: backbone name (``"efficientnet_lite0"`` or ``"alexnet"``).
@@ -94,12 +118,16 @@ class FrameClassifier:
             global setting). One thread is the default: on a small shared machine it is as fast as
             two when idle and many times faster when other processes compete for the cores.
         device: where the backbone runs (CPU by default); see :meth:`to`.
-        dtype, half: backbone precision, half only on CUDA (see :class:`~classifiers.backbone.Backbone`).
+        dtype, half: float backbone precision, half only on CUDA (see :class:`~classifiers.backbone.Backbone`).
+        precision: ``"auto"`` (8-bit integers where the CPU runs them, else float: see :attr:`precision_`),
+            ``"int8"`` (refused where it cannot run) or ``"float"`` (``dtype``, float32 by default).
 
     Attributes (after ``fit`` or :meth:`load`):
         classes_: the sorted class labels (list; ``None`` before fitting).
         head_: the fitted :class:`~classifiers.svm.OneVsOneSVC`.
         mean_, scale_: ``(1000,)`` float64 feature standardisation.
+        calibration_: the 8-bit activation grids (:class:`~classifiers.quantize.Calibration`), when
+            :attr:`precision_` is ``"int8"``.
 
     Raises:
         TypeError, ValueError: an argument of the wrong type or out of range (the message names it).
@@ -119,19 +147,23 @@ class FrameClassifier:
         device: str | torch.device = "cpu",
         dtype: torch.dtype | None = None,
         half: bool = False,
+        precision: str = "auto",
     ):
-        _check_params(locals())
-        self.backbone = backbone
-        self.weights_path = weights_path
-        self.C = C
-        self.cv = cv
-        self.padding = padding
-        self.seed = seed
-        self.batch_size = batch_size
-        self.threads = threads
-        self.device = device
-        self.dtype = dtype
-        self.half = half
+        params = {name: value for name, value in locals().items() if name in _PARAMS}
+        _check_params(params)
+        self.__dict__.update(params)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The state without the loaded networks (rebuilt at first use: the 8-bit one's packed weights cannot be
+        copied), so pickle and ``copy.deepcopy`` work; files are :meth:`save`'s business."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("backbone_", "_int8_backbone")}
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        """Assigning a constructor argument checks it as the constructor does (:meth:`set_params`)."""
+        if name in _PARAMS:
+            self.set_params(**{name: value})
+        else:
+            super().__setattr__(name, value)
 
     _estimator_type = "classifier"  # scikit-learn < 1.6 reads this; newer versions read __sklearn_tags__
 
@@ -143,8 +175,8 @@ class FrameClassifier:
     def set_params(self, **params: Any) -> FrameClassifier:
         """Set constructor arguments, checked together as the constructor checks them; returns ``self``.
 
-        A new backbone, weights path or placement takes effect at the next use (the loaded backbone is dropped);
-        the fitted head is kept until the next ``fit``.
+        A new backbone, weights path, placement or precision takes effect at the next use (the loaded backbone is
+        dropped); the fitted head and calibration are kept until the next ``fit``.
 
         Raises:
             ValueError: an unknown name; TypeError, ValueError, FileNotFoundError as the constructor.
@@ -153,10 +185,12 @@ class FrameClassifier:
         if unknown:
             raise ValueError(f"set_params: unknown parameters {unknown}, expected names among {list(_PARAMS)}")
         _check_params(self.get_params() | params)
-        for name, value in params.items():
-            setattr(self, name, value)
-        if set(params) & {"backbone", "weights_path", "device", "dtype", "half"}:
+        self.__dict__.update(params)
+        placement = {"backbone", "weights_path", "device", "dtype", "half"}
+        if set(params) & placement:
             self.__dict__.pop("backbone_", None)
+        if set(params) & (placement | {"precision", "batch_size"}):
+            self.__dict__.pop("_int8_backbone", None)
         return self
 
     def __repr__(self) -> str:
@@ -185,41 +219,84 @@ class FrameClassifier:
         hits = np.asarray(self.predict(X)) == truth
         return float(np.average(hits, weights=None if sample_weight is None else np.asarray(sample_weight)))
 
-    # ---- backbone and placement -----------------------------------------------------------------
+    # ---- backbone, precision and placement ------------------------------------------------------
     @property
     def backbone_(self) -> Backbone:
-        """The backbone network, loaded (shared, see :func:`~classifiers.backbone.load_backbone`) at first use."""
+        """The float backbone network, loaded (shared, see :func:`~classifiers.backbone.load_backbone`) at first use."""
         if "backbone_" not in self.__dict__:
             loaded = load_backbone(self.backbone, self.weights_path)
             self.__dict__["backbone_"] = loaded.to(self.device, torch.float16 if self.half else self.dtype)
         return self.__dict__["backbone_"]
 
     @property
+    def precision_(self) -> str:
+        """The backbone's arithmetic under the current settings: ``"int8"`` (``precision="int8"``, or ``"auto"`` on a
+        CPU that runs :mod:`classifiers.quantize`'s kernels with a float32 EfficientNet-Lite0) or ``"float"``."""
+        if self.precision == "auto":
+            device, dtype = _device_and_dtype(self.device, self.dtype, self.half)
+            return "float" if _int8_refusal(self.backbone, device, dtype) else "int8"
+        return self.precision
+
+    @property
     def classes_(self) -> list | None:
         head = self.__dict__.get("head_")
-        return None if head is None else head.classes_
+        return None if head is None else head.classes_.tolist()
 
     def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> FrameClassifier:
         """Run the backbone on ``device`` in ``dtype`` (default float32) from now on; returns ``self``.
 
         Sets the ``device``, ``dtype`` and ``half`` parameters; the fitted head and standardisation stay on
-        the CPU (outputs are CPU tensors on every device).
+        the CPU (outputs are CPU tensors on every device). ``precision="auto"`` runs float off the CPU.
         """
         self.set_params(device=device, dtype=dtype, half=False)
         return self
 
+    def calibrate(self, images: Any, progress: bool = False, workers: int = 1) -> FrameClassifier:
+        """Measure the 8-bit backbone's activation grids on the padded centre crops of ``images`` (``fit`` does this
+        on its own training crops); returns ``self``. A classifier whose :attr:`precision_` is ``"float"`` refuses.
+        """
+        size = self.backbone_.input_size
+        crops = [center_crop(im, size, self.padding) for im in as_image_batch(images)]
+        self._calibrated_features(crops, progress, workers)
+        return self
+
+    def _calibrated_features(self, crops: list[np.ndarray], progress: bool, workers: int) -> Tensor:
+        """Float backbone scores of ``crops``, measuring the activations on the way to set :attr:`calibration_`."""
+        if self.precision_ != "int8":
+            raise ValueError(
+                f"precision: calibration is for the 8-bit backbone, this classifier runs {self.precision_}"
+            )
+        calibrator = Calibrator(self.backbone_)
+        x = self._embed(crops, progress, workers, calibrator)
+        self.calibration_ = calibrator.calibration()
+        self.__dict__.pop("_int8_backbone", None)
+        return x
+
+    def _network(self) -> Backbone | Int8Backbone:
+        """What embeds crops: the float :attr:`backbone_`, or its 8-bit twin built on :attr:`calibration_`."""
+        if self.precision_ == "float":
+            return self.backbone_
+        if "_int8_backbone" not in self.__dict__:
+            if "calibration_" not in self.__dict__:
+                raise RuntimeError(
+                    "FrameClassifier: the 8-bit backbone is not calibrated: call fit() on images, calibrate() or "
+                    "load() first (or set precision='float')"
+                )
+            self.__dict__["_int8_backbone"] = Int8Backbone(self.backbone_, self.calibration_, self.batch_size)
+        return self.__dict__["_int8_backbone"]
+
     # ---- features -------------------------------------------------------------------------------
-    def _embed(self, crops: list[np.ndarray], progress: bool, workers: int = 1) -> Tensor:
-        """Backbone scores of ``crops``, a chunk of ``batch_size`` at a time, ``workers`` chunks side by side (each
-        on one torch thread: the same values as one after another)."""
+    def _embed(self, crops: list[np.ndarray], progress: bool, workers: int = 1, network: Any = None) -> Tensor:
+        """Scores of ``crops`` by ``network`` (default: the backbone in :attr:`precision_`), a chunk of ``batch_size``
+        at a time, ``workers`` chunks side by side (each on one torch thread: the same values as one after another)."""
         workers = as_int("workers", workers, minimum=1)
         if workers > 1 and self.threads not in (None, 1):
             raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {self.threads}")
         chunks = [crops[i : i + self.batch_size] for i in range(0, len(crops), self.batch_size)]
+        network = self._network() if network is None else network
 
         def embed(chunk: list[np.ndarray]) -> Tensor:
-            x = normalize(chunk, self.backbone_.mean, self.backbone_.std)
-            return self.backbone_(x, self.batch_size, threads=None)
+            return network.scores(chunk, self.batch_size, threads=None)
 
         bar = tqdm(total=len(crops), desc="backbone", unit="img", disable=not progress, leave=False)
         pool = ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext()  # one: no thread to start
@@ -234,7 +311,8 @@ class FrameClassifier:
     def features(self, images: Any, progress: bool = False) -> Tensor:
         """Backbone scores ``(B, 1000)`` float32 of the padded centre crops of ``images``."""
         size = self.backbone_.input_size
-        return self._embed([center_crop(im, size, self.padding) for im in as_image_batch(images)], progress)
+        with torch_threads(self.threads):  # one thread setting for cropping and embedding (changing it costs)
+            return self._embed([center_crop(im, size, self.padding) for im in as_image_batch(images)], progress)
 
     def augmented_features(self, images: Any, copies: int, progress: bool = False, workers: int = 1) -> Tensor:
         """Features ``(B * (1 + copies), 1000)``: each image's centre crop, then ``copies`` random crops/mirrors.
@@ -242,15 +320,19 @@ class FrameClassifier:
         Rows are grouped per image: ``[crop_0, aug_0_1, .., aug_0_copies, crop_1, ...]``. Seeded by ``seed``.
         ``workers`` threads embed them side by side (the same values; the classifier must run on one torch thread).
         """
+        return self._embed(self._training_crops(as_image_batch(images), copies), progress, workers)
+
+    def _training_crops(self, images: list[np.ndarray], copies: int) -> list[np.ndarray]:
+        """Each image's centre crop, then ``copies`` random crops/mirrors of it (seeded by ``seed``)."""
         if copies < 0:
             raise ValueError(f"copies: expected >= 0, got {copies}")
         rng = numpy_generator(self.seed)
         size = self.backbone_.input_size
         crops = []
-        for im in as_image_batch(images):
+        for im in images:
             crops.append(center_crop(im, size, self.padding))
             crops += [augment(im, rng, size, self.padding) for _ in range(copies)]
-        return self._embed(crops, progress, workers)
+        return crops
 
     # ---- training and prediction ----------------------------------------------------------------
     def _check_fitted(self, what: str = "call fit() or load() first") -> None:
@@ -276,7 +358,12 @@ class FrameClassifier:
         workers: int = 1,
     ) -> FrameClassifier:
         """Train on ``images`` with ``labels`` (one per image); ``augment`` extra random crops/mirrors each, embedded by
-        ``workers`` threads side by side (the same fit)."""
+        ``workers`` threads side by side (the same fit).
+
+        With an 8-bit backbone (:attr:`precision_`), the head still learns from the float network's scores of these
+        crops, which also calibrate the 8-bit grids (:meth:`calibrate`): plain, bright training snapshots quantize
+        with about three times the relative error of camera frames (large flat regions round alike), and a head
+        trained on their 8-bit scores classified mission frames 24 points worse (``docs/benchmarks.md``)."""
         batch = as_image_batch(images)
         if isinstance(labels, (str, bytes)) or not hasattr(labels, "__len__"):
             raise TypeError(
@@ -285,33 +372,57 @@ class FrameClassifier:
         labels = list(labels.tolist() if isinstance(labels, (Tensor, np.ndarray)) else labels)
         if len(labels) != len(batch):
             raise ValueError(f"labels: expected {len(batch)} labels, got {len(labels)}")
-        x = self.augmented_features(batch, augment, progress, workers)
+        crops = self._training_crops(batch, augment)
+        if self.precision_ == "int8":
+            x = self._calibrated_features(crops, progress, workers)
+        else:
+            x = self._embed(crops, progress, workers)
         return self.fit_features(x, [lab for lab in labels for _ in range(1 + augment)])
 
-    def proba_from_features(self, X: Tensor) -> Tensor:
-        """Class probabilities ``(B, M)`` float32 from backbone features ``(B, 1000)``."""
+    def _head_proba(self, X: Tensor) -> Tensor:
+        """Class probabilities ``(B, M)`` float64 from backbone features ``(B, 1000)``."""
         self._check_fitted()
         with torch_threads(self.threads):
-            return self.head_.predict_proba((X.double() - self.mean_) / self.scale_).float()
+            return self.head_.proba((X.double() - self.mean_) / self.scale_)
 
-    def predict_proba(self, images: Any) -> Tensor:
+    def proba_from_features(self, X: Tensor) -> Tensor:
+        """Class probabilities ``(B, M)`` float32 from backbone features ``(B, 1000)`` (a CPU torch tensor)."""
+        return self._head_proba(X).float()
+
+    def proba(self, images: Any) -> Tensor:
         """Class probabilities ``(B, M)``, columns in ``classes_`` order (rows sum to 1), as a float32 CPU torch
-        tensor on every input and device: the type the noise models (``hbni_pyro``) read. scikit-learn's
-        probability scorers accept it; ``.numpy()`` gives the array without a copy."""
-        self._check_fitted()
-        return self.proba_from_features(self.features(images))
+        tensor on every input and device: the classifier outputs the noise models (``hbni_pyro``) read."""
+        return self._proba(images).float()
 
-    def predict(self, images: Any) -> list:
-        """The most probable class label per image (a list, labels as in ``classes_``)."""
-        return [self.classes_[k] for k in self.predict_proba(images).argmax(-1).tolist()]
+    def predict_proba(self, images: Any) -> np.ndarray:
+        """Class probabilities ``(B, M)`` as scikit-learn returns them: a float64 array, columns in ``classes_`` order,
+        rows summing to 1 within float64 rounding (:meth:`proba` is the torch twin)."""
+        return self._proba(images).numpy()
+
+    def _proba(self, images: Any) -> Tensor:
+        self._check_fitted()
+        with torch_threads(self.threads):
+            return self._head_proba(self.features(images))
+
+    def predict(self, images: Any) -> np.ndarray:
+        """The most probable class label per image ``(B,)`` (an array, labels as in ``classes_``)."""
+        return np.asarray(self.classes_)[self.predict_proba(images).argmax(-1)]
 
     # ---- storage --------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the fitted classifier to one safetensors file (atomic; backbone weights referenced, not copied)."""
+        """Write the fitted classifier to one safetensors file (atomic; backbone weights referenced, not copied).
+
+        The file records the backbone's precision (:attr:`precision_`) and, for ``"int8"``, the activation grids
+        (:attr:`calibration_`): :meth:`load` rebuilds the same integer network from the backbone weights.
+        """
         self._check_fitted("nothing to save, call fit() first")
         tensors, head_meta = self.head_.state()
         tensors = {f"head.{k}": v for k, v in tensors.items()} | {"mean": self.mean_, "scale": self.scale_}
+        if self.precision_ == "int8" and "calibration_" in self.__dict__:
+            grids = self.calibration_
+            tensors |= {"calibration.scales": grids.scales, "calibration.zero_points": grids.zero_points}
         meta = {
+            "precision": self.precision_,
             "head": head_meta,
             "backbone": self.backbone,
             "weights_path": None if self.weights_path is None else str(self.weights_path),
@@ -333,9 +444,14 @@ class FrameClassifier:
         """Read a classifier written by :meth:`save` (on any device); ``weights_path`` overrides the recorded
         backbone weights; the backbone runs on ``device`` in ``dtype`` (tensors are read onto the CPU first).
 
+        The recorded precision is kept (an 8-bit classifier loads on a CPU that runs it, with its calibration: the
+        same outputs, bit for bit, as when it was saved on this machine); a file without one predates 8-bit
+        backbones and loads as float.
+
         Raises:
             FileNotFoundError: ``path`` or the backbone weights do not exist.
-            ValueError: corrupt or foreign file, or a setting the constructor refuses.
+            ValueError: corrupt or foreign file, or a setting the constructor refuses (an 8-bit classifier on a
+                device or CPU without 8-bit kernels).
         """
         _device_and_dtype(device, dtype, False)
         tensors, meta = load_tensors(path, _KIND)
@@ -343,6 +459,7 @@ class FrameClassifier:
             head_meta = meta["head"]
             params = {name: meta[name] for name in ("backbone", "weights_path", "padding", "seed", "batch_size")}
             params |= {"C": head_meta["C"], "cv": head_meta["cv"], "threads": meta["threads"]}
+            params["precision"] = meta.get("precision", "float")
             mean, scale = tensors["mean"].double(), tensors["scale"].double()
         except (KeyError, TypeError) as exc:
             raise ValueError(f"path: {str(path)!r} is missing entry {exc}") from exc
@@ -351,6 +468,8 @@ class FrameClassifier:
             model = cls(**params, device=device, dtype=dtype)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid setting: {exc}") from exc
+        if "calibration.scales" in tensors or "calibration.zero_points" in tensors:
+            model.calibration_ = _read_calibration(tensors, model.backbone_, path)
         model.mean_, model.scale_ = mean, scale
         try:
             model.head_ = OneVsOneSVC.from_state(
@@ -365,6 +484,17 @@ class FrameClassifier:
                 f"path: {str(path)!r} holds an invalid {_KIND} (mean and scale: expected finite, scale > 0)"
             )
         return model
+
+
+def _read_calibration(tensors: dict[str, Tensor], backbone: Backbone, path: str | os.PathLike) -> Calibration:
+    """The 8-bit activation grids saved in a classifier file, checked against ``backbone``."""
+    try:
+        grids = Calibration(tensors["calibration.scales"], tensors["calibration.zero_points"])
+        return grids.check(backbone.fused_network)
+    except KeyError as exc:
+        raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} (calibration: missing {exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
 
 
 _PARAMS = {

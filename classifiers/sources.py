@@ -1,7 +1,7 @@
 """Frame sources: a video file, a folder of frames or a camera, read through OpenCV, and ROS bags.
 
 Every source iterates over uint8 BGR frames ``(H, W, 3)``, the layout
-:meth:`classifiers.FrameClassifier.predict_proba` takes, and is a context manager that releases
+:meth:`classifiers.FrameClassifier.proba` takes, and is a context manager that releases
 its file or device. :meth:`FrameSource.stamped` gives the same frames as
 :class:`~classifiers.stamped.StampedFrame` s, with their header stamp and receive time.
 :func:`open_source` picks the kind from what it is given:

@@ -1,7 +1,9 @@
 """One-vs-one linear SVMs trained in torch, Platt-scaled per pair and coupled to probabilities.
 
-The scikit-learn conventions apply: ``fit(X, y)``, ``decision_function``, ``predict_proba``,
-``predict`` and ``classes_``. Each class pair ``(i, j)``, ``i < j``, gets a linear SVM
+A scikit-learn classifier (``fit(X, y)``, ``decision_function``, ``predict_proba``, ``predict``, ``score``,
+``classes_``, ``get_params``/``set_params``; arrays in, arrays out; ``sklearn.utils.estimator_checks`` pass, the
+exceptions named in the tests), with torch paths for the pipeline (:meth:`OneVsOneSVC.proba`). Each class pair
+``(i, j)``, ``i < j``, gets a linear SVM
 
     min_{w, b}  1/2 |w|^2 + 1/2 (b / B)^2 + C * sum_n max(0, 1 - y_n (w . x_n + b))^2
 
@@ -113,17 +115,43 @@ def train_squared_hinge(
 
 
 def _as_2d(x: Any, name: str) -> Tensor:
-    if isinstance(x, np.ndarray):
-        x = torch.from_numpy(x)
+    """Features ``(N, D)``, N, D >= 1, as a float64 tensor (from a tensor, an array or a nested sequence)."""
+    if hasattr(x, "toarray") or type(x).__module__.startswith("scipy.sparse"):
+        raise TypeError(f"{name}: sparse input is not supported, pass a dense array")
     if not isinstance(x, Tensor):
-        raise TypeError(f"{name}: expected a (N, D) tensor or array, got {type(x).__name__}")
-    if x.ndim != 2 or x.shape[0] == 0:
-        raise ValueError(f"{name}: expected a non-empty (N, D) matrix, got shape {tuple(x.shape)}")
-    if not x.is_floating_point():
-        x = x.double()
+        if isinstance(x, (str, bytes)):
+            raise TypeError(f"{name}: expected a (N, D) tensor or array, got {type(x).__name__}")
+        x = np.asarray(x)
+        if x.dtype.kind == "c":
+            raise ValueError(f"{name}: Complex data not supported, expected real features")
+        x = torch.from_numpy(np.array(x, dtype=np.float64))  # a copy: read-only or object arrays welcome
+    if x.ndim != 2:
+        raise ValueError(f"{name}: expected a (N, D) matrix, got shape {tuple(x.shape)}; Reshape your data")
+    if x.shape[1] == 0:
+        raise ValueError(f"{name}: 0 feature(s) (shape={tuple(x.shape)}) while a minimum of 1 is required.")
+    if x.shape[0] == 0:
+        raise ValueError(f"{name}: 0 sample(s) (shape={tuple(x.shape)}) while a minimum of 1 is required.")
+    if x.is_complex():
+        raise ValueError(f"{name}: Complex data not supported, expected real features")
+    x = x.double()
     if not torch.isfinite(x).all():
         raise ValueError(f"{name}: contains NaN or inf")
-    return x.double()
+    return x
+
+
+def _labels(y: Any, n: int) -> np.ndarray:
+    """Class labels ``(n,)``: any sortable values; refused when missing, of another length, or continuous."""
+    if y is None:
+        raise ValueError("y: requires y to be passed, but the target y is None")
+    labels = np.asarray(y.detach().cpu().numpy() if isinstance(y, Tensor) else y)
+    if labels.ndim != 1 or len(labels) != n:
+        raise ValueError(f"y: expected shape ({n},), got {labels.shape}")
+    if labels.dtype.kind in "fc":
+        if not np.isfinite(labels).all():
+            raise ValueError("y: Input y contains NaN or infinity")
+        if (labels != np.round(labels)).any():
+            raise ValueError("y: Unknown label type: continuous values; expected class labels")
+    return labels
 
 
 class OneVsOneSVC:
@@ -135,45 +163,74 @@ class OneVsOneSVC:
         seed: seed of the cross-validation split.
 
     Attributes (after ``fit``):
-        classes_: the sorted class labels (list).
+        classes_: the sorted class labels (an array, as scikit-learn's).
+        n_features_in_: ``D``, the number of features.
         pairs_: ``(P, 2)`` long, class indices ``(i, j)``, ``i < j``, in sklearn's ``ovo`` order.
         coef_, intercept_: ``(P, D)`` and ``(P,)``: the pairwise SVMs (positive = class ``i``).
         prob_a_, prob_b_: ``(P,)`` Platt parameters, ``P(i | f) = 1 / (1 + exp(A f + B))``.
     """
 
     def __init__(self, C: float = 1.0, cv: int = 5, seed: int = 0):
-        if not C > 0:
-            raise ValueError(f"C: expected > 0, got {C}")
-        if int(cv) != cv or cv < 2:
-            raise ValueError(f"cv: expected an integer >= 2, got {cv}")
-        self.C = float(C)
-        self.cv = int(cv)
-        self.seed = int(seed)
-        self.classes_: list | None = None
+        _check_params(C, cv, seed)
+        self.C = C
+        self.cv = cv
+        self.seed = seed
+
+    _estimator_type = "classifier"  # scikit-learn < 1.6 reads this; newer versions read __sklearn_tags__
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The constructor's arguments as given (``deep`` is accepted for scikit-learn; there are no sub-estimators)."""
+        return {"C": self.C, "cv": self.cv, "seed": self.seed}
+
+    def set_params(self, **params: Any) -> OneVsOneSVC:
+        """Set constructor arguments, checked as the constructor checks them; returns ``self`` (the fit is kept)."""
+        unknown = sorted(set(params) - {"C", "cv", "seed"})
+        if unknown:
+            raise ValueError(f"set_params: unknown parameters {unknown}, expected names among ['C', 'cv', 'seed']")
+        merged = self.get_params() | params
+        _check_params(merged["C"], merged["cv"], merged["seed"])
+        self.__dict__.update(params)
+        return self
+
+    def __repr__(self) -> str:
+        changed = [f"{k}={v!r}" for k, v in self.get_params().items() if v != {"C": 1.0, "cv": 5, "seed": 0}[k]]
+        return f"{type(self).__name__}({', '.join(changed)})"
+
+    def __sklearn_tags__(self) -> Any:
+        """scikit-learn's tags (scikit-learn >= 1.6 calls this; imported here): a classifier of dense 2-d features."""
+        from sklearn.utils import ClassifierTags, InputTags, Tags, TargetTags
+
+        return Tags(
+            estimator_type="classifier",
+            target_tags=TargetTags(required=True),
+            classifier_tags=ClassifierTags(),
+            input_tags=InputTags(two_d_array=True),
+        )
+
+    def __sklearn_is_fitted__(self) -> bool:
+        return "classes_" in self.__dict__
 
     # ---- training -------------------------------------------------------------------------------
     def _split(self, yi: np.ndarray) -> np.ndarray:
         """Stratified fold id per example (random within each class, seeded)."""
-        rng = numpy_generator(self.seed)
+        rng = numpy_generator(int(self.seed))
         fold = np.empty(len(yi), dtype=np.int64)
         for k in np.unique(yi):
             idx = np.flatnonzero(yi == k)
-            fold[rng.permutation(idx)] = np.arange(len(idx)) % self.cv
+            fold[rng.permutation(idx)] = np.arange(len(idx)) % int(self.cv)
         return fold
 
     def fit(self, X: Any, y: Sequence | np.ndarray | Tensor) -> OneVsOneSVC:
         """Train on features ``X (N, D)`` and labels ``y (N,)`` (any sortable labels, >= 2 classes)."""
         x = _as_2d(X, "X")
-        labels = np.asarray(y.detach().cpu().numpy() if isinstance(y, Tensor) else y)
-        if labels.ndim != 1 or len(labels) != x.shape[0]:
-            raise ValueError(f"y: expected shape ({x.shape[0]},), got {labels.shape}")
+        labels = _labels(y, x.shape[0])
         classes, yi = np.unique(labels, return_inverse=True)
-        m = len(classes)
+        m, cv = len(classes), int(self.cv)
         if m < 2:
-            raise ValueError(f"y: expected at least 2 classes, got {m}")
+            raise ValueError(f"y: expected at least 2 classes, got {m} class")
         counts = np.bincount(yi, minlength=m)
-        if counts.min() < self.cv:
-            raise ValueError(f"y: every class needs >= cv={self.cv} examples, got counts {counts.tolist()}")
+        if counts.min() < cv:
+            raise ValueError(f"y: every class needs >= cv={cv} examples, got counts {counts.tolist()}")
         pairs = torch.combinations(torch.arange(m), 2)
         yt = torch.from_numpy(yi)
         in_i = yt[None, :] == pairs[:, :1]  # (P, N)
@@ -181,37 +238,47 @@ class OneVsOneSVC:
         sign = torch.where(in_i, 1.0, -1.0).double()
         fold = torch.from_numpy(self._split(yi))
         # Problems: every pair x (each CV fold held out, then all data).
-        held = torch.stack([fold == k for k in range(self.cv)] + [torch.zeros_like(fold, dtype=torch.bool)])
+        held = torch.stack([fold == k for k in range(cv)] + [torch.zeros_like(fold, dtype=torch.bool)])
         s = (member[None] & ~held[:, None]).double()  # (K + 1, P, N)
         num_p = pairs.shape[0]
         with single_thread():  # small matrices: LAPACK thread hand-offs cost more than they save
-            w, b = train_squared_hinge(x, sign.repeat(self.cv + 1, 1), s.reshape(-1, x.shape[0]), self.C)
-        w, b = w.view(self.cv + 1, num_p, -1), b.view(self.cv + 1, num_p)
+            w, b = train_squared_hinge(x, sign.repeat(cv + 1, 1), s.reshape(-1, x.shape[0]), float(self.C))
+        w, b = w.view(cv + 1, num_p, -1), b.view(cv + 1, num_p)
         # Held-out decision value of each example under the fold model that did not see it.
-        dec_folds = torch.einsum("kpd,nd->kpn", w[: self.cv], x) + b[: self.cv, :, None]
+        dec_folds = torch.einsum("kpd,nd->kpn", w[:cv], x) + b[:cv, :, None]
         dec = dec_folds.gather(0, fold.view(1, 1, -1).expand(1, num_p, -1))[0]  # (P, N)
         self.prob_a_, self.prob_b_ = fit_platt(dec, in_i, member)
-        self.classes_ = [c.item() if hasattr(c, "item") else c for c in classes]
+        self.classes_ = classes
+        self.n_features_in_ = x.shape[1]
         self.pairs_ = pairs
         self.coef_, self.intercept_ = w[-1], b[-1]
         return self
 
     # ---- prediction -----------------------------------------------------------------------------
     def _check_fitted(self) -> None:
-        if self.classes_ is None:
+        if not self.__sklearn_is_fitted__():
             raise RuntimeError("OneVsOneSVC: call fit() or load() first")
 
-    def decision_function(self, X: Any) -> Tensor:
-        """One-vs-one decision values ``(N, P)``, pairs in ``pairs_`` order; > 0 favours the pair's first class."""
+    def _decision(self, X: Any) -> Tensor:
+        """One-vs-one decision values ``(N, P)`` float64, pairs in ``pairs_`` order; > 0 favours the pair's first class."""
         self._check_fitted()
         x = _as_2d(X, "X")
         if x.shape[1] != self.coef_.shape[1]:
-            raise ValueError(f"X: expected {self.coef_.shape[1]} features, got {x.shape[1]}")
+            raise ValueError(
+                f"X has {x.shape[1]} features, but {type(self).__name__} is expecting {self.coef_.shape[1]} features "
+                "as input"
+            )
         return x @ self.coef_.T + self.intercept_
+
+    def decision_function(self, X: Any) -> np.ndarray:
+        """One-vs-one decision values as ``SVC(decision_function_shape="ovo")`` gives them: ``(N, P)``, pairs in
+        ``pairs_`` order, > 0 favouring the pair's first class; for two classes ``(N,)``, > 0 favouring ``classes_[1]``."""
+        dec = self._decision(X).numpy()
+        return -dec[:, 0] if dec.shape[1] == 1 else dec
 
     def pairwise_proba(self, X: Any) -> Tensor:
         """``r (N, M, M)`` with ``r[n, i, j] = P(i | i or j, x_n)`` from the Platt sigmoids."""
-        p = platt_predict(self.decision_function(X), self.prob_a_, self.prob_b_).clamp(_PROB_FLOOR, 1 - _PROB_FLOOR)
+        p = platt_predict(self._decision(X), self.prob_a_, self.prob_b_).clamp(_PROB_FLOOR, 1 - _PROB_FLOOR)
         m = len(self.classes_)
         r = p.new_zeros(p.shape[0], m, m)
         i, j = self.pairs_[:, 0], self.pairs_[:, 1]
@@ -219,13 +286,22 @@ class OneVsOneSVC:
         r[:, j, i] = 1 - p
         return r
 
-    def predict_proba(self, X: Any) -> Tensor:
-        """Class probabilities ``(N, M)`` (float64, rows sum to 1), columns in ``classes_`` order."""
+    def proba(self, X: Any) -> Tensor:
+        """Class probabilities ``(N, M)`` as a float64 torch tensor (rows sum to 1), columns in ``classes_`` order."""
         return pairwise_coupling(self.pairwise_proba(X))
 
-    def predict(self, X: Any) -> list:
-        """The most probable class label per row (argmax of ``predict_proba``; ties -> lowest index)."""
-        return [self.classes_[k] for k in self.predict_proba(X).argmax(-1).tolist()]
+    def predict_proba(self, X: Any) -> np.ndarray:
+        """Class probabilities ``(N, M)`` float64 (rows sum to 1 within float64 rounding), columns in ``classes_``."""
+        return self.proba(X).numpy()
+
+    def predict(self, X: Any) -> np.ndarray:
+        """The most probable class label per row ``(N,)`` (argmax of ``predict_proba``; ties -> lowest index)."""
+        return self.classes_[self.proba(X).argmax(-1).numpy()]
+
+    def score(self, X: Any, y: Sequence | np.ndarray | Tensor, sample_weight: Any = None) -> float:
+        """Mean accuracy of :meth:`predict` on ``X`` against labels ``y`` (weighted by ``sample_weight``)."""
+        truth = np.asarray(y.tolist() if isinstance(y, Tensor) else y)
+        return float(np.average(self.predict(X) == truth, weights=sample_weight))
 
     # ---- storage --------------------------------------------------------------------------------
     def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
@@ -238,7 +314,7 @@ class OneVsOneSVC:
             "prob_b": self.prob_b_,
             "pairs": self.pairs_,
         }
-        meta = {"classes": self.classes_, "C": self.C, "cv": self.cv, "seed": self.seed}
+        meta = {"classes": self.classes_.tolist(), "C": float(self.C), "cv": int(self.cv), "seed": int(self.seed)}
         return tensors, meta
 
     @classmethod
@@ -250,7 +326,8 @@ class OneVsOneSVC:
                 cv=as_int("state cv", meta["cv"], minimum=2),
                 seed=as_int("state seed", meta["seed"]),
             )
-            model.classes_ = _class_list(meta["classes"])
+            model.classes_ = np.asarray(_class_list(meta["classes"]))
+            model.n_features_in_ = int(tensors["coef"].shape[1])
             model.coef_, model.intercept_ = tensors["coef"].double(), tensors["intercept"].double()
             model.prob_a_, model.prob_b_ = tensors["prob_a"].double(), tensors["prob_b"].double()
             model.pairs_ = tensors["pairs"].long()
@@ -279,6 +356,13 @@ class OneVsOneSVC:
             return cls.from_state(tensors, meta)
         except ValueError as exc:
             raise ValueError(f"path: {str(path)!r} holds an invalid {_KIND} ({exc})") from None
+
+
+def _check_params(C: Any, cv: Any, seed: Any) -> None:
+    """Refuse bad constructor arguments with an error naming the argument."""
+    as_float("C", C, 0.0, low_open=True)
+    as_int("cv", cv, minimum=2)
+    as_int("seed", seed, minimum=0)
 
 
 def _class_list(classes: Any) -> list:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 from collections.abc import Callable, Iterator
 from types import ModuleType
 
@@ -21,6 +22,7 @@ from hbni_infra.checks import as_int
 
 _workers: int | Callable[[], int] | None = None  # None: every core this process may run on
 _pools: ThreadpoolController | None = None  # the thread pools of loaded native libraries, found once
+_entered = threading.local()  # .threads: the count the innermost torch_threads block of this thread set
 
 
 def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
@@ -37,21 +39,31 @@ def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
 def torch_threads(threads: int | None) -> Iterator[None]:
     """Run torch on ``threads`` intra-op threads, and NumPy's BLAS and OpenCV on as many, inside the block
     (``None``: unchanged), then restore them (OpenCV's setting is the process's: on one thread, the renderer's
-    frames cost less CPU time than on two, and are the same)."""
+    frames cost less CPU time than on two, and are the same).
+
+    Inside a block of this thread that set the same count, a nested block changes nothing (a frame classified
+    alone passes through several: each would pay for threadpoolctl's limit and OpenCV's pool again).
+    """
     _check(threads)
+    if threads is None or getattr(_entered, "threads", None) == threads:
+        yield
+        return
     cv2 = _opencv()
     before = torch.get_num_threads()
     before_cv = cv2.getNumThreads() if cv2 is not None else None
-    if threads is not None:
+    outer, _entered.threads = getattr(_entered, "threads", None), threads
+    if threads != before:
         torch.set_num_threads(threads)
-        if cv2 is not None:
-            cv2.setNumThreads(threads)
+    if cv2 is not None and threads != before_cv:
+        cv2.setNumThreads(threads)  # about a millisecond when it changes while OpenCV's pool is warm
     try:
         with _blas_threads(threads):
             yield
     finally:
-        torch.set_num_threads(before)
-        if cv2 is not None:
+        _entered.threads = outer
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+        if cv2 is not None and cv2.getNumThreads() != before_cv:
             cv2.setNumThreads(before_cv)
 
 

@@ -76,19 +76,31 @@ def test_backbone_device_arguments_are_checked():
 # ---- frame classifier ---------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def fitted():
+    """A float classifier: the path that runs on every device (the 8-bit one is a CPU path, refused elsewhere)."""
     images, labels = _images(12, 1), ["a", "b", "c"] * 4
-    return FrameClassifier(cv=2).fit(images, labels)
+    return FrameClassifier(cv=2, precision="float").fit(images, labels)
 
 
 def test_classifier_cpu_device_equals_default(fitted, tmp_path):
     images = _images(4, 2)
-    expected = fitted.predict_proba(images)
+    expected = fitted.proba(images)
     assert fitted.backbone_.device == torch.device("cpu") and expected.device == torch.device("cpu")
     path = fitted.save(tmp_path / "clf.safetensors")
     loaded = FrameClassifier.load(path, device="cpu")
     assert loaded.backbone_.device == torch.device("cpu")
-    assert torch.equal(loaded.predict_proba(images), expected)
+    assert torch.equal(loaded.proba(images), expected)
     assert torch.equal(loaded.to("cpu").features(images), fitted.features(images))
+
+
+def test_an_8_bit_classifier_stays_on_the_cpu(tmp_path):
+    images, labels = _images(12, 1), ["a", "b", "c"] * 4
+    clf = FrameClassifier(cv=2, precision="int8").fit(images, labels)
+    with pytest.raises(ValueError, match="holds an invalid setting: precision: 'int8' cannot run here: 8-bit inference "
+                       "runs on the CPU only, the device is meta"):  # fmt: skip
+        FrameClassifier.load(clf.save(tmp_path / "clf.safetensors"), device="meta")
+    with pytest.raises(ValueError, match="precision: 'int8' cannot run here"):
+        clf.to("meta")
+    assert clf.device == "cpu" and clf.precision_ == "int8"
 
 
 def test_classifier_to_meta_moves_only_the_backbone(fitted, tmp_path):
@@ -179,9 +191,9 @@ def test_backbone_cuda_matches_cpu_and_half_within_tolerance():
 def test_classifier_loads_on_cuda(fitted, tmp_path):
     images = _images(4, 2)
     loaded = FrameClassifier.load(fitted.save(tmp_path / "clf.safetensors"), device="cuda")
-    proba = loaded.predict_proba(images)
+    proba = loaded.proba(images)
     assert proba.device == torch.device("cpu")
-    assert torch.allclose(proba, fitted.predict_proba(images), atol=1e-4)
+    assert torch.allclose(proba, fitted.proba(images), atol=1e-4)
 
 
 @cuda

@@ -134,7 +134,7 @@ def load_run(run_dir: str | os.PathLike, allow_incomplete: bool = False) -> Run:
     """Load a run directory written by ``python -m experiments.run``.
 
     Returns a :class:`Run` whose artefacts load when first used, e.g. ``run.posterior.summary()`` or
-    ``run.classifier.predict_proba(images)``; its config and metrics are read at once.
+    ``run.classifier.proba(images)``; its config and metrics are read at once.
 
     Args:
         run_dir: the run's directory (Hydra's output directory).

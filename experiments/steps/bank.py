@@ -4,7 +4,7 @@ The closed-loop evaluation draws a fresh recorded stream for every "infer" MA fr
 mission-condition sequences that neither noise fitting nor tabulation saw. Rendering and
 classifying them is the costly part, so the bank is built once and cached, keyed by everything
 that produced it (:func:`fingerprint`): the classifier (a digest of its head, standardisation,
-crop setting and backbone weights), the code that draws and classifies frames, the class order,
+crop setting, backbone weights and precision), the code that draws and classifies frames, the class order,
 the imaging conditions, the seed, the number of sequences per class, the frames per sequence, the
 frame shape and the torch and OpenCV versions.
 
@@ -77,11 +77,13 @@ def class_seed(seed: int, name: str) -> int:
 
 
 def classifier_identity(clf: FrameClassifier) -> str:
-    """Digest of everything that decides a classifier's outputs: head, standardisation, crop, backbone weights."""
+    """Digest of everything that decides a classifier's outputs: head, standardisation, crop, backbone weights, and
+    the backbone's precision (with its 8-bit calibration)."""
     if clf.classes_ is None:
         raise ValueError("clf: the classifier is not fitted")
     tensors, meta = clf.head_.state()
     weights = Path(clf.backbone_.weights_path).read_bytes()
+    grids = clf.__dict__.get("calibration_") if clf.precision_ == "int8" else None
     return digest(
         meta,
         clf.backbone_.name,
@@ -90,6 +92,8 @@ def classifier_identity(clf: FrameClassifier) -> str:
         clf.scale_,
         *(tensors[k] for k in sorted(tensors)),
         weights,
+        clf.precision_,
+        *(() if grids is None else (grids.scales, grids.zero_points)),
     )
 
 
@@ -178,7 +182,7 @@ def classify_frames(
         start=start,
         stop=stop,
     )
-    return clf.predict_proba(frames)[:, class_columns(clf, spec.classes)]
+    return clf.proba(frames)[:, class_columns(clf, spec.classes)]
 
 
 def _classify(clf: FrameClassifier, spec: BankSpec, c: int, first: int, last: int) -> Tensor:

@@ -78,7 +78,7 @@ def sequence_outputs(
 
     def classify(job: tuple[int, int]) -> tuple[np.ndarray, torch.Tensor]:
         seq = render_sequence(classes[job[0]], frames, cond, seed=seed, index=job[1])
-        return seq, clf.predict_proba(seq)[:, order]
+        return seq, clf.proba(seq)[:, order]
 
     with single_thread() if workers > 1 else contextlib.nullcontext(), ThreadPoolExecutor(workers) as pool:
         for (c, s), (seq, proba) in zip(

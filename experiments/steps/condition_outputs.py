@@ -140,7 +140,7 @@ def folder_outputs(settings: NoiseModels, clock: StageClock) -> Outputs:
                 raise ValueError(
                     f"study.images: sequence {str(p)!r} has {len(frames_img)} frames, expected at least {frames}"
                 )
-            outs.append(clf.predict_proba(frames_img[:frames])[:, order].double())
+            outs.append(clf.proba(frames_img[:frames])[:, order].double())
         per_class.append(torch.stack(outs) if outs else torch.empty(0))
     counts = {len(p) for p in per_class}
     if len(counts) != 1 or 0 in counts or min(counts) < 2:
@@ -173,7 +173,7 @@ def photo_outputs(settings: NoiseModels, clock: StageClock, run_dir: Path) -> Ou
             part_seed = stream_seed(seed, "photos", part)
             seqs = [
                 [
-                    clf.predict_proba(photo_sequence(name, p.frames, "degraded", part_seed, index=i))[:, order]
+                    clf.proba(photo_sequence(name, p.frames, "degraded", part_seed, index=i))[:, order]
                     for i in tqdm(range(count), desc=f"photos {part} {name}", disable=not progress)
                 ]
                 for name in PHOTOS

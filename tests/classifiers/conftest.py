@@ -19,8 +19,9 @@ def backbone():
 
 @pytest.fixture(scope="session")
 def frame_classifier(backbone) -> FrameClassifier:
-    """An unfitted classifier on the shared backbone (the backbone cache makes this free)."""
-    return FrameClassifier()
+    """An unfitted float classifier on the shared backbone (the backbone cache makes this free): its features are the
+    float32 oracle's, with no calibration to make (``test_quantize.py`` tests the 8-bit path)."""
+    return FrameClassifier(precision="float")
 
 
 @pytest.fixture(scope="session")
@@ -53,7 +54,7 @@ def standardized_features(vehicle_features):
 def fitted_classifier(frame_classifier, vehicle_features):
     x_tr, y_tr, _, _ = vehicle_features
     names = [VEHICLES[k] for k in y_tr]
-    clf = FrameClassifier(seed=3)
+    clf = FrameClassifier(seed=3, precision="float")
     return clf.fit_features(x_tr, names)
 
 

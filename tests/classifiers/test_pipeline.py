@@ -17,15 +17,21 @@ def frames():
     return np.concatenate([render_images(name, 2, "training", seed=9) for name in VEHICLES])  # (6, 240, 320, 3)
 
 
-def test_predict_proba_forms(fitted_classifier, frames):
-    p = fitted_classifier.predict_proba(frames)
-    assert p.shape == (6, 3) and p.dtype == torch.float32
+def test_proba_forms(fitted_classifier, frames):
+    p = fitted_classifier.proba(frames)
+    assert isinstance(p, torch.Tensor) and p.shape == (6, 3) and p.dtype == torch.float32
     assert torch.allclose(p.sum(-1), torch.ones(6), atol=1e-5)
-    assert torch.allclose(fitted_classifier.predict_proba(list(frames)), p)
-    assert torch.allclose(fitted_classifier.predict_proba(torch.from_numpy(frames)), p)
-    assert torch.allclose(fitted_classifier.predict_proba(frames[0]), p[:1])
+    assert torch.allclose(fitted_classifier.proba(list(frames)), p)
+    assert torch.allclose(fitted_classifier.proba(torch.from_numpy(frames)), p)
+    assert torch.allclose(fitted_classifier.proba(frames[0]), p[:1])
     assert fitted_classifier.classes_ == sorted(VEHICLES)
-    assert fitted_classifier.predict(frames) == [fitted_classifier.classes_[k] for k in p.argmax(-1).tolist()]
+    # scikit-learn's door: float64 arrays whose rows sum to one within float64 rounding, the same values
+    q = fitted_classifier.predict_proba(frames)
+    assert isinstance(q, np.ndarray) and q.dtype == np.float64 and q.shape == (6, 3)
+    np.testing.assert_allclose(q.sum(1), 1.0, rtol=0, atol=4 * np.finfo(np.float64).eps)
+    np.testing.assert_allclose(q, p.numpy(), rtol=0, atol=1e-7)
+    labels = fitted_classifier.predict(frames)
+    assert isinstance(labels, np.ndarray) and labels.tolist() == [fitted_classifier.classes_[k] for k in q.argmax(1)]
 
 
 def test_fit_on_images_is_seeded(frames):
@@ -33,7 +39,9 @@ def test_fit_on_images_is_seeded(frames):
     images = np.concatenate([frames, frames[:, :, ::-1]])  # 4 images per class, cv=2
     a = FrameClassifier(cv=2, seed=1).fit(images, labels * 2, augment=1)
     b = FrameClassifier(cv=2, seed=1).fit(images, labels * 2, augment=1, workers=2)  # chunks embedded side by side
-    assert torch.equal(a.predict_proba(frames), b.predict_proba(frames))
+    assert torch.equal(a.proba(frames), b.proba(frames))  # the 8-bit grids too: calibrated in the same pass
+    if a.precision_ == "int8":
+        assert torch.equal(a.calibration_.scales, b.calibration_.scales)
     assert torch.equal(a.augmented_features(frames, 1), b.augmented_features(frames, 1, workers=3))
     with pytest.raises(ValueError, match="workers: 2 threads need a classifier on one torch thread, it has 2"):
         FrameClassifier(threads=2).fit(images, labels * 2, workers=2)
@@ -49,12 +57,12 @@ def test_save_load_round_trip(tmp_path, fitted_classifier, frames):
     assert path.is_file() and not list(tmp_path.glob(".*tmp"))
     loaded = FrameClassifier.load(path)
     assert loaded.classes_ == fitted_classifier.classes_
-    assert torch.equal(loaded.predict_proba(frames), fitted_classifier.predict_proba(frames))
+    assert torch.equal(loaded.proba(frames), fitted_classifier.proba(frames))
 
 
 def test_error_paths(tmp_path, fitted_classifier, frames):
     with pytest.raises(TypeError, match="uint8"):
-        fitted_classifier.predict_proba(frames.astype(np.float32))
+        fitted_classifier.proba(frames.astype(np.float32))
     with pytest.raises(ValueError, match="3 BGR channels"):
         fitted_classifier.predict_proba(np.zeros((2, 32, 32, 4), np.uint8))
     with pytest.raises(ValueError, match="3 BGR channels"):
@@ -64,7 +72,7 @@ def test_error_paths(tmp_path, fitted_classifier, frames):
     with pytest.raises(FileNotFoundError, match="weights_path"):
         FrameClassifier(weights_path=tmp_path / "missing.pth")
     with pytest.raises(RuntimeError, match="fit"):
-        FrameClassifier().predict_proba(frames)
+        FrameClassifier().proba(frames)
     with pytest.raises(RuntimeError, match="fit"):
         FrameClassifier().save(tmp_path / "x.safetensors")
     with pytest.raises(ValueError, match="labels"):

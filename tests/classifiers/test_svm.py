@@ -42,7 +42,8 @@ def test_solver_matches_generic_optimizer():
 def test_head_matches_sklearn_svc_on_backbone_features(standardized_features):
     x_tr, y_tr, x_te, y_te = standardized_features
     head = OneVsOneSVC(C=1.0).fit(x_tr, y_tr)
-    p = head.predict_proba(x_te).numpy()
+    p = head.predict_proba(x_te)
+    assert isinstance(p, np.ndarray) and p.dtype == np.float64
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)  # SVC(probability=True) is deprecated in sklearn 1.9
         ref = svm.SVC(kernel="linear", probability=True, C=1.0, random_state=0).fit(x_tr, y_tr)
@@ -54,7 +55,8 @@ def test_head_matches_sklearn_svc_on_backbone_features(standardized_features):
     assert loss <= loss_ref + 0.05
     np.testing.assert_allclose(p.sum(1), 1.0, atol=1e-12)
     assert head.decision_function(x_te).shape == (len(y_te), 3)
-    assert head.classes_ == [0, 1, 2]
+    assert head.classes_.tolist() == [0, 1, 2] and head.n_features_in_ == x_tr.shape[1]
+    assert torch.equal(head.proba(x_te), torch.from_numpy(p))  # the torch path the pipeline uses
 
 
 def test_string_labels_save_load_and_determinism(tmp_path, standardized_features):
@@ -62,12 +64,12 @@ def test_string_labels_save_load_and_determinism(tmp_path, standardized_features
     names = np.array(["a", "b", "c"])[y_tr]
     head = OneVsOneSVC(C=0.5, seed=4).fit(x_tr, names)
     again = OneVsOneSVC(C=0.5, seed=4).fit(x_tr, names)
-    assert torch.equal(head.predict_proba(x_te), again.predict_proba(x_te))
+    assert np.array_equal(head.predict_proba(x_te), again.predict_proba(x_te))
     path = head.save(tmp_path / "head.safetensors")
     loaded = OneVsOneSVC.load(path)
-    assert loaded.classes_ == ["a", "b", "c"]
-    assert torch.equal(loaded.predict_proba(x_te), head.predict_proba(x_te))
-    assert loaded.predict(x_te[:5]) == head.predict(x_te[:5])
+    assert loaded.classes_.tolist() == ["a", "b", "c"] and loaded.classes_.dtype == head.classes_.dtype
+    assert np.array_equal(loaded.predict_proba(x_te), head.predict_proba(x_te))
+    assert np.array_equal(loaded.predict(x_te[:5]), head.predict(x_te[:5])) and head.predict(x_te[:5]).dtype.kind == "U"
 
 
 def test_error_paths(tmp_path, standardized_features):
@@ -87,7 +89,11 @@ def test_error_paths(tmp_path, standardized_features):
     with pytest.raises(ValueError, match="NaN"):
         OneVsOneSVC().fit(np.full((10, 2), np.nan), np.arange(10) % 2)
     with pytest.raises(TypeError, match="X"):
-        OneVsOneSVC().fit([[0.0, 1.0]], [0])
+        OneVsOneSVC().fit("features", [0])
+    with pytest.raises(ValueError, match="continuous"):
+        OneVsOneSVC().fit(x_tr, np.linspace(0, 1, len(x_tr)))
+    with pytest.raises(ValueError, match="target y is None"):
+        OneVsOneSVC().fit(x_tr, None)
     head = OneVsOneSVC().fit(x_tr, y_tr)
     with pytest.raises(ValueError, match="features"):
         head.predict_proba(x_tr[:, :10])

@@ -15,7 +15,7 @@ import torch
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions, render_images, render_sequence
 from experiments.steps import bank as bank_module
-from experiments.steps.bank import BankBuild, BankSpec, cache_path, class_seed, fingerprint
+from experiments.steps.bank import BankBuild, BankSpec, cache_path, class_seed, classifier_identity, fingerprint
 
 CLASSES = ("ambulance", "police_car", "food_crate")
 SHAPE = (72, 96)  # small frames keep rendering cheap; the classifier resizes its crop anyway
@@ -53,9 +53,7 @@ def test_bank_is_the_classified_rendered_sequences_and_is_reused(tmp_path, class
     assert outputs.shape == (3, 2, 3, 3) and first.path.is_file()
     order = [clf.classes_.index(n) for n in CLASSES]
     police = class_seed(7, "police_car")
-    expect = clf.predict_proba(
-        render_sequence("police_car", 3, get_conditions("mission"), seed=police, index=1, shape=SHAPE)
-    )
+    expect = clf.proba(render_sequence("police_car", 3, get_conditions("mission"), seed=police, index=1, shape=SHAPE))
     torch.testing.assert_close(outputs[1, 1], expect[:, order])  # row = class, columns in CLASSES order
     assert len({class_seed(7, name) for name in CLASSES} | {7}) == len(CLASSES) + 1  # each class its own conditions
     again = BankBuild(_spec(), clf, path, tmp_path, workers=0)
@@ -104,6 +102,19 @@ def test_another_classifier_or_its_code_is_a_new_bank(tmp_path, classifiers, mon
     monkeypatch.setattr(bank_module, "code_identity", lambda: "another renderer or backbone")
     redrawn = BankBuild(_spec(), clf0, path0, tmp_path, workers=0)
     assert not redrawn.cached and redrawn.key["code"] == "another renderer or backbone"
+
+
+def test_the_backbone_precision_is_part_of_the_classifier(classifiers):
+    """The same head on the float32 backbone, or on 8-bit grids calibrated otherwise, classifies otherwise."""
+    clf = classifiers[0][0]
+    assert clf.precision_ == "int8"
+    float_twin = FrameClassifier(**(clf.get_params() | {"precision": "float"}))
+    float_twin.head_, float_twin.mean_, float_twin.scale_ = clf.head_, clf.mean_, clf.scale_
+    recalibrated = FrameClassifier(**clf.get_params())
+    recalibrated.head_, recalibrated.mean_, recalibrated.scale_ = clf.head_, clf.mean_, clf.scale_
+    recalibrated.calibration_ = classifiers[1][0].calibration_
+    identities = {classifier_identity(c) for c in (clf, float_twin, recalibrated)}
+    assert len(identities) == 3
 
 
 def test_a_file_recording_another_fingerprint_is_refused(tmp_path, classifiers):

@@ -116,6 +116,7 @@ RANGE_ERRORS = [
     ("mission", "perception=oracle", "perception: expected a subset of ['hbni', 'calibrated', 'ssbf', 'max_of_mean']"),
     ("mission", "warm_planner.budget=0", "warm_planner.budget: expected an int >= 1"),
     ("mission", "study.threads=0", "study.threads: expected an int >= 1"),
+    ("mission", "classifier.precision=int4", "classifier.precision: expected one of ['auto', 'int8', 'float']"),
     ("mission", "+mission.foo=1", "mission.foo: Key 'foo' not in 'MissionBlock'"),
     ("mission_full", "planner.num_nodes=0", "planner.num_nodes: expected an int >= 1"),
     ("mission", "mission.bank.powered.entries=[hbni_exact]", "mission.bank.powered.entries: expected policies among"),

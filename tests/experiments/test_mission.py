@@ -206,7 +206,7 @@ def test_load_run_returns_ready_objects(mission_run):
 
     run = load_run(mission_run)
     images = render_images("ambulance", 2, "mission", seed=5)
-    probs = run.classifier.predict_proba(images)
+    probs = run.classifier.proba(images)
     assert probs.shape == (2, 6)
     torch.testing.assert_close(probs.sum(-1).double(), torch.ones(2, dtype=torch.float64), atol=1e-5, rtol=0)
     assert run.posterior.model == "sequence" and "loc[0, 0]" in run.posterior.summary()  # the default model

@@ -29,7 +29,7 @@ def test_outputs_are_the_classified_sequences_in_the_callers_class_order(clf):
     assert outputs.shape == (3, 2, 3, 3)
     frames = render_sequence("food_crate", 3, get_conditions("mission"), seed=5, index=1)
     order = [clf.classes_.index(name) for name in CLASSES]
-    assert torch.equal(outputs[2, 1], clf.predict_proba(frames)[:, order])
+    assert torch.equal(outputs[2, 1], clf.proba(frames)[:, order])
     assert (thumbs[2, 1] == frames).all()
 
 

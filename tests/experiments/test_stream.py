@@ -33,7 +33,7 @@ def saved(tmp_path_factory):
         labels += [name] * len(snaps)
     clf = FrameClassifier().fit(images, labels)
     order = [clf.classes_.index(n) for n in CLASSES]
-    calib = torch.cat([clf.predict_proba(render_sequence(n, 10, "mission", seed=1))[:, order] for n in CLASSES])
+    calib = torch.cat([clf.proba(render_sequence(n, 10, "mission", seed=1))[:, order] for n in CLASSES])
     posterior = hbni_pyro.fit(
         calib.double(),
         torch.arange(3).repeat_interleave(10),
@@ -96,7 +96,7 @@ def test_stream_experiment_on_a_generated_video(tmp_path, saved, repo_root):
     )
     decoded = list(open_source(saved["video"]))
     order = [clf.classes_.index(n) for n in CLASSES]
-    outputs = clf.predict_proba(decoded)[:, order].double()
+    outputs = clf.proba(decoded)[:, order].double()
     for r in records:
         alone = process.run_batch(outputs[None, r["start_frame"] : r["start_frame"] + 6])
         if not r["stream_ended"]:

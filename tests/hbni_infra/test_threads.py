@@ -68,3 +68,21 @@ def test_a_count_given_as_a_function_is_asked_at_each_use():
     assert torch.get_num_threads() == before
     with pytest.raises(ValueError, match="threads: expected an int"), threads(lambda: 0):
         pass
+
+
+def test_a_nested_block_of_the_same_count_changes_nothing(monkeypatch):
+    """A frame classified alone passes through several blocks of one count: only the outermost sets and restores."""
+    real, calls = torch.set_num_threads, []
+
+    def counted(n: int) -> None:
+        calls.append(n)
+        real(n)
+
+    with torch_threads(1):
+        monkeypatch.setattr(torch, "set_num_threads", counted)
+        with torch_threads(1), torch_threads(None):
+            assert torch.get_num_threads() == 1
+        assert calls == []
+        with torch_threads(2):  # another count still changes it, and restores it
+            assert torch.get_num_threads() == 2
+        assert calls == [2, 1] and torch.get_num_threads() == 1
