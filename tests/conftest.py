@@ -132,8 +132,10 @@ def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def build_tiny_mission(shared: Path, locked: threading.Event | None = None) -> Path:
-    """The tiny run under ``shared`` (the workers' common folder), made unless there; ``locked`` is set once this
-    call holds the run's file lock (a caller that waits for it knows every later call waits for the run)."""
+    """The tiny run under ``shared`` (the workers' common folder), made unless there, on one torch thread as a
+    worker's runs are (the main process's thread count would give another classifier, and the tests that rerun the
+    run's settings another bank); ``locked`` is set once this call holds the run's file lock (a caller that waits
+    for it knows every later call waits for the run)."""
     root = shared / "tiny-mission"
     run_dir = root / "outputs" / "mission" / "2026-01-01_00-00-00"
     with FileLock(str(shared / "tiny-mission.lock")):
@@ -149,7 +151,7 @@ def build_tiny_mission(shared: Path, locked: threading.Event | None = None) -> P
                     "mission.bank.workers=1",
                 ],  # the bank built in the background
                 REPO_ROOT,
-                env={**os.environ, "HBNI_PYRO_ROOT": str(root)},
+                env={**os.environ, "HBNI_PYRO_ROOT": str(root), "OMP_NUM_THREADS": "1"},  # as in a worker
             )
     return run_dir
 
