@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "benchmarks.md"
 RUNS: dict[str, list[list[str]]] = {
     "bench_planner_ablation": [["--domain", "disaster_relief"], ["--domain", "package_delivery"]],
+    "bench_jobs": [["--jobs", "mission", "--together"]],
 }
 """Benchmarks run with arguments (each list one run); the others run once with their defaults."""
 SKIP = {"bench_devices"}

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -37,12 +38,59 @@ def pytest_configure(config: pytest.Config) -> None:
             print(f"tests/compile_kernels.py {part}: exit status {job.returncode}", file=sys.stderr)
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """In the main process of a run with xdist workers, before they start: make the shared tiny main-job run
+    (:func:`tiny_mission_run`) in a background thread, so that it is ready, or nearly, when the first test that
+    reads it starts, instead of one worker making it while every other one that needs it waits on its lock. Returns
+    once the thread holds the lock (a worker that needs the run meanwhile waits for it, as it would for a worker)."""
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", 0):
+        return
+    locked = threading.Event()
+
+    def build() -> None:
+        try:
+            build_tiny_mission(config._tmp_path_factory.getbasetemp(), locked)
+        except Exception:  # the tests that need the run make it again and fail with its error
+            locked.set()
+
+    thread = threading.Thread(target=build, name="tiny-mission", daemon=True)
+    thread.start()
+    locked.wait()
+    config.stash[_TINY_BUILD] = thread
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Wait for the background tiny run (:func:`pytest_sessionstart`) if it is still going (a run that selected
+    no test needing it)."""
+    thread = session.config.stash.get(_TINY_BUILD, None)
+    if thread is not None:
+        thread.join()
+
+
+_TINY_BUILD = pytest.StashKey[threading.Thread]()
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark ``slow`` every test that runs ``experiments.run`` (in its body, a module-level helper it calls or a
-    fixture it uses): ``pytest -m "not slow"`` then skips the whole-experiment runs."""
+    fixture it uses): ``pytest -m "not slow"`` then skips the whole-experiment runs. The modules with a slow test go
+    first (those whose slow tests all read the shared tiny run after the others, as it is made meanwhile), each
+    module's tests together in their collected order: the workers then end on short tests instead of one of them
+    running a whole experiment while the others have nothing left."""
     for item in items:
         if _starts_an_experiment(item):
             item.add_marker(pytest.mark.slow)
+    rank: dict[str, int] = {}  # per module file, the lowest rank of its tests: a module's tests stay together
+    for item in items:
+        rank[item.path] = min(rank.get(item.path, 2), _rank(item))
+    items.sort(key=lambda item: rank[item.path])
+
+
+def _rank(item: pytest.Item) -> int:
+    """0: slow and not reading the tiny run, 1: slow and reading it, 2: not slow."""
+    if item.get_closest_marker("slow") is None:
+        return 2
+    return int("tiny_mission_run" in getattr(item, "fixturenames", ()))
 
 
 def _starts_an_experiment(item: pytest.Item) -> bool:
@@ -91,12 +139,22 @@ def signals_delivered() -> Iterator[None]:
 @pytest.fixture(scope="session")
 def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One finished main-job run with the tiny settings, shared by every test (and xdist worker) that only reads
-    it: ``<root>/outputs/mission/2026-01-01_00-00-00``, made under ``HBNI_PYRO_ROOT=<root>``."""
+    it: ``<root>/outputs/mission/2026-01-01_00-00-00``, made under ``HBNI_PYRO_ROOT=<root>`` (with workers, by the
+    main process in the background from the session's start: :func:`pytest_sessionstart`)."""
     base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the workers' common folder
+    return build_tiny_mission(base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base)
+
+
+def build_tiny_mission(shared: Path, locked: threading.Event | None = None) -> Path:
+    """The tiny run under ``shared`` (the workers' common folder), made unless there, on one torch thread as a
+    worker's runs are (the main process's thread count would give another classifier, and the tests that rerun the
+    run's settings another bank); ``locked`` is set once this call holds the run's file lock (a caller that waits
+    for it knows every later call waits for the run)."""
     root = shared / "tiny-mission"
     run_dir = root / "outputs" / "mission" / "2026-01-01_00-00-00"
     with FileLock(str(shared / "tiny-mission.lock")):
+        if locked is not None:
+            locked.set()
         if not (run_dir / "metrics.json").is_file():
             run_experiment(
                 [
@@ -107,7 +165,7 @@ def tiny_mission_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
                     "mission.bank.workers=1",
                 ],  # the bank built in the background
                 REPO_ROOT,
-                env={**os.environ, "HBNI_PYRO_ROOT": str(root)},
+                env={**os.environ, "HBNI_PYRO_ROOT": str(root), "OMP_NUM_THREADS": "1"},  # as in a worker
             )
     return run_dir
 

@@ -26,3 +26,13 @@ def test_whole_experiment_runs_are_slow_and_the_rest_is_not():
     slow, fast = collected(runs, unit, "-m", "slow"), collected(runs, unit, "-m", "not slow")
     assert slow and all(test.startswith(runs) for test in slow)
     assert fast and all(test.startswith(unit) for test in fast)
+
+
+def test_modules_with_slow_tests_run_first_each_module_together():
+    runs = "tests/experiments/test_planning_experiments.py"
+    unit = "tests/experiments/test_config_defaults.py"
+    order = [test.split("::")[0] for test in collected(unit, runs)]
+    first_unit = order.index(unit)
+    assert (
+        order[0] == runs and all(m == runs for m in order[:first_unit]) and all(m == unit for m in order[first_unit:])
+    )
