@@ -9,7 +9,8 @@ sequence model estimates an AR(1) correlation of its frames instead, :mod:`hbni_
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
 (:func:`threshold_checks`, :func:`stream_reliability`, the stopping confidence that keeps a promised accuracy:
-:func:`fit_stop_threshold`), closed-loop perception replaying recorded
+:func:`fit_stop_threshold`; without labels, :func:`fit_stop_unlabelled`), a sequence model adapted to a new place
+from its unlabelled streams (:func:`adapt`, :class:`ShiftPrior`), closed-loop perception replaying recorded
 streams through a process (:class:`StreamReplay`), and a live classified stream cut into consecutive
 macro-observations (:func:`macro_observations`, :class:`Segment`).
 
@@ -18,11 +19,13 @@ See ``docs/architecture.md`` for the model, the layout and the conventions.
 
 from hbni_infra.version import __version__
 
+from hbni_pyro.adapt import adapt
 from hbni_pyro.calibration import (
     Fold,
     StopFit,
     cross_fit,
     fit_stop_threshold,
+    fit_stop_unlabelled,
     reliability,
     stream_reliability,
     threshold_checks,
@@ -53,12 +56,14 @@ from hbni_pyro.posterior import HBNIPosterior
 from hbni_pyro.replay import StreamReplay
 from hbni_pyro.segments import Segment, macro_observations
 from hbni_pyro.sequence_model import sequence_model
+from hbni_pyro.shift_prior import ShiftPrior
 from hbni_pyro.temper import TemperFit, fit_temper
 from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 from hbni_pyro.variants import NOISE_MODELS, NoiseModel, noise_model, register
 
 __all__ = [
     "__version__",
+    "adapt",
     "CALIBRATIONS",
     "FILTERS",
     "FrameCalibration",
@@ -77,6 +82,7 @@ __all__ = [
     "NoiseModel",
     "Segment",
     "SequenceMetropolis",
+    "ShiftPrior",
     "Fold",
     "StopFit",
     "StreamReplay",
@@ -96,6 +102,7 @@ __all__ = [
     "fit_frame_calibration",
     "cross_fit",
     "fit_stop_threshold",
+    "fit_stop_unlabelled",
     "fit_temper",
     "gamma_log_prob",
     "hbni_model",

@@ -230,9 +230,14 @@ def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
     return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
 
 
-def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
+def _fit_mh(
+    spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, kernel_options=None
+) -> list[HBNIPosterior]:
+    """One vectorised MH run over the ``D`` datasets ``x (D, N, M)``; ``kernel_options`` go to the kernel. Sites in
+    the kernel's ``summary_sites`` are summarised per dataset in the posterior's ``info["sites"]`` (mean and sd over
+    the draws) instead of being kept as draws."""
     D = x.shape[0]
-    kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
+    kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed, **(kernel_options or {}))
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
     args = (_stacked_stats(x, y, ids),) if spec.sequences else (x, y)
     start = time.perf_counter()
@@ -242,6 +247,7 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
         torch.cuda.synchronize(x.device)
     seconds = time.perf_counter() - start
     draws = {k: v[0].transpose(0, 1) for k, v in mcmc.get_samples(group_by_chain=True).items()}
+    summarised = {k: (v := draws.pop(k)).reshape((D, -1) + v.shape[2:]) for k in getattr(kernel, "summary_sites", ())}
     label_probs = kernel.label_probs if ids is None else kernel.label_probs[:, ids]
     diag = kernel.diagnostics()
     info = {
@@ -263,10 +269,15 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
             hp,
             spec.name,
             label_probs=label_probs[d],
-            info=info,
+            info=dict(info, sites=_site_summaries(summarised, d)) if summarised else info,
         )
         for d in range(D)
     ]
+
+
+def _site_summaries(summarised: dict[str, Tensor], d: int) -> dict[str, dict[str, Any]]:
+    """Dataset ``d``'s mean and sd of each summarised site (``(D, draws, ...)`` tensors), as lists."""
+    return {k: {"mean": v[d].mean(0).tolist(), "sd": v[d].std(0).tolist()} for k, v in summarised.items()}
 
 
 def _fit_nuts(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:
