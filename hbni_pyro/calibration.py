@@ -241,6 +241,7 @@ def fit_stop_unlabelled(
     max_frames: int | None = None,
     grid: Sequence[float] | None = None,
     z: float = 1.0,
+    labels: Tensor | None = None,
 ) -> StopFit:
     """:func:`fit_stop_threshold` without labels: the lowest stopping confidence at which the process's emitted
     labels are right at least ``target`` of the time, each stream's true class standing in by ``filter``'s own
@@ -254,6 +255,7 @@ def fit_stop_unlabelled(
     rounded, enters the Wilson bound at ``z`` standard errors. Streams should be ones the filter may meet, such as
     the unlabelled streams a model was adapted on (:func:`hbni_pyro.adapt`), and long enough to tell the classes
     apart at their end: a stream whose final posterior is unsure weighs its emitted label by that unsureness.
+    ``labels (B,)``, ``-1`` where unknown (``None``: all unknown): a known class stands for itself.
     """
     target = as_probability("target", target, allow_zero=False)
     z = as_float("z", z, 0.0, math.inf, high_open=True)
@@ -267,6 +269,16 @@ def fit_stop_unlabelled(
     max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
     grid = _stop_grid(grid, filter.num_classes)
     full = filter.run(streams)[:, -1]  # (B, M): the posterior given the whole stream
+    if labels is not None:
+        labels = torch.as_tensor(labels)
+        if labels.shape != streams.shape[:1] or labels.is_floating_point() or (labels >= filter.num_classes).any():
+            raise ValueError(
+                f"labels: expected {streams.shape[0]} integer classes below {filter.num_classes} (-1: unknown), "
+                f"got shape {tuple(labels.shape)}"
+            )
+        known = (labels >= 0).to(full.device)
+        one_hot = torch.nn.functional.one_hot(labels.clamp_min(0).to(full.device), filter.num_classes).to(full.dtype)
+        full = torch.where(known.unsqueeze(-1), one_hot, full)
     process = MacroObservationProcess(filter, max_frames=max_frames)
     right, emitted, frames, timeouts = (torch.zeros(len(grid), dtype=DTYPE) for _ in range(4))
     for i, batch in enumerate(process.run_thresholds(streams, grid)):

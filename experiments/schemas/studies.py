@@ -703,6 +703,133 @@ class NoiseModels(Root):
         return tuple(cfg.study.models)
 
 
+@dataclass
+class PlaceBlock:
+    """An imaging place: overrides of the mission preset's conditions (``classifiers.data.MISSION``)."""
+
+    conditions: dict[str, Any] = MISSING
+
+    def check(self, path: str) -> None:
+        _check_conditions("conditions", self.conditions)
+
+
+@dataclass
+class OldPlaceBlock(PlaceBlock):
+    """``new_place.old``: the place the classifier's calibration comes from, its labelled sequences per class and
+    the folds HBNI's stop is chosen on there."""
+
+    sequences: int = MISSING
+    stop_folds: int = MISSING
+
+    def check(self, path: str) -> None:
+        super().check(path)
+        if as_int("stop_folds", self.stop_folds, 2) > as_int("sequences", self.sequences, 2):
+            raise ValueError(f"stop_folds: expected at most sequences={self.sequences}, got {self.stop_folds}")
+
+
+@dataclass
+class HeldOutBankBlock:
+    """``new_place.bank``: held-out sequences per class of the closed loop and the processes that build them."""
+
+    sequences: int = MISSING
+    workers: int = MISSING
+
+    def check(self, path: str) -> None:
+        as_int("sequences", self.sequences, 2)
+        as_int("workers", self.workers, 0)
+
+
+@dataclass
+class NewPlacePhotosBlock:
+    """``new_place.photos``: the same comparison on real photographs; the new camera's degradation overrides the
+    ``"degraded"`` preset's fields (``classifiers.photos.PhotoConditions``)."""
+
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    old_sequences: int = MISSING
+    test_sequences: int = MISSING
+    conditions: dict[str, Any] = MISSING
+
+    def check(self, path: str) -> None:
+        import dataclasses
+
+        from classifiers.photos import get_photo_conditions
+
+        for name in ("train_per_class", "old_sequences", "test_sequences"):
+            as_int(name, getattr(self, name), 2)
+        as_int("augment", self.augment, 0)
+        try:
+            dataclasses.replace(get_photo_conditions("degraded"), **self.conditions)
+        except TypeError as exc:
+            raise ValueError(f"conditions: {exc}") from None
+
+
+@dataclass
+class NewPlaceBlock:
+    """``new_place``: the classifier's training, the old and the new place, what the robot has there (``labelled``
+    sequences per class, ``unlabelled`` streams in the class ``mix``), the adaptation's prior, the process, the
+    planning tables and the closed loop."""
+
+    train_per_class: int = MISSING
+    augment: int = MISSING
+    frames: int = MISSING
+    threshold: float = MISSING
+    calibration: str = MISSING
+    old: OldPlaceBlock = field(default_factory=OldPlaceBlock)
+    new: PlaceBlock = field(default_factory=PlaceBlock)
+    labelled: list[int] = MISSING
+    unlabelled: int = MISSING
+    mix: list[float] = MISSING
+    shift_sd: float = MISSING
+    prevalence: float = MISSING
+    generative_streams: int = MISSING
+    cache_dir: str = MISSING
+    bank: HeldOutBankBlock = field(default_factory=HeldOutBankBlock)
+    bootstrap: BootstrapBlock = field(default_factory=BootstrapBlock)
+    photos: Optional[NewPlacePhotosBlock] = MISSING
+
+    def check(self, path: str) -> None:
+        from decpomdp.domains.disaster_relief import CLASSES
+        from hbni_pyro.frame_calibration import CALIBRATIONS
+
+        for name in ("train_per_class", "frames", "generative_streams"):
+            as_int(name, getattr(self, name), 1)
+        as_int("augment", self.augment, 0)
+        as_probability("threshold", self.threshold, allow_zero=False)
+        as_choice("calibration", self.calibration, CALIBRATIONS)
+        ks = [as_int("labelled", k, 0) for k in self.labelled]
+        if not ks or ks != sorted(set(ks)):
+            raise ValueError(f"labelled: expected distinct labelled sequences per class in rising order, got {ks}")
+        if len(self.mix) != len(CLASSES) or any(not (math.isfinite(w) and w > 0) for w in self.mix):
+            raise ValueError(f"mix: expected {len(CLASSES)} positive weights, one per class, got {list(self.mix)}")
+        as_int("unlabelled", self.unlabelled, len(CLASSES))
+        as_float("shift_sd", self.shift_sd, 0.0, low_open=True, high_open=True)
+        as_float("prevalence", self.prevalence, 0.0, low_open=True, high_open=True)
+        if not self.cache_dir.strip():
+            raise ValueError("cache_dir: expected a directory for cached classifier outputs and banks")
+
+
+@dataclass
+class NewPlace(Root):
+    classifier: Any = field(default_factory=ClassifierBlock)
+    planner: Any = field(default_factory=PlannerBlock)  # plans perfect perception from scratch
+    warm_planner: Any = field(default_factory=PlannerBlock)  # refines that plan on each variant's table
+    domain: Any = field(default_factory=DisasterReliefBlock)
+    new_place: NewPlaceBlock = field(default_factory=NewPlaceBlock)
+    study: PlanningStudy = field(default_factory=PlanningStudy)
+
+    @classmethod
+    def unread(cls, cfg: DictConfig) -> dict[str, str]:
+        return {
+            "domain.perception": "the study gives each policy's domain its perception",
+            "hbni.model": "the study fits the sequence model, the one hbni_pyro.adapt adapts",
+        }
+
+    @classmethod
+    def noise_models(cls, cfg: DictConfig) -> tuple[str, ...]:
+        return ("sequence",)
+
+
 #: schema of each experiment, by its ``name``
 SCHEMAS: dict[str, type] = {
     "hbni_toy": HBNIToy,
@@ -716,4 +843,5 @@ SCHEMAS: dict[str, type] = {
     "mission_full": Mission,
     "stream": Stream,
     "noise_models": NoiseModels,
+    "new_place": NewPlace,
 }

@@ -68,22 +68,47 @@ def sequence_outputs(
     classify sequences side by side, each on one torch thread (rendering and the backbone release the
     GIL), so the outputs are the same for any ``workers``.
     """
+    out = torch.empty(len(classes), n_seq, frames, len(classes))
+    thumbs = np.empty((len(classes), n_seq), dtype=object)
+    jobs = [(c, s) for c in range(len(classes)) for s in range(n_seq)]
+    for (c, s), (seq, proba) in zip(jobs, _classified(clf, classes, jobs, frames, cond, seed, progress, desc, workers)):
+        out[c, s] = proba
+        thumbs[c, s] = seq
+    return out, thumbs
+
+
+def class_mix_outputs(
+    clf: FrameClassifier,
+    classes: list[str],
+    counts: list[int],
+    frames: int,
+    cond,
+    seed: int,
+    progress: bool,
+    desc: str,
+    workers: int | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Classifier outputs ``(B, frames, C)`` of ``counts[c]`` sequences of each class ``classes[c]`` (``B`` their
+    sum; sequence ``i`` of a class as :func:`sequence_outputs` renders it) and their true classes ``(B,)``: streams
+    in a class mix of the caller's choosing. ``workers`` as for :func:`sequence_outputs`."""
+    jobs = [(c, s) for c, n in enumerate(counts) for s in range(n)]
+    out = torch.empty(len(jobs), frames, len(classes))
+    for b, (_, proba) in enumerate(_classified(clf, classes, jobs, frames, cond, seed, progress, desc, workers)):
+        out[b] = proba
+    return out, torch.tensor([c for c, _ in jobs], dtype=torch.long)
+
+
+def _classified(clf, classes, jobs, frames, cond, seed, progress, desc, workers):
+    """``(frames, outputs)`` of each ``(class, index)`` job in order, rendered and classified by ``workers`` threads
+    side by side, each on one torch thread; outputs ``(frames, C)`` in ``classes``' column order."""
     workers = as_int("workers", _workers(clf) if workers is None else workers, minimum=1)
     if workers > 1 and clf.threads not in (None, 1):
         raise ValueError(f"workers: {workers} threads need a classifier on one torch thread, it has {clf.threads}")
     order = class_columns(clf, classes)
-    out = torch.empty(len(classes), n_seq, frames, len(classes))
-    thumbs = np.empty((len(classes), n_seq), dtype=object)
-    jobs = [(c, s) for c in range(len(classes)) for s in range(n_seq)]
 
     def classify(job: tuple[int, int]) -> tuple[np.ndarray, torch.Tensor]:
         seq = render_sequence(classes[job[0]], frames, cond, seed=seed, index=job[1])
         return seq, clf.predict_proba(seq)[:, order]
 
     with single_thread() if workers > 1 else contextlib.nullcontext(), ThreadPoolExecutor(workers) as pool:
-        for (c, s), (seq, proba) in zip(
-            jobs, tqdm(pool.map(classify, jobs), total=len(jobs), desc=desc, unit="seq", disable=not progress)
-        ):
-            out[c, s] = proba
-            thumbs[c, s] = seq
-    return out, thumbs
+        yield from tqdm(pool.map(classify, jobs), total=len(jobs), desc=desc, unit="seq", disable=not progress)

@@ -224,3 +224,16 @@ def test_unlabelled_stop_refuses_bad_input():
         fit_stop_unlabelled(f, streams, 0.9, grid=[0.2])
     fit = fit_stop_unlabelled(f, streams, 0.9, grid=[0.99], z=0.0)
     assert fit.grid == [0.99] and fit.target == 0.9
+    with pytest.raises(ValueError, match="labels: expected 6 integer classes"):
+        fit_stop_unlabelled(f, streams, 0.9, labels=torch.zeros(5, dtype=torch.long))
+
+
+def test_known_labels_stand_for_themselves():
+    """With every label known, the unlabelled stop is the labelled one (without its Wilson rounding of counts)."""
+    params, rho = _sequence_place(0)
+    f = _true_filter(params, rho)
+    streams, truth = _sequence_streams(params, rho, 120, torch.Generator().manual_seed(2))
+    known = fit_stop_unlabelled(f, streams, 0.9, labels=truth)
+    labelled = fit_stop_threshold(f, streams, truth, 0.9)
+    assert known.stop == labelled.stop
+    torch.testing.assert_close(torch.tensor(known.emitted_accuracy), torch.tensor(labelled.emitted_accuracy))
