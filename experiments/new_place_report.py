@@ -82,32 +82,10 @@ def figure(results: dict[str, dict], labelled: tuple[int, ...], place: str) -> p
         ("emitted labels right (± s.e.)", _emitted),
         ("frames per inference (± s.e.)", _frames),
     )
-    fig, axes = plt.subplots(1, 3, figsize=(14.5, 4.3))
-    x = np.arange(len(labelled))
-    for ax, (title, get) in zip(axes, panels):
-        for family in ("hbni", "calibrated"):
-            label, colour, style = FAMILIES[family]
-            values, errors = _series(results, family, labelled, get)
-            ax.errorbar(x, values, yerr=errors, fmt=style, color=colour, capsize=3, label=label)
-        label, colour, style = FAMILIES["hbni_old"]
-        value, error = get(results["hbni_old"])
-        ax.axhline(value, color=colour, linestyle=style, label=label)
-        ax.axhspan(value - error, value + error, color=colour, alpha=0.15)
-        if title.startswith("executed"):
-            perfect = results["perfect"]["executed"]
-            ax.axhline(perfect["value"], color="black", linestyle=":", label="perfect perception")
-        if title.startswith("emitted"):
-            ax.axhline(
-                results["hbni_old"]["held_out_process"]["threshold"],
-                color=figures.THRESHOLD_COLOR,
-                linestyle="-.",
-                label="promised",
-            )
-        _axes(ax, x, labelled, title)
-    axes[0].legend(fontsize=8, loc="lower right")
-    fig.suptitle(f"A new place ({place}): K labelled sequences per class", fontsize=figures.TITLE_SIZE)
-    fig.tight_layout()
-    return fig
+    perfect = results["perfect"]["executed"]["value"]
+    return _against_k(
+        results, labelled, panels, {0: ("perfect perception", perfect)}, "K labelled sequences per class", place
+    )
 
 
 def process_figure(entries: dict[str, dict], labelled: tuple[int, ...], place: str) -> plt.Figure:
@@ -117,9 +95,24 @@ def process_figure(entries: dict[str, dict], labelled: tuple[int, ...], place: s
         ("emitted labels right (± s.e.)", _emitted),
         ("frames per inference (± s.e.)", _frames),
     )
-    fig, axes = plt.subplots(1, 3, figsize=(14.5, 4.3))
+    return _against_k(entries, labelled, panels, {}, "each filter on held-out sequences", place)
+
+
+def _against_k(
+    entries: dict[str, dict],
+    labelled: tuple[int, ...],
+    panels: tuple,
+    references: dict[int, tuple[str, float]],
+    what: str,
+    place: str,
+) -> plt.Figure:
+    """One panel per ``(title, get)`` of ``panels``: each family's ``get(entry) -> (value, s.e.)`` against ``K``,
+    HBNI from the old place as a band, the promise on the emitted-labels panel and ``references`` (panel index ->
+    (label, value)) as dotted lines."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(14.5, 4.3))
     x = np.arange(len(labelled))
-    for ax, (title, get) in zip(axes, panels):
+    promised = entries["hbni_old"]["held_out_process"]["threshold"]
+    for i, (ax, (title, get)) in enumerate(zip(axes, panels)):
         for family in ("hbni", "calibrated"):
             label, colour, style = FAMILIES[family]
             values, errors = _series(entries, family, labelled, get)
@@ -128,16 +121,16 @@ def process_figure(entries: dict[str, dict], labelled: tuple[int, ...], place: s
         value, error = get(entries["hbni_old"])
         ax.axhline(value, color=colour, linestyle=style, label=label)
         ax.axhspan(value - error, value + error, color=colour, alpha=0.15)
+        if i in references:
+            ax.axhline(references[i][1], color="black", linestyle=":", label=references[i][0])
         if title.startswith("emitted"):
-            ax.axhline(
-                entries["hbni_old"]["held_out_process"]["threshold"],
-                color=figures.THRESHOLD_COLOR,
-                linestyle="-.",
-                label="promised",
-            )
-        _axes(ax, x, labelled, title)
+            ax.axhline(promised, color=figures.THRESHOLD_COLOR, linestyle="-.", label="promised")
+        ax.set_xticks(x, [str(K) for K in labelled], fontsize=figures.TICK_SIZE)
+        ax.set_xlabel("K: labelled new-place sequences per class", fontsize=figures.LABEL_SIZE)
+        ax.set_title(title, fontsize=figures.LABEL_SIZE)
+        ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8, loc="lower right")
-    fig.suptitle(f"A new place ({place}): each filter on held-out sequences", fontsize=figures.TITLE_SIZE)
+    fig.suptitle(f"A new place ({place}): {what}", fontsize=figures.TITLE_SIZE)
     fig.tight_layout()
     return fig
 
@@ -155,13 +148,6 @@ def _frames(entry: dict) -> tuple[float, float]:
 def _right(entry: dict) -> tuple[float, float]:
     p = entry["held_out_process"]
     return p["accuracy"], math.sqrt(p["accuracy"] * (1 - p["accuracy"]) / p["streams"])
-
-
-def _axes(ax: plt.Axes, x: np.ndarray, labelled: tuple[int, ...], title: str) -> None:
-    ax.set_xticks(x, [str(K) for K in labelled], fontsize=figures.TICK_SIZE)
-    ax.set_xlabel("K: labelled new-place sequences per class", fontsize=figures.LABEL_SIZE)
-    ax.set_title(title, fontsize=figures.LABEL_SIZE)
-    ax.grid(alpha=0.3)
 
 
 def _process_row(name: str, entry: dict) -> str:
