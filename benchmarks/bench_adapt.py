@@ -25,10 +25,10 @@ MIX = torch.tensor([0.3, 0.22, 0.16, 0.13, 0.11, 0.08])
 def places(seed: int = 0) -> tuple:
     """An old place's posterior (every draw the same parameters) and a new place's parameters moved from it."""
     import hbni_pyro
-    from hbni_pyro.model import HyperPrior
-    from hbni_pyro.posterior import posterior_from_samples
-    from hbni_pyro.sequence_model import look_prior_mean
-    from hbni_pyro.variants.sequence import draw_prior
+    from hbni_pyro.distributions.prior import HyperPrior
+    from hbni_pyro.posterior.posterior import posterior_from_samples
+    from hbni_pyro.models.sequence.program import look_prior_mean
+    from hbni_pyro.models.sequence import draw_prior
 
     g = torch.Generator().manual_seed(seed)
     old = {k: v[0] for k, v in draw_prior(HyperPrior(), M, 1, g).items()}
@@ -43,7 +43,7 @@ def places(seed: int = 0) -> tuple:
 
 
 def streams(new: dict, size: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    from hbni_pyro.generative import sample_sequences
+    from hbni_pyro import sample_sequences
 
     classes = torch.multinomial(MIX, size, replacement=True, generator=g)
     seqs = sample_sequences(new["loc"], new["between"], new["within"], classes, FRAMES, g, 0.6)
@@ -70,8 +70,8 @@ def fit_case(size: int) -> str:
 def draw_case(size: int, repeats: int = 20) -> str:
     """The compiled class draw against the torch one, on one sampler state of ``size`` unlabelled sequences."""
     from hbni_pyro.fit import _stacked_stats
-    from hbni_pyro.kernels import SequenceMetropolis
-    from hbni_pyro.kernels.sequence_steps import draw_classes
+    from hbni_pyro.models import SequenceMetropolis
+    from hbni_pyro.models.sequence.steps import draw_classes
     from hbni_infra.threads import single_thread
 
     posterior, new, g = places()

@@ -6,7 +6,7 @@ images, MCAP with PNG ``CompressedImage`` messages, sqlite3 (raw) and ROS 1 (raw
 then read:
 
 1. source only: every frame decoded (``stamped()``: header stamp, receive time);
-2. end to end: the stream experiment's loop (:func:`experiments.stream.stream_frames`: classification, the
+2. end to end: the stream experiment's loop (:func:`experiments.studies.stream.stream_frames`: classification, the
    HBNI macro-observation process restarting after each macro-observation, no pictures), without and, for
    the MCAP bag, with the ROS output bag.
 
@@ -35,7 +35,7 @@ from classifiers.bags import write_image_bag
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments.stream import Models, Settings, stream_frames
+from experiments.studies.stream import Models, Settings, stream_frames
 from hbni_infra.streams import stream_seed
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 import hbni_pyro
-from hbni_pyro.calibration import threshold_checks
+from hbni_pyro import threshold_checks
 
 THRESHOLD = 0.95
 ROWS = {
@@ -44,20 +44,21 @@ POLICIES = ("perfect", "hbni", "calibrated", "ssbf", "max_of_mean")
 def photo_filters(seed: int) -> tuple[dict, dict, tuple]:
     """Every filter of :data:`ROWS` fitted on the photographs' calibration sequences of ``seed``, HBNI's stop, and
     the held-out ``(streams, truth)``."""
-    from experiments.noise_models import held_out_stops, photo_outputs, read_settings
-    from experiments.schemas import compose_config
+    from experiments.runs.clock import StageClock
+    from experiments.schemas import compose_settings
+    from experiments.steps.condition_outputs import photo_outputs
     from experiments.steps.noise import fit_labelled
+    from experiments.studies.noise_models import held_out_stops
 
-    cfg = compose_config(["experiment=noise_models", f"seed={seed}", "progress=false"])
-    s = read_settings(cfg)
+    settings = compose_settings(["experiment=noise_models", f"seed={seed}", "progress=false"])
     scratch = Path(os.environ.get("TMPDIR", "/tmp")) / "bench_calibrated_peer"
-    calib, held = photo_outputs(cfg, s, scratch)
+    calib, held = photo_outputs(settings, StageClock("noise_models", settings.progress), scratch)
     C, _, F, M = calib.shape
     cs, ct = calib.reshape(-1, F, M), torch.arange(C).repeat_interleave(calib.shape[1])
     hs, ht = held.reshape(-1, F, M), torch.arange(C).repeat_interleave(held.shape[1])
-    posterior = fit_labelled(calib, cfg.hbni, seed, False, model="sequence")
+    posterior = fit_labelled(calib, settings.hbni, seed, False, model="sequence")
     hbni = hbni_pyro.make_filter("hbni", posterior)
-    stop = held_out_stops(calib, cfg, s)[THRESHOLD]
+    stop = held_out_stops(calib, settings)[THRESHOLD]
     labels = torch.arange(C).view(-1, 1, 1).expand(calib.shape[:3])
     filters = {"default": hbni, "sequence": hbni, "ssbf": hbni_pyro.make_filter("ssbf", num_classes=M)}
     for kind, key in (("matrix", "calibrated"), ("temperature", "calibrated_temperature")):
@@ -97,7 +98,7 @@ def photographs(seeds: list[int]) -> None:
 
 def mission_runs(seeds: list[int], run: bool) -> dict[int, Path]:
     from experiments import latest_run
-    from experiments.paths import outputs_root
+    from experiments.runs.paths import outputs_root
 
     found = {}
     for seed in seeds:

@@ -89,7 +89,7 @@ def exact_rates(count: int) -> dict[str, dict[str, float | None]]:
 def mh_rates(n: int) -> dict[str, tuple[float, float] | None]:
     """Per device, the unlabelled fit's (min-ESS per second of sampling, seconds of sampling)."""
     import hbni_pyro
-    from hbni_pyro.generative import sample_outputs
+    from hbni_pyro import sample_outputs
 
     m = 10
     theta = torch.linspace(1.0, 20.0, m, dtype=torch.float64)

@@ -1,6 +1,6 @@
 """Benchmark: the full filtering_error study, and the batched HBNI filter against a per-frame scipy loop.
 
-1. Runs ``experiments.filtering_error.run`` at the issue's full settings (2000 trials x 50
+1. Runs ``experiments.studies.filtering_error.run`` at the issue's full settings (2000 trials x 50
    lengths x 5 methods x 4 training sizes, 20 training sets per size, every MH fit through
    ``hbni_pyro.fit_many``) and prints its wall time. Floor: under 2 minutes on 2 cores.
 2. Times the batched marginal HBNI filter (1000 posterior draws) on all 2000 x 50 trial frames
@@ -24,11 +24,9 @@ import scipy.special
 import scipy.stats
 import torch
 
-from experiments.filtering_error import run as run_study
-from experiments.schemas import compose_config
-from hbni_pyro.filters import HBNIFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.posterior import HBNIPosterior
+from experiments.schemas import compose_settings
+from experiments.studies.filtering_error import run as run_study
+from hbni_pyro import HBNIFilter, HBNIPosterior, sample_outputs
 from hbni_infra.streams import torch_generator
 
 STUDY_FLOOR_SECONDS = 120.0
@@ -57,17 +55,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    cfg = compose_config(["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
-    s = cfg.study
+    settings = compose_settings(["experiment=filtering_error", "progress=false", f"seed={args.seed}"])
+    s, fit = settings.study, settings.hbni.fit
     print(
         f"filtering_error study: {s.num_trials} trials x N = 1..{s.max_len} x 5 methods x training sizes "
-        f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {cfg.hbni.fit.num_chains} chains, "
-        f"{cfg.hbni.fit.warmup_steps} + {cfg.hbni.fit.num_samples} steps), HBNI mode {cfg.hbni.filter.mode}, "
+        f"{list(s.training_sizes)} ({s.num_training_sets} MH fits each: {fit.num_chains} chains, "
+        f"{fit.warmup_steps} + {fit.num_samples} steps), HBNI mode {settings.hbni.filter.mode}, "
         f"torch threads {torch.get_num_threads()}"
     )
     with tempfile.TemporaryDirectory() as tmp:
         start, cpu = time.perf_counter(), time.process_time()
-        metrics = run_study(cfg, Path(tmp))
+        metrics = run_study(settings, Path(tmp))
         study_seconds, study_cpu = time.perf_counter() - start, time.process_time() - cpu
         fit_seconds = sum(f["seconds"] for f in metrics["fits"].values())
         posterior = HBNIPosterior.load(Path(tmp) / "posterior_train15_set0.safetensors")

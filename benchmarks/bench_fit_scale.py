@@ -44,7 +44,7 @@ def _peak_bytes() -> int:
 
 
 def _data(n: int, m: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
-    from hbni_pyro.generative import sample_outputs
+    from hbni_pyro import sample_outputs
 
     g = torch_generator(seed)
     theta = torch.linspace(1.0, 20.0, m, dtype=torch.float64)
@@ -76,8 +76,7 @@ def case_fit(kind: str, model: str) -> dict:
 
 def case_filter() -> list[dict]:
     """Per-frame update time of each model's filter (6 classes, 16 chains x 1000 draws, marginal)."""
-    from hbni_pyro import HBNIFilter, HBNIPosterior
-    from hbni_pyro.generative import sample_outputs
+    from hbni_pyro import HBNIFilter, HBNIPosterior, sample_outputs
 
     torch.set_num_threads(2)
     M, C, S = 6, 16, 1000

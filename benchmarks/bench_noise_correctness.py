@@ -1,6 +1,6 @@
 """Correctness study of the noise models' samplers, at a scale the test suite cannot afford.
 
-1. Simulation-based calibration (:func:`hbni_pyro.sbc.run_sbc`) of every model's MH kernel on
+1. Simulation-based calibration (:func:`hbni_pyro.run_sbc`) of every model's MH kernel on
    ``--datasets`` datasets from its own prior; prints each rank statistic's chi-square p-value
    (10 bins) and the smallest against its Bonferroni floor (family-wise 1 %).
 2. MH against NUTS (Pyro, jit) on one small dataset per variant, with longer NUTS runs than the
@@ -18,9 +18,8 @@ import time
 import torch
 
 import hbni_pyro
+from hbni_pyro import run_sbc, sample_dirichlet, sample_outputs, sample_sequences
 from hbni_pyro.fit import NUTS_SEED_LIMIT
-from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
-from hbni_pyro.sbc import run_sbc
 from hbni_infra.stats import monte_carlo_z
 from hbni_infra.streams import stream_seed, torch_generator
 

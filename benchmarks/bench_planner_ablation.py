@@ -37,7 +37,7 @@ from hydra.utils import instantiate
 
 from decpomdp.domains import DisasterRelief, PackageDelivery, rollout_counters, shared
 from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
-from experiments.schemas import compose_config
+from experiments.schemas import compose_settings
 from hbni_infra.files import atomic_write_text
 from hbni_infra.streams import torch_stream
 
@@ -59,14 +59,14 @@ DOMAINS = {"package_delivery": (PackageDelivery, True), "disaster_relief": (Disa
 
 def experiment_planner(domain: str) -> PlannerConfig:
     """The ``planners.cold`` of ``experiment=<domain>`` (``conf/planner/cold.yaml`` and the experiment's overrides)."""
-    return instantiate(compose_config([f"experiment={domain}"]).planners.cold)
+    return instantiate(compose_settings([f"experiment={domain}"]).planners.cold)
 
 
-def run_variant(env, shared_controller: bool, name: str, cfg: PlannerConfig, seed: int, reeval: int) -> dict:
+def run_variant(env, shared_controller: bool, name: str, config: PlannerConfig, seed: int, reeval: int) -> dict:
     cpu = time.process_time()
     if name == "G-DICE":
-        cfg = gdice_config(ce_iterations=max(1, cfg.budget // (100 * 80)))
-    out = plan(RolloutScorer(env, shared=shared_controller), cfg, seed=seed)
+        config = gdice_config(ce_iterations=max(1, config.budget // (100 * 80)))
+    out = plan(RolloutScorer(env, shared=shared_controller), config, seed=seed)
     best, rollouts = out.best, out.rollouts
     cpu = time.process_time() - cpu
     team = shared(best, env.num_agents) if shared_controller else best
@@ -98,8 +98,8 @@ def main() -> None:
         base = dataclasses.replace(base, budget=args.budget)
     rows = []
     for name in args.variants:
-        cfg = dataclasses.replace(base, **VARIANTS.get(name, {}))
-        rows.append(run_variant(env, shared_controller, name, cfg, args.seed, args.reeval))
+        config = dataclasses.replace(base, **VARIANTS.get(name, {}))
+        rows.append(run_variant(env, shared_controller, name, config, args.seed, args.reeval))
         r = rows[-1]
         print(
             f"{args.domain} | {name} | {r['value']:.3f} +- {r['stderr']:.3f} | {r['rollouts']:,} | {r['cpu_seconds']:.0f} s",

@@ -14,7 +14,7 @@ import argparse
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 from hbni_infra.stats import monte_carlo_z
 from hbni_infra.streams import torch_generator
 

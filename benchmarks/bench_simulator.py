@@ -29,7 +29,7 @@ from decpomdp import JointController, simulate
 from decpomdp.domains import DisasterRelief, PackageDelivery
 from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
-from hbni_pyro.model import HyperPrior
+from hbni_pyro import HyperPrior
 from hbni_infra.threads import threads
 from hbni_infra.streams import numpy_generator, torch_generator
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import yaml
 
 from decpomdp import solve
-from experiments.dpomdp_benchmarks import fraction_of_optimum
+from experiments.studies.dpomdp_benchmarks import fraction_of_optimum
 
 TABLE = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "dpomdp_benchmarks.yaml"
 MAX_HORIZON = 10

@@ -5,7 +5,7 @@ then, in this process, each configuration reads it from the start:
 
 1. decoding only (the reference: OpenCV reading the file);
 2. decoding + classification (crop, EfficientNet-Lite0, SVM head) at 1 and 2 backbone threads;
-3. the stream experiment's own loop (:func:`experiments.stream.stream_frames`): decoding,
+3. the stream experiment's own loop (:func:`experiments.studies.stream.stream_frames`): decoding,
    classification, the HBNI macro-observation process restarting after each macro-observation
    (a posterior of 8 chains x 500 draws, marginal filter) and the annotated video, at 1 and 2 threads.
 
@@ -32,7 +32,7 @@ from classifiers import FrameClassifier, class_columns, classify_frames
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
 from decpomdp.domains.disaster_relief import CLASSES
-from experiments.stream import Models, Settings, stream_frames
+from experiments.studies.stream import Models, Settings, stream_frames
 from hbni_infra.streams import stream_seed
 
 FLOOR_FPS = 20.0

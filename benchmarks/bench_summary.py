@@ -61,7 +61,7 @@ def case(chains: int, draws: int, reference: bool) -> dict:
     if reference:
         import pyro.ops.stats
 
-        import hbni_pyro.posterior as module
+        import hbni_pyro.posterior.posterior as module
 
         module.effective_sample_size = lambda x: float(pyro.ops.stats.effective_sample_size(x, 0, 1))
     Path("/proc/self/clear_refs").write_text("5")  # resets the peak (VmHWM) to the memory held now

@@ -20,7 +20,7 @@ from classifiers.coupling import pairwise_coupling
 from classifiers.pipeline import FrameClassifier
 from classifiers.platt import fit_platt, platt_predict
 from classifiers.preprocess import augment, center_crop, crop_box, normalize
-from classifiers.stream import class_columns, classify_frames
+from classifiers.classify import class_columns, classify_frames
 from classifiers.svm import OneVsOneSVC
 
 __all__ = [

@@ -89,7 +89,9 @@ class BagSource(FrameSource):
             why), no image topic, several image topics and no ``topic`` (the error lists them), a ``topic``
             the bag lacks or that carries no images, or a bad ``max_frames`` or ``window``. While iterating: a
             message that cannot be read or decoded (an unknown encoding, short data, corrupt bytes), naming
-            the topic and the message's index and receive time.
+            the topic and the message's index and receive time; a damaged MCAP chunk (its data fail the CRC-32
+            that bags written here carry), naming the file and the chunk's byte offset and times; a header stamp
+            before the previous frame's (stamps running backwards, a clock jump).
         ImportError: the ``ros`` extra is not installed (the message says what to install).
     """
 
@@ -163,12 +165,12 @@ class BagSource(FrameSource):
                 start = reader.start_time + round(self.window[0] * ros.NS_PER_S)
                 stop = None if math.isinf(self.window[1]) else reader.start_time + round(self.window[1] * ros.NS_PER_S)
             messages = reader.messages(connections, start=start, stop=stop)
-            index = 0
+            index, previous = 0, None
             while self.max_frames is None or index < self.max_frames:
                 try:
                     item = next(messages, None)
                 except Exception as exc:
-                    raise ValueError(f"{self._where(index)} could not be read: {_cause(exc)}") from exc
+                    raise ValueError(f"{self._where(index)} could not be read: {self._damage(exc)}") from exc
                 if item is None:
                     return
                 connection, received, raw = item
@@ -179,8 +181,31 @@ class BagSource(FrameSource):
                     raise ValueError(
                         f"{self._where(index)} (receive time {received} ns) could not be decoded: {_cause(exc)}"
                     ) from exc
-                yield StampedFrame(image, ros.nanoseconds(msg.header.stamp), received, msg.header.frame_id, index)
+                stamp = ros.nanoseconds(msg.header.stamp)
+                if previous is not None and stamp < previous:
+                    raise ValueError(
+                        f"{self._where(index)}: its header stamp {stamp} ns is {(previous - stamp) / ros.NS_PER_S:g} "
+                        f"s before the previous frame's ({previous} ns): the stamps run backwards (a clock jump), "
+                        f"so macro-observations would end before they start; read the parts on either side of it "
+                        f"with window=(start, stop)"
+                    )
+                previous = stamp
+                yield StampedFrame(image, stamp, received, msg.header.frame_id, index)
                 index += 1
+
+    def _damage(self, exc: BaseException) -> str:
+        """What a read error says, with the damaged chunks of the bag's MCAP files named where a CRC check failed."""
+        cause = _cause(exc)
+        if "checksum" not in str(exc).lower() and "crc" not in str(exc).lower():
+            return cause
+        files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
+        damaged = [
+            f"{str(path)!r}: the chunk at byte {offset} (messages received from {first} to {last} ns)"
+            for path in files
+            if path.suffix == ".mcap"
+            for offset, first, last in ros.damaged_chunks(path)
+        ]
+        return f"{cause} The data fail their CRC-32 check in {'; '.join(damaged) or 'the bag'}: the file is damaged"
 
     def _where(self, index: int) -> str:
         window = "" if self.window is None else f" in the window {list(self.window)} s"
@@ -250,6 +275,4 @@ def _bag_writer(path: Path, storage: str) -> Any:
     """A ``rosbags`` writer (a context manager) of ``storage`` for a new bag at ``path``."""
     if storage == "rosbag1":
         return ros.require("rosbags.rosbag1").Writer(path)
-    rosbag2 = ros.require("rosbags.rosbag2")
-    plugin = rosbag2.StoragePlugin.MCAP if storage == "mcap" else rosbag2.StoragePlugin.SQLITE3
-    return rosbag2.Writer(path, version=rosbag2.Writer.VERSION_LATEST, storage_plugin=plugin)
+    return ros.rosbag2_writer(path, storage)

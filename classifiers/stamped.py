@@ -16,7 +16,7 @@ import numpy as np
 from torch import Tensor
 
 from classifiers.pipeline import FrameClassifier
-from classifiers.stream import classify_frames
+from classifiers.classify import classify_frames
 
 
 class StampedFrame(NamedTuple):

@@ -99,8 +99,14 @@ class JointController:
         return out
 
     def __getitem__(self, index: int | slice | Tensor) -> JointController:
-        """Select controllers along K (an int keeps K = 1)."""
-        if isinstance(index, int):
+        """Select controllers along K (an int keeps K = 1; one outside ``[-K, K)`` is an ``IndexError`` naming the
+        range)."""
+        if isinstance(index, int) and not isinstance(index, bool):
+            k = self.num_controllers
+            if not -k <= index < k:
+                raise IndexError(
+                    f"index: {index} is out of range for {k} joint controller(s): expected -{k} to {k - 1}"
+                )
             index = slice(index, index + 1) if index != -1 else slice(-1, None)
         action, next_node = self.action[index], self.next_node[index]
         if action.dim() != 3 or action.shape[0] == 0:

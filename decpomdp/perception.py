@@ -31,7 +31,7 @@ class PerceptionModel(Protocol):
 
     A model that is a finite law of outcomes per class (every model this project ships) also has
     ``outcomes() -> (probs, label, frames)``, each (C, K): the compiled engine samples from that table
-    (:mod:`decpomdp.engine.perception`); a model without it runs on the torch simulator.
+    (:mod:`decpomdp.engine.outcomes`); a model without it runs on the torch simulator.
     """
 
     num_classes: int

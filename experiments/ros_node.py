@@ -5,12 +5,12 @@
 
 It subscribes to an image topic (``sensor_msgs/msg/Image``, or ``CompressedImage`` with ``--compressed``) and
 publishes, under ``--namespace`` (``/hbni``), the messages ``experiment=stream`` writes to its output bag
-(:mod:`hbni_pyro.ros`): ``classification`` (``vision_msgs/msg/Classification``), ``macro_observation`` and,
+(:mod:`hbni_pyro.runtime.ros_messages`): ``classification`` (``vision_msgs/msg/Classification``), ``macro_observation`` and,
 with a controller, ``decision`` (``hbni_msgs``). It loads the same three files as the README's robot loop.
 
 The per-frame work is the tested library code: :func:`stamped_frame` (a message to a
 :class:`~classifiers.stamped.StampedFrame`), :func:`process_frames` (:func:`~classifiers.stamped.classify_stamped`,
-:func:`~hbni_pyro.live.live_macro_observations`, :func:`~hbni_pyro.ros.messages`) and :func:`to_rclpy`; the
+:func:`~hbni_pyro.live_macro_observations`, :func:`~hbni_pyro.runtime.ros_messages.messages`) and :func:`to_rclpy`; the
 frames go from the subscription's callback to a worker thread through a :class:`FrameQueue` that drops the
 oldest frame when the classifier falls behind. Only :func:`run_node`, the ``rclpy`` glue, is not exercised by
 the test suite (no ROS 2 on the machines it runs on).
@@ -39,8 +39,8 @@ from classifiers import FrameClassifier, class_columns
 from classifiers.stamped import StampedFrame, classify_stamped
 from decpomdp import ControllerExecutor, JointController
 from hbni_infra import ros
-from hbni_pyro.live import live_macro_observations, observation_names
-from hbni_pyro.ros import TOPICS, messages, topic_names, typestore, write_interface_package
+from hbni_pyro import live_macro_observations
+from hbni_pyro.runtime import TOPICS, messages, observation_names, topic_names, typestore, write_interface_package
 
 ROS2_MISSING = (
     "the live node needs a ROS 2 installation: source /opt/ros/<distro>/setup.bash (rclpy), install vision_msgs "
@@ -126,7 +126,7 @@ def process_frames(
     frames: Iterable[StampedFrame], pipeline: Pipeline, publish: Callable[[str, Any], None], batch: int = 1
 ) -> None:
     """Run the pipeline on stamped frames and ``publish(role, message)`` each macro-observation's messages
-    (``rosbags`` dataclasses; roles as in :data:`hbni_pyro.ros.TOPICS`), until the frames end."""
+    (``rosbags`` dataclasses; roles as in :data:`hbni_pyro.runtime.ros_messages.TOPICS`), until the frames end."""
     store = typestore()
     items = classify_stamped(frames, pipeline.classifier, pipeline.classes, batch)
     for obs in live_macro_observations(

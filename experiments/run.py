@@ -1,9 +1,9 @@
 """The single Hydra entry point: ``python -m experiments.run experiment=<name> [key=value ...]``.
 
 Each ``conf/experiment/<name>.yaml`` names its study function in ``entry`` (a dotted path
-to ``fn(cfg, run_dir) -> dict``). Before the study starts, the composed config is checked
-against the experiment's typed schema (:mod:`experiments.schemas`): a wrong type, range or key
-fails here, naming the key. The function writes its figures and models into ``run_dir``
+to ``fn(settings, run_dir) -> dict``). Before the study starts, the composed config becomes the experiment's typed
+settings, once (:func:`experiments.schemas.build_settings`): a wrong type, range or key fails here, naming the key.
+The study and everything below it read that object, never the config. The function writes its figures and models into ``run_dir``
 (Hydra's output directory) and returns the metrics, which are written to ``run_dir /
 "metrics.json"``. ``run_dir / "status.json"`` says whether the run is running, completed or
 failed (with the error); :func:`experiments.load_run` refuses a run that did not complete. SIGTERM and
@@ -35,9 +35,9 @@ from hydra.types import RunMode
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.common import write_json
-from experiments.schemas import CONF, check_config, check_overrides, register
-from experiments.status import write_status
+from experiments.runs.outputs import write_json
+from experiments.runs.status import write_status
+from experiments.schemas import CONF, build_settings, check_overrides, register
 from experiments.sweep import in_sweep_worker
 
 log = logging.getLogger("experiments")
@@ -96,8 +96,8 @@ def run(cfg: DictConfig) -> dict:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     tic = time.perf_counter()
     try:
-        check_config(cfg)
-        check_overrides(cfg, list(HydraConfig.get().overrides.task))
+        settings = build_settings(cfg)
+        check_overrides(settings, list(HydraConfig.get().overrides.task))
     except (TypeError, ValueError) as exc:
         if HydraConfig.get().mode != RunMode.MULTIRUN:
             _config_error(run_dir, exc)
@@ -109,14 +109,18 @@ def run(cfg: DictConfig) -> dict:
         for name in ("SIGTERM", "SIGHUP"):
             previous[getattr(signal, name)] = signal.signal(getattr(signal, name), _stop)
     try:
-        log.info("experiment %s (seed %s): writing to %s", cfg.name, cfg.seed, run_dir)
+        log.info("experiment %s (seed %s): writing to %s", settings.name, settings.seed, run_dir)
         write_status(run_dir, "running")
-        metrics = get_method(cfg.entry)(cfg, run_dir)
+        metrics = get_method(settings.entry)(settings, run_dir)
         write_json(run_dir / "metrics.json", metrics)
     except BaseException as exc:
         write_status(run_dir, "failed", error=f"{type(exc).__name__}: {exc}")
         log.error(
-            "experiment %s failed after %.1f s: %s: %s", cfg.name, time.perf_counter() - tic, type(exc).__name__, exc
+            "experiment %s failed after %.1f s: %s: %s",
+            settings.name,
+            time.perf_counter() - tic,
+            type(exc).__name__,
+            exc,
         )
         signum = exc.signum if isinstance(exc, Stopped) else signal.SIGINT if isinstance(exc, KeyboardInterrupt) else 0
         if signum and in_sweep_worker():  # a sweep's worker process ends with its job: it takes no further job
@@ -128,7 +132,7 @@ def run(cfg: DictConfig) -> dict:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
     write_status(run_dir, "completed")
-    log.info("experiment %s done in %.1f s; outputs in %s", cfg.name, time.perf_counter() - tic, run_dir)
+    log.info("experiment %s done in %.1f s; outputs in %s", settings.name, time.perf_counter() - tic, run_dir)
     return metrics
 
 

@@ -9,7 +9,7 @@ child processes (the joblib/loky workers, submitit's local jobs; on Slurm it can
 ``scancel``), whose running job marks itself failed and ends its own background workers
 (:mod:`experiments.run`); after at most :data:`GRACE_S` seconds every process of the tree still alive gets
 SIGKILL. Then every job that did not complete is marked failed in its ``status.json`` (a job that never started
-gets a folder with its overrides and that status), the sweep report is written (:mod:`experiments.report`), and
+gets a folder with its overrides and that status), the sweep report is written (:mod:`experiments.reports.sweep_report`), and
 the parent dies by the signal it got.
 """
 
@@ -29,8 +29,8 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.report import update_sweep_report
-from experiments.status import read_status, write_status
+from experiments.reports.sweep_report import update_sweep_report
+from experiments.runs.status import read_status, write_status
 
 log = logging.getLogger("experiments")
 
@@ -55,13 +55,16 @@ def check_sweep(config: DictConfig, jobs: list[list[str]]) -> None:
     reads."""
     from hydra.core.global_hydra import GlobalHydra
 
-    from experiments.schemas import check_overrides
+    from experiments.schemas import check_overrides, typed_settings
 
     loader = GlobalHydra.instance().config_loader()
     for num, job in enumerate(jobs):
-        cfg = loader.load_sweep_config(config, list(job))
         try:
-            check_overrides(cfg, job)
+            settings = typed_settings(loader.load_sweep_config(config, list(job)))
+        except ValueError:  # a job whose config fails its types fails as it starts, and the report lists it
+            continue
+        try:
+            check_overrides(settings, job)
         except ValueError as exc:
             raise ValueError(f"{exc} (job {num}: {' '.join(job)})") from None
 

@@ -21,6 +21,7 @@ It waits on a live lock at most ``timeout`` seconds (:data:`WAIT_SECONDS` by def
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import socket
 import threading
@@ -37,6 +38,7 @@ from hbni_infra.fingerprint import check_fingerprint, digest
 from hbni_infra.tensorfile import load_tensors, save_tensors
 
 KIND = "hbni_infra.CacheEntry"
+log = logging.getLogger(__name__)
 _POLL_SECONDS = 1.0
 _LAYOUT = "digested files"  # part of every entry's name: files of another layout are never looked up
 HEARTBEAT_SECONDS = 30.0
@@ -170,12 +172,26 @@ def wait_for_entry(
 ) -> dict[str, Tensor] | None:
     """Wait while another process builds the entry: its tensors once written, or ``None`` once ``lock`` is
     ours (the builder is gone, or there was none). A stale lock is broken with a warning; a live one is waited
-    on for at most ``timeout`` seconds, then ``TimeoutError`` names the lock and its holder."""
+    on for at most ``timeout`` seconds, then ``TimeoutError`` names the lock and its holder. When the wait starts, a
+    logged warning names the entry, the lock, its holder and the settings that bound the wait."""
     timeout = as_float("timeout", timeout, 0.0)
-    deadline = time.monotonic() + timeout
+    deadline, told = time.monotonic() + timeout, False
     while not lock.acquire():
         if path.is_file():
             return load_entry(path, key, what)
+        if not told:
+            log.warning(
+                "waiting for %s %s: its lock %s is held by %s, who builds it; waiting until it is written, at most "
+                "%g s (timeout of hbni_infra.cache.cached, WAIT_SECONDS by default); a lock untouched for %g s "
+                "(STALE_SECONDS) is broken as stale",
+                what,
+                path.name,
+                lock.path,
+                lock.holder(),
+                timeout,
+                STALE_SECONDS,
+            )
+            told = True
         left = deadline - time.monotonic()
         if left <= 0:
             raise TimeoutError(

@@ -85,7 +85,7 @@ def _signed_point(bits: np.uint64) -> tuple[np.int64, float]:
     """64 random bits as a ziggurat (layer, signed point): the low 8 bits pick the layer, bit 8 the sign (no
     branch: the bit is a coin flip) and the top 53 bits the position within the layer's width. One product of the
     position bits and ``_ZIG_SIGNED_WIDTH`` gives ``sign * unit(bits) * _ZIG_X[layer]`` exactly (the factors differ
-    by powers of two), two multiplications fewer on the way to a draw (package delivery's loop 2 % faster)."""
+    by powers of two), two multiplications fewer on the way to a draw."""
     layer_and_sign = np.int64(bits & _LOW9)
     return layer_and_sign & 255, float(np.int64(bits >> _S11)) * _ZIG_SIGNED_WIDTH[layer_and_sign]
 
@@ -95,10 +95,10 @@ def normal(rng: np.ndarray) -> float:
     """A standard normal float64 (ziggurat: one 64-bit draw in about 99 % of the calls).
 
     A point inside its layer's inner rectangle is returned at once; the rest (about 1 %) goes to
-    :func:`_normal_edge`, compiled apart so that the inlined fast path stays small (package delivery's event
-    loop runs 7 % faster). In a function compiled with numba's reference counting the call's mere presence costs
-    about 9 ns a draw (1.8 ns without it), so loops that draw many normals compile without it
-    (``_nrt=False``), as the engine's chunk functions and the sequence model's look draws do.
+    :func:`_normal_edge`, compiled apart so that the inlined fast path stays small (an event loop runs faster). In a
+    function compiled with numba's reference counting the call's mere presence costs several times the draw
+    itself, so loops that draw many normals compile without it (``_nrt=False``), as the engine's chunk functions
+    and the sequence model's look draws do.
     """
     i, y = _signed_point(next_u64(rng))
     if abs(y) < _ZIG_X[i + 1]:

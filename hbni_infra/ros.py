@@ -1,4 +1,5 @@
-"""ROS plumbing shared by the bag reader (:mod:`classifiers.bags`) and the bag writer (:mod:`hbni_pyro.ros`).
+"""ROS plumbing shared by the bag reader (:mod:`classifiers.bags`) and the bag writer
+(:mod:`hbni_pyro.runtime.ros_messages`).
 
 * The ``ros`` extra's packages (``rosbags``, ``rosbags-image``, ``mcap``, ``mcap-ros2-support``) are imported
   on first use by :func:`require` (:func:`hbni_infra.optional.require`), which says what to install when one is
@@ -10,11 +11,16 @@
   :func:`image_from_message` reads either back as uint8 BGR, for every encoding ``rosbags-image`` knows
   (row padding, byte order and depth included). It reads fields only, so it takes ``rosbags`` messages and
   ``rclpy`` ones alike.
+* Bags: :func:`rosbag2_writer` writes rosbag2 directories whose MCAP chunks carry their CRC-32, so that a reader
+  (``rosbags``, the ``mcap`` library, ``ros2 bag``) refuses a damaged chunk instead of returning damaged frames.
 """
 
 from __future__ import annotations
 
 import functools
+import struct
+import zlib
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -164,3 +170,65 @@ def _describe(value: Any) -> str:
     if isinstance(value, np.ndarray):
         return f"{value.dtype} array of shape {value.shape}"
     return type(value).__name__
+
+
+MCAP_CHUNK_CRC_OFFSET = 1 + 8 + 24
+"""Byte offset of ``uncompressed_crc`` in an MCAP Chunk record: opcode, record length, then message start time,
+message end time and uncompressed size (MCAP specification, Chunk record)."""
+
+
+@functools.cache
+def _rosbag2_writer_class() -> type:
+    """``rosbags``' rosbag2 ``Writer`` whose MCAP storage writes every chunk's CRC-32 (``rosbags`` writes 0, which
+    readers take as "not checked")."""
+    rosbag2 = require("rosbags.rosbag2")
+    storage = require("rosbags.rosbag2.storage_mcap")
+
+    class ChunkCrcMcapWriter(storage.McapWriter):
+        def close_chunk(self) -> None:
+            crc = zlib.crc32(self.chunk.bio.getbuffer())
+            super().close_chunk()
+            chunk_start = struct.unpack_from("<Q", self.chunks[-1].getbuffer(), 16)[0]  # ChunkIndex.chunk_start_offset
+            end = self.bio.tell()
+            self.bio.seek(chunk_start + MCAP_CHUNK_CRC_OFFSET)
+            self.bio.write(struct.pack("<I", crc))
+            self.bio.seek(end)
+
+    class Writer(rosbag2.Writer):
+        STORAGE_PLUGINS = {**rosbag2.Writer.STORAGE_PLUGINS, rosbag2.StoragePlugin.MCAP: ChunkCrcMcapWriter}
+
+    return Writer
+
+
+def rosbag2_writer(path: str | Path, storage: str = "mcap") -> Any:
+    """A ``rosbags`` rosbag2 writer (a context manager) of a new bag directory ``path`` with ``"mcap"`` or
+    ``"sqlite3"`` storage, in the latest rosbag2 version. MCAP chunks carry their CRC-32 and are not compressed:
+    camera frames barely compress, and decompressing costs more reading time than the bytes saved (see
+    ``docs/ros.md``)."""
+    rosbag2 = require("rosbags.rosbag2")
+    plugin = rosbag2.StoragePlugin.MCAP if storage == "mcap" else rosbag2.StoragePlugin.SQLITE3
+    return _rosbag2_writer_class()(path, version=rosbag2.Writer.VERSION_LATEST, storage_plugin=plugin)
+
+
+def damaged_chunks(path: str | Path) -> list[tuple[int, int, int]]:
+    """``(byte offset, first log time, last log time)`` (ns) of every chunk of the MCAP file ``path`` whose data does
+    not match its CRC-32 (chunks written without one, CRC 0, are not checked), from its summary's chunk index."""
+    make_reader = require("mcap.reader").make_reader
+    decompressors = require("rosbags.rosbag2.storage_mcap").DECOMPRESSORS
+    damaged = []
+    with open(path, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+        for index in [] if summary is None else summary.chunk_indexes:
+            stream.seek(index.chunk_start_offset + MCAP_CHUNK_CRC_OFFSET)
+            (crc,) = struct.unpack("<I", stream.read(4))
+            (name_length,) = struct.unpack("<I", stream.read(4))
+            compression = stream.read(name_length).decode()
+            (size,) = struct.unpack("<Q", stream.read(8))
+            try:
+                data = decompressors[compression](stream.read(size), index.uncompressed_size)
+                intact = not crc or zlib.crc32(data) == crc
+            except Exception:  # noqa: BLE001 - undecodable data is damage too
+                intact = False
+            if not intact:
+                damaged.append((index.chunk_start_offset, index.message_start_time, index.message_end_time))
+    return damaged

@@ -37,7 +37,7 @@ def _blas_threads(threads: int | None) -> contextlib.AbstractContextManager:
 def torch_threads(threads: int | None) -> Iterator[None]:
     """Run torch on ``threads`` intra-op threads, and NumPy's BLAS and OpenCV on as many, inside the block
     (``None``: unchanged), then restore them (OpenCV's setting is the process's: on one thread, the renderer's
-    frames cost about 14 % less CPU time than on two, and are the same)."""
+    frames cost less CPU time than on two, and are the same)."""
     _check(threads)
     cv2 = _opencv()
     before = torch.get_num_threads()

@@ -29,7 +29,7 @@ def others() -> None:
     from decpomdp.domains import DisasterRelief, disaster_relief
     from decpomdp.dpomdp import load_problem
     from decpomdp.dpomdp.tabular import TabularDecPOSMDP
-    from hbni_pyro.generative import sample_outputs
+    from hbni_pyro import sample_outputs
 
     g = torch.Generator().manual_seed(0)
     simulate(DisasterRelief(), disaster_relief.greedy_controller(), 2, g)

@@ -8,12 +8,20 @@ Checked statically on every module's imports, including imports inside functions
 * ``decpomdp`` imports only ``hbni_infra``: it sees perception through its perception protocol;
 * no two modules import each other, directly or through others (importing ``a.b.c`` from outside ``a.b``
   runs ``a.b``'s ``__init__`` too, so it counts as importing that package);
-* no experiment entry point (the ``entry`` of a ``conf/experiment/*.yaml``) imports another.
+* no experiment entry point (the ``entry`` of a ``conf/experiment/*.yaml``) imports another;
+* inside ``hbni_pyro`` and ``experiments``, rooms (sub-packages, and the few modules beside them) import only the
+  rooms :data:`ROOM_ARROWS` lets them: the arrows of docs/architecture.md;
+* ``hbni_pyro``'s root holds at most 5 modules, each of its rooms has an ``__all__``, and no noise model spans more
+  than 3 modules of the package outside its room;
+* no two modules share a file name unless they are the same part of sibling rooms (each noise model's ``kernel``,
+  each domain's ``rules``).
 """
 
 from __future__ import annotations
 
 import ast
+import shutil
+from collections import Counter
 from pathlib import Path
 
 import yaml
@@ -175,3 +183,191 @@ def test_no_entry_point_imports_another():
         if others:
             offenders[module] = sorted(others)
     assert not offenders
+
+
+# ---- rooms ------------------------------------------------------------------------------------------------------
+
+ROOM_ARROWS: dict[str, set[str]] = {
+    # hbni_pyro, bottom up: the outputs' checks, what every model is written in, the shared MH machinery, the models,
+    # their posterior, the fitting driver, streams into decisions, diagnostics, the robot runtime; the package's
+    # __init__ (its public surface) above them all
+    "hbni_pyro.validation": set(),
+    "hbni_pyro.distributions": {"hbni_pyro.validation"},
+    "hbni_pyro.mcmc": {"hbni_pyro.validation", "hbni_pyro.distributions"},
+    "hbni_pyro.models": {"hbni_pyro.validation", "hbni_pyro.distributions", "hbni_pyro.mcmc", "hbni_pyro.models.*"},
+    # a noise model's room: the models' shared record, and no other model's room but the one it builds on
+    "hbni_pyro.models.paper": {
+        "hbni_pyro.validation",
+        "hbni_pyro.distributions",
+        "hbni_pyro.mcmc",
+        "hbni_pyro.models.spec",
+    },
+    "hbni_pyro.models.confusion": {
+        "hbni_pyro.validation",
+        "hbni_pyro.distributions",
+        "hbni_pyro.mcmc",
+        "hbni_pyro.models.spec",
+        "hbni_pyro.models.paper",
+    },
+    "hbni_pyro.models.sequence": {
+        "hbni_pyro.validation",
+        "hbni_pyro.distributions",
+        "hbni_pyro.mcmc",
+        "hbni_pyro.models.spec",
+    },
+    "hbni_pyro.posterior": {"hbni_pyro.validation", "hbni_pyro.distributions", "hbni_pyro.models"},
+    "hbni_pyro.fit": {"hbni_pyro.validation", "hbni_pyro.distributions", "hbni_pyro.models", "hbni_pyro.posterior"},
+    "hbni_pyro.filters": {"hbni_pyro.validation", "hbni_pyro.distributions", "hbni_pyro.models", "hbni_pyro.posterior"},
+    "hbni_pyro.diagnostics": {
+        "hbni_pyro.validation",
+        "hbni_pyro.distributions",
+        "hbni_pyro.models",
+        "hbni_pyro.posterior",
+        "hbni_pyro.fit",
+        "hbni_pyro.filters",
+    },
+    "hbni_pyro.runtime": {"hbni_pyro.validation", "hbni_pyro.posterior", "hbni_pyro.filters"},
+    "hbni_pyro": {"hbni_pyro.*"},
+    # experiments, bottom up: run folders, then the typed settings and the reports, the shared steps, the entry
+    # points; beside them the command, a sweep's guard and the live ROS node (which imports none of them)
+    "experiments.runs": set(),
+    "experiments.schemas": {"experiments.runs"},
+    "experiments.reports": {"experiments.runs"},
+    "experiments.steps": {"experiments.runs", "experiments.schemas", "experiments.reports"},
+    "experiments.studies": {"experiments.runs", "experiments.schemas", "experiments.reports", "experiments.steps"},
+    "experiments.sweep": {"experiments.runs", "experiments.schemas", "experiments.reports"},
+    "experiments.run": {"experiments.runs", "experiments.schemas", "experiments.sweep"},
+    "experiments.ros_node": set(),
+    "experiments": {"experiments.runs"},
+}
+"""Room -> the rooms (or single modules; ``x.*``: every room below ``x``) it may import. A module's room is the
+longest key that is the module or a package above it."""
+
+
+def room_of(name: str) -> str | None:
+    """The room of module ``name`` (``None``: a package without rooms)."""
+    parts = name.split(".")
+    for k in range(len(parts), 0, -1):
+        if ".".join(parts[:k]) in ROOM_ARROWS:
+            return ".".join(parts[:k])
+    return None
+
+
+def _allowed(target: str, arrows: set[str]) -> bool:
+    return any(
+        target == a or target.startswith(a + ".") or (a.endswith(".*") and target.startswith(a[:-1])) for a in arrows
+    )
+
+
+def room_violations(root: Path) -> dict[str, list[str]]:
+    """Per module of a package with rooms, the modules of its package it imports against :data:`ROOM_ARROWS`."""
+    mods = modules(root)
+
+    def owner(name: str) -> str:
+        while name and name not in mods:
+            name = name.rpartition(".")[0]
+        return name
+
+    bad = {}
+    for name, path in mods.items():
+        room = room_of(name)
+        if room is None:
+            continue
+        wrong = set()
+        for target in filter(None, map(owner, _imports(path))):
+            target_room = room_of(target)
+            if target_room is None or target_room == room or target_room.split(".")[0] != room.split(".")[0]:
+                continue
+            if not (_allowed(target, ROOM_ARROWS[room]) or _allowed(target_room, ROOM_ARROWS[room])):
+                wrong.add(target)
+        if wrong:
+            bad[name] = sorted(wrong)
+    return bad
+
+
+def test_rooms_import_only_the_rooms_below_them():
+    assert room_violations(ROOT) == {}
+    assert {room_of(m) for m in modules(ROOT) if m.split(".")[0] in ("hbni_pyro", "experiments")} <= set(ROOM_ARROWS)
+
+
+def test_a_planted_import_crossing_rooms_the_wrong_way_is_caught(tmp_path):
+    for package in PACKAGES:
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("conf", "__pycache__"))
+    kernel = tmp_path / "hbni_pyro" / "models" / "paper" / "kernel.py"
+    kernel.write_text(kernel.read_text() + "\n\ndef _plot():\n    from hbni_pyro.filters import make_filter\n")
+    step = tmp_path / "experiments" / "steps" / "noise.py"
+    step.write_text(step.read_text() + "\nfrom experiments.studies.mission import run\n")
+    sequence = tmp_path / "hbni_pyro" / "models" / "sequence" / "steps.py"
+    sequence.write_text(sequence.read_text() + "\nfrom hbni_pyro.models.confusion.steps import split_conc\n")
+    assert room_violations(tmp_path) == {
+        "experiments.steps.noise": ["experiments.studies.mission"],
+        "hbni_pyro.models.paper.kernel": ["hbni_pyro.filters"],
+        "hbni_pyro.models.sequence.steps": ["hbni_pyro.models.confusion.steps"],
+    }
+
+
+def test_the_package_root_holds_its_public_surface_fit_and_few_more():
+    root = sorted(p.name for p in (ROOT / "hbni_pyro").glob("*.py"))
+    assert root == ["__init__.py", "fit.py", "validation.py"] and len(root) <= 5
+
+
+def test_every_room_of_hbni_pyro_has_an_all():
+    rooms = [p for p in (ROOT / "hbni_pyro").rglob("__init__.py")]
+    assert len(rooms) >= 11
+    for init in rooms:
+        names = [t.id for n in ast.parse(init.read_text()).body if isinstance(n, ast.Assign) for t in n.targets]
+        assert "__all__" in names, init
+
+
+def model_spans(root: Path) -> dict[str, list[str]]:
+    """Per noise model's room, the modules of ``hbni_pyro`` outside it that import it."""
+    mods = modules(root)
+    rooms = sorted(p.parent.name for p in (root / "hbni_pyro" / "models").glob("*/__init__.py"))
+    out = {}
+    for model in rooms:
+        prefix = f"hbni_pyro.models.{model}"
+        out[model] = sorted(
+            name
+            for name, path in mods.items()
+            if name.startswith("hbni_pyro")
+            and name != prefix
+            and not name.startswith(prefix + ".")
+            and any(t == prefix or t.startswith(prefix + ".") for t in _imports(path))
+        )
+    return out
+
+
+def test_no_noise_model_spans_more_than_three_modules_outside_its_room():
+    spans = model_spans(ROOT)
+    assert set(spans) == {"paper", "confusion", "sequence"}
+    assert all(len(importers) <= 3 for importers in spans.values()), spans
+
+
+SAME_PART = {"__init__"}
+"""File names that mean the same thing wherever they are."""
+
+
+def name_clashes(root: Path) -> dict[str, list[str]]:
+    """File name -> modules of that name in different places, unless they are the same part of sibling rooms (files
+    of one name in subfolders of one folder: each noise model's ``kernel.py``, each domain's ``rules.py``)."""
+    paths = [p for package in PACKAGES for p in (root / package).rglob("*.py") if "conf" not in p.parts]
+    names = Counter(p.name for p in paths)
+    out = {}
+    for name, count in names.items():
+        if count < 2 or name.removesuffix(".py") in SAME_PART:
+            continue
+        where = sorted(str(p.relative_to(root)) for p in paths if p.name == name)
+        if len({Path(w).parent.parent for w in where}) > 1:
+            out[name] = where
+    return out
+
+
+def test_one_meaning_per_module_name():
+    assert name_clashes(ROOT) == {}
+
+
+def test_a_planted_module_name_with_another_meaning_is_caught(tmp_path):
+    for package in PACKAGES:
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("conf", "__pycache__"))
+    (tmp_path / "hbni_pyro" / "runtime" / "checks.py").write_text("")
+    assert name_clashes(tmp_path) == {"checks.py": ["hbni_infra/checks.py", "hbni_pyro/runtime/checks.py"]}

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.schemas import check_config, check_overrides, compose_config
+from experiments.schemas import build_settings, check_overrides, compose_config, compose_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,9 +40,7 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
         expanded = jobs(overrides)
         assert len(expanded) == announced, (overrides, len(expanded))
         for job in expanded:
-            cfg = compose_config(job)
-            check_config(cfg)
-            check_overrides(cfg, job)
+            check_overrides(build_settings(compose_config(job)), job)
 
 
 @pytest.mark.parametrize(
@@ -60,14 +58,13 @@ def test_every_readme_sweep_composes_and_says_how_many_jobs_it_launches():
     ],
 )
 def test_a_setting_the_planner_ignores_is_refused(override, message):
-    cfg = compose_config(["experiment=mission", override])
-    check_config(cfg)
+    settings = build_settings(compose_config(["experiment=mission", override]))
     with pytest.raises(ValueError, match=message):
-        check_overrides(cfg, [override])
-    check_overrides(cfg, ["planner.ce_alpha=0.3", "warm_planner.ls_patience=4", "mission.threshold=0.9"])
+        check_overrides(settings, [override])
+    check_overrides(settings, ["planner.ce_alpha=0.3", "warm_planner.ls_patience=4", "mission.threshold=0.9"])
 
 
 def test_gdice_ignores_local_search():
-    cfg = compose_config(["experiment=package_delivery"])
+    settings = compose_settings(["experiment=package_delivery"])
     with pytest.raises(ValueError, match="planners.gdice.ls_candidates: .* ignores ls_candidates"):
-        check_overrides(cfg, ["planners.gdice.ls_candidates=10"])
+        check_overrides(settings, ["planners.gdice.ls_candidates=10"])

@@ -21,8 +21,10 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from decpomdp import budget
+from decpomdp.budget import BudgetSpent
 from decpomdp.controller import JointController
-from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, tables
+from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, LAYER_COPIES, Tables, tables
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 from hbni_infra.streams import numpy_generator
@@ -68,7 +70,8 @@ def best_response(
 
     Returns ``(joint controller, its exact value)``, or ``None`` when a layer of beliefs (before merging)
     would exceed ``max_entries`` numbers. ``tabs`` (default ``tables(env)``) lets a caller build the
-    problem's tables once.
+    problem's tables once. Inside a :class:`~decpomdp.budget.Budget`, each step checks the time and reserves its
+    layer (:data:`LAYER_COPIES` arrays of it) first.
     """
     h = int(env.horizon if horizon is None else horizon)
     n_act, n_obs, gamma = env.num_actions, env.num_obs, env.gamma
@@ -88,14 +91,17 @@ def best_response(
         if step + 2 == h:  # the last step's beliefs need only their probability and rewards: no child beliefs
             if q_t * n * n_s > max_entries:
                 return None
+            budget.reserve(8 * q_t * n * n_s * n_act, f"a best response's beliefs at step {step + 1} of {h}")
             mass, gain = _last_step(belief, nodes, ja, q_next, jo_own, trans_t, reward, obs, n_obs)
             live = np.flatnonzero(mass > 0)
             inverse = np.arange(live.size)
             rewards.append(gain[live] / mass[live, None])
         else:
             after = np.unique(q_next[nodes])
-            if n * n_act * n_obs * after.size * n_s > max_entries:
+            entries = n * n_act * n_obs * after.size * n_s
+            if entries > max_entries:
                 return None
+            budget.reserve(8 * LAYER_COPIES * entries, f"a best response's beliefs at step {step + 1} of {h}")
             moves = [  # node q (of ``nodes``) to q' (of ``after``) after each joint observation, one 1 per column
                 sp.csr_matrix(
                     (np.ones(q_t), (np.searchsorted(after, q_next[nodes, jo]), np.arange(q_t))), (after.size, q_t)
@@ -255,12 +261,16 @@ def jesp(
     max_rounds: int = 20,
 ) -> tuple[JointController, float, int]:
     """Alternate exact best responses, agent after agent, from ``controller`` (of exact ``value``) until a
-    round improves nothing. Returns (controller, value, best responses accepted)."""
+    round improves nothing. Returns (controller, value, best responses accepted); when a running
+    :class:`~decpomdp.budget.Budget` ends, the best reached so far."""
     accepted, tabs = 0, tables(env)
     for _ in range(max_rounds):
         improved = False
         for agent in range(env.num_agents):
-            out = best_response(env, controller, agent, horizon, max_entries, tabs)
+            try:
+                out = best_response(env, controller, agent, horizon, max_entries, tabs)
+            except BudgetSpent:
+                return controller, value, accepted
             if out is not None and out[1] > value + 1e-12 * max(1.0, abs(value)):
                 (controller, value), improved = out, True
                 accepted += 1

@@ -26,11 +26,15 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from decpomdp import budget
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
 _MAX_SWEEPS = 10_000
 DEFAULT_MAX_ENTRIES = 20_000_000
 """Largest belief layer of :func:`lookahead_bound`, in float64 numbers (160 MB)."""
+LAYER_COPIES = 3
+"""Peak working memory of :func:`lookahead_bound` in belief layers: a layer's children are formed, transposed and
+filtered (three arrays of the next layer's size at once)."""
 
 
 class Bounds(NamedTuple):
@@ -70,21 +74,35 @@ def tables(env: TabularDecPOSMDP) -> Tables:
 
 def _iterate(env: TabularDecPOSMDP, horizon: float, backup, tol: float) -> np.ndarray:
     """(JA, S) ``Q`` at step 0 of ``Q = R + gamma * backup(Q)``: ``horizon`` steps from ``Q = R`` (the last
-    step's), or (infinite horizon) from ``max R / (1 - gamma)`` everywhere until a sweep moves less than ``tol``."""
+    step's), or (infinite horizon) from ``max R / (1 - gamma)`` everywhere until a sweep moves less than ``tol``.
+
+    Inside a :class:`~decpomdp.budget.Budget` whose time is over, the iteration stops and the result stays a bound:
+    at a finite horizon, the ``k`` steps done plus the largest reward for each step left (discounted); at the infinite
+    horizon, the iterate reached (every iterate from above is a bound)."""
     reward = env.expected_reward.numpy()
     if math.isfinite(horizon):
         q = reward.copy()
-        for _ in range(int(horizon) - 1):
+        for done in range(1, int(horizon)):
+            if budget.time_left() <= 0:
+                return q + _tail(reward.max(), env.gamma, done, int(horizon))
             q = reward + env.gamma * backup(q)
         return q
     q = np.full_like(reward, reward.max() / (1 - env.gamma))
     for _ in range(_MAX_SWEEPS):
+        if budget.time_left() <= 0:
+            break
         new = reward + env.gamma * backup(q)
         moved = np.abs(new - q).max()
         q = new
         if moved <= tol:
             break
     return q
+
+
+def _tail(largest: float, gamma: float, done: int, horizon: int) -> float:
+    """``largest * sum_{t = done}^{horizon - 1} gamma ** t``: the most the steps after the first ``done`` can earn."""
+    left = horizon - done
+    return largest * (left if gamma == 1.0 else gamma**done * (1.0 - gamma**left) / (1.0 - gamma))
 
 
 def q_mdp(
@@ -130,13 +148,17 @@ def lookahead_bound(
     ``depth`` is the largest number of steps (at most the horizon) whose last layer of
     ``(JA * JO) ** depth`` beliefs over ``S`` states holds at most ``max_entries`` numbers (8 bytes
     each); beliefs of probability zero are dropped as they arise. ``tabs`` defaults to ``tables(env)``.
+    Inside a :class:`~decpomdp.budget.Budget` the tree is also built to fit its memory (:data:`LAYER_COPIES` layers
+    at once), and not at all (``depth`` 0: the FIB) once its time is over.
     """
     horizon = env.horizon if horizon is None else horizon
     tabs = tabs or tables(env)
     trans, reward, obs = tabs
     n_ja, n_jo = obs.shape[0], obs.shape[2]
+    per_entry = 8 * LAYER_COPIES
+    max_entries = budget.memory_limit(max_entries * per_entry) // per_entry
     depth = 0
-    while depth < horizon and (n_ja * n_jo) ** (depth + 1) * env.num_states <= max_entries:
+    while budget.time_left() > 0 and depth < horizon and (n_ja * n_jo) ** (depth + 1) * env.num_states <= max_entries:
         depth += 1
     rest = horizon - depth
     leaf = q_fib(env, rest, tabs=tabs) if rest > 0 else None

@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from decpomdp.budget import BudgetSpent
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.exact import exact_value
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
@@ -126,7 +127,8 @@ def ascend(
     every ``num_nodes``-node controller (``None``: of every single change of its current one, see
     :func:`neighbours`), kept when it gains more than ``tol * max(1, |value|)``; until a round improves nothing.
 
-    Returns (controller, value, rounds made).
+    Returns (controller, value, rounds made); when a running :class:`~decpomdp.budget.Budget` ends, the best reached
+    so far.
     """
     every = None if num_nodes is None else every_controller(num_nodes, env.num_actions, env.num_obs)
     rounds = 0
@@ -138,7 +140,10 @@ def ascend(
             else:
                 cand = every
             joint = with_agent(controller, agent, *cand)
-            values = _values(env, joint)
+            try:
+                values = _values(env, joint)
+            except BudgetSpent:
+                return controller, value, rounds
             k = int(values.argmax())
             if float(values[k]) > value + tol * max(1.0, abs(value)):
                 controller, value, improved = joint[k], float(values[k]), True

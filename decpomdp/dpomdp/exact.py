@@ -26,6 +26,7 @@ import math
 import torch
 from torch import Tensor
 
+from decpomdp import budget
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.backup import Columns, JointNodes, TransitionOperator, link, operator_for
 from decpomdp.dpomdp.krylov import gmres
@@ -62,12 +63,14 @@ def _finite(op: TransitionOperator, nodes: JointNodes, k: int, horizon: int, gam
     layers = []
     ids = torch.arange(k, device=nodes.device) * nodes.num_joint  # start node (0, ..., 0) of every controller
     for t in range(horizon):
+        budget.check()
         cols = nodes.columns(ids)
         layers.append(cols)
         if t + 1 < horizon:
             ids = torch.unique(cols.next_ids)
     v = None
     for t in reversed(range(horizon)):
+        budget.check()
         cols = layers[t]
         r = op.reward.index_select(0, cols.action)
         if v is None:
@@ -140,10 +143,40 @@ def _infinite(
     return v[at_start][order] @ start
 
 
+def _reach(controller: JointController, horizon: int) -> tuple[int, int]:
+    """(the most joint nodes any of the K controllers reaches at one step, the most it reaches over all ``horizon``
+    steps together), each step's count bounded by the product of the nodes every agent's own graph reaches by then
+    (tight for layered controllers, ``nodes ** agents`` for graphs that reach every node)."""
+    k, a, nn = controller.action.shape
+    reach = torch.zeros(k, a, nn, dtype=torch.bool)
+    reach[..., 0] = True
+    nxt = controller.next_node.cpu().reshape(k, a, -1)
+    peak = total = torch.zeros(k, dtype=torch.float64)
+    for t in range(horizon):
+        count = reach.sum(-1).to(torch.float64).prod(-1)
+        peak = torch.maximum(peak, count)
+        grown = (
+            torch.zeros(k, a, nn, dtype=torch.long).scatter_add_(
+                2, nxt, reach[..., None].expand(-1, -1, -1, controller.num_obs).reshape(k, a, -1).long()
+            )
+            > 0
+        )
+        if torch.equal(grown, reach):  # nothing new from here on: every later step reaches the same
+            total = total + count * (horizon - t)
+            break
+        total, reach = total + count, grown
+    return int(peak.max()), int(total.max())
+
+
 def _bytes_per_controller(controller: JointController, env: TabularDecPOSMDP, horizon: float, max_dense: int) -> int:
+    """Working memory of one controller's evaluation: at a finite horizon six value tables of the most joint nodes of
+    one step, every step's columns (ids, action, successors: ``2 + 2 JO + agents`` numbers each) and one position
+    table over all joint nodes; at the infinite horizon the dense system or GMRES's basis over every joint node."""
     q, s = controller.num_nodes**controller.num_agents, env.num_states
     if horizon != math.inf:
-        return 6 * 8 * q * s + 8 * q * env.observation.shape[-1] * 3
+        peak, total = _reach(controller, int(horizon))
+        per_column = 2 + 2 * env.observation.shape[-1] + controller.num_agents
+        return 8 * (6 * peak * s + per_column * total + q)
     dense = min(q * s, max_dense)  # the reachable part decides, so either solver may run
     return max(3 * 8 * dense**2, (_GMRES_RESTART + 8) * 8 * q * s)
 
@@ -167,7 +200,10 @@ def exact_value(
             about 300 unknowns GMRES on the factored operator is the faster of the two.
         tol: bound on ``max |V - V*|`` for systems solved by GMRES.
         memory_budget: bytes of working memory; controllers are evaluated in chunks that fit
-            (the per-controller need is bounded with every joint node reachable).
+            (the per-controller need is bounded with every joint node reachable). Inside a
+            :class:`~decpomdp.budget.Budget` with a memory limit, that limit replaces it where one controller needs
+            more, and a controller that needs more than the limit ends the budget
+            (:class:`~decpomdp.budget.BudgetSpent`) before anything is allocated.
         threads: torch intra-op threads during the call (None: unchanged). One by default: the
             products are many and small, and thread hand-offs cost more than they save on a busy machine.
         device: where the tables, the backups and the solves run, and where the values are returned
@@ -181,15 +217,19 @@ def exact_value(
     if not isinstance(memory_budget, int) or memory_budget < 1:
         raise ValueError(f"memory_budget: expected a number of bytes >= 1, got {memory_budget!r}")
     need = _bytes_per_controller(controller, env, horizon, max_dense)
-    if need > memory_budget:
+    running = budget.current()
+    limit = memory_budget if running is None or running.memory is None else running.memory
+    budget.reserve(need, "the exact evaluation of one controller")
+    if need > limit:
         raise ValueError(f"memory_budget: one controller needs up to {need} bytes, more than {memory_budget}")
-    chunk = memory_budget // need
+    chunk = max(1, min(memory_budget, limit) // need)
     device = controller.action.device if device is None else torch.device(device)
     start = env.start_dist.to(device)
     out = []
     with torch_threads(threads):
         op = operator_for(env, device)
         for i in range(0, controller.num_controllers, chunk):
+            budget.check()
             part = controller[i : i + chunk]
             nodes, k = JointNodes(env, part, device), part.num_controllers
             if horizon == math.inf:

@@ -23,17 +23,22 @@ import heapq
 import itertools
 import math
 import time
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from decpomdp import budget
+from decpomdp.budget import BudgetSpent
 from decpomdp.controller import JointController
 from decpomdp.dpomdp.heuristics import Heuristic, belief_keys
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 
 DEFAULT_MAX_OPEN = 500_000
 """Largest open list; beyond it the search stops (reporting the bound reached)."""
+ENTRY_BYTES = 200
+"""Bytes of one open-list entry besides its stage's tables (the heap's tuple, its actions and numbers)."""
 
 
 @dataclass
@@ -154,6 +159,7 @@ class GMAA:
         parts = np.array(list(itertools.product(range(env.num_obs), repeat=n)))  # (JO, N)
         self._jo_parts = parts
         prob = env.start_dist.numpy().reshape((1,) * n + (-1,))
+        self.held = 0  # bytes of the stages' tables alive (each released when its stage is freed)
         self.root = self._stage(0, prob, 0.0)
 
     def _stage(self, t: int, prob: np.ndarray, past: float, **links) -> Stage:
@@ -169,7 +175,14 @@ class GMAA:
         shape = types + (env.num_actions,) * n
         weight = [np.moveaxis(prob, i, 0).reshape(types[i], -1).sum(1) for i in range(n)]
         order = [(i, int(k)) for i in range(n) for k in np.argsort(-weight[i], kind="stable")]
-        return Stage(t, prob, q[:, self._ja].reshape(shape), reward[:, self._ja].reshape(shape), past, order, **links)
+        stage = Stage(t, prob, q[:, self._ja].reshape(shape), reward[:, self._ja].reshape(shape), past, order, **links)
+        nbytes = stage.prob.nbytes + stage.q.nbytes + stage.reward.nbytes
+        self.held += nbytes
+        weakref.finalize(stage, self._release, nbytes)
+        return stage
+
+    def _release(self, nbytes: int) -> None:
+        self.held -= nbytes
 
     def _next(self, stage: Stage, rules: list[np.ndarray]) -> tuple[float, Stage | None]:
         """(the value fixed so far, the next stage or ``None`` at the horizon) after ``stage`` with ``rules``."""
@@ -207,7 +220,11 @@ class GMAA:
         self, time_budget: float = 60.0, lower_bound: float = -math.inf, max_open: int = DEFAULT_MAX_OPEN
     ) -> GMAAResult:
         """Search for at most ``time_budget`` CPU seconds; nodes whose bound is at most ``lower_bound`` (the value of
-        a known policy) are dropped. Returns a :class:`GMAAResult`."""
+        a known policy) are dropped. Returns a :class:`GMAAResult`.
+
+        Inside a :class:`~decpomdp.budget.Budget` the search also stops when its time is over, or when its open list
+        (the stages' tables and :data:`ENTRY_BYTES` per entry) would exceed its memory; its result then stands as
+        after any stop, and the budget is spent."""
         start = time.process_time()
         best_value, best_policy = lower_bound, None
         root_f = self.heuristic.root
@@ -220,6 +237,10 @@ class GMAA:
                 heap = []
                 break
             if time.process_time() - start > time_budget or len(heap) > max_open:
+                break
+            try:
+                budget.reserve(self.held + len(heap) * ENTRY_BYTES, "the exact search's open list")
+            except BudgetSpent:
                 break
             heapq.heappop(heap)
             expanded += 1

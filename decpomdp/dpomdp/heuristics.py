@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, Tables, fib_backup, tables
+from decpomdp import budget
+from decpomdp.dpomdp.bounds import DEFAULT_MAX_ENTRIES, LAYER_COPIES, Tables, fib_backup, tables
 from decpomdp.dpomdp.tabular import TabularDecPOSMDP
 from hbni_infra.streams import numpy_generator
 
@@ -100,6 +101,9 @@ class Heuristic:
         env: the problem (finite horizon; its gamma).
         kind: ``"bg"`` or ``"pomdp"``.
         max_entries: largest belief layer of the tree, in numbers.
+
+    Inside a :class:`~decpomdp.budget.Budget` the FIB's tables of every step are reserved first, the tree is built to
+    fit the memory budget, and every step checks the time (:class:`~decpomdp.budget.BudgetSpent` ends the build).
     """
 
     def __init__(self, env: TabularDecPOSMDP, kind: str = "bg", max_entries: int = DEFAULT_MAX_ENTRIES) -> None:
@@ -110,12 +114,17 @@ class Heuristic:
         n_ja, n_jo = self.tabs.obs.shape[0], self.tabs.obs.shape[2]
         rules_count = (env.num_actions**env.num_obs) ** env.num_agents
         self.rules = joint_rules(env) if kind == "bg" and rules_count <= MAX_RULES else None
+        budget.reserve(self.horizon * self.tabs.reward.nbytes, f"the exact search's bounds of {self.horizon} steps")
+        per_entry = 8 * LAYER_COPIES
+        max_entries = budget.memory_limit(max_entries * per_entry) // per_entry
         self._fib = {1: self.tabs.reward}  # (JA, S) FIB Q of k steps
         for k in range(2, self.horizon + 1):
+            budget.check()
             self._fib[k] = self.tabs.reward + self.gamma * fib_backup(self.tabs.trans, self.tabs.obs, self._fib[k - 1])
         # forwards: distinct beliefs of each layer, and the index of every child
         layers, links, masses = [env.start_dist.numpy()[None, :]], [], []
         while len(layers) < self.horizon and layers[-1].shape[0] * n_ja * n_jo * env.num_states <= max_entries:
+            budget.check()
             mass, nxt = children(layers[-1], self.tabs)
             flat = nxt.reshape(-1, env.num_states)
             live = mass.reshape(-1) > 0
@@ -131,6 +140,7 @@ class Heuristic:
         q = self._fib_q(len(layers) - 1, layers[-1])
         self._layers[-1] = _Layer(self._key_index(layers[-1]), q)
         for t in reversed(range(len(layers) - 1)):
+            budget.check()
             q = backup(layers[t], masses[t], q[links[t]], self.tabs, self.gamma, self.rules)
             self._layers[t] = _Layer(self._key_index(layers[t]), q)
 

@@ -13,6 +13,8 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
+from decpomdp import budget
+
 _TINY = 1e-300
 _BREAKDOWN = 1e-12  # relative size of the orthogonalised vector below which the Krylov space is invariant
 
@@ -46,6 +48,8 @@ def gmres(
         tol: required ``max |b - A x|`` per system.
         restart: Krylov dimension m before each restart.
         max_restarts: give up (RuntimeError) after this many restarts.
+
+    Every Krylov step checks a running :class:`~decpomdp.budget.Budget` (it may end the solve).
     """
     x = torch.zeros_like(b)
     for _ in range(max_restarts):
@@ -56,6 +60,7 @@ def gmres(
         basis = [r / beta.clamp_min(_TINY)[owner, None]]
         h = torch.zeros(k, restart + 1, restart, dtype=b.dtype, device=b.device)
         for j in range(restart):
+            budget.check()
             w = apply(basis[j])
             before = _dot(w, w, owner, k).sqrt()
             for _ in range(2):  # modified Gram-Schmidt, twice: keeps the basis orthogonal to rounding

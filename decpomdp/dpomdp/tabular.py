@@ -1,6 +1,6 @@
 """A tabular Dec-POMDP as a Dec-POSMDP whose every primitive action is a unit-duration MA.
 
-:func:`decpomdp.simulate` runs it on the compiled engine (:mod:`decpomdp.dpomdp.rules`); the batched
+:func:`decpomdp.simulate` runs it on the compiled engine (:mod:`decpomdp.dpomdp.tabular_rules`); the batched
 torch methods below are the engine's test oracle (``backend="torch"``).
 
 Time convention (see :mod:`decpomdp.core`): the step-``k`` joint action starts at ``k`` and completes
@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from decpomdp.core import DecPOSMDP
-from decpomdp.dpomdp import rules
+from decpomdp.dpomdp import tabular_rules
 from decpomdp.engine import EngineModel, no_perception
 from decpomdp.dpomdp.model import DPOMDPModel
 from decpomdp.dpomdp.parser import load_dpomdp
@@ -141,11 +141,11 @@ class TabularDecPOSMDP(DecPOSMDP):
         return cls(load_problem(name), gamma, horizon)
 
     def engine_model(self) -> EngineModel | None:
-        """The problem for the compiled engine (:mod:`decpomdp.dpomdp.rules`); ``None`` for an infinite horizon."""
+        """The problem for the compiled engine (:mod:`decpomdp.dpomdp.tabular_rules`); ``None`` for an infinite horizon."""
         if not math.isfinite(self.horizon):
             return None
         t = self.model.transition
-        tab = rules.tables(
+        tab = tabular_rules.tables(
             self.start_dist.numpy(),
             t.indptr,
             t.indices,
@@ -156,7 +156,7 @@ class TabularDecPOSMDP(DecPOSMDP):
             self.action_strides.numpy(),
             self.obs_strides.numpy(),
         )
-        return EngineModel(rules.ENGINE, np.array([self.gamma]), tab, no_perception())
+        return EngineModel(tabular_rules.ENGINE, np.array([self.gamma]), tab, no_perception())
 
     def joint_action(self, actions: Tensor) -> Tensor:
         """(..., A) individual actions -> (...) joint index (first agent most significant)."""

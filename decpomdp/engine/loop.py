@@ -3,7 +3,7 @@
 Each rollout runs its events in order: the next completion time ``t = min_a end[a]`` (stop past the
 horizon), the completing agents' ``complete`` rule (reward, observation), each of them moves along
 its controller, and their ``start`` rule begins the next MA. Rollouts are split into chunks that
-threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.simulate.run`);
+threads run in parallel (the chunk functions release the GIL, :func:`decpomdp.engine.runner.run`);
 each rollout draws from its own counter-based stream keyed by ``(seed, first_controller + k, r)`` (with
 common random numbers, ``(seed, first_controller, r)`` for every controller ``k``)
 (:mod:`hbni_infra.counter_random`), so the returns do not depend on the thread count or the chunking.
@@ -22,19 +22,19 @@ more than most rules):
 
 With two agents, each kind of event runs in its own copy of the rules, with ``agents`` the constant tuple
 ``ONLY_0``, ``ONLY_1`` (one agent completes alone) or ``BOTH`` (they complete together, as after a joint MA):
-the rules' tests of ``agents[a]``, coin flips for the branch predictor, fold away (package delivery's loop runs
-1.5x faster with the first two, 6 % faster again with the third). Rules therefore read ``agents`` (a bool array
-or such a tuple) and count agents with ``len``.
+the rules' tests of ``agents[a]``, coin flips for the branch predictor, fold away (each of the three makes
+package delivery's loop faster). Rules therefore read ``agents`` (a bool array or such a tuple) and count agents
+with ``len``.
 
 The small helpers the rules call at many sites (an index into the state, a table lookup) are plain ``@njit``
 functions, which LLVM inlines: numba's own inlining copies a helper's IR at every call site of every copy of the
-rules, and typing and SSA passes then run over the whole copy. Package delivery's loop compiled in 65 s with its
-helpers inlined by numba and in 29 s without, at the same speed and with the same returns (disaster relief's: 16.5
-and 8.6 CPU s). The random stream's helpers (:mod:`hbni_infra.counter_random`) stay inlined by numba: HBNI's
-compiled MH class move runs 3 % faster so, for 1.5 s more of package delivery's first compile.
+rules, and typing and SSA passes then run over the whole copy: a domain's loop compiles in about half the time
+without, at the same speed and with the same returns. The random stream's helpers
+(:mod:`hbni_infra.counter_random`) stay inlined by numba: HBNI's compiled MH class move runs faster so, for a
+slightly longer first compile of package delivery.
 
 :func:`event_loop` is inlined into each domain's own compiled (and cached) chunk function, three lines
-long, which :func:`decpomdp.engine.simulate.run` calls on chunks of rollouts in parallel::
+long, which :func:`decpomdp.engine.runner.run` calls on chunks of rollouts in parallel::
 
     @chunk_function
     def chunk(args, out, scratch, index, lo, hi):
@@ -102,12 +102,12 @@ _CHUNK_OPTIONS = {"nogil": True, "pipeline_class": _NoAliasCompiler, "_nrt": Fal
 def chunk_function(fn):
     """The decorator of a domain's chunk function: compiled, releasing the GIL, its array arguments declared free
     of aliases, and cached on disk when its source is a file (not when typed into an interpreter). Every array
-    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.simulate.run` checks it).
+    passed to a chunk function must therefore be its own buffer (:func:`decpomdp.engine.runner.run` checks it).
 
     It uses numpy's error model: a division by zero gives inf or nan instead of raising, so the loop carries no
-    checks for it (package delivery's loop runs 8 % faster; no rule divides by a value that may be zero). Lookups
-    whose index is never negative are faster with an unsigned index, which numba does not wrap around (the
-    controller step here, package delivery's start-table index; together about 10 %).
+    checks for it (the loop runs faster; no rule divides by a value that may be zero). Lookups whose index is
+    never negative are faster with an unsigned index, which numba does not wrap around (the controller step here,
+    package delivery's start-table index).
 
     It compiles without numba's reference counting (``_nrt=False``): every array the loop and the rules touch
     comes from the caller, and with counting on, each array or tuple of arrays handed to an inlined rule costs an
@@ -153,7 +153,7 @@ def _event_loop(two_agents: bool):
         Args:
             args: the tuple ``(params, tables, perception, action, next_node, first_controller, stride, rollouts,
                 seed, horizon, log_gamma, counter_slots, track_visits, init_int, init_float, keep_state)``
-                (:func:`decpomdp.engine.simulate.run` builds it): ``action`` int16 or int32 (K, A, Nn),
+                (:func:`decpomdp.engine.runner.run` builds it): ``action`` int16 or int32 (K, A, Nn),
                 ``next_node`` the same type (K, A, Nn, O); ``stride`` 1 (controller ``k`` keyed
                 ``first_controller + k``) or 0 (common random numbers); ``init_int``/``init_float`` a state every
                 rollout starts from instead of ``reset`` (length 0: reset); ``keep_state``: keep every rollout's final

@@ -32,6 +32,7 @@ import torch
 from tqdm.auto import tqdm
 
 from hbni_infra.checks import as_int, as_seed
+from decpomdp.budget import BudgetSpent
 from decpomdp.checkpoints import load_checkpoint, read_count, read_history, read_number, save_checkpoint
 from decpomdp.controller import JointController
 from decpomdp.identity import describe
@@ -370,6 +371,10 @@ def plan(
         init: the first incumbent (K = 1, the searched agents, at most ``config.num_nodes`` nodes), for
             instance a plan of a related problem; ``None`` starts from no controller. Its first phase is
             then warm: cross-entropy starts from it with weight ``ce_init_weight``, local search edits it.
+
+    Inside a :class:`~decpomdp.budget.Budget` that ends during a step, the run returns the incumbent of its last
+    complete step (the checkpoint, if any, stays at that step); with no incumbent yet, the
+    :class:`~decpomdp.budget.BudgetSpent` propagates.
     """
     cfg = _check_arguments(scorer, PlannerConfig() if config is None else config, init)
     seed, checkpoint_every = as_seed("seed", seed), as_int("checkpoint_every", checkpoint_every, 1)
@@ -396,7 +401,13 @@ def plan(
     ):
         before = scorer.rollouts_used
         phase = cfg.phases[run.cycle_position]
-        over, value, challenger_value, accepted, info = steps[phase](run, scorer, cfg, generator)
+        try:
+            over, value, challenger_value, accepted, info = steps[phase](run, scorer, cfg, generator)
+        except BudgetSpent:
+            bar.close()
+            if run.incumbent is None:
+                raise
+            return PlannerResult(run.incumbent, run.value, run.stderr, run.used, run.history, cfg, run.distributions)
         spent = scorer.rollouts_used - before
         run.used += spent
         run.record(phase, value, challenger_value, accepted, info)

@@ -1,10 +1,11 @@
-"""Typed schemas of every experiment's config, checked before any work starts.
+"""Typed settings of every experiment, built once from the composed config and checked before any work starts.
 
-Each ``conf/experiment/<name>.yaml`` puts ``/schema: <name>`` first in its defaults: Hydra then
-types every key while it composes, so a wrong type (``seed=abc``) or an unknown key fails there,
-naming the key. :func:`check_config` then merges the composed config into the schema once more
-(which also rejects keys added with ``+``) and checks every range (``mission.threshold=1.5``),
-naming the key; :mod:`experiments.run` calls it before the experiment does anything.
+Each ``conf/experiment/<name>.yaml`` puts ``/schema: <name>`` first in its defaults: Hydra then types every key
+while it composes, so a wrong type (``seed=abc``) or an unknown key fails there, naming the key. The entry point
+(:mod:`experiments.run`) then builds the experiment's settings object once, :func:`build_settings`: the composed
+config merged into the schema's dataclass (:func:`typed_settings`, which also rejects keys added with ``+``) and
+every range checked (:func:`check_settings`: ``mission.threshold=1.5`` fails naming the key). Below the entry
+point, functions take that object or its blocks, never the config.
 
 A key the chosen experiment never reads (:func:`unread_settings`: ``hbni.model`` in ``hbni_toy``, a planner
 setting its planner ignores) is refused when it is set (:func:`check_overrides`), naming the key and the
@@ -25,17 +26,59 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from experiments.schemas.studies import SCHEMAS
 from decpomdp.search import gdice_config
-from experiments.schemas.targets import join_key, preset
-from experiments.paths import register_resolver
+from experiments.runs.paths import register_resolver
+from experiments.schemas.fields import check_ranges
+from experiments.schemas.mission_study import MISSION_VARIANTS, PLANNING_MODELS, Mission
+from experiments.schemas.new_place_study import NewPlace
+from experiments.schemas.noise_studies import (
+    FilteringError,
+    HBNIToy,
+    MacroObservation,
+    NoiseModels,
+    PerceptionReplay,
+    Stream,
+)
+from experiments.schemas.planning_studies import DPOMDPBenchmarks, DisasterReliefExperiment, PackageDeliveryExperiment
+from experiments.schemas.root import Root
+from experiments.schemas.targets import preset
 
-__all__ = ["SCHEMAS", "check_config", "check_overrides", "compose_config", "gdice_node", "register", "unread_settings"]
+__all__ = [
+    "MISSION_VARIANTS",
+    "PLANNING_MODELS",
+    "SCHEMAS",
+    "build_settings",
+    "check_overrides",
+    "check_settings",
+    "compose_config",
+    "compose_settings",
+    "gdice_node",
+    "register",
+    "typed_settings",
+    "unread_settings",
+]
+
+SCHEMAS: dict[str, type[Root]] = {
+    "hbni_toy": HBNIToy,
+    "filtering_error": FilteringError,
+    "macro_observation": MacroObservation,
+    "perception_replay": PerceptionReplay,
+    "package_delivery": PackageDeliveryExperiment,
+    "disaster_relief": DisasterReliefExperiment,
+    "dpomdp_benchmarks": DPOMDPBenchmarks,
+    "mission": Mission,
+    "mission_full": Mission,
+    "stream": Stream,
+    "noise_models": NoiseModels,
+    "new_place": NewPlace,
+}
+"""Schema of each experiment, by its ``name``."""
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 """The experiments' Hydra configs (``conf/`` of the checkout, ``experiments/conf`` of an installed wheel)."""
 
 PLANNER = "decpomdp.search.PlannerConfig"
+HYPERPRIOR = "hbni_pyro.HyperPrior"
 
 
 @functools.cache
@@ -51,10 +94,15 @@ def register() -> None:
 
 def compose_config(overrides: Sequence[str] = (), *, return_hydra_config: bool = False) -> DictConfig:
     """The config that ``python -m experiments.run <overrides>`` composes (``experiment=<name>`` picks the
-    experiment), with the schemas registered; unchecked (:func:`check_config` checks it, as a run does)."""
+    experiment), with the schemas registered; unchecked (:func:`build_settings` checks it, as a run does)."""
     register()
     with hydra.initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         return hydra.compose("config", overrides=list(overrides), return_hydra_config=return_hydra_config)
+
+
+def compose_settings(overrides: Sequence[str] = ()) -> Root:
+    """The settings a run of ``python -m experiments.run <overrides>`` builds (:func:`build_settings`)."""
+    return build_settings(compose_config(overrides))
 
 
 def gdice_node() -> dict[str, Any]:
@@ -63,11 +111,12 @@ def gdice_node() -> dict[str, Any]:
     return preset(PLANNER, gdice_config(), start_nodes="${.num_nodes}")
 
 
-def check_config(cfg: DictConfig) -> None:
-    """Raise ``ValueError`` naming the key if ``cfg`` does not fit its experiment's schema.
+def typed_settings(cfg: DictConfig) -> Root:
+    """The composed config ``cfg`` (with or without its ``hydra`` node) as its experiment's schema object: types and
+    keys checked (a key added with ``+`` that the schema lacks fails here), ranges not yet.
 
-    Args:
-        cfg: a composed config (with or without its ``hydra`` node).
+    Raises:
+        ValueError: naming the key.
     """
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
@@ -76,45 +125,47 @@ def check_config(cfg: DictConfig) -> None:
     if name not in SCHEMAS:
         raise ValueError(f"name: unknown experiment {name!r}; expected one of {sorted(SCHEMAS)}")
     try:
-        typed = OmegaConf.merge(OmegaConf.structured(SCHEMAS[name]), plain)
-        obj = OmegaConf.to_object(typed)
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(SCHEMAS[name]), plain))
     except OmegaConfBaseException as exc:
         key = getattr(exc, "full_key", None)
         message = str(exc).split("\n")[0]
         raise ValueError(f"{key}: {message}" if key else message) from None
-    _check(obj, "")
 
 
-PLANNER = "decpomdp.search.PlannerConfig"
-HYPERPRIOR = "hbni_pyro.HyperPrior"
+def check_settings(settings: Root) -> Root:
+    """``settings`` once every range holds (:func:`experiments.schemas.fields.check_ranges`), else a ``ValueError``
+    naming the key."""
+    return check_ranges(settings)
 
 
-def unread_settings(cfg: DictConfig) -> dict[str, str]:
-    """Key -> why the experiment of the composed config ``cfg`` never reads it.
+def build_settings(cfg: DictConfig) -> Root:
+    """The experiment's settings from its composed config, every type and range checked: what a run's entry point
+    passes down (:func:`typed_settings`, then :func:`check_settings`)."""
+    return check_settings(typed_settings(cfg))
+
+
+def unread_settings(settings: Root) -> dict[str, str]:
+    """Key -> why the experiment of ``settings`` never reads it.
 
     Each experiment's schema names its own (``unread``: a block it has no use for, such as ``hbni`` in a planning
     study, or a key its other settings make irrelevant, such as ``warm_planner`` without ``warm_start``); every
     hyperprior block adds the fields no noise model it fits reads (``noise_models``,
-    :attr:`hbni_pyro.variants.NoiseModel.hyperprior_fields`), and every planner block the settings its planner
-    ignores (:meth:`decpomdp.search.PlannerConfig.ignored`).
+    :attr:`hbni_pyro.NoiseModel.hyperprior_fields`), and every planner block the settings its planner ignores
+    (:meth:`decpomdp.search.PlannerConfig.ignored`).
     """
     from hydra.utils import instantiate
 
-    if cfg.get("name") not in SCHEMAS:
-        return {}
-    schema = SCHEMAS[cfg.name]
-    out = dict(schema.unread(cfg))
-    models = schema.noise_models(cfg)
-    if models:
-        from hbni_pyro.variants import model_names, noise_model
+    from hbni_pyro import model_names, noise_model
 
-        if all(m in model_names() for m in models):  # else the model fails its own check, naming the key
-            fields = {f for m in models for f in noise_model(m).hyperprior_fields}
-            for path, block in _blocks(cfg, HYPERPRIOR, ""):
-                for name in block:
-                    if name != "_target_" and name not in fields:
-                        out[f"{path}.{name}"] = f"the {' and '.join(map(repr, models))} noise model reads no {name}"
-    for path, block in _blocks(cfg, PLANNER, ""):
+    out = dict(settings.unread())
+    models = settings.noise_models()
+    if models and all(m in model_names() for m in models):  # else the model fails its own check, naming the key
+        fields = {f for m in models for f in noise_model(m).hyperprior_fields}
+        for path, block in _blocks(settings, HYPERPRIOR, ""):
+            for f in dataclasses.fields(block):
+                if f.name != "_target_" and f.name not in fields:
+                    out[f"{path}.{f.name}"] = f"the {' and '.join(map(repr, models))} noise model reads no {f.name}"
+    for path, block in _blocks(settings, PLANNER, ""):
         if any(path == key or path.startswith(f"{key}.") for key in out):
             continue
         try:
@@ -128,18 +179,18 @@ def unread_settings(cfg: DictConfig) -> dict[str, str]:
     return out
 
 
-def _blocks(node: Any, target: str, path: str) -> list[tuple[str, DictConfig]]:
-    """(key, block) of every block of ``node`` whose ``_target_`` is ``target``."""
-    if not isinstance(node, DictConfig) or node._is_none() or node._is_missing():  # a block set to null
-        return []
-    if node.get("_target_") == target:
+def _blocks(node: Any, target: str, path: str) -> list[tuple[str, Any]]:
+    """(key, block) of every block below ``node`` (settings, a block, a dict of them) whose ``_target_`` is
+    ``target``; a block set to null has none."""
+    if getattr(node, "_target_", None) == target:
         return [(path, node)]
-    return [
-        item
-        for key in node
-        if key != "hydra"
-        for item in _blocks(node._get_node(key), target, f"{path}.{key}" if path else str(key))
-    ]
+    if dataclasses.is_dataclass(node):
+        items = [(f.name, getattr(node, f.name)) for f in dataclasses.fields(node)]
+    elif isinstance(node, dict):
+        items = list(node.items())
+    else:
+        return []
+    return [item for key, value in items for item in _blocks(value, target, f"{path}.{key}" if path else str(key))]
 
 
 def override_key(override: str) -> str:
@@ -148,11 +199,11 @@ def override_key(override: str) -> str:
     return key.split("@", 1)[1] if "@" in key else key.replace("/", ".")
 
 
-def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
+def check_overrides(settings: Root, overrides: list[str]) -> None:
     """Raise ``ValueError`` naming the key and the experiment if an override (``key=value``, as on the command
     line) sets a key the experiment never reads (:func:`unread_settings`): the job would run as if it were not
     set, and a sweep over it would run the same job again and again."""
-    unread = unread_settings(cfg)
+    unread = unread_settings(settings)
     for override in overrides:
         key = override_key(override)
         if key.startswith("hydra.") or key == "hydra":
@@ -160,20 +211,4 @@ def check_overrides(cfg: DictConfig, overrides: list[str]) -> None:
         for prefix, why in unread.items():
             if key == prefix or key.startswith(f"{prefix}."):
                 what = "it" if key == prefix else prefix
-                raise ValueError(f"{key}: experiment {cfg.name} never reads {what}: {why}; remove the setting")
-
-
-def _check(obj: Any, path: str) -> None:
-    """Call ``check(path)`` on every block, inner blocks first, prefixing errors with the block's key."""
-    if not dataclasses.is_dataclass(obj):
-        return
-    for f in dataclasses.fields(obj):
-        _check(getattr(obj, f.name), f"{path}.{f.name}" if path else f.name)
-    if hasattr(obj, "check"):
-        try:
-            obj.check(path)
-        except ValueError as exc:
-            message = str(exc)
-            if not path or message.startswith(f"{path}.") or message.startswith(f"{path}:"):
-                raise
-            raise ValueError(join_key(path, message, [f.name for f in dataclasses.fields(obj)])) from None
+                raise ValueError(f"{key}: experiment {settings.name} never reads {what}: {why}; remove the setting")

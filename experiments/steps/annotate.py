@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from experiments import figures
+from experiments.reports import figures
 from hbni_pyro import Segment
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX

@@ -23,80 +23,29 @@ simulation error is neglected.
 
 from __future__ import annotations
 
-import os
+import math
 from collections.abc import Callable
-from pathlib import Path
 from statistics import NormalDist
-from typing import Any, NamedTuple
+from typing import Any
 
 import matplotlib.pyplot as plt
-import math
-
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 import hbni_pyro
 from decpomdp import JointController
-from experiments import figures
-from experiments.common import beats, ratio
-from experiments.schemas.studies import PLANNING_MODELS
+from experiments.reports import figures
+from experiments.reports.scores import beats, ratio
+from experiments.schemas.mission_study import PLANNING_MODELS, BootstrapBlock
 from experiments.steps import honesty
 from experiments.steps.planning import delivery_rates, score
-from hbni_pyro.calibration import binomial_stderr
+from hbni_pyro import binomial_stderr
 from hbni_infra.streams import stream_seed, torch_stream
 
 
-class Bootstrap(NamedTuple):
-    """Bootstrap over sequence indices: ``replicates`` resampled tables or banks, ``rollouts`` rollouts on each."""
-
-    replicates: int
-    rollouts: int
-
-
-class Powered(NamedTuple):
-    """``mission.bank.powered``: entries whose value test gets held-out sequences rendered on demand until it has
-    its target power, the sequences per class it may have in all, and the margin over the power calculation."""
-
-    entries: tuple[str, ...]
-    max_sequences: int
-    margin: float
-
-
-class LoopSettings(NamedTuple):
-    """The mission's closed-loop settings (``mission.planning_model``, ``mission.bank``, ...)."""
-
-    planning_model: str  # what the variants plan on: empirical | generative
-    compare_planning_models: bool  # also plan HBNI on the other model (entry hbni_<other>)
-    generative_streams: int  # streams per class simulated from the fitted model
-    bank_sequences: int  # held-out bank sequences per class
-    cache_dir: Path
-    workers: int
-    bootstrap: Bootstrap  # stream standard errors
-    powered: Powered  # more held-out sequences for these entries' value tests
-
-
-def read_loop_settings(cfg: DictConfig) -> LoopSettings:
-    """The closed-loop keys of ``cfg.mission`` (already checked against the mission's schema)."""
-    st = cfg.mission
-    return LoopSettings(
-        str(st.planning_model),
-        bool(st.compare_planning_models),
-        int(st.generative_streams),
-        int(st.bank.sequences),
-        Path(os.path.expanduser(str(st.bank.cache_dir))),
-        int(st.bank.workers),
-        Bootstrap(int(st.bootstrap.replicates), int(st.bootstrap.rollouts)),
-        Powered(
-            tuple(str(e) for e in st.bank.powered.entries),
-            int(st.bank.powered.max_sequences),
-            float(st.bank.powered.margin),
-        ),
-    )
-
-
 def other_model(planning_model: str) -> str:
+    """The planning model other than ``planning_model`` (HBNI's comparison entry plans on it)."""
     return PLANNING_MODELS[1 - PLANNING_MODELS.index(planning_model)]
 
 
@@ -129,8 +78,8 @@ def stream_stderr(
     perception_of: Callable[[torch.Tensor], Any],
     pool: int,
     size: int,
-    domain: DictConfig,
-    boot: Bootstrap,
+    domain: Any,
+    boot: BootstrapBlock,
     seed: int,
 ) -> float:
     """Standard error of a policy's value from the finite set of ``size`` recorded sequences behind its perception.
@@ -157,9 +106,7 @@ def stream_stderr(
     return float(max(np.var(values, ddof=1) - np.mean(variances), 0.0) ** 0.5)
 
 
-def execute(
-    controller: JointController, perception: Any, domain: DictConfig, rollouts: int, seed: int
-) -> dict[str, Any]:
+def execute(controller: JointController, perception: Any, domain: Any, rollouts: int, seed: int) -> dict[str, Any]:
     """The score of ``controller`` in the domain whose "infer" MA is answered by ``perception``.
 
     ``perception``: a :class:`hbni_pyro.StreamReplay` (closed loop) or ``None`` (perfect perception). The
@@ -205,7 +152,7 @@ def summarise(
     return out
 
 
-def held_out_checks(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
+def held_out_summary(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
     """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
     and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
     emitted labels that are right with its binomial s.e., the share of all its labels that are right (a timeout's

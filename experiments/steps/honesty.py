@@ -1,8 +1,9 @@
 """Is a planning model honest? Its macro-observation law against the process on the held-out bank.
 
-A policy is planned on a table of ``P(label, frames | true class)``. Two checks judge that table:
+A policy is planned on a table of ``P(label, frames | true class)``. Two tests judge that table (reported as the
+entry's ``distribution_check`` and ``value_test``):
 
-- :func:`distribution_check`, per class: the table's accuracy and mean frames against what the
+- :func:`distribution_test`, per class: the table's accuracy and mean frames against what the
   process does on the bank's streams of that class, each by a parametric-bootstrap test of "one
   law behind both". A table is a sample of ``table_streams`` streams per class (held-out streams for
   an empirical table, simulated ones for a generative table), so the test is two-sample under the
@@ -27,13 +28,13 @@ import matplotlib.pyplot as plt
 import torch
 
 import hbni_pyro
-from experiments import figures
-from hbni_pyro.calibration import stream_reliability
+from experiments.reports import figures
+from hbni_pyro import stream_reliability
 from hbni_infra.stats import wilson_interval
 from hbni_infra.streams import torch_stream
 
 ALPHA = 0.05
-"""Family-wise level of the distribution check (split over its classes and its two statistics)."""
+"""Family-wise level of the distribution test (split over its classes and its two statistics)."""
 
 VALUE_ALPHA = 0.05
 """Level of the value test: a policy fails when ``(executed - planned) / full s.e.`` is below the
@@ -69,7 +70,7 @@ def _two_sided(null: torch.Tensor, observed: float) -> float:
     return float(((null >= observed - 1e-12).sum() + 1) / (null.numel() + 1))
 
 
-def class_check(
+def class_test(
     predicted_pmf: torch.Tensor,
     predicted_accuracy: float,
     right: torch.Tensor,
@@ -111,7 +112,7 @@ def class_check(
     }
 
 
-def distribution_check(
+def distribution_test(
     model: hbni_pyro.MacroObservationModel,
     replay: hbni_pyro.StreamReplay,
     table_streams: int | None,
@@ -134,7 +135,7 @@ def distribution_check(
     classes = []
     for c in range(model.num_classes):
         mine = replay.true_class == c
-        entry = class_check(
+        entry = class_test(
             model.frames_pmf[c],
             float(model.accuracy[c]),
             replay.results.label[mine] == c,

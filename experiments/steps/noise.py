@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
+from experiments.schemas.blocks import HBNIBlock
 from hbni_infra.streams import stream_seed
 
 
 def fit_labelled(
     outputs: torch.Tensor,
-    hbni: DictConfig,
+    hbni: HBNIBlock,
     seed: int,
     progress: bool,
     model: str | None = None,
@@ -33,7 +33,7 @@ def fit_labelled(
         labels,
         model=model or hbni.model,
         sequence_ids=sequence_ids,
-        **OmegaConf.to_container(hbni.fit),
+        **hbni.fit.kwargs(),
         hyperprior=instantiate(hbni.hyperprior),
         seed=seed,
         progress=progress,
@@ -43,7 +43,7 @@ def fit_labelled(
 
 def stop_folds(
     outputs: torch.Tensor,
-    hbni: DictConfig,
+    hbni: HBNIBlock,
     seed: int,
     *stream: str,
     folds: int = 2,

@@ -14,14 +14,14 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from hydra.utils import instantiate
-from omegaconf import DictConfig
 
 from decpomdp import JointController
 from decpomdp.core import DecPOSMDP
 from decpomdp.search import PlannerConfig
-from experiments.common import save_figure
+from experiments.reports.planning_figures import history_figure, planner_figure
+from experiments.runs.outputs import save_figure
+from experiments.schemas.planning_studies import PlanningExperiment
 from experiments.steps.planning import run_baselines, run_planner, run_seeded, score
-from experiments.steps.planning_figures import history_figure, planner_figure
 from hbni_infra.streams import stream_seed
 
 
@@ -33,22 +33,22 @@ class Comparison(NamedTuple):
 
 
 def compare_planners(
-    cfg: DictConfig, env: DecPOSMDP, greedy_policy: JointController, title: str, run_dir: Path
+    settings: PlanningExperiment, env: DecPOSMDP, greedy_policy: JointController, title: str, run_dir: Path
 ) -> Comparison:
-    """Run every planner and baseline of the comparison on ``env`` (seeds offset from ``cfg.seed``).
+    """Run every planner and baseline of the comparison on ``env`` (seeds offset from ``settings.seed``).
 
     Writes ``best_controller_planner.safetensors`` (cold-start planner), ``best_controller_cold``
     (G-DICE), ``best_controller`` (seeded G-DICE), ``planner_progress.png``,
     ``value_vs_iteration.png`` and ``value_vs_iteration_seeded.png``; ``title`` names the domain in
     the figures.
     """
-    study, seed, progress = cfg.study, int(cfg.seed), bool(cfg.progress)
-    config: PlannerConfig = instantiate(cfg.planners.gdice)
-    cold_cfg: PlannerConfig = instantiate(cfg.planners.cold)
-    reeval, shared_controller = int(study.reeval_rollouts), bool(study.shared_controller)
+    study, seed, progress = settings.study, settings.seed, settings.progress
+    config: PlannerConfig = instantiate(settings.planners.gdice)
+    cold: PlannerConfig = instantiate(settings.planners.cold)
+    reeval, shared_controller = study.reeval_rollouts, study.shared_controller
 
     planner, planner_best, planner_score = run_planner(
-        env, cold_cfg, shared_controller, stream_seed(seed, "cold"), progress, reeval
+        env, cold, shared_controller, stream_seed(seed, "cold"), progress, reeval
     )
     planner_best.save(run_dir / "best_controller_planner.safetensors")
     save_figure(planner_figure(planner.history, f"Cold-start planner on {title}"), run_dir / "planner_progress.png")
@@ -81,7 +81,7 @@ def compare_planners(
     metrics = {
         "planner_cold_start": planner_score,
         "planner_cold_start_history": planner.history,
-        "planner_cold_start_config": dataclasses.asdict(cold_cfg),
+        "planner_cold_start_config": dataclasses.asdict(cold),
         "domain": repr(env),
         "planner": dataclasses.asdict(config),
         "shared_controller": shared_controller,

@@ -18,6 +18,7 @@ from decpomdp import JointController, monte_carlo_search, random_controllers
 from decpomdp.core import DecPOSMDP
 from decpomdp.domains import rollout_counters
 from decpomdp.search import PlannerConfig, PlannerResult, RolloutScorer, mean_stderr, plan
+from experiments.schemas.blocks import BaselineStudy
 from hbni_infra.streams import stream_seed, torch_generator, torch_stream
 
 
@@ -122,7 +123,9 @@ def mode_controller(distributions: tuple[torch.Tensor, torch.Tensor]) -> JointCo
     return JointController(action_probs.argmax(-1)[None], next_probs.argmax(-1)[None])
 
 
-def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointController, seed: int, progress: bool):
+def run_seeded(
+    env: DecPOSMDP, config: PlannerConfig, study: BaselineStudy, policy: JointController, seed: int, progress: bool
+):
     """G-DICE seeded with ``policy`` (settings: ``config`` overridden by ``study.seeded``): (result, best, score).
 
     The best sampled controller is a maximum over noisy scores, so the final distributions' most
@@ -130,15 +133,15 @@ def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointContro
     the better one is kept, and its reported value comes from ``study.reeval_rollouts`` further
     independent rollouts (so the selection does not bias it).
     """
-    seeded_cfg = config.replace(**dict(study.seeded))
-    shared_controller = bool(study.shared_controller)
+    seeded = config.replace(**study.seeded)
+    shared_controller = study.shared_controller
     result, best, entry = run_planner(
         env,
-        seeded_cfg,
+        seeded,
         shared_controller,
         seed,
         progress,
-        int(study.reeval_rollouts),
+        study.reeval_rollouts,
         init=seed_controller(policy, shared_controller),
     )
     mode = mode_controller(result.distributions)
@@ -147,32 +150,32 @@ def run_seeded(env: DecPOSMDP, config: PlannerConfig, study, policy: JointContro
         "mode": RolloutScorer(env, shared=shared_controller).team(mode).named(env.action_names, env.obs_names),
     }
     selection = {
-        name: score(env, ctrl, int(study.select_rollouts), stream_seed(seed, "select"))["value"]
+        name: score(env, ctrl, study.select_rollouts, stream_seed(seed, "select"))["value"]
         for name, ctrl in candidates.items()
     }
     chosen = max(selection, key=selection.get)
     entry = {
-        "init_weight": seeded_cfg.ce_init_weight,
-        "planner": dataclasses.asdict(seeded_cfg),
+        "init_weight": seeded.ce_init_weight,
+        "planner": dataclasses.asdict(seeded),
         "best_sampled": entry["planner_value"],
         "seconds": entry["seconds"],
         "selected": chosen,
         "selection_values": selection,
-        **score(env, candidates[chosen], int(study.reeval_rollouts), stream_seed(seed, "reeval")),
+        **score(env, candidates[chosen], study.reeval_rollouts, stream_seed(seed, "reeval")),
     }
     return result, candidates[chosen], entry
 
 
-def run_baselines(env: DecPOSMDP, config: PlannerConfig, study, seed: int) -> dict[str, Any]:
+def run_baselines(env: DecPOSMDP, config: PlannerConfig, study: BaselineStudy, seed: int) -> dict[str, Any]:
     """Monte Carlo search with G-DICE's sample budget (``config``: its preset), and the mean of uniformly random
     controllers."""
-    scorer = RolloutScorer(env, shared=bool(study.shared_controller))
+    scorer = RolloutScorer(env, shared=study.shared_controller)
     budget, rollouts = config.ce_iterations * config.ce_samples, config.ce_rollouts
     tic = time.perf_counter()
     mcs = monte_carlo_search(scorer, num_nodes=config.num_nodes, budget=budget, rollouts=rollouts, seed=seed)
     seconds = time.perf_counter() - tic
     rand = random_controllers(
-        int(study.random_controllers),
+        study.random_controllers,
         num_agents=scorer.num_agents,
         num_nodes=config.num_nodes,
         num_actions=env.num_actions,
@@ -189,7 +192,7 @@ def run_baselines(env: DecPOSMDP, config: PlannerConfig, study, seed: int) -> di
             **score(
                 env,
                 scorer.team(mcs.best),
-                int(study.reeval_rollouts),
+                study.reeval_rollouts,
                 stream_seed(seed, "reeval", "monte carlo search"),
             ),
         },

@@ -15,10 +15,16 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 import hbni_pyro
-from experiments.schemas import check_config, check_overrides, compose_config, register, unread_settings
+from experiments.schemas import (
+    build_settings,
+    check_overrides,
+    compose_config,
+    register,
+    typed_settings,
+    unread_settings,
+)
 from experiments.sweep import SweepGuard, check_sweep, sweep_jobs
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.variants import NOISE_MODELS
+from hbni_pyro import NOISE_MODELS, sample_outputs
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = str(ROOT / "conf")
@@ -28,9 +34,9 @@ register()
 
 def _refused(overrides: list[str]) -> str:
     """The message of the refusal of ``overrides`` (a run's check at its start)."""
-    cfg = compose_config(overrides)
+    settings = typed_settings(compose_config(overrides))
     with pytest.raises(ValueError) as info:
-        check_overrides(cfg, overrides)
+        check_overrides(settings, overrides)
     return str(info.value)
 
 
@@ -100,15 +106,16 @@ def test_a_setting_the_experiment_never_reads_is_refused_naming_it_and_the_exper
 def test_every_unread_key_of_every_experiment_is_refused_and_every_read_one_accepted(name):
     """Each key the experiment declares unread is refused when set; every other leaf of its config is accepted."""
     cfg = compose_config([f"experiment={name}"])
-    unread = unread_settings(cfg)
+    settings = typed_settings(cfg)
+    unread = unread_settings(settings)
     assert name not in ("hbni_toy", "package_delivery", "stream") or unread
     for key in unread:
         with pytest.raises(ValueError, match=f"^{key}: experiment {name} never reads it"):
-            check_overrides(cfg, [f"{key}=1"])
+            check_overrides(settings, [f"{key}=1"])
     plain = OmegaConf.to_container(cfg, resolve=False)
     leaves = [key for key in _leaves(plain, "") if not any(key == u or key.startswith(f"{u}.") for u in unread)]
     assert leaves
-    check_overrides(cfg, [f"{key}=1" for key in leaves])
+    check_overrides(settings, [f"{key}=1" for key in leaves])
 
 
 def _leaves(node, path):
@@ -122,9 +129,9 @@ def _leaves(node, path):
 def test_the_settings_the_refusal_accepts_still_run_the_same_checks():
     """A read key with a bad value is not reported as unread: the range check names it."""
     cfg = compose_config(["experiment=macro_observation", "hbni.filter.mode=mean"])
-    check_overrides(cfg, ["hbni.filter.mode=mean"])
+    check_overrides(typed_settings(cfg), ["hbni.filter.mode=mean"])
     with pytest.raises(ValueError, match=r"^hbni.filter.mode: expected one of \['marginal', 'plugin'\]"):
-        check_config(cfg)
+        build_settings(cfg)
 
 
 def _sweep_config(overrides: list[str]) -> DictConfig:

@@ -13,7 +13,6 @@ import re
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 import hbni_pyro
 from classifiers import FrameClassifier, class_columns, classify_frames
@@ -22,9 +21,8 @@ from decpomdp import ControllerExecutor, JointController, simulate
 from decpomdp.domains import DisasterRelief
 from decpomdp.domains.disaster_relief import CLASSES, greedy_controller
 from experiments import ros_node
-from experiments.stream import Settings, load_models
-from hbni_pyro import HBNIPosterior, MacroObservationModel, macro_observations
-from hbni_pyro.live import live_macro_observations
+from experiments.studies.stream import Settings, load_models
+from hbni_pyro import HBNIPosterior, MacroObservationModel, live_macro_observations, macro_observations
 
 ALPHABETICAL = ["a_crate", "b_car", "c_copter"]
 DOMAIN_ORDER = ["c_copter", "a_crate", "b_car"]  # a posterior's column order, not the classifier's
@@ -87,7 +85,7 @@ def stream_models(files, posterior_file: str, classes=None):
     settings = Settings(
         "clip.mp4", None, None, files["classifier"], files[posterior_file], classes, 1.0, 0.95, 10, 4, (), False
     )
-    return load_models(settings, OmegaConf.create({"hbni": {"filter": {"mode": "marginal"}}}))
+    return load_models(settings)
 
 
 def test_the_stream_reads_the_classifier_in_the_posteriors_order(files):

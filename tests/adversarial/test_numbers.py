@@ -21,20 +21,21 @@ from decpomdp import (
 )
 from decpomdp import simulate, solve
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.schemas import check_config, compose_config
+from experiments.schemas import build_settings, compose_config
 from hbni_infra.checks import as_generator, as_seed
 from hbni_infra.counter_random import draw_seed
 from hbni_infra.streams import torch_generator
-from hbni_pyro import HBNIPosterior, reliability, threshold_checks
-from hbni_pyro.generative import (
-    gamma_variates,
+from hbni_pyro import (
+    HBNIPosterior,
+    reliability,
+    run_sbc,
     sample_dirichlet,
-    sample_gaussian,
     sample_outputs,
     sample_sequences,
+    threshold_checks,
 )
-from hbni_pyro.model import prior_theta_log_density
-from hbni_pyro.sbc import run_sbc
+from hbni_pyro.distributions import gamma_variates, sample_gaussian
+from hbni_pyro.models.paper.program import prior_theta_log_density
 
 NAN, INF = math.nan, math.inf
 THETA = torch.tensor([1.0, 6.0, 20.0], dtype=torch.float64)
@@ -118,7 +119,7 @@ CASES = [
     ("fit seed True", lambda: _fit(seed=True), TypeError, "seed"),
     ("fit nuts seed 2**32", lambda: _fit(seed=2**32, method="nuts"), ValueError, "seed"),
     ("fit_many seed -5", lambda: hbni_pyro.fit_many(OBS[None], seed=-5, progress=False), ValueError, "seed"),
-    ("check seed -1", lambda: hbni_pyro.check(POST, OBS, seed=-1), ValueError, "seed"),
+    ("check seed -1", lambda: hbni_pyro.predictive_check(POST, OBS, seed=-1), ValueError, "seed"),
     (
         "prior density num_mc 0",
         lambda: prior_theta_log_density(THETA, hbni_pyro.HyperPrior(), num_mc=0),
@@ -235,4 +236,4 @@ def _compose(*overrides: str):
 )
 def test_a_config_with_a_non_finite_theta_is_refused_when_composed(experiment, override, key):
     with pytest.raises(ValueError, match=rf"^{key}: expected at least 2 noise levels > 0, all finite"):
-        check_config(_compose(f"experiment={experiment}", override))
+        build_settings(_compose(f"experiment={experiment}", override))

@@ -15,10 +15,10 @@ import pytest
 import torch
 
 import hbni_infra.cache as cache
-import hbni_pyro.generative as generative
+import hbni_pyro.distributions.sampling as sampling
 from hbni_infra.cache import FileLock, cached, entry_path, store_entry, wait_for_entry
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.generative import gamma_variates, sample_dirichlet, sample_gamma, sample_outputs
+from hbni_pyro import HBNIPosterior, sample_dirichlet, sample_outputs
+from hbni_pyro.distributions import gamma_variates, sample_gamma
 
 LIMIT = 60.0  # seconds a call may take before it counts as a hang (each ends in well under a second)
 
@@ -97,7 +97,7 @@ def test_a_posterior_with_an_impossible_theta_refuses_to_sample_instead_of_hangi
 
 
 def test_the_rejection_loop_has_a_bound_and_a_message(monkeypatch):
-    monkeypatch.setattr(generative, "MAX_ROUNDS", 0)
+    monkeypatch.setattr(sampling, "MAX_ROUNDS", 0)
     _refused(lambda: sample_gamma(torch.tensor([2.0], dtype=torch.float64), _g()), RuntimeError, "sample_gamma")
 
 
@@ -198,3 +198,13 @@ def test_a_waiter_gets_the_entry_the_live_builder_writes(tmp_path):
     out = _ends(lambda: cached(tmp_path, "k", key, lambda: pytest.fail("the waiter must not compute"), timeout=LIMIT))
     tensors, _, hit = out["value"]
     assert hit and torch.equal(tensors["x"], torch.zeros(3))
+
+
+def test_a_wait_says_what_it_waits_for_and_what_bounds_it(tmp_path, caplog):
+    """A wait on a live lock (up to STALE_SECONDS for a lock whose holder is gone) said nothing until it ended."""
+    _, lock = _lock_file(tmp_path, "robot-7 4242")
+    with caplog.at_level("WARNING", logger="hbni_infra.cache"):
+        _refused(lambda: cached(tmp_path, "k", {}, _compute, timeout=0.3), TimeoutError, "robot-7")
+    said = [r.getMessage() for r in caplog.records if r.name == "hbni_infra.cache"]
+    assert len(said) == 1 and str(lock.path) in said[0] and "process 4242 on host 'robot-7'" in said[0], said
+    assert "at most 0.3 s (timeout of hbni_infra.cache.cached" in said[0] and "STALE_SECONDS" in said[0]

@@ -249,8 +249,8 @@ class Block:
         if name.split(".")[0] in ("rosbags", "mcap", "mcap_ros2", "rclpy"):
             raise ImportError(f"No module named {{name!r}} (blocked)")
 sys.meta_path.insert(0, Block())
-import classifiers, classifiers.bags, classifiers.sources, hbni_pyro, hbni_pyro.ros, hbni_pyro.live, hbni_infra.ros
-import experiments.stream
+import classifiers, classifiers.bags, classifiers.sources, hbni_pyro, hbni_pyro.runtime.ros_messages, hbni_pyro.runtime.live, hbni_infra.ros
+import experiments.studies.stream
 try:
     classifiers.sources.open_source({str(path)!r})
 except ImportError as exc:
@@ -258,3 +258,20 @@ except ImportError as exc:
 """
     proc = subprocess.run([sys.executable, "-c", code], cwd=repo_root, capture_output=True, text=True, check=True)
     assert "Reading and writing ROS bags needs the package 'rosbags': pip install 'hbni-pyro[ros]'" in proc.stdout
+
+
+@pytest.mark.parametrize("encoding", ["bgr8", "png"])
+def test_mcap_bags_are_written_with_chunk_crcs_the_mcap_library_checks(tmp_path, frames, encoding):
+    """Every chunk carries its CRC-32 (rosbags writes 0, "unchecked"); the mcap library, checking them, reads every
+    frame, and rosbags (checking them too) reads the same frames back."""
+    make_reader = ros.require("mcap.reader").make_reader
+    bag = _write(tmp_path, frames, encoding=encoding)
+    with open(bag / "bag.mcap", "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        chunks = reader.get_summary().chunk_indexes
+        assert sum(1 for _ in reader.iter_messages()) == N
+    data = (bag / "bag.mcap").read_bytes()
+    assert chunks and all(
+        int.from_bytes(data[c.chunk_start_offset + ros.MCAP_CHUNK_CRC_OFFSET :][:4], "little") for c in chunks
+    )
+    assert ros.damaged_chunks(bag / "bag.mcap") == [] and len(list(BagSource(bag))) == N

@@ -1,7 +1,5 @@
 """Common random numbers: the engine's shared streams, racing stages and duels on them, and the planner's use."""
 
-import dataclasses
-
 import pytest
 import torch
 
@@ -13,6 +11,7 @@ from decpomdp.search import PlannerConfig, RolloutScorer, gdice_config, plan
 from decpomdp.search.moves import grow
 from decpomdp.search.racing import duel, race
 from hbni_infra.threads import threads
+from planner_settings import short
 
 
 def _alike(controller: JointController) -> JointController:
@@ -87,10 +86,9 @@ def _one_node() -> JointController:
 
 
 def _config(**changes) -> PlannerConfig:
-    base = PlannerConfig(
+    """:data:`planner_settings.SHORT` with a larger budget on smaller phases, and ``changes``."""
+    return short(
         budget=300_000,
-        patience=1,
-        num_nodes=6,
         start_nodes=3,
         ce_iterations=2,
         ce_samples=40,
@@ -98,9 +96,8 @@ def _config(**changes) -> PlannerConfig:
         ls_stages=((8, 0.1), (64, 3)),
         ls_patience=1,
         duel_rollouts=400,
-        visit_rollouts=100,
+        **changes,
     )
-    return dataclasses.replace(base, **changes)
 
 
 def test_planning_on_common_streams_is_seeded_and_resumes_exactly(tmp_path):

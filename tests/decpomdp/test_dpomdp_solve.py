@@ -12,7 +12,6 @@ import yaml
 
 from decpomdp import random_controllers, solve
 from decpomdp.dpomdp import (
-    TabularDecPOSMDP,
     controller_text,
     dpomdp_text,
     exact_value,
@@ -27,6 +26,7 @@ from decpomdp.dpomdp.best_response import _distinct_beliefs, best_response, jesp
 from decpomdp.dpomdp.bounds import lookahead_bound, q_fib, q_mdp
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum, tree_controllers
 from dpomdp_synthetic import synthetic_text
+from tiny_problems import problem
 
 SMALL = ["dectiger", "broadcastChannel", "recycling", "GridSmall"]
 PUBLISHED = {  # MADP toolbox, src/tests/optimalValueDatabase (undiscounted)
@@ -39,13 +39,9 @@ PUBLISHED = {  # MADP toolbox, src/tests/optimalValueDatabase (undiscounted)
 }
 
 
-def env(name, horizon, gamma=1.0):
-    return TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
-
-
 @pytest.mark.parametrize("name", SMALL)
 def test_bounds_hold_the_exhaustive_optimum_and_are_ordered(name):
-    e = env(name, 2)
+    e = problem(name, 2)
     optimum, _ = exhaustive_optimum(e, 2)
     b = upper_bounds(e)
     assert b.depth == 2 and optimum <= b.lookahead + 1e-9  # the belief tree is the whole horizon: exact V_POMDP
@@ -68,7 +64,7 @@ exact -0.00039506 (the other values carry more digits)."""
 @pytest.mark.parametrize("name", sorted(OPTIMA))
 def test_bounds_hold_every_published_optimum(name):
     row = OPTIMA[name]
-    bound = upper_bounds(env(row["problem"], row["horizon"], row["gamma"])).best
+    bound = upper_bounds(problem(row["problem"], row["horizon"], row["gamma"])).best
     assert bound >= row["optimum"] - PUBLISHED_ROUNDING * abs(row["optimum"]) - 1e-9
 
 
@@ -78,7 +74,7 @@ def _dense(e):
 
 
 def test_q_mdp_and_fib_against_dense_recursions():
-    e = env("GridSmall", 4, 0.9)
+    e = problem("GridSmall", 4, 0.9)
     t, r, o, _ = _dense(e)
     q = r.copy()
     for _ in range(3):
@@ -109,7 +105,7 @@ def _pomdp_value(t, r, o, belief, steps, gamma):
 
 @pytest.mark.parametrize("name, horizon", [("dectiger", 3), ("broadcastChannel", 3), ("recycling", 2)])
 def test_the_belief_tree_is_the_centralised_pomdp(name, horizon):
-    e = env(name, horizon)
+    e = problem(name, horizon)
     t, r, o, b0 = _dense(e)
     value, depth = lookahead_bound(e)
     assert depth == horizon
@@ -117,7 +113,7 @@ def test_the_belief_tree_is_the_centralised_pomdp(name, horizon):
 
 
 def test_infinite_horizon_bounds_hold_every_controller():
-    e = env("dectiger", math.inf, 0.9)
+    e = problem("dectiger", math.inf, 0.9)
     b = upper_bounds(e)
     ctrl = random_controllers(
         200, num_agents=2, num_nodes=3, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
@@ -128,7 +124,7 @@ def test_infinite_horizon_bounds_hold_every_controller():
 @pytest.mark.parametrize("name", ["dectiger", "broadcastChannel"])
 def test_a_best_response_is_the_best_policy_tree_against_the_other(name):
     """Against a fixed controller of agent 1, the best response's value is the max over every policy tree of agent 0."""
-    e = env(name, 2)
+    e = problem(name, 2)
     other = random_controllers(
         1,
         num_agents=2,
@@ -165,7 +161,7 @@ def test_a_best_response_beats_every_depth_3_policy_tree(name, nodes, agent):
 
     from decpomdp import JointController
 
-    e = env(name, 3)
+    e = problem(name, 3)
     other = random_controllers(
         1,
         num_agents=2,
@@ -204,7 +200,7 @@ def test_beliefs_merge_when_equal_and_a_projection_collision_is_caught():
 
 
 def test_jesp_never_loses_value_and_refuses_trees_too_large():
-    e = env("GridSmall", 3)
+    e = problem("GridSmall", 3)
     start = random_controllers(
         1, num_agents=2, num_nodes=3, num_actions=5, num_obs=2, generator=torch.Generator().manual_seed(1)
     )
@@ -218,7 +214,7 @@ def test_jesp_never_loses_value_and_refuses_trees_too_large():
 def test_solve_reaches_published_optima_with_a_valid_gap(row):
     s = solve(*row, 1.0, seed=0, restarts=1, layered_restarts=1)
     assert s.value == pytest.approx(PUBLISHED[row], abs=1e-6)
-    assert s.value == pytest.approx(float(exact_value(env(*row), s.controller)[0]), abs=1e-12)
+    assert s.value == pytest.approx(float(exact_value(problem(*row), s.controller)[0]), abs=1e-12)
     assert s.bound >= PUBLISHED[row] - 1e-9 and s.gap == pytest.approx((s.bound - s.value) / abs(s.bound))
     assert s.controller.action_names is not None and s.horizon == row[1] and s.seconds > 0
 
@@ -284,13 +280,13 @@ def test_exact_scores_are_never_raced():
     from decpomdp.search import ExactScorer
     from decpomdp.search.racing import race
 
-    problem = env("dectiger", 3)
+    tiger = problem("dectiger", 3)
     pool = random_controllers(
         30,
         num_agents=2,
         num_nodes=3,
-        num_actions=problem.num_actions,
-        num_obs=problem.num_obs,
+        num_actions=tiger.num_actions,
+        num_obs=tiger.num_obs,
         generator=torch.Generator().manual_seed(0),
     )
 
@@ -304,7 +300,7 @@ def test_exact_scores_are_never_raced():
             return super().__call__(controller, rollouts, generator)
 
     stages = [(10, 0.5), (100, 0.5), (1000, 3)]
-    once, again = Counting(problem, exact=True), Counting(problem, exact=False)
+    once, again = Counting(tiger, exact=True), Counting(tiger, exact=False)
     a = race(once, 30, lambda i: pool[i], stages, torch.Generator())
     b = race(again, 30, lambda i: pool[i], stages, torch.Generator())
     assert once.scored == 30 and again.scored == 30 + 15 + 8

@@ -27,11 +27,12 @@ from decpomdp.domains import disaster_relief as dr
 from decpomdp.domains import package_delivery as pd
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.engine import OutcomeTable, outcome_table, run
-from decpomdp.engine.simulate import chunk_bounds, table_dtype
+from decpomdp.engine.runner import chunk_bounds, table_dtype
 from decpomdp.perception import PerfectPerception
-from decpomdp.search import PlannerConfig, RolloutScorer, plan
-from hbni_pyro.generative import sample_outputs
+from decpomdp.search import RolloutScorer, plan
+from hbni_pyro import sample_outputs
 from hbni_infra.threads import threads
+from planner_settings import SHORT
 
 ROOT = Path(__file__).resolve().parents[2]
 N = 3000
@@ -65,18 +66,7 @@ def replay() -> hbni_pyro.StreamReplay:
 
 def planned(env: DecPOSMDP) -> JointController:
     """A controller found by a short cold-start run on ``env``."""
-    cfg = PlannerConfig(
-        budget=150_000,
-        num_nodes=6,
-        ce_iterations=3,
-        ce_samples=60,
-        ls_candidates=300,
-        ls_stages=((8, 0.1), (64, 4)),
-        duel_rollouts=300,
-        visit_rollouts=100,
-        patience=1,
-    )
-    return plan(RolloutScorer(env), cfg, seed=0).best
+    return plan(RolloutScorer(env), SHORT, seed=0).best
 
 
 torch.manual_seed(0)

@@ -9,10 +9,7 @@ import torch
 
 from decpomdp import ExactScorer, JointController, RolloutScorer, random_controllers
 from decpomdp.dpomdp import TabularDecPOSMDP, exact_value
-
-
-def tiger(horizon, gamma=1.0):
-    return TabularDecPOSMDP.from_problem("dectiger", gamma=gamma, horizon=horizon)
+from tiny_problems import dec_tiger, problem
 
 
 def layered(count, agents, width, layers, actions, obs, seed):
@@ -58,17 +55,17 @@ def brute_force(env, ctrl, horizon):
 def test_hand_values():
     # always listen: -2 per step for both agents together
     listen = JointController(torch.zeros(1, 2, 1, dtype=torch.long), torch.zeros(1, 2, 1, 2, dtype=torch.long))
-    assert exact_value(tiger(3), listen).item() == pytest.approx(-6.0)
-    assert exact_value(tiger(math.inf, 0.9), listen).item() == pytest.approx(-2.0 / 0.1)
-    assert exact_value(tiger(math.inf, 0.9), listen, max_dense=0).item() == pytest.approx(-2.0 / 0.1)
-    assert exact_value(tiger(4, 0.5), listen).item() == pytest.approx(-2 * (1 + 0.5 + 0.25 + 0.125))
+    assert exact_value(dec_tiger(3), listen).item() == pytest.approx(-6.0)
+    assert exact_value(dec_tiger(math.inf, 0.9), listen).item() == pytest.approx(-2.0 / 0.1)
+    assert exact_value(dec_tiger(math.inf, 0.9), listen, max_dense=0).item() == pytest.approx(-2.0 / 0.1)
+    assert exact_value(dec_tiger(4, 0.5), listen).item() == pytest.approx(-2 * (1 + 0.5 + 0.25 + 0.125))
     # horizon 2: listen, then both open right iff they heard left, else listen (brute force by enumeration)
     act = torch.tensor([[[0, 2], [0, 2]]])
     nxt = torch.tensor([[[[1, 0], [1, 1]], [[1, 0], [1, 1]]]])
-    p_obs = tiger(2).model.observation[0]  # (S', JO) after listen-listen; jo order: hl hl, hl hr, hr hl, hr hr
+    p_obs = dec_tiger(2).model.observation[0]  # (S', JO) after listen-listen; jo order: hl hl, hl hr, hr hl, hr hr
     v_left = -2 + sum(p_obs[0, jo] * {0: 20.0, 1: 9.0, 2: 9.0, 3: -2.0}[jo] for jo in range(4))
     v_right = -2 + sum(p_obs[1, jo] * {0: -50.0, 1: -101.0, 2: -101.0, 3: -2.0}[jo] for jo in range(4))
-    assert exact_value(tiger(2), JointController(act, nxt)).item() == pytest.approx(0.5 * v_left + 0.5 * v_right)
+    assert exact_value(dec_tiger(2), JointController(act, nxt)).item() == pytest.approx(0.5 * v_left + 0.5 * v_right)
 
 
 @pytest.mark.parametrize(
@@ -86,7 +83,7 @@ def test_hand_values():
     ],
 )
 def test_matches_brute_force(name, gamma, horizon):
-    env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
+    env = problem(name, horizon, gamma)
     g = torch.Generator().manual_seed(4)
     ctrls = [
         random_controllers(4, num_agents=2, num_nodes=3, num_actions=env.num_actions, num_obs=env.num_obs, generator=g),
@@ -114,7 +111,7 @@ def test_exact_matches_monte_carlo(name, gamma, horizon, nodes):
     """Each of 4 controllers within 3 Monte Carlo standard errors (a false alarm has probability 0.27 % per
     controller); the simulator samples next states from the sparse rows, including fireFighting's 2025 states."""
     g = torch.Generator().manual_seed(11)
-    env = TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
+    env = problem(name, horizon, gamma)
     ctrl = random_controllers(
         4, num_agents=2, num_nodes=nodes, num_actions=env.num_actions, num_obs=env.num_obs, generator=g
     )
@@ -128,7 +125,7 @@ def test_exact_matches_monte_carlo(name, gamma, horizon, nodes):
 
 
 def test_next_state_sampling_follows_the_sparse_rows():
-    env = TabularDecPOSMDP.from_problem("fireFighting_2_4_3", gamma=1.0, horizon=4)
+    env = problem("fireFighting_2_4_3", 4, 1.0)
     t = env.model.transition
     row = int(np.argmax(np.diff(t.indptr)))  # the row with the most entries
     ja, s = divmod(row, env.num_states)
@@ -142,7 +139,7 @@ def test_next_state_sampling_follows_the_sparse_rows():
 
 
 def test_infinite_horizon_solvers_agree_with_a_long_finite_horizon():
-    env = TabularDecPOSMDP.from_problem("GridSmall", gamma=0.9)
+    env = problem("GridSmall", gamma=0.9)
     ctrl = random_controllers(
         3,
         num_agents=2,
@@ -161,7 +158,7 @@ def test_infinite_horizon_solvers_agree_with_a_long_finite_horizon():
 
 
 def test_unreachable_nodes_and_memory_budget_do_not_change_values():
-    env = TabularDecPOSMDP.from_problem("recycling", gamma=0.9, horizon=4)
+    env = problem("recycling", 4, 0.9)
     ctrl = layered(6, 2, 2, 3, env.num_actions, env.num_obs, seed=1)
     base = exact_value(env, ctrl)
     # a layered controller never leaves layer 2 for layer 1: nodes 1..2 are reachable only at step 1,
@@ -180,7 +177,7 @@ def test_unreachable_nodes_and_memory_budget_do_not_change_values():
 
 
 def test_errors():
-    env = tiger(3)
+    env = dec_tiger(3)
     ctrl = random_controllers(
         1, num_agents=2, num_nodes=2, num_actions=3, num_obs=2, generator=torch.Generator().manual_seed(0)
     )
@@ -246,7 +243,7 @@ def _bench_exact():
 def test_equals_the_former_dense_product(name, horizon):
     """The factored evaluator reproduces the former (K, Q, S, S', JO) dense product to 1e-9 on the small problems."""
     bench = _bench_exact()
-    env = TabularDecPOSMDP.from_problem(name, gamma=1.0, horizon=horizon)
+    env = problem(name, horizon, 1.0)
     for ctrl in (
         random_controllers(
             8,

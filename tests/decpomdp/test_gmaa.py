@@ -9,13 +9,14 @@ import torch
 
 from decpomdp import solve
 from decpomdp.controller import JointController
-from decpomdp.dpomdp import TabularDecPOSMDP, exact_value, upper_bounds
+from decpomdp.dpomdp import exact_value, upper_bounds
 from decpomdp.dpomdp.bounds import lookahead_bound
 from decpomdp.dpomdp import cyclic
 from decpomdp.dpomdp.cyclic import ascend, count_controllers, every_controller, loop_back, neighbours, with_agent
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
 from decpomdp.dpomdp.gmaa import GMAA, cluster, gmaa_ice, stage_bound
 from decpomdp.dpomdp.heuristics import Heuristic, joint_rules
+from tiny_problems import problem
 
 PUBLISHED = {  # MADP toolbox, src/tests/optimalValueDatabase (problem, discount, horizon, value)
     ("dectiger", 1.0, 3): 5.190812499999996,
@@ -29,14 +30,10 @@ PUBLISHED = {  # MADP toolbox, src/tests/optimalValueDatabase (problem, discount
 }
 
 
-def env(name, horizon, gamma=1.0):
-    return TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
-
-
 @pytest.mark.parametrize("name", ["dectiger", "broadcastChannel", "recycling"])
 @pytest.mark.parametrize("gamma", [1.0, 0.9])
 def test_gmaa_finds_the_exhaustive_optimum_at_horizon_2(name, gamma):
-    e = env(name, 2, gamma)
+    e = problem(name, 2, gamma)
     optimum, _ = exhaustive_optimum(e, 2)
     found = gmaa_ice(e)
     assert found.finished and found.value == pytest.approx(optimum, abs=1e-9) and found.bound == found.value
@@ -46,7 +43,7 @@ def test_gmaa_finds_the_exhaustive_optimum_at_horizon_2(name, gamma):
 @pytest.mark.parametrize("row", sorted(PUBLISHED))
 def test_gmaa_proves_published_optima_and_its_controller_is_worth_its_value(row):
     name, gamma, h = row
-    e = env(name, h, gamma)
+    e = problem(name, h, gamma)
     found = gmaa_ice(e, heuristic="bg")
     assert found.finished and found.value == pytest.approx(PUBLISHED[row], rel=1e-6)
     assert exact_value(e, found.controller).item() == pytest.approx(found.value, abs=1e-9)
@@ -55,7 +52,7 @@ def test_gmaa_proves_published_optima_and_its_controller_is_worth_its_value(row)
 
 
 def test_an_interrupted_search_bounds_the_optimum_and_a_lower_bound_prunes():
-    e = env("dectiger", 6)
+    e = problem("dectiger", 6)
     cut = GMAA(e).run(time_budget=0.0)
     assert not cut.finished and cut.controller is None and cut.bound >= 10.381625 - 1e-9
     pruned = GMAA(e).run(lower_bound=10.381625)  # the optimum given: nothing beats it, and that is proven
@@ -64,7 +61,7 @@ def test_an_interrupted_search_bounds_the_optimum_and_a_lower_bound_prunes():
 
 @pytest.mark.parametrize("name", ["dectiger", "broadcastChannel", "recycling", "GridSmall"])
 def test_heuristics_are_ordered_and_q_pomdp_is_the_centralised_bound(name):
-    e = env(name, 3)
+    e = problem(name, 3)
     bg, pomdp = Heuristic(e, "bg"), Heuristic(e, "pomdp")
     look, depth = lookahead_bound(e)
     assert depth == 3 and pomdp.root == pytest.approx(look, abs=1e-9)
@@ -78,7 +75,7 @@ def exhaustive_or_published(name):
 
 
 def test_joint_rules_list_every_pair_of_own_rules():
-    e = env("broadcastChannel", 2)
+    e = problem("broadcastChannel", 2)
     rules = joint_rules(e)
     assert rules.shape == ((e.num_actions**e.num_obs) ** 2, e.num_obs**2) and len({tuple(r) for r in rules}) == 16
 
@@ -123,7 +120,7 @@ def test_cyclic_building_blocks():
 
 
 def test_values_in_chunks_are_the_whole_batchs(monkeypatch):
-    e = TabularDecPOSMDP.from_problem("recycling", gamma=0.9)
+    e = problem("recycling", gamma=0.9)
     base = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
     joint = with_agent(base, 0, *every_controller(2, e.num_actions, e.num_obs))  # 144 controllers
     whole = exact_value(e, joint, horizon=math.inf)
@@ -132,7 +129,7 @@ def test_values_in_chunks_are_the_whole_batchs(monkeypatch):
 
 
 def test_ascent_never_loses_value_and_reaches_a_best_response_among_small_controllers():
-    e = TabularDecPOSMDP.from_problem("broadcastChannel", gamma=0.9)
+    e = problem("broadcastChannel", gamma=0.9)
     start = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
     v0 = exact_value(e, start).item()
     c, v, rounds = ascend(e, start, v0, num_nodes=2)
@@ -152,7 +149,7 @@ def test_solve_proves_small_rows_and_its_infinite_horizon_is_seeded():
     assert (
         a.value == b.value
         and a.values == b.values
-        and a.value <= upper_bounds(env("broadcastChannel", math.inf, 0.9)).best
+        and a.value <= upper_bounds(problem("broadcastChannel", math.inf, 0.9)).best
     )
     assert not a.proven and a.value > 5.0
 
@@ -165,8 +162,8 @@ def test_errors_name_the_argument():
     with pytest.raises(ValueError, match="exact_seconds"):
         solve("dectiger", 2, exact_seconds=-1.0)
     with pytest.raises(ValueError, match="env: GMAA\\* needs a finite horizon"):
-        GMAA(TabularDecPOSMDP.from_problem("dectiger", gamma=0.9))
+        GMAA(problem("dectiger", gamma=0.9))
     with pytest.raises(TypeError, match="env: expected a TabularDecPOSMDP"):
         GMAA("dectiger")
     with pytest.raises(ValueError, match="kind: expected 'bg' or 'pomdp'"):
-        Heuristic(env("dectiger", 2), "mdp")
+        Heuristic(problem("dectiger", 2), "mdp")

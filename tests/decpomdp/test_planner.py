@@ -19,6 +19,7 @@ from decpomdp.search.moves import Neighbourhood, grow
 from decpomdp.search.racing import duel, race
 from decpomdp.search.scoring import reachable
 
+from planner_settings import exact, tiny
 from tiny_problems import DEC_TIGER_OPTIMUM, dec_tiger
 
 
@@ -179,23 +180,18 @@ def test_planner_reaches_the_dec_tiger_optimum(seed):
     # With these settings every one of seeds 0-39 reaches it (with 50 samples per iteration and patience 1,
     # only about half do: the claim is about the settings, not a lucky seed)
     env = dec_tiger(3)
-    cfg = PlannerConfig(
+    cfg = exact(
         phases=("ce", "ls"),
-        budget=10**9,
         patience=3,
         num_nodes=7,
         start_nodes=3,
         ce_iterations=20,
         ce_samples=200,
-        ce_screen_rollouts=0,
-        ce_rollouts=2,
         ce_elites=10,
         ce_memory=2,
         ls_chain=2,
         ls_candidates=5000,
         ls_stages=((2, 8),),
-        duel_rollouts=2,
-        edge_rate=0.0,
     )
     res = plan(ExactScorer(env), cfg, seed=seed)
     assert res.value == pytest.approx(exact_value(env, res.best).item())
@@ -226,30 +222,6 @@ def test_visits_by_hand(toy_env):
     assert mean.item() == pytest.approx(ret) and se.item() < 1e-12  # every rollout alike
 
 
-def small_config(**changes):
-    base = PlannerConfig(
-        budget=6_000,
-        patience=1,
-        num_nodes=4,
-        start_nodes=2,
-        grow_nodes=1,
-        ce_iterations=2,
-        ce_samples=12,
-        ce_screen_rollouts=4,
-        ce_screen_keep=0.5,
-        ce_rollouts=8,
-        ce_elites=3,
-        ce_memory=2,
-        ls_chain=1,
-        ls_candidates=40,
-        ls_stages=((4, 0.5), (8, 2)),
-        ls_patience=1,
-        duel_rollouts=50,
-        visit_rollouts=20,
-    )
-    return dataclasses.replace(base, **changes)
-
-
 def toy_scorer(toy_env, shared=False):
     return RolloutScorer(
         toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=10.0, exponential=(0, 1), rate=1.0), shared=shared
@@ -257,7 +229,7 @@ def toy_scorer(toy_env, shared=False):
 
 
 def test_seeded_determinism_and_budget(toy_env):
-    cfg = small_config(budget=8_000, patience=100)
+    cfg = tiny(budget=8_000, patience=100)
     a = plan(toy_scorer(toy_env), cfg, seed=5)
     b = plan(toy_scorer(toy_env), cfg, seed=np.int64(5))
     assert a.history == b.history and torch.equal(a.best.next_node, b.best.next_node)
@@ -306,7 +278,7 @@ class Recorder(Interrupt):
 @pytest.mark.parametrize("at, reactive", [(1, False), (3, False), (9, False), (20, False), (3, True), (9, True)])
 def test_checkpoint_resume_equals_uninterrupted(tmp_path, toy_env, at, reactive):
     # before any checkpoint, in the cold cross-entropy phase, later; a reactive phase's tied state too
-    cfg = small_config(ce_reactive=reactive, start_nodes=3 if reactive else 2)
+    cfg = tiny(ce_reactive=reactive, start_nodes=3 if reactive else 2)
     full = plan(Interrupt(toy_scorer(toy_env), 10**9), cfg, seed=3)
     ckpt = tmp_path / "plan.safetensors"
     with pytest.raises(KeyboardInterrupt):
@@ -333,9 +305,7 @@ def record_argument(monkeypatch, module, argument: str) -> list:
 
 def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
     asked = record_argument(monkeypatch, local_search, "candidates")
-    cfg = small_config(
-        budget=20_000, patience=3, ls_patience=2, ls_candidates=30, ls_candidates_first=10, ls_lookahead=0
-    )
+    cfg = tiny(budget=20_000, patience=3, ls_patience=2, ls_candidates=30, ls_candidates_first=10, ls_lookahead=0)
     res = plan(toy_scorer(toy_env), cfg, seed=1)
     expected, before = [], None  # before: whether the previous local-search step was accepted (None: a phase starts)
     for phase, accepted in zip(res.history["phase"], res.history["accepted"]):
@@ -349,10 +319,10 @@ def test_a_step_after_a_failed_one_races_more_moves(toy_env, monkeypatch):
 
 def test_a_lookahead_starts_only_where_the_budget_has_room_for_it(toy_env, monkeypatch):
     calls = record_argument(monkeypatch, lookahead, "width")
-    roomy = plan(toy_scorer(toy_env), small_config(budget=60_000, ls_lookahead=2), seed=0)
+    roomy = plan(toy_scorer(toy_env), tiny(budget=60_000, ls_lookahead=2), seed=0)
     assert calls and set(calls) == {2} and roomy.rollouts < 60_000 + 30_000
     calls.clear()
-    plan(toy_scorer(toy_env), small_config(budget=6_000, ls_lookahead=50), seed=0)
+    plan(toy_scorer(toy_env), tiny(budget=6_000, ls_lookahead=50), seed=0)
     assert not calls  # 51 local-search steps of room never fit in 6000 rollouts
 
 
@@ -361,22 +331,17 @@ def test_warm_start_plans_from_init_and_never_worsens_it_under_exact_values():
     # the incumbent) keep the incumbent unless a challenger beats it: under exact scores, never worse than init
     env = dec_tiger(3)
     g = torch.Generator().manual_seed(1)
-    cfg = PlannerConfig(
+    cfg = exact(
         phases=("ls", "ce"),
-        budget=10**9,
         patience=1,
         num_nodes=5,
         ce_iterations=3,
         ce_samples=40,
-        ce_screen_rollouts=0,
-        ce_rollouts=2,
         ce_elites=5,
         ce_memory=1,
         ls_chain=1,
         ls_candidates=300,
         ls_stages=((2, 4),),
-        duel_rollouts=2,
-        edge_rate=0.0,
     )
     for _ in range(3):
         init = JointController(
@@ -397,23 +362,23 @@ def test_warm_start_errors_and_fingerprint(tmp_path, toy_env):
     scorer = toy_scorer(toy_env)
     good = JointController(torch.zeros(1, 2, 2, dtype=torch.long), torch.zeros(1, 2, 2, 2, dtype=torch.long))
     with pytest.raises(TypeError, match="init: expected a JointController"):
-        plan(scorer, small_config(), init="greedy")
+        plan(scorer, tiny(), init="greedy")
     with pytest.raises(ValueError, match=r"init: expected one controller of 2 agents, at most 4 nodes"):
         plan(
             scorer,
-            small_config(),
+            tiny(),
             init=JointController(torch.zeros(1, 2, 5, dtype=torch.long), torch.zeros(1, 2, 5, 2, dtype=torch.long)),
         )
     with pytest.raises(ValueError, match="init: expected one controller of 2 agents"):
-        plan(scorer, small_config(), init=good[0:1].__class__(good.action[:, :1], good.next_node[:, :1]))
+        plan(scorer, tiny(), init=good[0:1].__class__(good.action[:, :1], good.next_node[:, :1]))
     with pytest.raises(ValueError, match=r"init: actions must lie in \[0, 3\)"):
         plan(
             scorer,
-            small_config(),
+            tiny(),
             init=JointController(torch.full((1, 2, 2), 3), torch.zeros(1, 2, 2, 2, dtype=torch.long)),
         )
     ckpt = tmp_path / "warm.safetensors"
-    cfg = small_config(budget=2000)
+    cfg = tiny(budget=2000)
     a = plan(toy_scorer(toy_env), cfg, seed=3, checkpoint=ckpt, init=good)
     b = plan(toy_scorer(toy_env), cfg, seed=3, init=good)
     assert a.history == b.history  # seeded determinism from a warm start
@@ -438,7 +403,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path, toy_env, change, field):
 
     def run(seed=3, config=None, horizon=10.0, shared=False):
         env = toy_env(durations=(1.0, 2.0, 3.0), gamma=0.9, horizon=horizon, exponential=(0, 1), rate=1.0)
-        cfg = dataclasses.replace(small_config(budget=2000), **(config or {}))
+        cfg = dataclasses.replace(tiny(budget=2000), **(config or {}))
         return plan(Interrupt(RolloutScorer(env, shared=shared), 10**9), cfg, seed=seed, checkpoint=ckpt)
 
     run()
@@ -497,9 +462,9 @@ def test_plan_argument_errors(toy_env):
     with pytest.raises(TypeError, match="config"):
         plan(toy_scorer(toy_env), {"budget": 10})
     with pytest.raises(TypeError, match="scorer"):
-        plan(lambda c, r, g: None, small_config())
+        plan(lambda c, r, g: None, tiny())
     with pytest.raises(TypeError, match="seed"):
-        plan(toy_scorer(toy_env), small_config(), seed="0")
+        plan(toy_scorer(toy_env), tiny(), seed="0")
     with pytest.raises(TypeError, match="env"):
         RolloutScorer("package delivery")
 
@@ -543,7 +508,7 @@ def test_reactive_cross_entropy_ties_the_edges(toy_env):
     )
     for reactive in (True, False):  # a planner of cross-entropy phases only samples reactive controllers iff asked
         scorer = Recorder(toy_scorer(toy_env))
-        plan(scorer, small_config(phases=("ce",), ce_reactive=reactive, start_nodes=3, ce_iterations=3), seed=1)
+        plan(scorer, tiny(phases=("ce",), ce_reactive=reactive, start_nodes=3, ce_iterations=3), seed=1)
         tied = [bool((c.next_node == c.next_node[:, :, :1]).all()) for c in scorer.scored]
         assert all(tied) == reactive and len(tied) > 9 and any(tied) == reactive  # cold and warm phases
 

@@ -11,7 +11,7 @@ import torch
 from decpomdp import simulate
 from decpomdp.domains import PackageDelivery, rollout_counters
 from decpomdp.domains import package_delivery as pd
-from decpomdp.domains.package_delivery import batched
+from decpomdp.domains.package_delivery import domain
 
 from test_package_delivery import cycle, discounted, exact  # noqa: F401 (exact is a fixture)
 
@@ -64,7 +64,7 @@ def test_the_first_ma_follows_go_to_base1(exact):
 
 
 def test_successor_table_matches_the_reference():
-    allowed = batched._SUCCESSOR.view(13, 13).bool()
+    allowed = domain._SUCCESSOR.view(13, 13).bool()
     assert allowed.sum().item() == sum(len(v) for v in pd.REFERENCE_SUCCESSORS.values()) == 31
     assert allowed[pd.WAIT].nonzero().squeeze(1).tolist() == [pd.WAIT]
     assert allowed[pd.PICK].nonzero().squeeze(1).tolist() == [pd.GO_R, pd.GO_D1, pd.GO_D2]

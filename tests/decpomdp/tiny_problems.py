@@ -1,6 +1,9 @@
-"""Dec-Tiger (Nair et al., 2003), the shipped ``dectiger.dpomdp``, at a finite horizon, and its optimal values."""
+"""The small problems the decpomdp tests share: the shipped ``.dpomdp`` files at a chosen horizon and discount,
+Dec-Tiger (Nair et al., 2003) and its optimal values."""
 
 from __future__ import annotations
+
+import math
 
 from decpomdp.dpomdp import TabularDecPOSMDP
 
@@ -8,6 +11,11 @@ from decpomdp.dpomdp import TabularDecPOSMDP
 DEC_TIGER_OPTIMUM = {2: -4.0, 3: 5.190812, 4: 4.802755}
 
 
-def dec_tiger(horizon: int, gamma: float = 1.0) -> TabularDecPOSMDP:
+def problem(name: str, horizon: float = math.inf, gamma: float = 1.0) -> TabularDecPOSMDP:
+    """The shipped problem ``name`` with ``horizon`` steps (``inf``: infinite) and discount ``gamma``."""
+    return TabularDecPOSMDP.from_problem(name, gamma=gamma, horizon=horizon)
+
+
+def dec_tiger(horizon: float, gamma: float = 1.0) -> TabularDecPOSMDP:
     """Dec-Tiger with ``horizon`` steps."""
-    return TabularDecPOSMDP.from_problem("dectiger", gamma=gamma, horizon=horizon)
+    return problem("dectiger", horizon, gamma)

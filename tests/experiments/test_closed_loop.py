@@ -10,10 +10,11 @@ from omegaconf import OmegaConf
 
 import hbni_pyro
 from decpomdp.domains.disaster_relief import greedy_controller
-from experiments.paths import project_root
+from experiments.runs.paths import project_root
+from experiments.schemas.mission_study import BootstrapBlock
 from experiments.steps import closed_loop
 from experiments.steps.planning import score
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 M, FRAMES = 6, 12
 
@@ -91,7 +92,7 @@ def test_stream_stderr_sees_how_much_the_sequences_differ(repo_root):
     alike = streams.reshape(M, 8, FRAMES, M)[:, :1].expand(M, 8, FRAMES, M)
     mixed = streams.reshape(M, 8, FRAMES, M).clone()
     mixed[:, :4] = mixed[:, :4].roll(1, dims=-1)  # class c's outputs point at class c + 1 in sequences 0-3
-    boot = closed_loop.Bootstrap(replicates=12, rollouts=300)
+    boot = BootstrapBlock(replicates=12, rollouts=300)
     ctrl, domain = greedy_controller(2), _domain(repo_root)
     rollout_se = score(
         instantiate(domain, perception=hbni_pyro.tabulate(process, *closed_loop.as_streams(alike))), ctrl, 300, seed=0
@@ -215,21 +216,20 @@ def test_report_pieces_and_acceptance():
     ],
 )
 def test_bad_loop_settings_fail_before_any_work(override, message):
-    from experiments.schemas import check_config, compose_config
+    from experiments.schemas import build_settings, compose_config
 
     cfg = compose_config(["experiment=mission", override])
     with pytest.raises(ValueError, match=re.escape(message)):
-        check_config(cfg)
+        build_settings(cfg)
 
 
 def test_loop_settings_are_read_from_the_mission_config():
-    from experiments.schemas import compose_config
+    from experiments.schemas import compose_settings
 
-    full = compose_config(["experiment=mission_full", "mission.planning_model=generative"])
-    loop = closed_loop.read_loop_settings(full)
-    assert loop.planning_model == "generative" and loop.bank_sequences == 128 and loop.workers == 2
+    loop = compose_settings(["experiment=mission_full", "mission.planning_model=generative"]).mission
+    assert loop.planning_model == "generative" and loop.bank.sequences == 128 and loop.bank.workers == 2
     assert (
-        loop.bootstrap == closed_loop.Bootstrap(64, 4000) and loop.cache_dir == project_root() / ".cache" / "banks"
+        loop.bootstrap == BootstrapBlock(64, 4000) and loop.bank.cache_path == project_root() / ".cache" / "banks"
     )  # the project's, from anywhere
 
 
@@ -249,7 +249,7 @@ def test_stream_stderr_removes_the_rollout_noise_without_bias(repo_root):
 
     estimates = []
     for replicates, rollouts in ((400, 20), (100, 20_000)):
-        se = closed_loop.stream_stderr(ctrl, of, 16, 16, domain, closed_loop.Bootstrap(replicates, rollouts), seed=2)
+        se = closed_loop.stream_stderr(ctrl, of, 16, 16, domain, BootstrapBlock(replicates, rollouts), seed=2)
         rollout_var = score(instantiate(domain, perception=pool), ctrl, rollouts, seed=3)["stderr"] ** 2
         estimates.append((se**2, math.sqrt(2 / (replicates - 1)) * (se**2 + rollout_var), rollout_var))
     (few, few_se, few_noise), (many, many_se, many_noise) = estimates

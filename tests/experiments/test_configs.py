@@ -1,7 +1,7 @@
 """Every experiment config composes against its typed schema; bad values fail before any work, naming the key.
 
 Type errors and unknown keys fail while Hydra composes; ranges (and keys added with ``+``) fail in
-``check_config``, which ``experiments.run`` calls before the experiment starts.
+``build_settings``, which ``experiments.run`` calls before the experiment starts.
 """
 
 from pathlib import Path
@@ -10,7 +10,7 @@ import pytest
 from hydra.errors import ConfigCompositionException
 from hydra.utils import get_method
 
-from experiments.schemas import SCHEMAS, check_config, compose_config, register
+from experiments.schemas import SCHEMAS, build_settings, compose_config, register
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
@@ -32,7 +32,7 @@ def test_experiment_config_composes_and_checks(name):
     assert callable(get_method(cfg.entry))
     assert cfg.hydra.launcher._target_.endswith("JoblibLauncher")
     assert len(cfg.headline) >= 1
-    check_config(cfg)
+    build_settings(cfg)
 
 
 # (experiment, override, the key the message names) -- a wrong type fails while composing
@@ -128,7 +128,7 @@ RANGE_ERRORS = [
 def test_an_out_of_range_value_fails_the_check_naming_the_key(name, override, message):
     cfg = _compose(f"experiment={name}", override)
     with pytest.raises(ValueError) as info:
-        check_config(cfg)
+        build_settings(cfg)
     assert str(info.value).startswith(message), str(info.value)
 
 
@@ -183,7 +183,7 @@ def test_the_yaml_is_the_only_place_for_defaults():
 
 def test_a_block_set_to_null_is_not_searched_for_unread_settings():
     """``mission.conditions=null`` (a block set to null) is a setting like any other, not a crash of the check."""
-    from experiments.schemas import check_overrides
+    from experiments.schemas import check_overrides, typed_settings
 
     overrides = [
         "experiment=mission",
@@ -192,4 +192,4 @@ def test_a_block_set_to_null_is_not_searched_for_unread_settings():
         "mission.temper=0.5",
         "mission.conditions=null",
     ]
-    check_overrides(_compose(*overrides), overrides)
+    check_overrides(typed_settings(_compose(*overrides)), overrides)

@@ -13,12 +13,21 @@ from omegaconf import OmegaConf
 from decpomdp import JointController
 from decpomdp.dpomdp import TabularDecPOSMDP
 from decpomdp.dpomdp.exhaustive import exhaustive_optimum
-from experiments.dpomdp_benchmarks import build_rows, fraction_of_optimum
-from experiments.schemas import gdice_node
+from experiments.schemas import build_settings, compose_config
+from experiments.studies.dpomdp_benchmarks import build_rows, fraction_of_optimum
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = OmegaConf.load(REPO / "conf" / "experiment" / "dpomdp_benchmarks.yaml")
-PLANNER = OmegaConf.create(gdice_node())
+
+
+def _rows(row: str | None = None, key: str | None = None, value=None) -> list:
+    """``build_rows`` on the experiment's settings, built from its composed config with ``study.rows.<row>.<key>``
+    set to ``value`` (as a run builds them: the schema checks every row, then the rows' planners are built)."""
+    plain = OmegaConf.to_container(compose_config(["experiment=dpomdp_benchmarks"]), resolve=False)
+    if row is not None:
+        plain["study"]["rows"][row][key] = value
+    settings = build_settings(OmegaConf.create(plain))
+    return build_rows(settings.study, settings.planner)
 
 
 SMOKE_ROWS = ["dectiger_h2", "broadcast_h4", "firefighting_h2", "firefighting_h4_monte_carlo", "broadcast_inf"]
@@ -87,23 +96,19 @@ def test_fraction_of_optimum():
         ("gamma", 1.5, "study.rows.dectiger_h2.gamma"),
         ("horizon", 2.5, "study.rows.dectiger_h2.horizon"),
         ("evaluator", "guess", "study.rows.dectiger_h2.evaluator"),
-        ("colour", "red", r"study.rows.dectiger_h2: unknown keys \['colour'\]"),
+        ("colour", "red", r"study.rows.dectiger_h2.colour: Key 'colour' not in 'BenchmarkRow'"),
         ("gdice", {"num_nodes": 3, "layer_width": 5}, "study.rows.dectiger_h2.gdice"),
     ],
 )
 def test_config_errors_name_the_key_before_any_work(key, value, message):
-    study = OmegaConf.create(OmegaConf.to_container(CONFIG.study))
-    study.rows.dectiger_h2[key] = value
     with pytest.raises(ValueError, match=message):
-        build_rows(study, PLANNER)
+        _rows("dectiger_h2", key, value)
 
 
 def test_infinite_rows_need_a_discount():
-    study = OmegaConf.create(OmegaConf.to_container(CONFIG.study))
-    study.rows.recycling_inf.gamma = 1.0
     with pytest.raises(ValueError, match="study.rows.recycling_inf.horizon: null"):
-        build_rows(study, PLANNER)
-    assert all(math.isfinite(cfg.ce_alpha) for _, cfg, _ in build_rows(CONFIG.study, PLANNER))
+        _rows("recycling_inf", "gamma", 1.0)
+    assert all(math.isfinite(config.ce_alpha) for _, config, _ in _rows())
 
 
 @pytest.mark.parametrize(
@@ -121,8 +126,8 @@ def test_infinite_rows_need_a_discount():
 )
 def test_composed_config_fails_naming_the_key(override, message):
     """The typed schema rejects a bad row when the config is composed and checked, before the run starts."""
-    from experiments.schemas import check_config, compose_config
+    from experiments.schemas import build_settings, compose_config
 
     cfg = compose_config(["experiment=dpomdp_benchmarks", override])
     with pytest.raises(ValueError, match=message):
-        check_config(cfg)
+        build_settings(cfg)

@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 import hbni_pyro
-from experiments import figures, mission_report
+from experiments.reports import figures, mission_report
 from experiments.steps import closed_loop
 
 

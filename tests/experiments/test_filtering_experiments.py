@@ -10,11 +10,9 @@ import torch
 import yaml
 from experiment_runs import run_experiment
 
-from experiments.filtering_error import first_crossing, wilson_bounds
-from experiments.schemas import compose_config
-from experiments.filtering_error import run as run_filtering
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.macro import MacroObservationModel
+from experiments.schemas import compose_config, compose_settings
+from experiments.studies.filtering_error import first_crossing, run as run_filtering, wilson_bounds
+from hbni_pyro import HBNIPosterior, MacroObservationModel
 
 TINY_FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=40", "hbni.fit.warmup_steps=40", "progress=false"]
 TINY_FILTERING = [
@@ -30,7 +28,7 @@ TINY_FILTERING = [
 @pytest.mark.parametrize("name", ["filtering_error", "macro_observation"])
 def test_configs_compose_with_the_hbni_group(name):
     cfg = compose_config([f"experiment={name}", "hbni.filter.mode=plugin"])
-    assert cfg.name == name and cfg.entry == f"experiments.{name}.run"
+    assert cfg.name == name and cfg.entry == f"experiments.studies.{name}.run"
     assert cfg.hbni.filter.mode == "plugin" and cfg.hbni.fit.method == "mh"
     assert list(cfg.study.true_theta) == [1.0, 6.0, 20.0]
     if name == "filtering_error":
@@ -116,9 +114,9 @@ def test_sweep_over_filter_mode_runs_both_jobs_with_joblib(tmp_path, repo_root):
 
 def test_filtering_error_is_a_function_of_the_seed(tmp_path):
     def metrics(seed, sub):
-        cfg = compose_config(["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING])
+        settings = compose_settings(["experiment=filtering_error", f"seed={seed}", *TINY_FILTERING])
         (tmp_path / sub).mkdir()
-        return run_filtering(cfg, tmp_path / sub)
+        return run_filtering(settings, tmp_path / sub)
 
     a, b, c = metrics(3, "a"), metrics(3, "b"), metrics(4, "c")
     for size in (15, 30):

@@ -7,7 +7,7 @@ import torch
 
 import hbni_pyro
 from experiments.steps import honesty
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 M, FRAMES = 4, 10
 
@@ -35,7 +35,7 @@ def test_a_table_of_the_banks_own_streams_passes():
     process = _process()
     streams, truth = _streams(3.0, 40, seed=0)
     replay = hbni_pyro.StreamReplay(process, streams, truth)
-    check = honesty.distribution_check(hbni_pyro.tabulate(process, streams, truth), replay, None, seed=0)
+    check = honesty.distribution_test(hbni_pyro.tabulate(process, streams, truth), replay, None, seed=0)
     assert check["passed"]
     for e in check["classes"]:
         assert e["accuracy_p"] == pytest.approx(1.0, abs=1e-3) and e["frames_p"] == pytest.approx(1.0, abs=1e-3)
@@ -49,7 +49,7 @@ def test_an_optimistic_table_fails():
     clean, clean_truth = _streams(12.0, 400, seed=1)
     table = hbni_pyro.tabulate(process, clean, clean_truth)
     noisy, truth = _streams(2.0, 40, seed=2)
-    check = honesty.distribution_check(table, hbni_pyro.StreamReplay(process, noisy, truth), None, seed=0)
+    check = honesty.distribution_test(table, hbni_pyro.StreamReplay(process, noisy, truth), None, seed=0)
     assert not check["passed"]
     assert sum(not e["passed"] for e in check["classes"]) == M
 
@@ -71,7 +71,7 @@ def test_level_of_the_class_test(table_streams):
             table_acc = float((torch.rand(table_streams, generator=g) < acc).double().mean())
         right = torch.rand(n, generator=g) < acc
         frames = torch.multinomial(pmf, n, replacement=True, generator=g) + 1
-        e = honesty.class_check(table_pmf, table_acc, right, frames, table_streams, 500, g)
+        e = honesty.class_test(table_pmf, table_acc, right, frames, table_streams, 500, g)
         for key in rejected:
             rejected[key] += e[key] < 0.05
     bound = 0.05 + 3 * math.sqrt(0.05 * 0.95 / reps)
@@ -124,7 +124,7 @@ def test_distribution_check_rejects_a_table_of_other_classes():
         torch.full((3, 3, FRAMES), 1 / (3 * FRAMES), dtype=torch.float64), torch.zeros(3)
     )
     with pytest.raises(ValueError, match="replay: expected 3 classes"):
-        honesty.distribution_check(table, hbni_pyro.StreamReplay(process, streams, truth), None, seed=0)
+        honesty.distribution_test(table, hbni_pyro.StreamReplay(process, streams, truth), None, seed=0)
 
 
 def test_reliability_figure_draws_every_process(tmp_path):
@@ -145,8 +145,8 @@ def test_a_table_with_no_error_in_its_streams_is_a_sample_not_a_certainty():
     frames = torch.ones(n, dtype=torch.long)
     pmf = torch.tensor([1.0, 0.0], dtype=torch.float64)
     g = torch.Generator().manual_seed(0)
-    sample = honesty.class_check(pmf, 1.0, right, frames, m, replicates, g)["accuracy_p"]
-    exact = honesty.class_check(pmf, 1.0, right, frames, None, replicates, g)["accuracy_p"]
+    sample = honesty.class_test(pmf, 1.0, right, frames, m, replicates, g)["accuracy_p"]
+    exact = honesty.class_test(pmf, 1.0, right, frames, None, replicates, g)["accuracy_p"]
     p0 = torch.tensor((m + n - 1) / (m + n), dtype=torch.float64)
     bank = torch.distributions.Binomial(n, p0).log_prob(torch.arange(n + 1, dtype=torch.float64)).exp()
     table = torch.distributions.Binomial(m, p0).log_prob(torch.arange(m + 1, dtype=torch.float64)).exp()

@@ -90,7 +90,7 @@ def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
     args = [
         "experiment=hbni_toy",
         f"hydra.run.dir={tmp_path}",
-        "entry=experiments.hbni_toy.no_such_study",
+        "entry=experiments.studies.hbni_toy.no_such_study",
         "progress=false",
     ]  # fails once started
     proc = run_experiment(args, repo_root, check=False)
@@ -100,7 +100,7 @@ def test_a_failed_run_is_marked_and_refused(tmp_path, repo_root):
     with pytest.raises(ValueError, match="(?s)failed .*no_such_study.*pass allow_incomplete=True"):
         load_run(tmp_path)
     run = load_run(tmp_path, allow_incomplete=True)
-    assert run.metrics == {} and run.cfg.entry == "experiments.hbni_toy.no_such_study"
+    assert run.metrics == {} and run.cfg.entry == "experiments.studies.hbni_toy.no_such_study"
 
 
 def test_an_unfinished_run_is_refused(toy_run, tmp_path):

@@ -7,7 +7,7 @@ import pytest
 from experiment_runs import run_experiment
 from new_place_tiny import TINY_NEW_PLACE
 
-from experiments.schemas import check_config, compose_config
+from experiments.schemas import compose_settings
 from hbni_pyro import HBNIPosterior
 
 
@@ -65,4 +65,4 @@ def test_new_place_writes_every_variant_acceptance_and_report(new_place_run):
 )
 def test_new_place_config_is_checked(override, message):
     with pytest.raises(ValueError, match=message):
-        check_config(compose_config(["experiment=new_place", override]))
+        compose_settings(["experiment=new_place", override])

@@ -12,8 +12,8 @@ import torch
 from experiment_runs import run_experiment
 
 from classifiers.data import render_images, render_sequence
-from experiments.artifacts import load_run
-from experiments.schemas import check_config, compose_config
+from experiments.runs.artifacts import load_run
+from experiments.schemas import build_settings, compose_config, compose_settings
 from experiments.steps.noise import fit_labelled
 from hbni_pyro import HBNIPosterior
 
@@ -176,13 +176,13 @@ def test_a_user_image_folder_beside_the_photographs_without_the_mission_conditio
 )
 def test_bad_settings_fail_before_any_work(override, match):
     with pytest.raises(ValueError, match=match):
-        check_config(compose_config(["experiment=noise_models", override]))
+        build_settings(compose_config(["experiment=noise_models", override]))
 
 
 @pytest.mark.parametrize("experiment", ["mission", "perception_replay"])
 @pytest.mark.parametrize("model", ["confusion", "sequence"])
 def test_one_key_switches_the_noise_model_of_the_mission_and_the_replay(experiment, model):
-    cfg = compose_config(
+    settings = compose_settings(
         [
             f"experiment={experiment}",
             f"hbni.model={model}",
@@ -191,10 +191,9 @@ def test_one_key_switches_the_noise_model_of_the_mission_and_the_replay(experime
             "hbni.fit.warmup_steps=20",
         ]
     )
-    check_config(cfg)
     g = torch.Generator().manual_seed(0)
     outputs = torch.softmax(
         torch.randn(3, 2, 4, 3, generator=g, dtype=torch.float64) + 2 * torch.eye(3)[:, None, None], -1
     )
-    post = fit_labelled(outputs, cfg.hbni, seed=0, progress=False)
+    post = fit_labelled(outputs, settings.hbni, seed=0, progress=False)
     assert post.model == model and post.num_classes == 3

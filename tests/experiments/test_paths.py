@@ -5,8 +5,8 @@ import os
 from pathlib import Path
 
 from experiments import latest_run
-from experiments.paths import project_root
-from experiments.schemas import check_config, compose_config
+from experiments.runs.paths import project_root
+from experiments.schemas import build_settings, compose_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -21,7 +21,7 @@ def test_defaults_resolve_against_the_working_directory(tmp_path, monkeypatch):
     here = tmp_path.resolve()
     assert project_root() == here
     cfg = _compose("experiment=mission")
-    check_config(cfg)
+    build_settings(cfg)
     assert cfg.paths.root == str(here) and cfg.mission.bank.cache_dir == str(here / ".cache" / "banks")
     assert cfg.hydra.run.dir.startswith(str(here / "outputs" / "mission"))
     assert cfg.hydra.sweep.dir.startswith(str(here / "multirun" / "mission"))

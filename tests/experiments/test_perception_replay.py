@@ -7,7 +7,7 @@ import json
 from experiment_runs import run_experiment
 
 from classifiers import FrameClassifier
-from experiments.artifacts import load_run
+from experiments.runs.artifacts import load_run
 
 
 def test_perception_replay_smoke(tmp_path, repo_root):

@@ -9,7 +9,7 @@ from omegaconf import OmegaConf
 
 from classifiers import FrameClassifier
 from classifiers.data import get_conditions, render_sequence
-from experiments.steps.perception import sequence_outputs, train_classifier
+from experiments.steps.classification import sequence_outputs, train_classifier
 
 CLASSES = ["ambulance", "police_car", "food_crate"]
 

@@ -14,7 +14,7 @@ from hydra.errors import ConfigCompositionException
 from classifiers import FrameClassifier
 from classifiers.data import render_images, render_sequence
 from classifiers.sources import open_source
-from experiments.schemas import check_config, compose_config
+from experiments.schemas import build_settings, compose_config
 from classifiers import classify_frames
 from hbni_pyro import macro_observations
 
@@ -157,7 +157,7 @@ def test_bad_settings_are_clear_errors(saved, override, message):
     """Checked against the stream's schema before anything is loaded, naming the key."""
     cfg = compose_config(_args(saved, "unused")[:-2] + [override])
     with pytest.raises(ValueError, match=re.escape(message)):
-        check_config(cfg)
+        build_settings(cfg)
 
 
 def test_a_wrong_type_fails_while_composing(saved):
@@ -166,15 +166,15 @@ def test_a_wrong_type_fails_while_composing(saved):
 
 
 def test_without_a_mission_run_the_default_run_is_a_clear_error(saved, tmp_path, monkeypatch):
-    from experiments.stream import read_settings
+    from experiments.studies.stream import read_settings
 
     cfg = compose_config(_args(saved, "unused")[:-2] + ["stream.classifier=null"])
-    check_config(cfg)  # run=latest is found when the stream starts
+    build_settings(cfg)  # run=latest is found when the stream starts
     monkeypatch.setenv("HBNI_PYRO_ROOT", str(tmp_path))
     with pytest.raises(
         FileNotFoundError, match=f"stream.run: no completed 'mission' run under '{tmp_path / 'outputs' / 'mission'}'"
     ):
-        read_settings(cfg)
+        read_settings(build_settings(cfg))
 
 
 def test_classes_that_are_not_the_posteriors_are_a_clear_error(tmp_path, saved, repo_root):

@@ -16,7 +16,7 @@ from experiment_runs import run_experiment
 
 from classifiers.bags import BagSource, write_image_bag
 from decpomdp import JointController
-from experiments.schemas import check_config, compose_config
+from experiments.schemas import build_settings, compose_config
 from hbni_infra import ros
 from test_stream import CLASSES, PER_CLASS, _args, saved  # noqa: F401 (saved is a fixture)
 
@@ -154,14 +154,13 @@ def _check_with_mcap(path, records, expected):
 
 
 def test_a_wrong_topic_fails_naming_the_bags_image_topics(tmp_path, saved, recorded):  # noqa: F811
-    from experiments.stream import run
+    from experiments.studies.stream import run
 
-    cfg = _compose(saved, [f"stream.source={recorded['bag']}", "stream.topic=/camera/depth"])
-    check_config(cfg)
+    settings = build_settings(_compose(saved, [f"stream.source={recorded['bag']}", "stream.topic=/camera/depth"]))
     with pytest.raises(
         ValueError, match=re.escape("has no topic '/camera/depth'; its image topics: ['/camera/image_raw']")
     ):
-        run(cfg, tmp_path)
+        run(settings, tmp_path)
     assert not (tmp_path / "macro_observations").exists()
 
 
@@ -187,13 +186,13 @@ def test_bad_ros_settings_are_clear_errors(saved, recorded, extra, message):  # 
     extra = [e.replace("BAG", str(recorded["bag"])).replace("CONTROLLER", str(recorded["controller"])) for e in extra]
     cfg = _compose(saved, extra)
     with pytest.raises(ValueError, match=re.escape(message)):
-        check_config(cfg)
+        build_settings(cfg)
 
 
 def test_the_ros_page_runs_as_written(tmp_path, saved, repo_root):  # noqa: F811
     """docs/ros.md: its Python blocks run as a reader pastes them (the second after experiment=stream on the bag
     the first writes), and the message definitions it shows are the registered ones."""
-    from hbni_pyro.ros import DEFINITIONS
+    from hbni_pyro.runtime import DEFINITIONS
 
     page = (repo_root / "docs" / "ros.md").read_text()
     for name, text in DEFINITIONS:

@@ -14,9 +14,10 @@ import pytest
 
 from classifiers.bags import BagSource
 from experiments import ros_node
-from experiments.stream import run
+from experiments.schemas import build_settings
+from experiments.studies.stream import run
 from hbni_infra import ros
-from hbni_pyro.ros import typestore
+from hbni_pyro.runtime import typestore
 from test_stream import CLASSES, saved  # noqa: F401 (saved is a fixture)
 from test_stream_ros import _compose, recorded  # noqa: F401 (recorded is a fixture)
 
@@ -73,7 +74,7 @@ def test_the_node_publishes_what_the_stream_writes_to_its_bag(tmp_path, saved, r
             "stream.batch=1",
         ],
     )
-    run(cfg, tmp_path)
+    run(build_settings(cfg), tmp_path)
     with AnyReader([tmp_path / "macro_observations"]) as reader:
         written = [(c.topic.rsplit("/", 1)[1], reader.deserialize(raw, c.msgtype)) for c, _, raw in reader.messages()]
 

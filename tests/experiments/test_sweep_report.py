@@ -4,7 +4,7 @@ import json
 
 from experiment_runs import run_experiment
 
-from experiments.report import headline_values, multirun_report
+from experiments.reports.sweep_report import headline_values, multirun_report
 
 FIT = ["hbni.fit.num_chains=2", "hbni.fit.num_samples=30", "hbni.fit.warmup_steps=30", "progress=false"]
 

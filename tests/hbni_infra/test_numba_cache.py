@@ -26,6 +26,6 @@ def test_a_changed_inlined_source_moves_the_cache(tmp_path, monkeypatch):
 
 def test_the_package_points_numba_at_its_cache():
     import decpomdp.engine  # noqa: F401
-    import hbni_pyro.kernels.class_move_numba  # noqa: F401
+    import hbni_pyro.mcmc.class_move_numba  # noqa: F401
 
     assert numba.config.CACHE_DIR == str(numba_cache.use_cache_dir()) == str(numba_cache.cache_dir())

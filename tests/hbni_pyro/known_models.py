@@ -4,7 +4,7 @@
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_dirichlet, sample_outputs, sample_sequences
+from hbni_pyro import sample_dirichlet, sample_outputs, sample_sequences
 
 DT = torch.float64
 THETA = torch.tensor([1.0, 6.0, 20.0], dtype=DT)

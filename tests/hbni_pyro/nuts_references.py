@@ -25,10 +25,9 @@ from torch import Tensor
 
 import hbni_pyro
 from hbni_infra.files import atomic_write_text
+from hbni_pyro import HyperPrior, noise_model
 from hbni_pyro.fit import _nuts_args
-from hbni_pyro.model import HyperPrior
 from hbni_pyro.validation import as_class_prior
-from hbni_pyro.variants import noise_model
 from known_models import DT, confusion_data, sequences, toy_obs
 
 PATH = Path(__file__).with_name("nuts_references.json")

@@ -7,13 +7,13 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_sequences
-from hbni_pyro.kernels.sequence_steps import SequenceState
-from hbni_pyro.kernels.shift_steps import draw_prevalence, draw_shift, relabel, slot_scores
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.posterior import posterior_from_samples
-from hbni_pyro.sequence_model import look_prior_mean, sequence_log_lik, sequence_stats
-from hbni_pyro.variants.sequence import draw_prior
+from hbni_pyro import sample_sequences
+from hbni_pyro.models.sequence.steps import SequenceState
+from hbni_pyro.models.sequence.shift_steps import draw_prevalence, draw_shift, relabel, slot_scores
+from hbni_pyro.distributions.prior import HyperPrior
+from hbni_pyro.posterior.posterior import posterior_from_samples
+from hbni_pyro.models.sequence.program import look_prior_mean, sequence_log_lik, sequence_stats
+from hbni_pyro.models.sequence import draw_prior
 
 M, D = 4, 3
 

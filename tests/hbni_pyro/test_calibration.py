@@ -6,20 +6,21 @@ import pytest
 import torch
 from hbni_stubs import DT, THETA, DrawsPosterior
 
-from hbni_pyro.calibration import (
+from hbni_pyro import (
     Fold,
+    HBNIFilter,
+    MacroObservationProcess,
+    StaticStateBayesFilter,
     binomial_stderr,
     cross_fit,
     fit_stop_threshold,
     fit_stop_unlabelled,
     reliability,
+    sample_outputs,
     stream_reliability,
     threshold_checks,
 )
-from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import MacroObservationProcess
-from hbni_pyro.testing import assert_calibrated
+from hbni_pyro.diagnostics import assert_calibrated
 
 
 def test_reliability_by_hand():
@@ -164,9 +165,9 @@ def test_stop_on_folds_pools_their_counts():
 def _sequence_place(seed: int) -> tuple[dict[str, torch.Tensor], float]:
     """Sequence-model parameters of 3 classes whose looks lie close (a place where the stop matters), and the
     AR(1) correlation of a stream's frames."""
-    from hbni_pyro.model import HyperPrior
-    from hbni_pyro.sequence_model import look_prior_mean
-    from hbni_pyro.variants.sequence import draw_prior
+    from hbni_pyro.distributions.prior import HyperPrior
+    from hbni_pyro.models.sequence.program import look_prior_mean
+    from hbni_pyro.models.sequence import draw_prior
 
     params = {k: v[0] for k, v in draw_prior(HyperPrior(), 3, 1, torch.Generator().manual_seed(seed)).items()}
     params["loc"] = look_prior_mean(3, 0.8)
@@ -174,8 +175,8 @@ def _sequence_place(seed: int) -> tuple[dict[str, torch.Tensor], float]:
 
 
 def _true_filter(params: dict[str, torch.Tensor], rho: float) -> HBNIFilter:
-    from hbni_pyro.posterior import posterior_from_samples
-    from hbni_pyro.model import HyperPrior
+    from hbni_pyro.posterior.posterior import posterior_from_samples
+    from hbni_pyro.distributions.prior import HyperPrior
 
     samples = {k: v.expand((1, 1) + v.shape).clone() for k, v in params.items()}
     posterior = posterior_from_samples(samples, torch.full((3,), 1 / 3), HyperPrior(), "sequence")
@@ -184,7 +185,7 @@ def _true_filter(params: dict[str, torch.Tensor], rho: float) -> HBNIFilter:
 
 
 def _sequence_streams(params, rho, n, g) -> tuple[torch.Tensor, torch.Tensor]:
-    from hbni_pyro.generative import sample_sequences
+    from hbni_pyro import sample_sequences
 
     truth = torch.arange(n) % 3
     return sample_sequences(params["loc"], params["between"], params["within"], truth, 20, g, rho), truth

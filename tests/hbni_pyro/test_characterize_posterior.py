@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.variants import site_shapes
+from hbni_pyro.models import site_shapes
 
 from hbni_stubs import DrawsPosterior
 

@@ -4,24 +4,19 @@ import pyro.distributions as dist
 import pytest
 import torch
 
-from hbni_pyro.density import (
+from hbni_pyro.distributions import (
     DirichletOutputs,
     IlrNormalOutputs,
     assigned_log_lik,
     class_log_lik,
     concentrations,
-    gamma_log_prob,
     helmert_basis,
     ilr,
     ilr_log_jacobian,
-    lifted_dirichlet_log_prob,
-    look_basis,
-    look_log_marginal,
-    scatter_trace,
-    within_log_prob,
 )
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.wishart import (
+from hbni_pyro import HyperPrior, gamma_log_prob, lifted_dirichlet_log_prob
+from hbni_pyro.models.sequence.looks import look_basis, look_log_marginal, scatter_trace, within_log_prob
+from hbni_pyro.models.sequence.wishart import (
     CholeskyFactorTransform,
     InvWishartCholesky,
     WishartCholesky,
@@ -59,7 +54,7 @@ def test_model_gammas_are_shape_scale():
     """Every Gamma site of the Pyro model has the shape-scale mean k*s and variance k*s**2."""
     from pyro import poutine
 
-    from hbni_pyro.model import hbni_model
+    from hbni_pyro import hbni_model
 
     hp = HyperPrior(beta=3.0, eta=2.0, nu=4.0, omega=0.5)
     obs = torch.tensor([[0.7, 0.3], [0.2, 0.8]], dtype=torch.float64)

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from hbni_pyro.evidence import SequenceEvidence
+from hbni_pyro.models import SequenceEvidence
 
 D = torch.float64
 

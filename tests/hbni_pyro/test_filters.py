@@ -9,20 +9,20 @@ import pytest
 import scipy.stats
 import torch
 
-from hbni_pyro.frame_calibration import FrameCalibration
-from hbni_pyro.filters import (
+from hbni_pyro import (
     FILTERS,
-    StaticStateBayesFilter,
+    OUTPUT_FLOOR,
+    FrameCalibration,
     HBNIFilter,
+    HBNIPosterior,
     MaxOfMeanFilter,
-    StreamingFilter,
+    StaticStateBayesFilter,
     VotingFilter,
     decide,
     make_filter,
+    sample_outputs,
 )
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.posterior import HBNIPosterior
-from hbni_pyro.validation import OUTPUT_FLOOR
+from hbni_pyro.filters import StreamingFilter
 
 from hbni_stubs import DT, THETA, DrawsPosterior
 

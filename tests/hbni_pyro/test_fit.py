@@ -5,7 +5,7 @@ import torch
 
 import hbni_pyro
 from hbni_infra.stats import monte_carlo_z
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 from known_models import CLASSES, THETA, toy_obs
 from nuts_references import load_reference
 

@@ -17,8 +17,7 @@ import torch
 from torch import Tensor
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.variants import model_names
+from hbni_pyro import model_names, sample_outputs
 
 cuda = pytest.mark.cuda
 needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
@@ -199,11 +198,11 @@ def test_macro_observations_on_cpu(posterior):
 
 def test_posterior_check_on_cpu(posterior, data):
     n = 30
-    result = hbni_pyro.check(
+    result = hbni_pyro.predictive_check(
         posterior, data["obs"][:n], data["classes"][:n], data["ids"][:n], simulations=2, max_frames=4
     )
     assert _on("cpu", result) and result.p_values
-    unlabelled = hbni_pyro.check(posterior, data["obs"][:n], None, data["ids"][:n], simulations=2)
+    unlabelled = hbni_pyro.predictive_check(posterior, data["obs"][:n], None, data["ids"][:n], simulations=2)
     assert _on("cpu", unlabelled)
 
 
@@ -256,5 +255,5 @@ def test_macro_observations_and_checks_on_cuda(posterior, data):
     assert _on("cpu", model.outcomes())
     streams = gpu.sample_streams(1, 2, 4, seed=1)
     assert process.run(streams[0]).frames_used >= 1 and _on("cuda", process.run_batch(streams))
-    result = hbni_pyro.check(gpu, data["obs"][:30], data["classes"][:30], data["ids"][:30], simulations=2)
+    result = hbni_pyro.predictive_check(gpu, data["obs"][:30], data["classes"][:30], data["ids"][:30], simulations=2)
     assert _on("cpu", result)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from hbni_pyro.density import lifted_normaliser
-from hbni_pyro.kernels.class_move_numba import class_move_stats
-from hbni_pyro.kernels.mh_steps import MHState, frame_data, sufficient_stats, update_classes
+from hbni_pyro.distributions import lifted_normaliser
+from hbni_pyro.mcmc import MHState, frame_data, sufficient_stats, update_classes
+from hbni_pyro.mcmc.class_move_numba import class_move_stats
 
 M, N, CHAINS, STEPS = 3, 4, 20000, 40
 OBS = torch.tensor([[0.7, 0.2, 0.1], [0.1, 0.3, 0.6], [0.34, 0.33, 0.33], [0.05, 0.9, 0.05]], dtype=torch.float64)
@@ -90,7 +90,7 @@ def test_compiled_move_is_seeded() -> None:
 
 def test_frame_move_is_the_same_for_either_storage_of_the_classes() -> None:
     """The kernel's classes are stored outputs-major; classes stored chains-major get the same move, in place."""
-    from hbni_pyro.kernels.mh import FrameData
+    from hbni_pyro.mcmc import FrameData
 
     frames = FrameData(OBS.unsqueeze(0), None, LOG_PRIOR)
     start = torch.from_numpy(np.random.default_rng(2).integers(0, M, (1, 6, N)))

@@ -8,10 +8,14 @@ import torch
 from scipy.optimize import minimize_scalar
 from sklearn.linear_model import LogisticRegression
 
-from hbni_pyro.filters import StaticStateBayesFilter, make_filter
-from hbni_pyro.frame_calibration import FrameCalibration, fit_frame_calibration
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.temper import fit_temper
+from hbni_pyro import (
+    FrameCalibration,
+    StaticStateBayesFilter,
+    fit_frame_calibration,
+    fit_temper,
+    make_filter,
+    sample_outputs,
+)
 
 THETA = torch.tensor([1.0, 3.0, 6.0], dtype=torch.float64)
 

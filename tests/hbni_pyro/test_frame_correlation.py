@@ -8,11 +8,11 @@ import pytest
 import torch
 
 import hbni_pyro
-import hbni_pyro.frame_correlation as fc
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.density import helmert_basis
-from hbni_pyro.frame_correlation import LIMIT, ar1_normals, estimate_frame_correlation, lag_one_ratio
-from hbni_pyro.generative import sample_outputs, sample_sequences
+import hbni_pyro.models.sequence.correlation as fc
+from hbni_pyro import HBNIPosterior, sample_outputs, sample_sequences
+from hbni_pyro.distributions import helmert_basis
+from hbni_pyro.models import estimate_frame_correlation
+from hbni_pyro.models.sequence.correlation import LIMIT, ar1_normals, lag_one_ratio
 
 D = torch.float64
 
@@ -95,7 +95,7 @@ def test_estimate_uses_time_order_within_interleaved_sequences_and_skips_short_o
 def test_evidence_kept_per_count_gives_the_same_bits_as_computed_afresh():
     """Look variances are kept per frame count: a warm evidence, a fresh one, rows of one count and rows of mixed
     counts (computed without the kept variances) give identical values."""
-    from hbni_pyro.evidence import SequenceEvidence
+    from hbni_pyro.models import SequenceEvidence
 
     g = torch.Generator().manual_seed(5)
     obs = torch.softmax(2 * torch.randn(12, 6, 3, generator=g, dtype=D), -1)
@@ -224,7 +224,7 @@ def _two_draws() -> dict[str, torch.Tensor]:
 @pytest.mark.parametrize("rho", [0.0, 0.6, -0.3])
 def test_lagged_evidence_is_the_joint_gaussian_of_ar1_frames(rho):
     """``log mean_s N(y_1:n; 1 loc_c, 1 1^T between_c + R(rho) within)`` for every class, by brute force."""
-    from hbni_pyro.evidence import SequenceEvidence
+    from hbni_pyro.models import SequenceEvidence
 
     draws = _two_draws()
     evidence = SequenceEvidence(draws, correlation=rho)

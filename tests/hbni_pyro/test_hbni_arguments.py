@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 THETA = torch.tensor([1.0, 6.0, 20.0], dtype=torch.float64)
 

@@ -8,8 +8,8 @@ import torch
 
 import hbni_pyro
 from decpomdp import ControllerExecutor, JointController
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.live import live_macro_observations, observation_names
+from hbni_pyro import live_macro_observations, sample_outputs
+from hbni_pyro.runtime import observation_names
 
 NAMES = ("ambulance", "food_crate", "police_car")
 THETA = torch.tensor([3.0, 4.0, 5.0], dtype=torch.float64)

@@ -7,10 +7,18 @@ import math
 import pytest
 import torch
 
-from hbni_pyro.filters import StaticStateBayesFilter, HBNIFilter, MaxOfMeanFilter, VotingFilter, decide
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import MacroObservationModel, MacroObservationProcess, characterize
-from hbni_pyro.posterior import HBNIPosterior
+from hbni_pyro import (
+    HBNIFilter,
+    HBNIPosterior,
+    MacroObservationModel,
+    MacroObservationProcess,
+    MaxOfMeanFilter,
+    StaticStateBayesFilter,
+    VotingFilter,
+    characterize,
+    decide,
+    sample_outputs,
+)
 
 from hbni_stubs import DT, THETA, DrawsPosterior
 

@@ -6,19 +6,11 @@ import pytest
 import torch
 from pyro.infer import MCMC
 
-from hbni_pyro.generative import gamma_variates, sample_outputs
-from hbni_pyro.kernels import HBNIMetropolis
-from hbni_pyro.kernels.mh_steps import (
-    MHState,
-    alias_draw,
-    alias_tables,
-    frame_data,
-    update_classes,
-    update_hyper,
-    update_theta,
-)
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.validation import as_outputs
+from hbni_pyro import HBNIMetropolis, HyperPrior, as_outputs, sample_outputs
+from hbni_pyro.distributions import gamma_variates
+from hbni_pyro.mcmc import MHState, alias_draw, alias_tables, frame_data, update_classes
+from hbni_pyro.mcmc import update_hyper
+from hbni_pyro.models.paper.steps import update_theta
 
 
 def _toy_obs(seed=0):
@@ -61,7 +53,7 @@ def test_unlabelled_chains_agree(seed):
     of these seeds settled at near-uniform classes and theta near 0 (split R-hat of theta 13); every chain now
     starts its classes at each output's largest entry and all of them find the one posterior mode."""
     import hbni_pyro
-    from hbni_pyro.posterior import HBNIPosterior
+    from hbni_pyro import HBNIPosterior
 
     g = torch.Generator().manual_seed(0)
     theta = torch.linspace(1.0, 20.0, 10, dtype=torch.float64)

@@ -8,8 +8,7 @@ import torch
 from pyro import poutine
 from pyro.infer import TraceEnum_ELBO
 
-from hbni_pyro.density import gamma_log_prob
-from hbni_pyro.model import HyperPrior, hbni_model, log_joint
+from hbni_pyro import HyperPrior, gamma_log_prob, hbni_model, log_joint
 
 HP = HyperPrior()
 

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.variants import NOISE_MODELS, model_names, noise_model, register, unregister
+from hbni_pyro import NOISE_MODELS, model_names, noise_model, register, sample_outputs
+from hbni_pyro.models import unregister
 import toy_variant
 
 DT = torch.float64
@@ -68,7 +68,7 @@ def test_a_registered_variant_fits_stores_filters_and_predicts_as_its_own(frozen
 
 
 def test_a_variant_without_sbc_parts_says_so(frozen):
-    from hbni_pyro.sbc import run_sbc
+    from hbni_pyro import run_sbc
 
     with pytest.raises(ValueError, match="'frozen' noise model has no draw_prior"):
         run_sbc("frozen", 2)

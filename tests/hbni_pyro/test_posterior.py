@@ -7,8 +7,7 @@ import torch
 from safetensors.torch import save_file
 
 import hbni_pyro
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import HBNIPosterior, sample_outputs
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 

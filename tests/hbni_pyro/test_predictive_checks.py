@@ -10,9 +10,8 @@ import torch
 from hbni_stubs import DT, THETA
 
 import hbni_pyro
-from hbni_pyro.checks import CheckResult
-from hbni_pyro.generative import sample_dirichlet, sample_outputs
-from hbni_pyro.testing import assert_check_fails, assert_check_passes
+from hbni_pyro import PredictiveCheck, sample_dirichlet, sample_outputs
+from hbni_pyro.diagnostics import assert_predictive_check_fails, assert_predictive_check_passes
 
 STREAMS, FRAMES = 30, 6  # held-out streams per class, frames per stream
 ALPHA = 0.01  # family-wise: a right model fails one seed in 100 at most (Bonferroni over the tests)
@@ -64,18 +63,20 @@ def test_the_check_passes_on_outputs_from_the_posterior(posterior):
     """Seeds 0..2: each fails with probability <= ALPHA, all three pass but with probability >= 0.97."""
     for seed in range(3):
         outputs, labels, ids = held_out(predictive(posterior), seed)
-        result = assert_check_passes(posterior, outputs, labels, ids, alpha=ALPHA, seed=seed)
+        result = assert_predictive_check_passes(posterior, outputs, labels, ids, alpha=ALPHA, seed=seed)
         assert result.labelled and [row["class"] for row in result.table] == ["0", "1", "2"]
         assert len(result.p_values) == 3 * 5
-        assert_check_passes(posterior, outputs, None, ids, alpha=ALPHA, seed=seed)
+        assert_predictive_check_passes(posterior, outputs, None, ids, alpha=ALPHA, seed=seed)
 
 
 def test_the_check_fails_on_much_noisier_outputs(paper):
     noisier = lambda c, n, frames, g: sample_outputs(THETA / 5, torch.full((n, frames), c), g)  # noqa: E731
     outputs, labels, ids = held_out(noisier, 0)
-    result = assert_check_fails(paper, outputs, labels, ids, alpha=ALPHA)
+    result = assert_predictive_check_fails(paper, outputs, labels, ids, alpha=ALPHA)
     assert result.p_values["1: emitted"] < 1e-6 and result.table[1]["emitted_accuracy"] < 0.9
-    unlabelled = assert_check_fails(paper, outputs, None, ids, alpha=ALPHA)  # frames to threshold alone give it away
+    unlabelled = assert_predictive_check_fails(
+        paper, outputs, None, ids, alpha=ALPHA
+    )  # frames to threshold alone give it away
     assert not unlabelled.labelled and list(unlabelled.p_values) == ["all: timeouts", "all: frames", "all: confidence"]
 
 
@@ -88,29 +89,32 @@ def test_the_check_fails_on_correlated_frames_fitted_as_independent(paper):
         return (look.log() + sample_dirichlet(torch.full((n, frames, 3), 50.0, dtype=DT), g).log()).softmax(-1)
 
     outputs, labels, ids = held_out(correlated, 0)
-    result = assert_check_fails(paper, outputs, labels, ids, alpha=ALPHA, threshold=0.999)
+    result = assert_predictive_check_fails(paper, outputs, labels, ids, alpha=ALPHA, threshold=0.999)
     assert {"1: timeouts", "1: calibration"} <= set(result.failures(ALPHA))
     assert result.table[1]["timeout_rate"] > 10 * result.table[1]["predicted_timeout_rate"]
 
 
 def test_one_frame_units_without_sequence_ids(paper):
     outputs, labels, _ = held_out(predictive(paper), 1)
-    result = assert_check_passes(paper, outputs, labels, alpha=ALPHA)
+    result = assert_predictive_check_passes(paper, outputs, labels, alpha=ALPHA)
     assert [row["streams"] for row in result.table] == [STREAMS * FRAMES] * 3
     assert (result.frames["observed"] == 1).all() and result.table[0]["p_frames"] == 1.0
 
 
 def test_the_check_is_seeded(paper):
     outputs, labels, ids = held_out(predictive(paper), 2)
-    a, b = hbni_pyro.check(paper, outputs, labels, ids, seed=5), hbni_pyro.check(paper, outputs, labels, ids, seed=5)
-    assert a.p_values == b.p_values and isinstance(a, CheckResult)
-    assert hbni_pyro.check(paper, outputs, labels, ids, seed=6).p_values != a.p_values
+    a, b = (
+        hbni_pyro.predictive_check(paper, outputs, labels, ids, seed=5),
+        hbni_pyro.predictive_check(paper, outputs, labels, ids, seed=5),
+    )
+    assert a.p_values == b.p_values and isinstance(a, PredictiveCheck)
+    assert hbni_pyro.predictive_check(paper, outputs, labels, ids, seed=6).p_values != a.p_values
 
 
 def test_figure_is_written(paper, tmp_path):
     outputs, labels, ids = held_out(predictive(paper), 3)
     for labelled in (labels, None):
-        result = hbni_pyro.check(paper, outputs, labelled, ids, max_frames=4)
+        result = hbni_pyro.predictive_check(paper, outputs, labelled, ids, max_frames=4)
         fig = result.figure()
         assert len(fig.axes) == (2 if labelled is not None else 1)
         path = result.save_figure(tmp_path / f"check_{labelled is None}.png")
@@ -140,24 +144,24 @@ def test_argument_errors_name_the_argument(paper):
     for kwargs, error, match in cases:
         args = dict(outputs=outputs, labels=labels, sequence_ids=ids) | kwargs
         with pytest.raises(error, match=match):
-            hbni_pyro.check(paper, args.pop("outputs"), args.pop("labels"), args.pop("sequence_ids"), **args)
+            hbni_pyro.predictive_check(paper, args.pop("outputs"), args.pop("labels"), args.pop("sequence_ids"), **args)
     with pytest.raises(ValueError, match="alpha"):
-        hbni_pyro.check(paper, outputs, labels, ids).passed(0.0)
+        hbni_pyro.predictive_check(paper, outputs, labels, ids).passed(0.0)
 
 
 def test_false_alarms_at_most_alpha_over_seeds(paper):
     """12 held-out sets from the posterior at alpha 0.1: Bonferroni bounds each false alarm's probability by 0.1,
     so 5 or more of 12 has probability < 0.005."""
     alarms = sum(
-        not hbni_pyro.check(paper, *held_out(predictive(paper), 100 + seed), seed=seed).passed(0.1)
+        not hbni_pyro.predictive_check(paper, *held_out(predictive(paper), 100 + seed), seed=seed).passed(0.1)
         for seed in range(12)
     )
     assert alarms <= 4
 
 
 def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
-    """Each Python block of docs/checks.md runs alone in a fresh interpreter."""
-    blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "checks.md").read_text(), re.S)
+    """Each Python block of docs/predictive_checks.md runs alone in a fresh interpreter."""
+    blocks = re.findall(r"```python\n(.*?)```", (repo_root / "docs" / "predictive_checks.md").read_text(), re.S)
     assert len(blocks) == 2
     for block in blocks:
         proc = subprocess.run(
@@ -168,7 +172,9 @@ def test_docs_python_blocks_run_as_written(repo_root, tmp_path):
             env=os.environ | {"PYTHONPATH": str(repo_root)},
             timeout=300,
         )
-        assert proc.returncode == 0, f"this block of docs/checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
+        assert proc.returncode == 0, (
+            f"this block of docs/predictive_checks.md fails alone:\n{block}\n{proc.stderr[-3000:]}"
+        )
     assert (tmp_path / "check.png").stat().st_size > 1000
 
 
@@ -179,8 +185,8 @@ def test_sequences_of_different_lengths_in_any_order(paper):
     outputs = torch.cat([short.reshape(-1, 3), long.reshape(-1, 3)])
     ids = torch.cat([torch.arange(0, 40, 2).repeat_interleave(2), torch.arange(1, 40, 2).repeat_interleave(7)])
     labels = torch.cat([torch.zeros(40, dtype=torch.long), torch.full((140,), 2)])
-    result = assert_check_passes(paper, outputs, labels, ids, alpha=ALPHA, max_frames=5)
+    result = assert_predictive_check_passes(paper, outputs, labels, ids, alpha=ALPHA, max_frames=5)
     assert [(row["class"], row["streams"]) for row in result.table] == [("0", 20), ("2", 20)]
     assert result.frames["observed"].max() <= 5 and len(result.frames["predicted"]) == 40 * 20
     named = hbni_pyro.HBNIPosterior(paper.samples, paper.class_prior, class_names=("cat", "dog", "owl"))
-    assert [row["class"] for row in hbni_pyro.check(named, outputs, labels, ids).table] == ["cat", "owl"]
+    assert [row["class"] for row in hbni_pyro.predictive_check(named, outputs, labels, ids).table] == ["cat", "owl"]

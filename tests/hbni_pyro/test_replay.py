@@ -5,7 +5,7 @@ import torch
 
 import hbni_pyro
 from decpomdp import PerceptionModel
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 from hbni_stubs import THETA, DrawsPosterior
 

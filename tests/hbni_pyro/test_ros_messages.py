@@ -8,17 +8,17 @@ import pytest
 import torch
 import yaml
 
-from hbni_pyro.live import Decision, LiveMacroObservation
-from hbni_pyro.ros import (
+from hbni_pyro import LiveMacroObservation, Segment
+from hbni_pyro.runtime import (
     DEFINITIONS,
     TOPICS,
+    Decision,
     MacroObservationBag,
     messages,
     topic_names,
     typestore,
     write_interface_package,
 )
-from hbni_pyro.segments import Segment
 from hbni_infra import ros
 
 CLASSES = ["ambulance", "food_crate", "police_car"]
@@ -118,8 +118,8 @@ def test_the_bag_reads_back_with_the_mcap_ros2_decoder(tmp_path):
     from mcap_ros2.decoder import DecoderFactory
 
     _write(tmp_path / "out")
-    with open(tmp_path / "out" / "out.mcap", "rb") as fh:
-        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+    with open(tmp_path / "out" / "out.mcap", "rb") as fh:  # with its chunk CRCs checked
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()], validate_crcs=True)
         rows = [
             (ch.topic, schema.name, schema.encoding, m.log_time, d)
             for schema, ch, m, d in reader.iter_decoded_messages()

@@ -8,8 +8,7 @@ of statistics). ``benchmarks/bench_sbc.py`` runs the same check with more datase
 
 import pytest
 
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.sbc import run_sbc
+from hbni_pyro import HyperPrior, run_sbc
 
 CASES = {
     # The paper's toy setting: 15 unlabelled outputs per dataset.

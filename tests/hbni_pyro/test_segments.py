@@ -5,7 +5,7 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
+from hbni_pyro import sample_outputs
 
 NAMES = ("ambulance", "food_crate", "police_car")
 THETA = torch.tensor([4.0, 6.0, 8.0], dtype=torch.float64)

@@ -3,9 +3,8 @@
 import pytest
 import torch
 
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.kernels.sequence_mh import SequenceMetropolis
-from hbni_pyro.kernels.sequence_steps import (
+from hbni_pyro import SequenceMetropolis, as_outputs, sample_outputs
+from hbni_pyro.models.sequence.steps import (
     GROUPED_LOOKS,
     between_data,
     class_log_probs,
@@ -16,8 +15,7 @@ from hbni_pyro.kernels.sequence_steps import (
     look_products,
     within_data,
 )
-from hbni_pyro.sequence_model import sequence_stats
-from hbni_pyro.validation import as_outputs
+from hbni_pyro.models import sequence_stats
 
 
 def _kernel(num_classes: int, lengths: list[int], datasets: int, noise: float = 2.0) -> SequenceMetropolis:

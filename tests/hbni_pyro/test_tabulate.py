@@ -4,8 +4,7 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import tabulate
+from hbni_pyro import sample_outputs, tabulate
 
 
 def test_tabulate_counts_by_hand():

@@ -8,9 +8,8 @@ import pytest
 import torch
 
 import hbni_pyro
-from hbni_pyro.filters import HBNIFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.temper import DEFAULT_GRID, fit_temper
+from hbni_pyro import HBNIFilter, fit_temper, sample_outputs
+from hbni_pyro.filters import DEFAULT_GRID
 
 from hbni_stubs import DT, THETA, DrawsPosterior
 

@@ -1,14 +1,12 @@
-"""The assertions of hbni_pyro.testing: they pass on honest processes and models, and fail with the figures."""
+"""The assertions of hbni_pyro.diagnostics.testing: they pass on honest processes and models, and fail with the figures."""
 
 import pytest
 import torch
 from hbni_stubs import THETA, DrawsPosterior
 
 import hbni_pyro
-from hbni_pyro.filters import HBNIFilter, StaticStateBayesFilter
-from hbni_pyro.generative import sample_outputs
-from hbni_pyro.macro import MacroObservationProcess
-from hbni_pyro.testing import assert_calibrated, assert_check_fails, assert_check_passes
+from hbni_pyro import HBNIFilter, MacroObservationProcess, StaticStateBayesFilter, sample_outputs
+from hbni_pyro.diagnostics import assert_calibrated, assert_predictive_check_fails, assert_predictive_check_passes
 
 
 def toy_streams(n=600, frames=10, seed=0, theta=THETA):
@@ -84,13 +82,13 @@ def held_out(posterior, source, streams=30, frames=6, seed=0):
 def test_assert_check_passes_and_fails(posterior):
     own = held_out(posterior, lambda c, n, f, g: posterior.sample_streams(c, n, f, generator=g))
     noisier = held_out(posterior, lambda c, n, f, g: sample_outputs(THETA / 5, torch.full((n, f), c), g))
-    assert assert_check_passes(posterior, *own, alpha=0.01).passed(0.01)
+    assert assert_predictive_check_passes(posterior, *own, alpha=0.01).passed(0.01)
     with pytest.raises(AssertionError, match=r"posterior predictive check passed at alpha 0.01, smallest p-value"):
-        assert_check_fails(posterior, *own, alpha=0.01)
-    assert not assert_check_fails(posterior, *noisier, alpha=0.01).passed(0.01)
+        assert_predictive_check_fails(posterior, *own, alpha=0.01)
+    assert not assert_predictive_check_fails(posterior, *noisier, alpha=0.01).passed(0.01)
     with pytest.raises(
         AssertionError, match=r"check failed at alpha 0.01 \(Bonferroni over 15 tests\): .*1: emitted p="
     ):
-        assert_check_passes(posterior, *noisier, alpha=0.01)
+        assert_predictive_check_passes(posterior, *noisier, alpha=0.01)
     with pytest.raises(ValueError, match="threshold"):
-        assert_check_passes(posterior, *own, threshold=2.0)
+        assert_predictive_check_passes(posterior, *own, threshold=2.0)

@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from hbni_pyro.validation import OUTPUT_FLOOR, SIMPLEX_ATOL, as_class_prior, as_outputs
+from hbni_pyro import OUTPUT_FLOOR, as_outputs
+from hbni_pyro.validation import SIMPLEX_ATOL, as_class_prior
 
 
 def test_exact_zeros_are_floored_and_rows_renormalised():

@@ -6,11 +6,9 @@ import math
 import pytest
 import torch
 
-from hbni_pyro import HBNIPosterior
-from hbni_pyro.density import concentrations
-from hbni_pyro.filters import HBNIFilter
-from hbni_pyro.generative import sample_dirichlet, sample_sequences
-from hbni_pyro.sequence_model import TwoLevelSequence
+from hbni_pyro import HBNIFilter, HBNIPosterior, sample_dirichlet, sample_sequences
+from hbni_pyro.distributions import concentrations
+from hbni_pyro.models.sequence.program import TwoLevelSequence
 
 DT = torch.float64
 M = 3

@@ -11,23 +11,18 @@ from pyro import poutine
 from pyro.infer import MCMC, TraceEnum_ELBO
 
 import hbni_pyro
-from hbni_pyro.confusion_model import (
-    confusion_log_joint,
+from hbni_pyro import (
+    ConfusionMetropolis,
+    HyperPrior,
+    SequenceMetropolis,
     confusion_model,
-    off_diagonal,
-    off_diagonal_values,
-)
-from hbni_pyro.density import concentrations, ilr, ilr_log_jacobian
-from hbni_pyro.generative import sample_dirichlet
-from hbni_pyro.kernels import ConfusionMetropolis, SequenceMetropolis
-from hbni_pyro.model import HyperPrior
-from hbni_pyro.sequence_model import (
-    TwoLevelSequence,
-    sequence_log_joint,
+    sample_dirichlet,
     sequence_model,
-    sequence_prior_log_prob,
-    sequence_stats,
 )
+from hbni_pyro.distributions import concentrations, ilr, ilr_log_jacobian
+from hbni_pyro.models import sequence_stats
+from hbni_pyro.models.confusion.program import confusion_log_joint, off_diagonal, off_diagonal_values
+from hbni_pyro.models.sequence.program import TwoLevelSequence, sequence_log_joint, sequence_prior_log_prob
 from hbni_infra.stats import monte_carlo_z
 from known_models import ALPHA, DT, LOC, confusion_data, confusion_params, sequence_params, sequences
 from nuts_references import load_reference, problems
@@ -270,7 +265,7 @@ def test_confusion_model_stays_with_the_paper_when_confusions_are_uniform():
     """Data from the paper's model (every beta_cj = 1): the shared level is near 0 and the spread small."""
     g = torch.Generator().manual_seed(9)
     classes = torch.arange(3).repeat_interleave(200)
-    obs = hbni_pyro.generative.sample_outputs(torch.tensor([1.0, 6.0, 20.0]), classes, g)
+    obs = hbni_pyro.sample_outputs(torch.tensor([1.0, 6.0, 20.0]), classes, g)
     post = hbni_pyro.fit(
         obs, classes, model="confusion", num_chains=8, num_samples=300, warmup_steps=300, seed=0, progress=False
     )

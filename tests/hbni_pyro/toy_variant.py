@@ -10,11 +10,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbni_pyro.evidence import PaperEvidence
-from hbni_pyro.kernels import HBNIMetropolis
-from hbni_pyro.model import hbni_model
-from hbni_pyro.variants import NoiseModel
-from hbni_pyro.variants import paper
+from hbni_pyro import HBNIMetropolis, NoiseModel, hbni_model
+from hbni_pyro.models import PaperEvidence, paper
 
 
 def sample_streams(draws: dict[str, Tensor], true_class: int, num_frames: int, generator: torch.Generator) -> Tensor:

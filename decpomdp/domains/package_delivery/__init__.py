@@ -1,12 +1,12 @@
 """Package delivery, the reference Dec-POSMDP of the G-DICE paper (Omidshafiei et al., ICRA 2016).
 
 * :mod:`.rules`: the domain's rules and constants (read this to know what the domain does);
-* :mod:`.batched`: :class:`PackageDelivery`, those rules on a batch of rollouts;
+* :mod:`.domain`: :class:`PackageDelivery`, the domain object (those rules on a batch of rollouts);
 * :mod:`.greedy`: a hand-written greedy controller.
 """
 
 from decpomdp.domains.package_delivery import rules
-from decpomdp.domains.package_delivery.batched import PackageDelivery
+from decpomdp.domains.package_delivery.domain import PackageDelivery
 from decpomdp.domains.package_delivery.greedy import greedy_controller
 from decpomdp.domains.package_delivery.rules import (
     NODE_NAMES,

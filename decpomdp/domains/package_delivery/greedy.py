@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from decpomdp.controller import JointController
-from decpomdp.domains.package_delivery.batched import PackageDelivery
+from decpomdp.domains.package_delivery.domain import PackageDelivery
 from decpomdp.domains.package_delivery.rules import (
     ACTION_NAMES,
     GO_B1,

@@ -75,7 +75,7 @@ Per-rollout counters: ``delivered`` (packages delivered right), ``delivered_larg
 
 This module states the rules and holds them for the compiled engine (:func:`start` and
 :func:`complete` below, over lookup tables of the preconditions, durations and drop rewards built from
-:func:`preconditions_hold` and :class:`Rewards`); :mod:`decpomdp.domains.package_delivery.batched`
+:func:`preconditions_hold` and :class:`Rewards`); :mod:`decpomdp.domains.package_delivery.domain`
 runs the same rules on a batch of rollouts in torch, the test oracle of the engine. One rollout's
 state for the engine: team entries ``TEAM`` (the counters, then the package codes waiting at
 Base1 and Base2) and, per robot, ``ROBOT`` (node, load, current MA, whether its preconditions held,
