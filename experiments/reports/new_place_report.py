@@ -129,7 +129,8 @@ def _against_k(
         ax.set_xlabel("K: labelled new-place sequences per class", fontsize=figures.LABEL_SIZE)
         ax.set_title(title, fontsize=figures.LABEL_SIZE)
         ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=8, loc="lower right")
+    handles = {label: h for ax in axes for h, label in zip(*ax.get_legend_handles_labels())}
+    axes[1].legend(handles.values(), handles.keys(), fontsize=8, loc="lower right")
     fig.suptitle(f"A new place ({place}): {what}", fontsize=figures.TITLE_SIZE)
     fig.tight_layout()
     return fig
