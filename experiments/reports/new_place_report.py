@@ -130,9 +130,9 @@ def _against_k(
         ax.set_title(title, fontsize=figures.LABEL_SIZE)
         ax.grid(alpha=0.3)
     handles = {label: h for ax in axes for h, label in zip(*ax.get_legend_handles_labels())}
-    axes[1].legend(handles.values(), handles.keys(), fontsize=8, loc="lower right")
+    fig.legend(handles.values(), handles.keys(), fontsize=8, loc="lower center", ncol=len(handles))
     fig.suptitle(f"A new place ({place}): {what}", fontsize=figures.TITLE_SIZE)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return fig
 
 
