@@ -10,7 +10,8 @@ frames calibrated by :func:`fit_frame_calibration`), the frame-correlation tempe
 macro-observations (:class:`MacroObservationProcess`, :func:`characterize` from the fitted model,
 :func:`tabulate` from recorded streams, :class:`MacroObservationModel`), their calibration
 (:func:`threshold_checks`, :func:`stream_reliability`, the stopping confidence that keeps a promised accuracy:
-:func:`fit_stop_threshold`), posterior predictive checks (:func:`predictive_check`) and simulation-based
+:func:`fit_stop_threshold`; without labels, :func:`fit_stop_unlabelled`), a sequence model adapted to a new place
+from its unlabelled streams there (:func:`adapt`, :class:`ShiftPrior`), posterior predictive checks (:func:`predictive_check`) and simulation-based
 calibration (:func:`run_sbc`), closed-loop perception replaying recorded streams through a process
 (:class:`StreamReplay`), and a live classified stream cut into consecutive macro-observations
 (:func:`macro_observations`, :class:`Segment`; with stamps and a controller: :func:`live_macro_observations`).
@@ -54,18 +55,20 @@ from hbni_pyro.filters import (
     decide,
     fit_frame_calibration,
     fit_stop_threshold,
+    fit_stop_unlabelled,
     fit_temper,
     make_filter,
     tabulate,
     threshold_checks,
 )
-from hbni_pyro.fit import fit, fit_many
+from hbni_pyro.fit import adapt, fit, fit_many
 from hbni_pyro.models import (
     NOISE_MODELS,
     ConfusionMetropolis,
     HBNIMetropolis,
     NoiseModel,
     SequenceMetropolis,
+    ShiftPrior,
     confusion_model,
     hbni_model,
     log_joint,
@@ -88,6 +91,7 @@ from hbni_pyro.validation import OUTPUT_FLOOR, as_outputs
 
 __all__ = [
     "__version__",
+    "adapt",
     "CALIBRATIONS",
     "FILTERS",
     "NOISE_MODELS",
@@ -109,6 +113,7 @@ __all__ = [
     "SBCResult",
     "Segment",
     "SequenceMetropolis",
+    "ShiftPrior",
     "StaticStateBayesFilter",
     "StopFit",
     "StreamReplay",
@@ -124,6 +129,7 @@ __all__ = [
     "fit_frame_calibration",
     "fit_many",
     "fit_stop_threshold",
+    "fit_stop_unlabelled",
     "fit_temper",
     "gamma_log_prob",
     "hbni_model",

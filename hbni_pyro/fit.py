@@ -3,7 +3,11 @@
 ``fit`` fits one dataset; ``fit_many`` fits many same-sized datasets in one vectorised MH
 program (one block of chains per dataset), which is how a study that refits the model on
 dozens of training sets, or a simulation-based calibration, stays fast. ``model`` picks the
-variant (a name of :data:`hbni_pyro.models.NOISE_MODELS`); a sequence model needs ``sequence_ids``.
+variant (a name of :data:`hbni_pyro.models.NOISE_MODELS`); a sequence model needs ``sequence_ids``. ``adapt``
+fits the sequence model again at a new place (other light, weather, camera), on the robot's own streams there,
+labelled or not, with its class looks anchored at a posterior fitted at the old place
+(:class:`~hbni_pyro.models.sequence.shift_prior.ShiftPrior`) and the class mix of the streams learnt; the old
+place's classes name the new clusters, so no new-place label is needed.
 
 MH runs on the device of the data, or of ``device=``: the data, every state tensor and the
 kernel's ``torch.Generator`` live there, and so does the returned posterior. On the CPU the
@@ -29,9 +33,10 @@ from hbni_pyro.distributions.prior import HyperPrior
 from hbni_pyro.models import NoiseModel, noise_model
 from hbni_pyro.models.sequence.correlation import estimate_frame_correlation
 from hbni_pyro.models.sequence.program import SequenceStats, sequence_stats
+from hbni_pyro.models.sequence.shift_prior import ShiftPrior
 from hbni_pyro.posterior.posterior import HBNIPosterior, posterior_from_samples
 from hbni_pyro.validation import DTYPE, as_class_prior, as_labels, as_outputs, as_sequence_ids
-from hbni_infra.checks import SEED_LIMIT, as_device, as_int, as_names, as_seed
+from hbni_infra.checks import SEED_LIMIT, as_device, as_float, as_int, as_names, as_seed
 from hbni_infra.threads import single_thread
 
 METHODS = ("mh", "nuts")
@@ -42,6 +47,8 @@ chain (7-12 CPU s a chain for 200 000 x 10 unlabelled outputs here). NUTS chains
 CPUs."""
 NUTS_SEED_LIMIT = 2**32
 """NUTS seeds Pyro's global streams, NumPy's among them, which take seeds below 2**32 only."""
+DEFAULT_PREVALENCE = 1.0
+"""Concentration of the symmetric Dirichlet prior on the class mix of the new place's sequences (uniform over mixes)."""
 
 
 def fit(
@@ -166,6 +173,79 @@ def fit_many(
     ]
 
 
+def adapt(
+    posterior: HBNIPosterior,
+    obs: Any,
+    labels: Any = None,
+    *,
+    sequence_ids: Any,
+    shift_sd: float = 0.2,
+    prevalence: float | None = DEFAULT_PREVALENCE,
+    num_chains: int = 16,
+    num_samples: int = 500,
+    warmup_steps: int = 500,
+    seed: int = 0,
+    progress: bool = True,
+    hyperprior: HyperPrior | None = None,
+    device: str | torch.device | None = None,
+) -> HBNIPosterior:
+    """The sequence model fitted on a new place's sequences, its class looks anchored at ``posterior``'s.
+
+    Args:
+        posterior: a sequence-model posterior fitted at the old place (its class names name the new one's).
+        obs: ``(N, M)`` classifier outputs at the new place, columns in ``posterior``'s class order.
+        labels: ``(N,)`` true classes, ``-1`` where unknown (``None``: none known); constant within a sequence.
+        sequence_ids: ``(N,)`` each output's sequence, its outputs in time order.
+        shift_sd: how far one class's mean look may move apart from the shared move, per log-ratio coordinate
+            (:class:`~hbni_pyro.models.sequence.shift_prior.ShiftPrior`).
+        prevalence: concentration of the symmetric Dirichlet prior on the class mix of the sequences, which is
+            learnt (its posterior mean and sd are in ``info["sites"]["prevalence"]``); ``None`` fixes it at the
+            posterior's ``class_prior``. The returned posterior's ``class_prior``, which its filter uses, stays
+            ``posterior``'s: the mix a robot meets on its mission is not that of the streams it adapted on.
+        num_chains, num_samples, warmup_steps, seed, progress, hyperprior, device: as for :func:`hbni_pyro.fit`
+            (``hyperprior=None``: ``posterior``'s).
+
+    Returns:
+        An :class:`~hbni_pyro.HBNIPosterior` of the sequence model; its ``info`` records the ``shift_prior`` and
+        the shared move's scale and offset (``info["sites"]``).
+    """
+    if not isinstance(posterior, HBNIPosterior):
+        raise TypeError(f"posterior: expected an HBNIPosterior, got {type(posterior).__name__}")
+    prior = ShiftPrior.from_posterior(posterior, shift_sd=shift_sd)
+    x = as_outputs(obs, posterior.num_classes, min_dim=2)
+    if x.dim() != 2:
+        raise ValueError(f"obs: expected shape (N, M), got {tuple(x.shape)}")
+    y = None if labels is None else as_labels(labels, x.shape[0], x.shape[1])
+    if prevalence is not None:
+        prevalence = as_float("prevalence", prevalence, 0.0, low_open=True, high_open=True)
+    spec = noise_model("sequence")
+    hp = posterior.hyperprior if hyperprior is None else hyperprior
+    hp, p, chains, num_samples, warmup_steps, seed = _check_settings(
+        "mh", num_chains, num_samples, warmup_steps, seed, hp, posterior.class_prior.cpu(), x.shape[1]
+    )
+    where = _fit_device(device, x, "mh")
+    x, y, p = x.to(where), None if y is None else y.to(where), p.to(where)
+    ids = _sequence_ids(spec, sequence_ids, x.shape[0], None if y is None else y.unsqueeze(0), where)
+    options = {"shift_prior": prior, "prevalence": prevalence}
+    fitted = _fit_mh(
+        spec,
+        x.unsqueeze(0),
+        None if y is None else y.unsqueeze(0),
+        ids,
+        chains,
+        num_samples,
+        warmup_steps,
+        seed,
+        progress,
+        hp,
+        p,
+        kernel_options=options,
+    )[0]
+    fitted.info["shift_prior"] = prior.as_dict()
+    fitted.info["prevalence_concentration"] = prevalence
+    return _finish(fitted, spec, posterior.class_names, x, y, ids)
+
+
 def _finish(
     posterior: HBNIPosterior, spec: NoiseModel, names: Any, x: Tensor, y: Tensor | None, ids: Tensor | None
 ) -> HBNIPosterior:
@@ -238,9 +318,14 @@ def _stacked_stats(x: Tensor, y: Tensor | None, ids: Tensor) -> SequenceStats:
     return SequenceStats(*(torch.stack(parts) for parts in zip(*per_set)))
 
 
-def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p) -> list[HBNIPosterior]:
+def _fit_mh(
+    spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, kernel_options=None
+) -> list[HBNIPosterior]:
+    """One vectorised MH run over the ``D`` datasets ``x (D, N, M)``; ``kernel_options`` go to the kernel. Sites in
+    the kernel's ``summary_sites`` are summarised per dataset in the posterior's ``info["sites"]`` (mean and sd over
+    the draws) instead of being kept as draws."""
     D = x.shape[0]
-    kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed)
+    kernel = spec.kernel(num_chains=D * chains, hyperprior=hp, class_prior=p, seed=seed, **(kernel_options or {}))
     mcmc = MCMC(kernel, num_samples=num_samples, warmup_steps=warmup_steps, disable_progbar=not progress)
     args = (_stacked_stats(x, y, ids),) if spec.sequences else (x, y)
     start = time.perf_counter()
@@ -250,6 +335,7 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
         torch.cuda.synchronize(x.device)
     seconds = time.perf_counter() - start
     draws = {k: v[0].transpose(0, 1) for k, v in mcmc.get_samples(group_by_chain=True).items()}
+    summarised = {k: (v := draws.pop(k)).reshape((D, -1) + v.shape[2:]) for k in getattr(kernel, "summary_sites", ())}
     label_probs = kernel.label_probs if ids is None else kernel.label_probs[:, ids]
     diag = kernel.diagnostics()
     info = {
@@ -271,10 +357,15 @@ def _fit_mh(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, 
             hp,
             spec.name,
             label_probs=label_probs[d],
-            info=info,
+            info=dict(info, sites=_site_summaries(summarised, d)) if summarised else info,
         )
         for d in range(D)
     ]
+
+
+def _site_summaries(summarised: dict[str, Tensor], d: int) -> dict[str, dict[str, Any]]:
+    """Dataset ``d``'s mean and sd of each summarised site (``(D, draws, ...)`` tensors), as lists."""
+    return {k: {"mean": v[d].mean(0).tolist(), "sd": v[d].std(0).tolist()} for k, v in summarised.items()}
 
 
 def _fit_nuts(spec, x, y, ids, chains, num_samples, warmup_steps, seed, progress, hp, p, jit) -> HBNIPosterior:

@@ -17,7 +17,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 BLOCKS = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
-DOCS = ("mission", "noise_models", "planner", "dpomdp", "arviz")  # docs/engine.md's domain is tested by tests/decpomdp
+# docs/engine.md's domain is tested by tests/decpomdp
+DOCS = ("mission", "noise_models", "new_place", "planner", "dpomdp", "arviz")
 
 
 def groups(blocks: list[str]) -> list[str]:

@@ -30,6 +30,7 @@ from decpomdp.search import gdice_config
 from experiments.runs.paths import register_resolver
 from experiments.schemas.fields import check_ranges
 from experiments.schemas.mission_study import MISSION_VARIANTS, PLANNING_MODELS, Mission
+from experiments.schemas.new_place_study import NewPlace
 from experiments.schemas.noise_studies import (
     FilteringError,
     HBNIToy,
@@ -70,6 +71,7 @@ SCHEMAS: dict[str, type[Root]] = {
     "mission_full": Mission,
     "stream": Stream,
     "noise_models": NoiseModels,
+    "new_place": NewPlace,
 }
 """Schema of each experiment, by its ``name``."""
 

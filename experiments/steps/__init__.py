@@ -10,6 +10,8 @@
   :mod:`experiments.steps.honesty`: the distribution check and the value test of a planning model;
   :mod:`experiments.steps.execution`: the mission's stage 6, every policy executed in closed loop.
 * :mod:`experiments.steps.condition_outputs`: the noise-model comparison's classifier outputs per imaging condition.
+* :mod:`experiments.steps.place_variants`: the new-place study's filters, each fitted on what it may use;
+  :mod:`experiments.steps.place_photos`: the same filters on photographs under a new camera.
 * :mod:`experiments.steps.annotate`: the annotated frames (video, output bag) and PNG strip of a macro-observation
   stream.
 

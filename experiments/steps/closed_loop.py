@@ -23,6 +23,7 @@ simulation error is neglected.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from statistics import NormalDist
 from typing import Any
@@ -39,6 +40,7 @@ from experiments.reports.scores import beats, ratio
 from experiments.schemas.mission_study import PLANNING_MODELS, BootstrapBlock
 from experiments.steps import honesty
 from experiments.steps.planning import delivery_rates, score
+from hbni_pyro import binomial_stderr
 from hbni_infra.streams import stream_seed, torch_stream
 
 
@@ -148,6 +150,29 @@ def summarise(
         frames = replay.results.frames_used.double()
         out["bank_mean_frames"] = [float(frames[replay.true_class == c].mean()) for c in range(replay.num_classes)]
     return out
+
+
+def held_out_summary(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
+    """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
+    and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
+    emitted labels that are right with its binomial s.e., the share of all its labels that are right (a timeout's
+    too: the label at the budget), its mean frames (a timeout counting the budget) with their s.e., and its timeout
+    rate."""
+    r = replay.results
+    emitted, right = ~r.timed_out, r.label == replay.true_class
+    n, frames = int(emitted.sum()), r.frames_used.double()
+    accuracy = float(right[emitted].double().mean()) if n else float("nan")
+    return {
+        "threshold": threshold,
+        "stop": replay.process.threshold,
+        "streams": len(right),
+        "emitted_accuracy": accuracy,
+        "emitted_stderr": binomial_stderr(accuracy, n),
+        "accuracy": float(right.double().mean()),
+        "mean_frames": float(frames.mean()),
+        "frames_stderr": float(frames.std() / math.sqrt(len(frames))),
+        "timeout_rate": float(r.timed_out.double().mean()),
+    }
 
 
 def acceptance(results: dict[str, dict]) -> dict[str, Any]:

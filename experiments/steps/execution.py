@@ -27,7 +27,6 @@ from experiments.schemas.mission_study import MISSION_VARIANTS, Mission
 from experiments.steps import closed_loop, honesty
 from experiments.steps.on_demand import OnDemandStreams
 from hbni_infra.streams import stream_seed
-from hbni_pyro import binomial_stderr
 
 
 def entry_planning(settings: Mission, name: str) -> str:
@@ -84,7 +83,7 @@ def execute_closed_loop(
             entry = _powered(name, controller, entry, on_pool, processes[variant], more, loop)
         results[name]["executed"] = entry
     for name, replay in on_pool.items():
-        results[name]["held_out_process"] = held_out_summary(replay, settings.mission.threshold)
+        results[name]["held_out_process"] = closed_loop.held_out_summary(replay, settings.mission.threshold)
     return (
         honesty.reliability_figure(
             processes, *closed_loop.as_streams(bank), mission_report.LABELS, settings.mission.threshold
@@ -92,27 +91,6 @@ def execute_closed_loop(
         if processes
         else None
     )
-
-
-def held_out_summary(replay: hbni_pyro.StreamReplay, threshold: float) -> dict[str, Any]:
-    """A variant's process on every held-out stream it ran on in closed loop (characterisation and bank sequences,
-    and any rendered on demand): the promised ``threshold``, the confidence it ``stop``s at, the share of its
-    emitted labels that are right with its binomial s.e., its mean frames (a timeout counting the budget) with
-    their s.e., and its timeout rate."""
-    r = replay.results
-    emitted, right = ~r.timed_out, r.label == replay.true_class
-    n, frames = int(emitted.sum()), r.frames_used.double()
-    accuracy = float(right[emitted].double().mean()) if n else float("nan")
-    return {
-        "threshold": threshold,
-        "stop": replay.process.threshold,
-        "streams": len(right),
-        "emitted_accuracy": accuracy,
-        "emitted_stderr": binomial_stderr(accuracy, n),
-        "mean_frames": float(frames.mean()),
-        "frames_stderr": float(frames.std() / math.sqrt(len(frames))),
-        "timeout_rate": float(r.timed_out.double().mean()),
-    }
 
 
 class _Loop(NamedTuple):

@@ -62,7 +62,7 @@ from experiments.runs.outputs import save_figure, write_report
 from experiments.schemas.mission_study import Mission
 from experiments.steps import closed_loop, honesty
 from experiments.steps.bank import BankBuild, BankSpec
-from experiments.steps.classification import sequence_outputs, train_classifier
+from experiments.steps.classification import sequence_outputs, train_study_classifier
 from experiments.steps.execution import entry_planning, execute_closed_loop
 from experiments.steps.noise import fit_labelled, stop_folds
 from experiments.steps.on_demand import OnDemandStreams
@@ -129,18 +129,7 @@ def run(settings: Mission, run_dir: Path) -> dict:
 def train_perception(settings: Mission, clock: StageClock, run_dir: Path) -> FrameClassifier:
     """Stage 1: the frame classifier, trained on training-condition snapshots (saved as ``classifier``)."""
     clock.start("train", "1/6 training the frame classifier on training-condition snapshots")
-    st = settings.mission
-    clf = train_classifier(
-        settings.classifier,
-        CLASSES,
-        st.train_per_class,
-        st.augment,
-        stream_seed(settings.seed, "train"),
-        settings.progress,
-        settings.study.threads,
-    )
-    save_artifact(run_dir, "classifier", clf)
-    return clf
+    return train_study_classifier(settings, settings.mission, list(CLASSES), run_dir)
 
 
 def start_bank(clf: FrameClassifier, settings: Mission, clock: StageClock, run_dir: Path) -> BankBuild:

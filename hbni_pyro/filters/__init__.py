@@ -7,7 +7,7 @@ macro-observation process and its tables, and when to stop.
 - :mod:`.macro`: the macro-observation process, its table ``P(label, frames | true class)`` and how it is made
   (:func:`characterize` from a generative model, :func:`tabulate` from recorded streams).
 - :mod:`.stopping`: the process at each threshold on labelled streams, and the stopping confidence that keeps a
-  promised accuracy.
+  promised accuracy (on labelled streams, or on unlabelled ones scored by the filter's own posterior).
 """
 
 from hbni_pyro.filters.frame_calibration import CALIBRATIONS, FrameCalibration, fit_frame_calibration
@@ -26,6 +26,7 @@ from hbni_pyro.filters.stopping import (
     binomial_stderr,
     cross_fit,
     fit_stop_threshold,
+    fit_stop_unlabelled,
     threshold_checks,
 )
 from hbni_pyro.filters.streaming import (
@@ -64,6 +65,7 @@ __all__ = [
     "decide",
     "fit_frame_calibration",
     "fit_stop_threshold",
+    "fit_stop_unlabelled",
     "fit_temper",
     "make_filter",
     "tabulate",

@@ -8,6 +8,8 @@ that keeps a promised accuracy.
 - :func:`fit_stop_threshold`: the lowest confidence at which to stop so that the emitted labels are still
   right at least a target share of the time on labelled calibration sequences (a conservative filter stops
   earlier, an overconfident one later); with :func:`cross_fit`, on sequences the filter was not fitted on.
+  :func:`fit_stop_unlabelled` chooses it on unlabelled streams, scored by the filter's own posterior given each
+  whole stream.
 """
 
 from __future__ import annotations
@@ -183,10 +185,7 @@ def fit_stop_threshold(
             )
         where = "" if isinstance(filter, StreamingFilter) else f"filter[{k}]."
         folds[k] = Fold(fold.filter, *labelled_streams(fold.filter, fold.streams, fold.truth, where))
-    low = 1.0 / num_classes
-    grid = [float(t) for t in (DEFAULT_STOPS if grid is None else grid) if float(t) > low]
-    if not grid:
-        raise ValueError(f"grid: expected candidate stops in ({low:g}, 1], got none")
+    grid = _stop_grid(grid, num_classes)
     right, emitted, frames, timeouts, total = (torch.zeros(len(grid), dtype=DTYPE) for _ in range(5))
     for fold in folds:
         checks = threshold_checks(fold.filter, fold.streams, fold.truth, grid, max_frames)
@@ -197,15 +196,80 @@ def fit_stop_threshold(
             frames[i] += row["mean_frames"] * b
             timeouts[i] += row["timeout_rate"] * b
             total[i] += b
+    return _lowest_stop(grid, right, emitted, frames / total, timeouts / total, target, z)
+
+
+def _lowest_stop(
+    grid: list[float], right: Tensor, emitted: Tensor, frames: Tensor, timeouts: Tensor, target: float, z: float
+) -> StopFit:
+    """The :class:`StopFit` of ``right`` of ``emitted`` labels (rounded to counts) per candidate of ``grid``: the
+    lowest candidate whose Wilson lower bound at ``z`` standard errors is at least ``target``, else ``target``."""
     confidence = math.erf(z / math.sqrt(2.0))  # two-sided: the interval's lower end lies z standard errors down
-    lower = [wilson_interval(int(k), int(n), confidence)[0] if n else 0.0 for k, n in zip(right, emitted)]
+    lower = [wilson_interval(round(float(k)), int(n), confidence)[0] if n else 0.0 for k, n in zip(right, emitted)]
     stop = next((t for t, bound in zip(grid, lower) if bound >= target), target)
-    return StopFit(
-        stop,
-        target,
-        grid,
-        (right / emitted).tolist(),
-        lower,
-        (frames / total).tolist(),
-        (timeouts / total).tolist(),
-    )
+    return StopFit(stop, target, grid, (right / emitted).tolist(), lower, frames.tolist(), timeouts.tolist())
+
+
+def fit_stop_unlabelled(
+    filter: StreamingFilter,
+    streams: Tensor,
+    target: float,
+    max_frames: int | None = None,
+    grid: Sequence[float] | None = None,
+    z: float = 1.0,
+    labels: Tensor | None = None,
+) -> StopFit:
+    """:func:`fit_stop_threshold` without labels: the lowest stopping confidence at which the process's emitted
+    labels are right at least ``target`` of the time, each stream's true class standing in by ``filter``'s own
+    posterior after the whole stream ``(B, N, M)``.
+
+    A label emitted after ``n`` frames is right with probability ``q(label)``, where ``q`` is the class posterior
+    given everything the stream shows; the filter's posterior after all ``N`` frames is that ``q`` as far as its
+    model is right, so the mean of ``q(label)`` over the emitted labels estimates their accuracy without a label
+    (an unbiased estimate under a calibrated model, a low one under a conservative model, as the sequence model is
+    on camera frames). ``emitted_accuracy`` in the result is that estimate; the expected number of right labels,
+    rounded, enters the Wilson bound at ``z`` standard errors. Streams should be ones the filter may meet, such as
+    the unlabelled streams a model was adapted on (:func:`hbni_pyro.adapt`), and long enough to tell the classes
+    apart at their end: a stream whose final posterior is unsure weighs its emitted label by that unsureness.
+    ``labels (B,)``, ``-1`` where unknown (``None``: all unknown): a known class stands for itself.
+    """
+    target = as_probability("target", target, allow_zero=False)
+    z = as_float("z", z, 0.0, math.inf, high_open=True)
+    if not isinstance(filter, StreamingFilter):
+        raise TypeError(f"filter: expected a StreamingFilter, got {type(filter).__name__}")
+    streams = torch.as_tensor(streams)
+    if streams.dim() != 3 or streams.shape[0] < 1 or streams.shape[-1] != filter.num_classes:
+        raise ValueError(
+            f"streams: expected (B, N, {filter.num_classes}) outputs with B >= 1, got {tuple(streams.shape)}"
+        )
+    max_frames = streams.shape[1] if max_frames is None else as_int("max_frames", max_frames, minimum=1)
+    grid = _stop_grid(grid, filter.num_classes)
+    full = filter.run(streams)[:, -1]  # (B, M): the posterior given the whole stream
+    if labels is not None:
+        labels = torch.as_tensor(labels)
+        if labels.shape != streams.shape[:1] or labels.is_floating_point() or (labels >= filter.num_classes).any():
+            raise ValueError(
+                f"labels: expected {streams.shape[0]} integer classes below {filter.num_classes} (-1: unknown), "
+                f"got shape {tuple(labels.shape)}"
+            )
+        known = (labels >= 0).to(full.device)
+        one_hot = torch.nn.functional.one_hot(labels.clamp_min(0).to(full.device), filter.num_classes).to(full.dtype)
+        full = torch.where(known.unsqueeze(-1), one_hot, full)
+    process = MacroObservationProcess(filter, max_frames=max_frames)
+    right, emitted, frames, timeouts = (torch.zeros(len(grid), dtype=DTYPE) for _ in range(4))
+    for i, batch in enumerate(process.run_thresholds(streams, grid)):
+        shown = ~batch.timed_out
+        right[i] = full[shown].gather(-1, batch.label[shown].unsqueeze(-1)).sum().cpu()
+        emitted[i] = int(shown.sum())
+        frames[i] = float(batch.frames_used.to(DTYPE).mean())
+        timeouts[i] = float(batch.timed_out.to(DTYPE).mean())
+    return _lowest_stop(grid, right, emitted, frames, timeouts, target, z)
+
+
+def _stop_grid(grid: Sequence[float] | None, num_classes: int) -> list[float]:
+    """The candidate stops of ``grid`` (``None``: :data:`DEFAULT_STOPS`) above ``1 / num_classes``."""
+    low = 1.0 / num_classes
+    grid = [float(t) for t in (DEFAULT_STOPS if grid is None else grid) if float(t) > low]
+    if not grid:
+        raise ValueError(f"grid: expected candidate stops in ({low:g}, 1], got none")
+    return grid

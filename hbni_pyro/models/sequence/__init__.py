@@ -4,7 +4,9 @@ independent, as one :class:`NoiseModel`; its fits take sequence ids.
 Its room holds the Pyro program (:mod:`.program`) with its Wishart priors (:mod:`.wishart`) and look terms
 (:mod:`.looks`), the output sampler (:mod:`.sampler`) with the AR(1) correlation of a camera's frames
 (:mod:`.correlation`), the MH kernel (:mod:`.kernel`, its steps in :mod:`.steps`, compiled in :mod:`.steps_numba`)
-and the filter's evidence (:mod:`.evidence`, compiled in :mod:`.evidence_numba`).
+and the filter's evidence (:mod:`.evidence`, compiled in :mod:`.evidence_numba`). Adapted to a new place, the class
+means' prior is the old place's looks moved together (:mod:`.shift_prior`), with its kernel moves in
+:mod:`.shift_steps`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from hbni_pyro.models.sequence.correlation import estimate_frame_correlation
 from hbni_pyro.models.sequence.evidence import SequenceEvidence
 from hbni_pyro.models.sequence.kernel import SequenceMetropolis
 from hbni_pyro.models.sequence.sampler import sample_sequences
+from hbni_pyro.models.sequence.shift_prior import ShiftPrior
 from hbni_pyro.models.sequence.program import (
     SequenceStats,
     hyper_scales,
@@ -151,6 +154,7 @@ __all__ = [
     "SequenceEvidence",
     "SequenceMetropolis",
     "SequenceStats",
+    "ShiftPrior",
     "estimate_frame_correlation",
     "sample_sequences",
     "sequence_log_joint",

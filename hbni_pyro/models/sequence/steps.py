@@ -78,12 +78,21 @@ def _per_sequence(table: Tensor, c: Tensor) -> Tensor:
     return table.gather(c.dim() - 1, index)
 
 
-def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, generator: torch.Generator) -> Tensor:
+def draw_classes(
+    state: SequenceState,
+    stats: SequenceStats,
+    log_prior: Tensor,
+    generator: torch.Generator,
+    compiled: bool | None = None,
+) -> Tensor:
     """Exact draw of every unknown ``c_k`` from ``p(c_k | frames, params)`` (look integrated out);
-    labelled sequences keep their label and cost nothing."""
+    labelled sequences keep their label and cost nothing. ``compiled`` (default: on the CPU) draws the classes of
+    a fit with unknown ones in a compiled loop (:func:`compiled_classes`), else by batched torch products."""
     labels = stats.labels.expand(state.c.shape)
-    u = torch.rand(state.c.shape + (1,), generator=generator, dtype=state.loc.dtype, device=state.loc.device)
     free = (stats.labels < 0).reshape(-1, stats.labels.shape[-1]).any(0).nonzero().squeeze(-1)
+    if free.numel() and _compiled(compiled, state.loc):
+        return compiled_classes(state, stats, log_prior, generator)
+    u = torch.rand(state.c.shape + (1,), generator=generator, dtype=state.loc.dtype, device=state.loc.device)
     if not free.numel():
         return labels.clone()
     sub = SequenceStats(
@@ -94,6 +103,33 @@ def draw_classes(state: SequenceState, stats: SequenceStats, log_prior: Tensor, 
     c = labels.clone()
     c[..., free] = torch.where(labels[..., free] >= 0, labels[..., free], drawn)
     return c
+
+
+def compiled_classes(
+    state: SequenceState, stats: SequenceStats, log_prior: Tensor, generator: torch.Generator
+) -> Tensor:
+    """:func:`draw_classes` in a compiled loop over chains and sequences
+    (:func:`hbni_pyro.models.sequence.steps_numba.classes`): each sequence's class weights from the look's basis, with the
+    look variances computed once per distinct frame count; uniforms from counter-based streams seeded by
+    ``generator``. The statistics are in the kernel's layout ``(D, 1, K, ...)``, the state ``(D, Cp, ...)``."""
+    batch = state.c.shape[:-1]
+    basis, lam, _ = look_basis(state.between, state.within.unsqueeze(-3))  # (..., M, d, d), (..., M, d)
+    counts, which = torch.unique(stats.count, return_inverse=True)
+    var = lam.unsqueeze(-2) + 1 / counts[:, None]  # (..., M, G, d)
+    basis_loc = (basis @ state.loc.unsqueeze(-1)).squeeze(-1)
+    M = state.loc.shape[-2]
+    drawn = sequence_numba.classes(
+        np.uint64(draw_seed(generator)),
+        _chains_flat(basis, batch, 3),
+        _chains_flat(basis_loc, batch, 2),
+        _chains_flat(1 / var, batch, 3),
+        _chains_flat(var.log().sum(-1), batch, 2),
+        _chains_flat(log_prior.expand(batch + (1, M)).squeeze(-2), batch, 1),
+        np.ascontiguousarray(stats.mean_y.squeeze(1).numpy()),
+        np.ascontiguousarray(which.reshape(-1, which.shape[-1]).numpy()),
+        np.ascontiguousarray(stats.labels.reshape(-1, stats.labels.shape[-1]).numpy()),
+    )
+    return torch.from_numpy(drawn).view(state.c.shape)
 
 
 def _compiled(compiled: bool | None, t: Tensor) -> bool:

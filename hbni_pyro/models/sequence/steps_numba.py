@@ -17,7 +17,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from hbni_infra.counter_random import normal, stream_key  # sets numba's cache directory (hbni_infra.numba_cache) first
+from hbni_infra.counter_random import (
+    normal,
+    stream_key,
+    uniform,
+)  # sets numba's cache directory (hbni_infra.numba_cache) first
 
 
 def normals(key: np.uint64, B: int, K: int, d: int) -> np.ndarray:
@@ -143,4 +147,74 @@ def offset_scatter(mean_y: np.ndarray, look: np.ndarray, count: np.ndarray) -> n
         for i in range(d):
             for j in range(i):
                 out[b, j, i] = out[b, i, j]
+    return out
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def classes(
+    key: np.uint64,
+    basis: np.ndarray,
+    basis_loc: np.ndarray,
+    inv_var: np.ndarray,
+    log_var: np.ndarray,
+    log_prior: np.ndarray,
+    mean_y: np.ndarray,
+    group: np.ndarray,
+    labels: np.ndarray,
+) -> np.ndarray:
+    """Every sequence's class drawn from ``p(c_k = m | frames) ∝ p_m N(ybar_k; m_m, B_m + W / n_k)``, labelled ones kept.
+
+    In the basis ``A_m`` of :func:`hbni_pyro.models.sequence.looks.look_basis` the look's covariance is ``diag(lam_m + 1/n)``, so a
+    class's log weight is ``log p_m - (|A_m ybar_k - A_m m_m|^2_{1/var} + sum log var) / 2`` (the terms that are the same
+    for every class dropped). Chain ``b`` draws one uniform per unknown sequence from the stream keyed by
+    ``(key, b, 0)``.
+
+    Args:
+        basis: ``(B, M, d, d)`` every chain's ``A_m``; basis_loc: ``(B, M, d)`` ``A_m m_m``.
+        inv_var, log_var: ``(B, M, G, d)`` ``1 / (lam_m + 1/n_g)`` and ``(B, M, G)`` the sum of ``log(lam_m + 1/n_g)``
+            for the ``G`` distinct frame counts ``n_g``.
+        log_prior: ``(B, M)``; mean_y: ``(D, K, d)`` each dataset's sequence means (chain ``b`` reads dataset
+            ``b // (B / D)``); group: ``(D, K)`` int64 frame-count group; labels: ``(D, K)`` int64, -1 unknown.
+
+    Returns:
+        ``(B, K)`` int64 classes.
+    """
+    B, M, d = basis_loc.shape
+    D, K = labels.shape
+    per_set = B // D
+    out = np.empty((B, K), dtype=np.int64)
+    rng = np.zeros(1, dtype=np.uint64)
+    weight = np.empty(M)
+    for b in range(B):
+        rng[0] = stream_key(key, b, 0)
+        s = b // per_set
+        for k in range(K):
+            if labels[s, k] >= 0:
+                out[b, k] = labels[s, k]
+                continue
+            g = group[s, k]
+            for m in range(M):
+                quad = 0.0
+                for i in range(d):
+                    acc = -basis_loc[b, m, i]
+                    for j in range(d):
+                        acc += basis[b, m, i, j] * mean_y[s, k, j]
+                    quad += acc * acc * inv_var[b, m, g, i]
+                weight[m] = log_prior[b, m] - 0.5 * (quad + log_var[b, m, g])
+            top = weight[0]  # no infinities under fastmath: start from a weight
+            for m in range(1, M):
+                top = max(top, weight[m])
+            total = 0.0
+            for m in range(M):
+                weight[m] = np.exp(weight[m] - top)
+                total += weight[m]
+            u = uniform(rng) * total
+            chosen = M - 1
+            running = 0.0
+            for m in range(M):
+                running += weight[m]
+                if u < running:
+                    chosen = m
+                    break
+            out[b, k] = chosen
     return out
