@@ -54,7 +54,7 @@ def photo_study(settings: NewPlace, run_dir: Path) -> dict[str, Any]:
             """Outputs ``(per_class[c], F, M)`` of each photograph ``c``'s sequences under ``camera``."""
             s = stream_seed(seed, "photos", part)
             return [
-                torch.stack([clf.predict_proba(photo_sequence(n, F, camera, s, index=i))[:, order] for i in range(k)])
+                torch.stack([clf.proba(photo_sequence(n, F, camera, s, index=i))[:, order] for i in range(k)])
                 for n, k in tqdm(list(zip(PHOTOS, per_class)), desc=f"photos, {part}", disable=not settings.progress)
             ]
 
