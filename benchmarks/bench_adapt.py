@@ -18,6 +18,8 @@ import time
 
 import torch
 
+from hbni_infra.streams import torch_generator
+
 M, FRAMES, STUDY_U, FLOOR_S = 6, 30, 600, 120.0
 MIX = torch.tensor([0.3, 0.22, 0.16, 0.13, 0.11, 0.08])
 
@@ -30,7 +32,7 @@ def places(seed: int = 0) -> tuple:
     from hbni_pyro.models.sequence.program import look_prior_mean
     from hbni_pyro.models.sequence import draw_prior
 
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     old = {k: v[0] for k, v in draw_prior(HyperPrior(), M, 1, g).items()}
     old["loc"] = look_prior_mean(M, 1.5)
     samples = {k: v.expand((1, 1) + v.shape).clone() for k, v in old.items()}

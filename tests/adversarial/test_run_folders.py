@@ -100,8 +100,8 @@ def test_two_runs_started_together_one_runs_and_the_other_is_refused(tmp_path, r
     assert codes == [0, 2], {s: (r.returncode, r.stderr) for s, r in results.items()}
     winner = next(s for s, r in results.items() if r.returncode == 0)
     loser = results[3 - winner]
-    # refused while the winner held the folder (naming it), or once it had completed there
-    assert "in use by a live run (pid " in loser.stderr or "holds a completed run" in loser.stderr, loser.stderr
+    # refused while the winner held the folder (naming it once its lock file does), or once it had completed there
+    assert "in use by a live run (" in loser.stderr or "holds a completed run" in loser.stderr, loser.stderr
     log = (folder / "run.log").read_text()
     assert log.count("writing to") == 1 and f"(seed {winner})" in log
     assert load_run(folder).cfg.seed == winner and not (folder / LOCK).exists()

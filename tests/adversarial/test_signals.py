@@ -178,9 +178,12 @@ import sys, time
 from experiments.runs import signals
 signals.install()
 signals.begin(lambda error: print("marked failed:", error, flush=True))
-print("ready", flush=True)
-while True:  # code that swallows every exception, the stop included
+said = False
+while True:  # code that swallows every exception, the stop included (from before it says it is ready)
     try:
+        if not said:
+            said = True
+            print("ready", flush=True)
         time.sleep(0.05)
     except BaseException:
         pass
